@@ -1,0 +1,1 @@
+"""Stable-baselines3 callbacks for training and evaluating memory policies."""

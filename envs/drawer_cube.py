@@ -1,0 +1,243 @@
+"""DrawerCubeTakeOut-v1: take a cube out of one of three stacked drawers with a Franka Panda."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import numpy as np
+import sapien
+import torch
+from mani_skill.agents.robots.panda.panda import Panda
+from mani_skill.envs.sapien_env import BaseEnv
+from mani_skill.sensors.camera import CameraConfig
+from mani_skill.utils import sapien_utils
+from mani_skill.utils.geometry.rotation_conversions import quaternion_to_axis_angle
+from mani_skill.utils.registration import register_env
+from mani_skill.utils.structs.pose import Pose
+
+from sb3_memret.envs.cabinet import LAYERS, CabinetLayout, build_cabinet, check_layer
+from sb3_memret.rewards import staged_potential
+
+CUBE_HALF_SIZE = 0.02
+IMAGE_SIZE = 224
+
+
+@dataclass
+class DrawerCubeState:
+    """Privileged simulator state for the memory writer and the reward (batched, numpy).
+
+    Only the writer and the reward may read this; controllers see observations only.
+    """
+
+    cube_pos: np.ndarray  # (B, 3)
+    cube_quat: np.ndarray  # (B, 4) wxyz
+    cube_layer: np.ndarray  # (B,) layer the episode placed the cube in (1 = top)
+    layer_boxes: np.ndarray  # (B, 3, 2, 3) per layer: (low, high) corners of the interior
+    drawer_qpos: np.ndarray  # (B, 3) opening of drawers 1..3 in metres
+    grasped: np.ndarray  # (B,) bool: both fingers press on the cube
+    eef_pos: np.ndarray  # (B, 3) tool centre point
+    eef_quat: np.ndarray  # (B, 4) wxyz
+
+    @property
+    def cube_in_layer(self) -> np.ndarray:
+        """(B,) the layer whose interior box holds the cube's centre, 0 if none."""
+        return layer_containing(self.cube_pos, self.layer_boxes)
+
+
+def layer_containing(points: np.ndarray, boxes: np.ndarray) -> np.ndarray:
+    """Index (1-based) of the box containing each point, 0 where none does.
+
+    ``points`` is (B, 3) and ``boxes`` (B, L, 2, 3); boxes of one env never overlap.
+    """
+    inside = np.all((points[:, None] >= boxes[:, :, 0]) & (points[:, None] <= boxes[:, :, 1]), axis=-1)
+    return np.where(inside.any(axis=1), inside.argmax(axis=1) + 1, 0)
+
+
+@register_env("DrawerCubeTakeOut-v1", max_episode_steps=400)
+class DrawerCubeTakeOutEnv(BaseEnv):
+    """
+    **Task Description:**
+    A Franka Panda faces a cabinet of three stacked drawers (layer 1 top, 2 middle, 3 bottom),
+    each with a vertical bar handle graspable from the front. A cube lies inside one drawer;
+    the robot must open that drawer and take the cube out. Which drawer is not observable
+    until it is open, so a policy has to be told (or remember) the layer.
+
+    **Randomizations:**
+    - the cube's layer is uniform over {1, 2, 3} (fix it with ``options={"cube_layer": L}``)
+    - the cube's position in the drawer: 4-9 cm behind the inner front, |y| <= 8 cm
+    - the cube's yaw is uniform in [-pi/6, pi/6]
+    - the arm's joint positions get N(0, ``robot_init_qpos_noise``) noise around the rest pose
+    - all drawers start closed; the cabinet itself never moves
+
+    **Success Conditions:**
+    - the cube's centre is outside every drawer's interior box, and
+    - it is raised above the cabinet top (``lift_height``) or pulled past the cabinet front
+      (``front_margin`` in front of its face).
+
+    **Observations:** ``agent/eef_state`` is the 8-D end-effector state (TCP position and
+    axis-angle in the robot base frame, two gripper joints). ``extra/drawer_opening`` (3) is
+    what a camera sees of the drawers; ``extra/cube_detection`` (8: visible flag, position,
+    wxyz quaternion) is the cube as a camera would see it: zeros while its drawer is closed.
+    With a render backend, ``base_camera`` and ``hand_camera`` give 224x224 RGB images.
+
+    **Action:** 7-D ``pd_ee_delta_pose`` (3 translation, 3 rotation, gripper), sent unmodified.
+    """
+
+    SUPPORTED_ROBOTS = ["panda"]
+    agent: Panda
+
+    def __init__(
+        self,
+        *args: Any,
+        robot_uids: str = "panda",
+        robot_init_qpos_noise: float = 0.02,
+        layout: CabinetLayout | None = None,
+        visible_opening: float = 0.15,
+        lift_height: float | None = None,
+        front_margin: float = 0.05,
+        **kwargs: Any,
+    ):
+        kwargs.setdefault("control_mode", "pd_ee_delta_pose")
+        self.layout = layout or CabinetLayout()
+        self.robot_init_qpos_noise = robot_init_qpos_noise
+        self.visible_opening = visible_opening
+        self.lift_height = self.layout.top_z + 0.02 if lift_height is None else lift_height
+        self.front_margin = front_margin
+        self._cube_layer_np: np.ndarray | None = None
+        super().__init__(*args, robot_uids=robot_uids, **kwargs)
+
+    # ------------------------------------------------------------------ scene
+    @property
+    def _default_sensor_configs(self) -> list[CameraConfig]:
+        base_pose = sapien_utils.look_at(eye=[0.15, 0.45, 0.75], target=[0.65, 0.0, 0.3])
+        wrist_pose = sapien.Pose(p=[0.05, 0.0, 0.02], q=[0.70710678, 0.0, -0.70710678, 0.0])
+        return [
+            CameraConfig("base_camera", base_pose, IMAGE_SIZE, IMAGE_SIZE, np.pi / 2, 0.01, 100),
+            CameraConfig("hand_camera", wrist_pose, IMAGE_SIZE, IMAGE_SIZE, np.pi / 2, 0.01, 100,
+                         mount=self.agent.robot.links_map["panda_hand"]),
+        ]
+
+    @property
+    def _default_human_render_camera_configs(self) -> CameraConfig:
+        pose = sapien_utils.look_at([0.0, 1.0, 0.9], [0.6, 0.0, 0.3])
+        return CameraConfig("render_camera", pose, 512, 512, 1.0, 0.01, 100)
+
+    def _load_agent(self, options: dict) -> None:
+        super()._load_agent(options, sapien.Pose(p=[0.0, 0.0, 0.0]))
+
+    def _load_scene(self, options: dict) -> None:
+        render = self.scene.can_render()
+        ground = self.scene.create_actor_builder()
+        ground.add_plane_collision(sapien.Pose(q=[0.7071068, 0.0, -0.7071068, 0.0]))
+        if render:
+            ground.add_box_visual(sapien.Pose(p=[0, 0, -0.005]), half_size=[3, 3, 0.005],
+                                  material=sapien.render.RenderMaterial(base_color=[0.8, 0.8, 0.8, 1]))
+        ground.initial_pose = sapien.Pose()
+        self.ground = ground.build_static(name="ground")
+        self.cabinet = build_cabinet(self.scene, self.layout)
+        self.drawer_links = [self.cabinet.links_map[f"drawer_{layer}"] for layer in LAYERS]
+
+        cube = self.scene.create_actor_builder()
+        cube.add_box_collision(half_size=[CUBE_HALF_SIZE] * 3)
+        if render:
+            cube.add_box_visual(half_size=[CUBE_HALF_SIZE] * 3,
+                                material=sapien.render.RenderMaterial(base_color=[0.9, 0.1, 0.1, 1]))
+        cube.initial_pose = sapien.Pose(p=[0.0, 0.0, 2.0])
+        self.cube = cube.build(name="cube")
+
+    # ---------------------------------------------------------- episode init
+    def _initialize_episode(self, env_idx: torch.Tensor, options: dict) -> None:
+        b = len(env_idx)
+        with torch.device(self.device):
+            rest = torch.as_tensor(self.agent.keyframes["rest"].qpos, dtype=torch.float32)
+            qpos = rest.repeat(b, 1)
+            qpos[:, :7] += torch.randn(b, 7) * self.robot_init_qpos_noise
+            self.agent.reset(qpos)
+            self.agent.robot.set_pose(sapien.Pose())
+            self.cabinet.set_qpos(torch.zeros(b, len(LAYERS)))
+            self.cabinet.set_qvel(torch.zeros(b, len(LAYERS)))
+
+            layer = options.get("cube_layer")
+            if layer is None:
+                layers = torch.randint(1, len(LAYERS) + 1, (b,))
+            else:
+                layers = torch.full((b,), check_layer(layer), dtype=torch.long)
+            if self._cube_layer_np is None:
+                self._cube_layer_np = np.zeros(self.num_envs, dtype=np.int64)
+            self._cube_layer_np[env_idx.cpu().numpy()] = layers.cpu().numpy()
+
+            lows = torch.as_tensor(np.stack([self.layout.inner_box(int(l))[0] for l in layers]), dtype=torch.float32)
+            pos = lows.clone()
+            pos[:, 0] += CUBE_HALF_SIZE + 0.04 + 0.05 * torch.rand(b)
+            pos[:, 1] = (torch.rand(b) * 2 - 1) * 0.08
+            pos[:, 2] += CUBE_HALF_SIZE + 1e-3
+            yaw = (torch.rand(b) * 2 - 1) * (np.pi / 6)
+            quat = torch.stack([torch.cos(yaw / 2), torch.zeros(b), torch.zeros(b), torch.sin(yaw / 2)], dim=1)
+            self.cube.set_pose(Pose.create_from_pq(pos, quat))
+
+    # ------------------------------------------------------------ evaluation
+    def privileged_state(self) -> DrawerCubeState:
+        """Simulator truth for the memory writer and the reward; never for a controller."""
+        qpos = self.cabinet.get_qpos().cpu().numpy()
+        b = qpos.shape[0]
+        boxes = np.zeros((b, len(LAYERS), 2, 3))
+        for i in range(b):
+            for j, layer in enumerate(LAYERS):
+                boxes[i, j] = np.stack(self.layout.inner_box(layer, float(qpos[i, j])))
+        tcp = self.agent.tcp.pose
+        return DrawerCubeState(
+            cube_pos=self.cube.pose.p.cpu().numpy().astype(np.float64),
+            cube_quat=self.cube.pose.q.cpu().numpy().astype(np.float64),
+            cube_layer=self._cube_layer_np.copy(),
+            layer_boxes=boxes,
+            drawer_qpos=qpos.astype(np.float64),
+            grasped=self.agent.is_grasping(self.cube).cpu().numpy(),
+            eef_pos=tcp.p.cpu().numpy().astype(np.float64),
+            eef_quat=tcp.q.cpu().numpy().astype(np.float64),
+        )
+
+    def evaluate(self) -> dict[str, torch.Tensor]:
+        state = self.privileged_state()
+        in_layer = state.cube_in_layer
+        clear = in_layer == 0
+        raised = state.cube_pos[:, 2] > self.lift_height
+        pulled = state.cube_pos[:, 0] < self.layout.front_x - self.front_margin
+        success = clear & (raised | pulled)
+        phi = staged_potential(state.eef_pos, state.cube_pos, state.grasped, clear, success)
+        as_tensor = lambda a, dtype: torch.as_tensor(a, dtype=dtype, device=self.device)  # noqa: E731
+        return {
+            "success": as_tensor(success, torch.bool),
+            "cube_clear": as_tensor(clear, torch.bool),
+            "cube_in_layer": as_tensor(in_layer, torch.long),
+            "cube_layer": as_tensor(state.cube_layer, torch.long),
+            "grasped": as_tensor(state.grasped, torch.bool),
+            "potential": as_tensor(phi, torch.float32),
+        }
+
+    def compute_dense_reward(self, obs: Any, action: torch.Tensor, info: dict) -> torch.Tensor:
+        """The staged potential itself; the decision env turns it into shaping differences."""
+        return info["potential"]
+
+    def compute_normalized_dense_reward(self, obs: Any, action: torch.Tensor, info: dict) -> torch.Tensor:
+        return info["potential"] / 6.0
+
+    # ---------------------------------------------------------- observations
+    def _get_obs_agent(self) -> dict[str, torch.Tensor]:
+        return {"eef_state": self.eef_state()}
+
+    def eef_state(self) -> torch.Tensor:
+        """(B, 8): TCP position, TCP axis-angle (robot base frame), both finger joints."""
+        tcp = self.agent.robot.pose.inv() * self.agent.tcp.pose
+        gripper = self.agent.robot.get_qpos()[:, -2:]
+        return torch.cat([tcp.p, quaternion_to_axis_angle(tcp.q), gripper], dim=1)
+
+    def _get_obs_extra(self, info: dict) -> dict[str, torch.Tensor]:
+        opening = self.cabinet.get_qpos()
+        in_layer = info["cube_in_layer"]
+        idx = (in_layer - 1).clamp(min=0)
+        drawer_open = opening.gather(1, idx[:, None])[:, 0] >= self.visible_opening
+        visible = (in_layer == 0) | drawer_open
+        pose = torch.cat([self.cube.pose.p, self.cube.pose.q], dim=1)
+        detection = torch.cat([visible[:, None].float(), pose * visible[:, None]], dim=1)
+        return {"drawer_opening": opening, "cube_detection": detection}

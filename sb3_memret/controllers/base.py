@@ -1,0 +1,73 @@
+"""The one interface every frozen low-level policy implements."""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from sb3_memret.prompts import PromptTemplate, parse_prompt
+
+Obs = Mapping[str, Any]
+
+
+@dataclass(frozen=True)
+class ControllerSpec:
+    """What a frozen controller was trained with, checked before it is allowed to act.
+
+    ``action_convention`` names the env control mode its actions are meant for (actions are
+    sent unmodified, so it must match); ``chunk_len`` is the horizon of one ``act`` call;
+    ``needs_images`` says it reads camera images; ``prompt_template`` lists its training
+    prompts' wording.
+    """
+
+    action_convention: str
+    chunk_len: int
+    action_dim: int = 7
+    needs_images: bool = False
+    prompt_template: PromptTemplate = field(default_factory=PromptTemplate)
+
+
+class FrozenController(ABC):
+    """A frozen policy: prompts and observations in, action chunks out, never trained here.
+
+    ``act`` is batched: one call serves every env of a batch. Observations follow the
+    DrawerCubeTakeOut-v1 ``state_dict``/``rgb`` layout with a leading batch dimension.
+    """
+
+    spec: ControllerSpec
+
+    @abstractmethod
+    def reset(self, seeds: Sequence[int]) -> None:
+        """Start a new episode in each of ``len(seeds)`` envs."""
+
+    @abstractmethod
+    def _act(self, obs: Obs, prompts: Sequence[str]) -> np.ndarray:
+        """Return action chunks (B, chunk_len, action_dim) for checked prompts."""
+
+    def act(self, obs: Obs, prompts: Sequence[str]) -> np.ndarray:
+        """Check every prompt against the training template, then predict (B, H, action_dim)."""
+        for prompt in prompts:
+            parse_prompt(prompt, self.spec.prompt_template)
+        chunks = np.asarray(self._act(obs, prompts), dtype=np.float32)
+        expected = (len(prompts), self.spec.chunk_len, self.spec.action_dim)
+        if chunks.shape != expected:
+            raise RuntimeError(f"{type(self).__name__} returned chunks of shape {chunks.shape}, expected {expected}")
+        return chunks
+
+    def check_env(self, env: Any) -> None:
+        """Refuse an env whose action convention or observations do not match this controller."""
+        base = getattr(env, "unwrapped", env)
+        mode = getattr(base, "control_mode", None)
+        if mode != self.spec.action_convention:
+            raise ValueError(
+                f"{type(self).__name__} emits {self.spec.action_convention!r} actions but the env's control "
+                f"mode is {mode!r}; create the env with control_mode={self.spec.action_convention!r}"
+            )
+        if self.spec.needs_images and "rgb" not in str(getattr(base, "obs_mode", "")):
+            raise ValueError(
+                f"{type(self).__name__} needs camera images but the env's obs_mode is {base.obs_mode!r}; "
+                "create it with obs_mode='rgb' and a render backend"
+            )

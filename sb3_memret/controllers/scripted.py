@@ -1,0 +1,295 @@
+"""A scripted frozen controller for DrawerCubeTakeOut-v1 that acts on what its prompt says.
+
+It stands in for a finetuned VLA on a CPU: it reads the target drawer only from the prompt
+(``the cube is in drawer layer 2.``; like the finetuned π0.5 it follows the layer number,
+not the object word), opens the top drawer when no layer is given, and sees the cube only
+once a drawer is open, through the task's camera-like ``cube_detection``. It never reads
+the simulator. At every ``act`` call it re-reads the state and the prompt, so a prompt that
+changes mid-episode changes what it does (it lets go, closes the wrong drawer, and goes to
+the new one).
+
+Each env's progress is a small state machine whose transitions are checked on the observed
+state at every call; within a chunk, motion is predicted with a first-order model of the
+``pd_ee_delta_pose`` arm (measured: the TCP moves ~0.39 of the commanded delta per step).
+"""
+
+from __future__ import annotations
+
+import enum
+from dataclasses import dataclass
+from typing import Any, Sequence
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from sb3_memret.controllers.base import ControllerSpec, FrozenController, Obs
+from sb3_memret.envs.cabinet import LAYERS, CabinetLayout
+from sb3_memret.prompts import PromptTemplate, parse_prompt
+
+# ManiSkill 3.0.1 pd_ee_delta_pose: translation = action * 0.1 m in the base frame; rotation =
+# action * rot_lower (-0.1 rad) as a base-frame rotation, i.e. +1 turns by -0.1 rad.
+POS_SCALE = 0.1
+ROT_SCALE = -0.1
+PLANT_GAIN = 0.39
+OPEN, CLOSE = 1.0, -1.0
+
+R_DOWN = Rotation.from_matrix(np.diag([1.0, -1.0, -1.0]))  # approach -z, fingers along y
+# Handles are grasped from the front, pitched 35 deg down: a level hand would need the
+# Panda's wrist (joint 6) past its limit this close to the base.
+R_HANDLE = Rotation.from_euler("y", np.deg2rad(-35.0)) * R_DOWN
+HANDLE_APPROACH = R_HANDLE.apply([0.0, 0.0, 1.0])
+
+
+class Phase(enum.Enum):
+    REACH_HANDLE = "reach_handle"
+    INSERT = "insert"
+    GRIP_HANDLE = "grip_handle"
+    PULL = "pull"
+    RELEASE = "release"
+    BACK_OFF = "back_off"
+    PUSH_APPROACH = "push_approach"
+    PUSH = "push"
+    RISE = "rise"
+    ABOVE_CUBE = "above_cube"
+    DESCEND = "descend"
+    GRIP_CUBE = "grip_cube"
+    LIFT = "lift"
+    IDLE = "idle"
+
+
+@dataclass
+class Perception:
+    """What one env's observation says, as the controller reads it."""
+
+    tcp_pos: np.ndarray
+    tcp_rot: Rotation
+    finger_width: float
+    opening: np.ndarray
+    cube_visible: bool
+    cube_pos: np.ndarray
+    cube_yaw: float
+
+    @classmethod
+    def from_obs(cls, obs: Obs, i: int) -> "Perception":
+        eef = _np(obs["agent"]["eef_state"])[i]
+        det = _np(obs["extra"]["cube_detection"])[i]
+        cube_rot = Rotation.from_quat(det[[5, 6, 7, 4]]) if det[0] > 0.5 else Rotation.identity()
+        x_axis = cube_rot.as_matrix()[:, 0]
+        yaw = (np.arctan2(x_axis[1], x_axis[0]) + np.pi / 4) % (np.pi / 2) - np.pi / 4
+        return cls(
+            tcp_pos=eef[:3].astype(np.float64),
+            tcp_rot=Rotation.from_rotvec(eef[3:6]),
+            finger_width=float(eef[6] + eef[7]),
+            opening=_np(obs["extra"]["drawer_opening"])[i].astype(np.float64),
+            cube_visible=bool(det[0] > 0.5),
+            cube_pos=det[1:4].astype(np.float64),
+            cube_yaw=float(yaw),
+        )
+
+
+@dataclass
+class _Plan:
+    """One env's progress: the phase, the drawer it is about, how many calls it has lasted."""
+
+    phase: Phase = Phase.REACH_HANDLE
+    layer: int = 1
+    drawer: int = 1
+    calls: int = 0
+
+
+@dataclass(frozen=True)
+class ScriptedGains:
+    """Speeds (m or rad per control step) and tolerances of the scripted motions."""
+
+    free_speed: float = 0.012
+    fine_speed: float = 0.006
+    pull_speed: float = 0.005
+    turn_speed: float = 0.05
+    reach_tol: float = 0.015
+    fine_tol: float = 0.008
+    turn_tol: float = 0.08
+    open_target: float = 0.27
+    phase_timeout_calls: int = 20
+
+
+class ScriptedDrawerController(FrozenController):
+    """Opens the drawer its prompt names, takes the cube out if it sees one there."""
+
+    def __init__(
+        self,
+        layout: CabinetLayout | None = None,
+        chunk_len: int = 32,
+        gains: ScriptedGains | None = None,
+        prompt_template: PromptTemplate | None = None,
+    ):
+        self.layout = layout or CabinetLayout()
+        self.gains = gains or ScriptedGains()
+        self.spec = ControllerSpec(
+            action_convention="pd_ee_delta_pose",
+            chunk_len=chunk_len,
+            prompt_template=prompt_template or PromptTemplate(),
+        )
+        self._plans: list[_Plan] = []
+
+    def reset(self, seeds: Sequence[int]) -> None:
+        self._plans = [_Plan() for _ in seeds]
+
+    def phases(self) -> list[Phase]:
+        """The current phase of every env (for introspection and tests)."""
+        return [p.phase for p in self._plans]
+
+    def _act(self, obs: Obs, prompts: Sequence[str]) -> np.ndarray:
+        if len(self._plans) != len(prompts):
+            raise RuntimeError(f"reset() was called for {len(self._plans)} envs but act() got {len(prompts)} prompts")
+        chunks = []
+        for i, (plan, prompt) in enumerate(zip(self._plans, prompts)):
+            layer = parse_prompt(prompt, self.spec.prompt_template).layer or LAYERS[0]
+            seen = Perception.from_obs(obs, i)
+            if layer != plan.layer:
+                self._retarget(plan, layer)
+            self._advance(plan, seen)
+            chunks.append(self._chunk(plan, seen))
+        return np.stack(chunks)
+
+    # ------------------------------------------------------------ transitions
+    def _retarget(self, plan: _Plan, layer: int) -> None:
+        plan.layer = layer
+        if plan.phase in (Phase.REACH_HANDLE, Phase.INSERT):
+            self._enter(plan, Phase.REACH_HANDLE, drawer=layer)
+        elif plan.phase in (Phase.GRIP_HANDLE, Phase.PULL, Phase.IDLE):
+            self._enter(plan, Phase.RELEASE)
+
+    def _advance(self, plan: _Plan, s: Perception) -> None:
+        """Move through every phase whose goal the observed state already meets."""
+        for _ in range(len(Phase)):
+            nxt = self._transition(plan, s)
+            if nxt is None:
+                break
+            self._enter(plan, *nxt)
+        plan.calls += 1
+        if plan.calls > self.gains.phase_timeout_calls and plan.phase not in (Phase.LIFT, Phase.IDLE):
+            self._enter(plan, Phase.RELEASE)  # stuck: let go and re-decide
+
+    def _transition(self, plan: _Plan, s: Perception) -> tuple[Phase, int] | tuple[Phase] | None:
+        g, d, p = self.gains, plan.drawer, plan.phase
+        handle = self.layout.handle_center(d, s.opening[d - 1])
+        if p is Phase.REACH_HANDLE and s.opening[d - 1] >= g.open_target - 0.02:
+            return (Phase.RELEASE,)
+        if p is Phase.REACH_HANDLE and self._at(s, handle - 0.10 * HANDLE_APPROACH, R_HANDLE, g.reach_tol):
+            return (Phase.INSERT,)
+        if p is Phase.INSERT and self._at(s, handle, R_HANDLE, g.fine_tol):
+            return (Phase.GRIP_HANDLE,)
+        if p is Phase.GRIP_HANDLE and plan.calls > 0:
+            return (Phase.PULL,) if s.finger_width > 0.006 else (Phase.RELEASE,)
+        if p is Phase.PULL:
+            if s.opening[d - 1] >= g.open_target - 0.015 or np.linalg.norm(s.tcp_pos - handle) > 0.04:
+                return (Phase.RELEASE,)
+        if p is Phase.RELEASE and s.finger_width > 0.07:
+            return (Phase.BACK_OFF,)
+        if p is Phase.BACK_OFF and (s.tcp_pos[0] < handle[0] - 0.07 or np.linalg.norm(s.tcp_pos - handle) > 0.12):
+            return self._after_back_off(plan, s)
+        if p is Phase.PUSH_APPROACH and self._at(s, handle - 0.05 * HANDLE_APPROACH, R_HANDLE, g.reach_tol):
+            return (Phase.PUSH,)
+        if p is Phase.PUSH and s.opening[d - 1] < 0.02:
+            return (Phase.BACK_OFF,)
+        if p is Phase.RISE and s.tcp_pos[2] > self._rise_height(d) - 0.02:
+            return (Phase.ABOVE_CUBE,) if s.cube_visible else (Phase.IDLE,)
+        if p is Phase.ABOVE_CUBE and self._at(s, s.cube_pos + [0, 0, 0.12], self._down(s), g.fine_tol + 0.004):
+            return (Phase.DESCEND,)
+        if p is Phase.DESCEND and self._at(s, s.cube_pos, self._down(s), g.fine_tol):
+            return (Phase.GRIP_CUBE,)
+        if p is Phase.GRIP_CUBE and plan.calls > 0:
+            return (Phase.LIFT,) if s.finger_width > 0.03 else (Phase.RELEASE,)
+        if p is Phase.LIFT and s.finger_width < 0.03:
+            return (Phase.RELEASE,)  # dropped it
+        return None
+
+    def _after_back_off(self, plan: _Plan, s: Perception) -> tuple[Phase, int] | tuple[Phase]:
+        """Decide what to do once the hand is clear of the drawers."""
+        g = self.gains
+        if s.cube_visible:
+            return (Phase.RISE, plan.drawer)
+        stray = [layer for layer in LAYERS if layer != plan.layer and s.opening[layer - 1] > 0.03]
+        if stray:
+            return (Phase.PUSH_APPROACH, stray[0])
+        if s.opening[plan.layer - 1] < g.open_target - 0.02:
+            return (Phase.REACH_HANDLE, plan.layer)
+        return (Phase.IDLE,)  # the named drawer is open and holds no cube
+
+    @staticmethod
+    def _enter(plan: _Plan, phase: Phase, drawer: int | None = None) -> None:
+        plan.phase = phase
+        plan.calls = 0
+        if drawer is not None:
+            plan.drawer = drawer
+
+    # ------------------------------------------------------------------ goals
+    def _goal(self, plan: _Plan, s: Perception) -> tuple[np.ndarray, Rotation, float, float]:
+        """(position, orientation, gripper, speed) the current phase steers to."""
+        g, d, p = self.gains, plan.drawer, plan.phase
+        handle = self.layout.handle_center(d, s.opening[d - 1])
+        if p is Phase.REACH_HANDLE:
+            return handle - 0.10 * HANDLE_APPROACH, R_HANDLE, OPEN, g.free_speed
+        if p is Phase.INSERT:
+            return handle, R_HANDLE, OPEN, g.fine_speed
+        if p is Phase.GRIP_HANDLE:
+            return handle, R_HANDLE, CLOSE, g.fine_speed
+        if p is Phase.PULL:
+            return self.layout.handle_center(d, g.open_target + 0.01), R_HANDLE, CLOSE, g.pull_speed
+        if p is Phase.RELEASE:
+            return s.tcp_pos, s.tcp_rot, OPEN, g.fine_speed
+        if p is Phase.BACK_OFF:
+            return s.tcp_pos - 0.09 * HANDLE_APPROACH, s.tcp_rot, OPEN, g.fine_speed
+        if p is Phase.PUSH_APPROACH:
+            return handle - 0.05 * HANDLE_APPROACH, R_HANDLE, CLOSE, g.free_speed
+        if p is Phase.PUSH:
+            return self.layout.handle_center(d, 0.0) - [0.025, 0, 0], R_HANDLE, CLOSE, g.fine_speed
+        if p is Phase.RISE:
+            return np.array([s.tcp_pos[0], 0.0, self._rise_height(d)]), self._down(s), OPEN, g.free_speed
+        if p is Phase.ABOVE_CUBE:
+            return s.cube_pos + [0, 0, 0.12], self._down(s), OPEN, g.free_speed
+        if p is Phase.DESCEND:
+            return s.cube_pos, self._down(s), OPEN, g.fine_speed
+        if p is Phase.GRIP_CUBE:
+            return s.tcp_pos, s.tcp_rot, CLOSE, g.fine_speed
+        if p is Phase.LIFT:
+            lift = np.array([s.tcp_pos[0] - 0.05, s.tcp_pos[1], self._rise_height(d) + 0.05])
+            return lift, s.tcp_rot, CLOSE, g.fine_speed
+        return s.tcp_pos, s.tcp_rot, OPEN, g.fine_speed  # IDLE
+
+    def _rise_height(self, layer: int) -> float:
+        """A TCP height that clears the front and handle of drawer ``layer``."""
+        return self.layout.slot_bottom_z(layer) + self.layout.slot_height + 0.07
+
+    @staticmethod
+    def _down(s: Perception) -> Rotation:
+        return Rotation.from_euler("z", s.cube_yaw) * R_DOWN if s.cube_visible else R_DOWN
+
+    def _at(self, s: Perception, pos: np.ndarray, rot: Rotation, tol: float) -> bool:
+        return bool(
+            np.linalg.norm(s.tcp_pos - pos) < tol
+            and (rot * s.tcp_rot.inv()).magnitude() < self.gains.turn_tol
+        )
+
+    # ----------------------------------------------------------------- chunks
+    def _chunk(self, plan: _Plan, s: Perception) -> np.ndarray:
+        """Actions that steer the predicted TCP to the phase goal, then hold it there."""
+        goal_pos, goal_rot, grip, speed = self._goal(plan, s)
+        pos, rot = s.tcp_pos.copy(), s.tcp_rot
+        chunk = np.zeros((self.spec.chunk_len, self.spec.action_dim))
+        for k in range(self.spec.chunk_len):
+            dp = goal_pos - pos
+            dp *= min(1.0, speed / max(np.linalg.norm(dp), 1e-9))
+            dr = (goal_rot * rot.inv()).as_rotvec()
+            dr *= min(1.0, self.gains.turn_speed / max(np.linalg.norm(dr), 1e-9))
+            a_pos = np.clip(dp / (PLANT_GAIN * POS_SCALE), -1.0, 1.0)
+            a_rot = dr / (PLANT_GAIN * ROT_SCALE)
+            a_rot /= max(1.0, np.linalg.norm(a_rot))
+            chunk[k] = [*a_pos, *a_rot, grip]
+            pos = pos + dp
+            rot = Rotation.from_rotvec(dr) * rot
+        return chunk
+
+
+def _np(x: Any) -> np.ndarray:
+    return x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x)
