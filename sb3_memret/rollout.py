@@ -1,0 +1,98 @@
+"""Run a frozen controller on DrawerCubeTakeOut-v1 under a prompt condition and score it."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Callable, Iterable, Sequence
+
+import gymnasium as gym
+import numpy as np
+
+import sb3_memret.envs  # noqa: F401  (registers DrawerCubeTakeOut-v1)
+from sb3_memret.controllers.base import FrozenController
+from sb3_memret.envs.cabinet import LAYERS, check_layer
+from sb3_memret.prompts import CONDITIONS, condition_prompt
+
+ENV_ID = "DrawerCubeTakeOut-v1"
+DEFAULT_REPLAN_EVERY = 8
+
+
+@dataclass(frozen=True)
+class EpisodeResult:
+    layer: int
+    seed: int
+    success: bool
+    steps: int  # control steps until success, or the episode limit
+
+
+def make_task_env(obs_mode: str = "state_dict", render_backend: str = "none", **kwargs) -> gym.Env:
+    """DrawerCubeTakeOut-v1 as a frozen controller consumes it (CPU physics, no renderer)."""
+    return gym.make(ENV_ID, obs_mode=obs_mode, render_backend=render_backend, **kwargs)
+
+
+def run_episode(
+    env: gym.Env,
+    controller: FrozenController,
+    prompt: str,
+    seed: int,
+    layer: int,
+    replan_every: int = DEFAULT_REPLAN_EVERY,
+) -> EpisodeResult:
+    """One episode: replan every ``replan_every`` steps, execute that prefix of each chunk."""
+    if not 1 <= replan_every <= controller.spec.chunk_len:
+        raise ValueError(f"replan_every must be in [1, {controller.spec.chunk_len}] (the chunk length), got {replan_every}")
+    obs, _ = env.reset(seed=seed, options={"cube_layer": check_layer(layer)})
+    controller.reset([seed])
+    steps = 0
+    while True:
+        chunk = controller.act(obs, [prompt])[0]
+        for action in chunk[:replan_every]:
+            obs, _, terminated, truncated, info = env.step(action)
+            steps += 1
+            if bool(terminated) or bool(truncated):
+                return EpisodeResult(layer, seed, bool(info["success"]), steps)
+
+
+def evaluate_condition(
+    controller: FrozenController,
+    condition: str,
+    episodes: int,
+    layers: Sequence[int] = LAYERS,
+    seed: int = 0,
+    replan_every: int = DEFAULT_REPLAN_EVERY,
+    env: gym.Env | None = None,
+    on_episode: Callable[[EpisodeResult], None] | None = None,
+) -> list[EpisodeResult]:
+    """``episodes`` episodes per layer with the prompt of ``condition``; seeds seed..seed+episodes-1."""
+    if condition not in CONDITIONS:
+        raise ValueError(f"unknown condition {condition!r}; expected one of {list(CONDITIONS)}")
+    if episodes < 1:
+        raise ValueError(f"episodes must be >= 1, got {episodes}")
+    env = env or make_task_env()
+    controller.check_env(env)
+    results = []
+    for layer in layers:
+        prompt = condition_prompt(condition, layer)
+        for k in range(episodes):
+            result = run_episode(env, controller, prompt, seed + k, layer, replan_every)
+            results.append(result)
+            if on_episode is not None:
+                on_episode(result)
+    return results
+
+
+def summarize(results: Iterable[EpisodeResult]) -> dict:
+    """Success rate and median steps-to-success per layer and overall."""
+    results = list(results)
+    summary: dict = {"success": {}, "median_steps_to_success": {}, "episodes": {}}
+    groups = {str(layer): [r for r in results if r.layer == layer] for layer in sorted({r.layer for r in results})}
+    groups["overall"] = results
+    for key, group in groups.items():
+        wins = [r.steps for r in group if r.success]
+        summary["episodes"][key] = len(group)
+        summary["success"][key] = len(wins) / len(group) if group else float("nan")
+        summary["median_steps_to_success"][key] = float(np.median(wins)) if wins else None
+    return summary
+
+
+__all__ = ["EpisodeResult", "evaluate_condition", "make_task_env", "run_episode", "summarize"]

@@ -1,0 +1,65 @@
+import pytest
+
+from sb3_memret.prompts import (
+    INSTRUCTION,
+    HoldingFact,
+    LocationFact,
+    PromptTemplate,
+    build_prompt,
+    condition_prompt,
+    holding_text,
+    location_text,
+    parse_prompt,
+)
+
+
+def test_round_trip_of_instruction_and_memories():
+    prompt = build_prompt(INSTRUCTION, [location_text("cube", 2), holding_text("marker")])
+    assert prompt == "pick out the cube. the cube is in drawer layer 2. the robot is holding the marker."
+    parsed = parse_prompt(prompt)
+    assert parsed.instruction == INSTRUCTION
+    assert parsed.facts == (LocationFact("cube", 2), HoldingFact("marker"))
+    assert parsed.layer == 2
+
+
+def test_layer_follows_first_location_fact_whatever_the_object():
+    assert parse_prompt("pick out the cube. the key is in drawer layer 3.").layer == 3
+    assert parse_prompt("pick out the cube. the robot is holding the key.").layer is None
+    assert parse_prompt(INSTRUCTION).layer is None
+
+
+@pytest.mark.parametrize(
+    "prompt",
+    [
+        "pick out the cube. The cube is in drawer layer 2.",  # capitalised
+        "pick out the cube.  the cube is in drawer layer 2.",  # double space
+        "pick out the cube. the cube is in drawer layer 2",  # no full stop
+        "pick out the cube. the cube is in drawer 2.",  # wording drift
+        "pick out the cube. the cube is in drawer layer 4.",  # no such layer
+        " pick out the cube.",  # leading space
+        "grab the cube.",  # unknown instruction
+        "",
+    ],
+)
+def test_drifted_prompts_are_refused_with_the_offending_text(prompt):
+    with pytest.raises(ValueError) as err:
+        parse_prompt(prompt)
+    assert repr(prompt) in str(err.value) or repr(prompt.strip()) in str(err.value) or "malformed" in str(err.value)
+
+
+def test_template_restricts_accepted_facts():
+    only_locations = PromptTemplate(fact_templates=("the {entity} is in drawer layer {layer}.",))
+    with pytest.raises(ValueError, match="no trained template"):
+        parse_prompt("pick out the cube. the robot is holding the key.", only_locations)
+
+
+def test_condition_prompts():
+    assert condition_prompt("oracle", 3) == "pick out the cube. the cube is in drawer layer 3."
+    assert condition_prompt("none", 2) == INSTRUCTION
+    for layer in (1, 2, 3):
+        wrong = parse_prompt(condition_prompt("wrong", layer)).layer
+        assert wrong is not None and wrong != layer
+    with pytest.raises(ValueError, match="unknown condition 'maybe'"):
+        condition_prompt("maybe", 1)
+    with pytest.raises(ValueError, match="drawer layer must be one of"):
+        condition_prompt("oracle", 0)

@@ -1,0 +1,43 @@
+import numpy as np
+import pytest
+
+from sb3_memret.rewards import PHI_MAX, shaped_reward, staged_potential
+
+ORIGIN = np.zeros((1, 3))
+
+
+def phi(distance, grasped=False, clear=False, success=False):
+    return float(staged_potential(ORIGIN, np.array([[distance, 0, 0]]), [grasped], [clear], [success])[0])
+
+
+def test_reach_term_is_one_at_contact_and_decays():
+    assert phi(0.0) == pytest.approx(1.0)
+    assert phi(0.2) == pytest.approx(1 - np.tanh(1.0))
+    assert phi(0.05) > phi(0.1) > phi(0.5) > 0
+
+
+def test_stages_are_ordered_and_success_is_max():
+    reach, grasp, clear, done = phi(0.0), phi(0.0, grasped=True), phi(0.0, grasped=True, clear=True), phi(1.0, success=True)
+    assert reach <= 1.0 < 2.0 <= grasp <= 3.0 < 4.0 <= clear <= 5.0 < done == PHI_MAX
+    # any grasped state beats any reaching state, whatever the distance
+    assert phi(1.0, grasped=True) > phi(0.0)
+
+
+def test_potential_is_batched():
+    eef = np.zeros((4, 3))
+    cube = np.tile([[0.1, 0, 0]], (4, 1))
+    out = staged_potential(eef, cube, [0, 1, 1, 0], [0, 0, 1, 0], [0, 0, 0, 1])
+    assert out.shape == (4,)
+    assert np.all(np.diff(out) > 0)
+
+
+def test_shaping_is_potential_difference():
+    assert shaped_reward(np.array([1.0]), np.array([2.0]), 0.97)[0] == pytest.approx(0.97 * 2 - 1)
+    # a closed loop of states earns (gamma-discounted) nothing extra when gamma = 1
+    path = np.array([0.1, 2.5, 4.2, 0.1])
+    assert shaped_reward(path[:-1], path[1:], 1.0).sum() == pytest.approx(0.0)
+
+
+def test_bad_gamma_is_refused():
+    with pytest.raises(ValueError, match="gamma"):
+        shaped_reward(np.zeros(1), np.zeros(1), 1.5)

@@ -1,0 +1,107 @@
+"""The scripted frozen controller on the real simulator."""
+
+import gymnasium as gym
+import numpy as np
+import pytest
+
+from sb3_memret.controllers import ScriptedDrawerController, make_controller
+from sb3_memret.controllers.scripted import Phase
+from sb3_memret.envs.cabinet import LAYERS
+from sb3_memret.prompts import condition_prompt
+from sb3_memret.rollout import make_task_env, run_episode
+
+
+@pytest.fixture(scope="module")
+def controller():
+    return ScriptedDrawerController()
+
+
+@pytest.mark.parametrize("layer", LAYERS)
+def test_oracle_prompt_takes_cube_out_of_each_layer(task_env, controller, layer):
+    result = run_episode(task_env, controller, condition_prompt("oracle", layer), seed=11, layer=layer)
+    assert result.success
+    assert result.steps < 300
+
+
+@pytest.mark.parametrize("layer", [2, 3])
+def test_wrong_layer_prompt_fails(task_env, controller, layer):
+    result = run_episode(task_env, controller, condition_prompt("wrong", layer), seed=12, layer=layer)
+    assert not result.success
+    assert controller.phases() == [Phase.IDLE]  # opened the named drawer, saw no cube, stopped
+
+
+def test_no_memory_prompt_opens_top_drawer(task_env, controller):
+    assert run_episode(task_env, controller, condition_prompt("none", 1), seed=13, layer=1).success
+    assert not run_episode(task_env, controller, condition_prompt("none", 2), seed=13, layer=2).success
+    assert task_env.unwrapped.privileged_state().drawer_qpos[0, 0] > 0.2  # it opened layer 1
+
+
+def test_prompt_changed_mid_episode_changes_behaviour(controller):
+    env = make_task_env(max_episode_steps=700)
+    obs, _ = env.reset(seed=5, options={"cube_layer": 2})
+    controller.reset([5])
+    info = {}
+    for step in range(0, 700, 8):
+        prompt = condition_prompt("oracle", 1 if step < 200 else 2)  # wrong memory, then the true one
+        for action in controller.act(obs, [prompt])[0][:8]:
+            obs, _, terminated, truncated, info = env.step(action)
+        if step == 192:
+            assert obs["extra"]["drawer_opening"][0, 0] > 0.2  # it had opened the top drawer
+        if terminated or truncated:
+            break
+    assert info["success"].item()
+    opening = obs["extra"]["drawer_opening"][0].numpy()
+    assert opening[0] < 0.03 and opening[1] > 0.2  # closed the wrong drawer, opened the right one
+    env.close()
+
+
+def test_controller_cannot_see_the_cube_layer():
+    """Same observation, different hidden layer: identical actions until a drawer shows the cube."""
+    chunks = []
+    for layer in (2, 3):
+        env = make_task_env(robot_init_qpos_noise=0.0)
+        obs, _ = env.reset(seed=21, options={"cube_layer": layer})
+        ctrl = ScriptedDrawerController()
+        ctrl.reset([21])
+        chunks.append(ctrl.act(obs, ["pick out the cube."]))
+        env.close()
+    np.testing.assert_array_equal(chunks[0], chunks[1])
+
+
+def test_chunks_are_batched_and_bounded(task_env, controller):
+    obs, _ = task_env.reset(seed=0, options={"cube_layer": 1})
+    batch = {k: {kk: vv.repeat(3, *[1] * (vv.ndim - 1)) for kk, vv in v.items()} for k, v in obs.items()}
+    controller.reset([0, 1, 2])
+    prompts = [condition_prompt("oracle", layer) for layer in LAYERS]
+    chunks = controller.act(batch, prompts)
+    assert chunks.shape == (3, controller.spec.chunk_len, 7)
+    assert np.all(np.abs(chunks) <= 1.0 + 1e-6)
+    assert not np.allclose(chunks[0], chunks[2])  # different layers, different motion
+
+
+def test_malformed_prompt_is_refused(task_env, controller):
+    obs, _ = task_env.reset(seed=0)
+    controller.reset([0])
+    with pytest.raises(ValueError, match="matches no trained template"):
+        controller.act(obs, ["pick out the cube. the cube is in the second drawer."])
+    with pytest.raises(ValueError, match="malformed prompt"):
+        controller.act(obs, ["Pick out the cube"])
+
+
+def test_batch_size_must_match_reset(task_env, controller):
+    obs, _ = task_env.reset(seed=0)
+    controller.reset([0, 1])
+    with pytest.raises(RuntimeError, match="reset\\(\\) was called for 2 envs"):
+        controller.act(obs, ["pick out the cube."])
+
+
+def test_mismatched_action_convention_is_refused(controller):
+    env = gym.make("DrawerCubeTakeOut-v1", obs_mode="state_dict", render_backend="none", control_mode="pd_joint_delta_pos")
+    with pytest.raises(ValueError, match="'pd_ee_delta_pose' actions but the env's control mode is 'pd_joint_delta_pos'"):
+        controller.check_env(env)
+    env.close()
+
+
+def test_unknown_controller_spec_is_refused():
+    with pytest.raises(ValueError, match="unknown controller 'pi0'"):
+        make_controller("pi0")
