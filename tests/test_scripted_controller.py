@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 
 from sb3_memret.controllers import ScriptedDrawerController, make_controller
-from sb3_memret.controllers.scripted import Phase
+from sb3_memret.controllers.scripted import PLANT_GAIN, POS_SCALE, ROT_SCALE, Perception, Phase
 from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.prompts import condition_prompt
 from sb3_memret.rollout import make_task_env, run_episode
@@ -105,3 +105,21 @@ def test_mismatched_action_convention_is_refused(controller):
 def test_unknown_controller_spec_is_refused():
     with pytest.raises(ValueError, match="unknown controller 'pi0'"):
         make_controller("pi0")
+
+
+def test_action_convention_matches_the_simulator(task_env):
+    """The controller's model of pd_ee_delta_pose: base-frame deltas, rotation sign, tracking gain."""
+    obs, _ = task_env.reset(seed=0, options={"cube_layer": 1})
+    before = Perception.from_obs(obs, 0)
+    turn, move = 0.02, 0.005  # per step: +z rotation (rad) and +x translation (m)
+    action = np.zeros(7, dtype=np.float32)
+    action[0] = move / (PLANT_GAIN * POS_SCALE)
+    action[5] = turn / (PLANT_GAIN * ROT_SCALE)
+    action[6] = 1.0
+    for _ in range(10):
+        obs, *_ = task_env.step(action)
+    after = Perception.from_obs(obs, 0)
+    yaw = (after.tcp_rot * before.tcp_rot.inv()).as_rotvec()
+    assert yaw[2] == pytest.approx(10 * turn, rel=0.25)
+    assert np.abs(yaw[:2]).max() < 0.03
+    assert after.tcp_pos[0] - before.tcp_pos[0] == pytest.approx(10 * move, rel=0.25)
