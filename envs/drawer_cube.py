@@ -20,6 +20,7 @@ from sb3_memret.envs.cabinet import LAYERS, CabinetLayout, build_cabinet, check_
 from sb3_memret.rewards import staged_potential
 
 CUBE_HALF_SIZE = 0.02
+GRASP_QUERY_RADIUS = 0.1  # m between TCP and cube centre beyond which no grasp is possible
 IMAGE_SIZE = 224
 
 
@@ -179,22 +180,26 @@ class DrawerCubeTakeOutEnv(BaseEnv):
     # ------------------------------------------------------------ evaluation
     def privileged_state(self) -> DrawerCubeState:
         """Simulator truth for the memory writer and the reward; never for a controller."""
-        qpos = self.cabinet.get_qpos().cpu().numpy()
-        b = qpos.shape[0]
-        boxes = np.zeros((b, len(LAYERS), 2, 3))
-        for i in range(b):
-            for j, layer in enumerate(LAYERS):
-                boxes[i, j] = np.stack(self.layout.inner_box(layer, float(qpos[i, j])))
-        tcp = self.agent.tcp.pose
+        qpos = self.cabinet.get_qpos().cpu().numpy().astype(np.float64)
+        lows = np.stack([self.layout.inner_box(layer)[0] for layer in LAYERS])
+        highs = np.stack([self.layout.inner_box(layer)[1] for layer in LAYERS])
+        shift = np.zeros((*qpos.shape, 3))
+        shift[..., 0] = -qpos  # drawers slide towards the robot along -x
+        boxes = np.stack([lows + shift, highs + shift], axis=2)
+        tcp = self.agent.tcp.pose.raw_pose.cpu().numpy().astype(np.float64)
+        cube = self.cube.pose.raw_pose.cpu().numpy().astype(np.float64)
+        # Contact queries are the slow part of a CPU step: only ask when the cube is in reach.
+        near = np.linalg.norm(cube[:, :3] - tcp[:, :3], axis=1) < GRASP_QUERY_RADIUS
+        grasped = self.agent.is_grasping(self.cube).cpu().numpy() if near.any() else np.zeros(len(near), bool)
         return DrawerCubeState(
-            cube_pos=self.cube.pose.p.cpu().numpy().astype(np.float64),
-            cube_quat=self.cube.pose.q.cpu().numpy().astype(np.float64),
+            cube_pos=cube[:, :3],
+            cube_quat=cube[:, 3:],
             cube_layer=self._cube_layer_np.copy(),
             layer_boxes=boxes,
-            drawer_qpos=qpos.astype(np.float64),
-            grasped=self.agent.is_grasping(self.cube).cpu().numpy(),
-            eef_pos=tcp.p.cpu().numpy().astype(np.float64),
-            eef_quat=tcp.q.cpu().numpy().astype(np.float64),
+            drawer_qpos=qpos,
+            grasped=grasped & near,
+            eef_pos=tcp[:, :3],
+            eef_quat=tcp[:, 3:],
         )
 
     def evaluate(self) -> dict[str, torch.Tensor]:
@@ -227,10 +232,14 @@ class DrawerCubeTakeOutEnv(BaseEnv):
         return {"eef_state": self.eef_state()}
 
     def eef_state(self) -> torch.Tensor:
-        """(B, 8): TCP position, TCP axis-angle (robot base frame), both finger joints."""
-        tcp = self.agent.robot.pose.inv() * self.agent.tcp.pose
+        """(B, 8): TCP position, TCP axis-angle (robot base frame), both finger joints.
+
+        The base sits at the world origin with identity orientation (``_initialize_episode``),
+        so the TCP's world pose is its base-frame pose.
+        """
+        tcp = self.agent.tcp.pose.raw_pose
         gripper = self.agent.robot.get_qpos()[:, -2:]
-        return torch.cat([tcp.p, quaternion_to_axis_angle(tcp.q), gripper], dim=1)
+        return torch.cat([tcp[:, :3], quaternion_to_axis_angle(tcp[:, 3:]), gripper], dim=1)
 
     def _get_obs_extra(self, info: dict) -> dict[str, torch.Tensor]:
         opening = self.cabinet.get_qpos()

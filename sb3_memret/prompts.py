@@ -1,29 +1,30 @@
 """The prompt contract: instruction + memory texts -> the controller's prompt, and back.
 
 A frozen controller only understands prompts worded exactly like its training prompts, so
-every sentence is checked against the declared templates, byte for byte: lowercase, single
-spaces, a full stop at the end. Anything else is refused with an error naming the offending
-sentence and the accepted forms, never silently passed on.
+every sentence is checked against the templates the controller declares, byte for byte:
+lowercase, single spaces, a full stop at the end. Anything else is refused with an error
+naming the offending sentence and the accepted forms, never silently passed on.
 """
 
 from __future__ import annotations
 
+import functools
 import re
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Sequence
 
 from sb3_memret.envs.cabinet import LAYERS, check_layer
+from sb3_memret.memory.schema import NOTHING, OUTSIDE, SPECIAL_TEXTS, TEMPLATES, MemoryType
 
 INSTRUCTION = "pick out the cube."
-LOCATION_TEMPLATE = "the {entity} is in {value}."
-HOLDING_TEMPLATE = "the robot is holding the {value}."
-LAYER_VALUE = "drawer layer {layer}"
-LAYER_LOCATION_TEMPLATE = LOCATION_TEMPLATE.format(entity="{entity}", value=LAYER_VALUE)
+LAYER_LOCATION_TEMPLATE = TEMPLATES[MemoryType.OBJECT_LOCATION].replace("{value}", "drawer layer {layer}")
+OUTSIDE_TEMPLATE = SPECIAL_TEXTS[(MemoryType.OBJECT_LOCATION, OUTSIDE)]
+HOLDING_TEMPLATE = TEMPLATES[MemoryType.HOLDING]
+HOLDING_NOTHING_TEXT = SPECIAL_TEXTS[(MemoryType.HOLDING, NOTHING)]
 CONDITIONS: tuple[str, ...] = ("oracle", "none", "wrong")
 
-_WORD = r"[a-z]+(?: [a-z]+)*"
-_LOCATION_RE = re.compile(rf"the (?P<entity>{_WORD}) is in drawer layer (?P<layer>[0-9]+)\.")
-_HOLDING_RE = re.compile(rf"the robot is holding the (?P<value>{_WORD})\.")
+_FIELD_PATTERNS = {"layer": r"[0-9]+"}
+_WORDS = r"[a-z]+(?: [a-z]+)*"
 _SENTENCE_RE = re.compile(r"[^ .][^.]*\.")
 
 
@@ -32,7 +33,7 @@ class PromptTemplate:
     """The sentences a controller was trained on: its instructions and fact templates."""
 
     instructions: tuple[str, ...] = (INSTRUCTION,)
-    fact_templates: tuple[str, ...] = (LAYER_LOCATION_TEMPLATE, HOLDING_TEMPLATE)
+    fact_templates: tuple[str, ...] = (LAYER_LOCATION_TEMPLATE, OUTSIDE_TEMPLATE, HOLDING_TEMPLATE, HOLDING_NOTHING_TEXT)
 
     def describe(self) -> str:
         return "instructions " + " | ".join(map(repr, self.instructions)) + "; facts " + " | ".join(
@@ -41,34 +42,35 @@ class PromptTemplate:
 
 
 @dataclass(frozen=True)
-class LocationFact:
-    entity: str
-    layer: int
+class Fact:
+    """A memory sentence matched to the template it was worded from, with its field values."""
 
+    template: str
+    fields: tuple[tuple[str, str], ...]
 
-@dataclass(frozen=True)
-class HoldingFact:
-    value: str
+    @property
+    def layer(self) -> int | None:
+        return next((int(v) for k, v in self.fields if k == "layer"), None)
 
 
 @dataclass(frozen=True)
 class ParsedPrompt:
     instruction: str
-    facts: tuple[LocationFact | HoldingFact, ...] = field(default_factory=tuple)
+    facts: tuple[Fact, ...] = ()
 
     @property
     def layer(self) -> int | None:
-        """The drawer layer of the first location fact, or None if no fact names one."""
-        return next((f.layer for f in self.facts if isinstance(f, LocationFact)), None)
+        """The drawer layer of the first fact that names one, or None."""
+        return next((f.layer for f in self.facts if f.layer is not None), None)
 
 
 def location_text(entity: str, layer: int) -> str:
     """The memory text that places ``entity`` in drawer ``layer``."""
-    return LOCATION_TEMPLATE.format(entity=entity, value=LAYER_VALUE.format(layer=check_layer(layer)))
+    return LAYER_LOCATION_TEMPLATE.format(entity=entity, layer=check_layer(layer))
 
 
 def holding_text(value: str) -> str:
-    return HOLDING_TEMPLATE.format(value=value)
+    return HOLDING_NOTHING_TEXT if value == NOTHING else HOLDING_TEMPLATE.format(value=value)
 
 
 def build_prompt(instruction: str, memories: Sequence[str], template: PromptTemplate | None = None) -> str:
@@ -83,7 +85,12 @@ def parse_prompt(prompt: str, template: PromptTemplate | None = None) -> ParsedP
     template = template or PromptTemplate()
     if not isinstance(prompt, str):
         raise TypeError(f"prompt must be a str, got {type(prompt).__name__}")
-    sentences = _split_sentences(prompt, template)
+    sentences = _SENTENCE_RE.findall(prompt)
+    if not sentences or " ".join(sentences) != prompt:
+        raise ValueError(
+            f"malformed prompt {prompt!r}: expected full-stop-terminated sentences separated by single "
+            f"spaces, lowercase, with no leading or trailing whitespace; accepted {template.describe()}"
+        )
     instruction, *rest = sentences
     if instruction not in template.instructions:
         raise ValueError(f"prompt {prompt!r} starts with {instruction!r}; expected one of {template.describe()}")
@@ -106,22 +113,23 @@ def condition_prompt(condition: str, layer: int) -> str:
     raise ValueError(f"unknown condition {condition!r}; expected one of {list(CONDITIONS)}")
 
 
-def _split_sentences(prompt: str, template: PromptTemplate) -> list[str]:
-    sentences = _SENTENCE_RE.findall(prompt)
-    if not sentences or " ".join(sentences) != prompt:
-        raise ValueError(
-            f"malformed prompt {prompt!r}: expected full-stop-terminated sentences separated by single "
-            f"spaces, lowercase, with no leading or trailing whitespace; accepted {template.describe()}"
-        )
-    return sentences
+@functools.lru_cache(maxsize=None)
+def _template_regex(template: str) -> re.Pattern:
+    """A template like 'the {entity} is in drawer layer {layer}.' as an exact-match regex."""
+    parts = re.split(r"\{(\w+)\}", template)
+    pattern = "".join(
+        re.escape(part) if i % 2 == 0 else f"(?P<{part}>{_FIELD_PATTERNS.get(part, _WORDS)})"
+        for i, part in enumerate(parts)
+    )
+    return re.compile(pattern)
 
 
-def _parse_fact(sentence: str, prompt: str, template: PromptTemplate) -> LocationFact | HoldingFact:
-    if (m := _LOCATION_RE.fullmatch(sentence)) and LAYER_LOCATION_TEMPLATE in template.fact_templates:
-        layer = int(m["layer"])
-        if layer not in LAYERS:
-            raise ValueError(f"memory {sentence!r} in prompt {prompt!r} names drawer layer {layer}; layers are {list(LAYERS)}")
-        return LocationFact(m["entity"], layer)
-    if (m := _HOLDING_RE.fullmatch(sentence)) and HOLDING_TEMPLATE in template.fact_templates:
-        return HoldingFact(m["value"])
+def _parse_fact(sentence: str, prompt: str, template: PromptTemplate) -> Fact:
+    for fact_template in template.fact_templates:
+        if m := _template_regex(fact_template).fullmatch(sentence):
+            fact = Fact(fact_template, tuple(m.groupdict().items()))
+            if fact.layer is not None and fact.layer not in LAYERS:
+                raise ValueError(f"memory {sentence!r} in prompt {prompt!r} names drawer layer {fact.layer}; "
+                                 f"layers are {list(LAYERS)}")
+            return fact
     raise ValueError(f"memory {sentence!r} in prompt {prompt!r} matches no trained template; accepted {template.describe()}")

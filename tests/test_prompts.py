@@ -1,9 +1,9 @@
 import pytest
 
 from sb3_memret.prompts import (
+    HOLDING_TEMPLATE,
     INSTRUCTION,
-    HoldingFact,
-    LocationFact,
+    LAYER_LOCATION_TEMPLATE,
     PromptTemplate,
     build_prompt,
     condition_prompt,
@@ -18,8 +18,16 @@ def test_round_trip_of_instruction_and_memories():
     assert prompt == "pick out the cube. the cube is in drawer layer 2. the robot is holding the marker."
     parsed = parse_prompt(prompt)
     assert parsed.instruction == INSTRUCTION
-    assert parsed.facts == (LocationFact("cube", 2), HoldingFact("marker"))
+    assert [f.template for f in parsed.facts] == [LAYER_LOCATION_TEMPLATE, HOLDING_TEMPLATE]
+    assert dict(parsed.facts[0].fields) == {"entity": "cube", "layer": "2"}
+    assert dict(parsed.facts[1].fields) == {"value": "marker"}
     assert parsed.layer == 2
+
+
+def test_special_texts_are_part_of_the_contract():
+    prompt = build_prompt(INSTRUCTION, [holding_text("nothing"), "the cube is out of the drawers."])
+    assert prompt == "pick out the cube. the robot is holding nothing. the cube is out of the drawers."
+    assert parse_prompt(prompt).layer is None
 
 
 def test_layer_follows_first_location_fact_whatever_the_object():
@@ -48,7 +56,7 @@ def test_drifted_prompts_are_refused_with_the_offending_text(prompt):
 
 
 def test_template_restricts_accepted_facts():
-    only_locations = PromptTemplate(fact_templates=("the {entity} is in drawer layer {layer}.",))
+    only_locations = PromptTemplate(fact_templates=(LAYER_LOCATION_TEMPLATE,))
     with pytest.raises(ValueError, match="no trained template"):
         parse_prompt("pick out the cube. the robot is holding the key.", only_locations)
 

@@ -1,0 +1,68 @@
+"""The rule-based memory writer: simulator state -> predicates -> memory entries on change."""
+
+from __future__ import annotations
+
+from typing import Protocol
+
+import numpy as np
+
+from sb3_memret.envs.drawer_cube import DrawerCubeState
+from sb3_memret.memory.schema import NOTHING, OUTSIDE, MemoryEntry, MemoryType
+
+Predicates = dict[tuple[str, str], str]
+UNKNOWN = "unknown"
+
+# relation -> (memory type, relation name in the entry)
+RELATIONS: dict[str, tuple[MemoryType, str]] = {
+    "location": (MemoryType.OBJECT_LOCATION, "is_in"),
+    "holding": (MemoryType.HOLDING, "holding"),
+}
+
+
+class TextEncoder(Protocol):
+    def encode(self, texts: list[str]) -> np.ndarray: ...
+
+
+class BoundingBoxPredicateExtractor:
+    """Reads the task's privileged state into predicates keyed (relation, entity).
+
+    (location, cube) is ``drawer layer N`` while the cube's centre is in drawer N's interior
+    box and ``outside`` otherwise; (holding, robot) is ``cube`` while both fingers press on
+    it and ``nothing`` otherwise.
+    """
+
+    def extract(self, state: DrawerCubeState, index: int = 0) -> Predicates:
+        layer = int(state.cube_in_layer[index])
+        return {
+            ("location", "cube"): f"drawer layer {layer}" if layer else OUTSIDE,
+            ("holding", "robot"): "cube" if bool(state.grasped[index]) else NOTHING,
+        }
+
+
+class EventCompiler:
+    """Turns predicate changes into complete memory entries; unchanged predicates emit nothing.
+
+    Every predicate starts as ``unknown``, so the first reading of an episode is written.
+    """
+
+    def __init__(self, encoder: TextEncoder | None = None):
+        self.encoder = encoder
+        self._previous: Predicates = {}
+
+    def reset(self) -> None:
+        self._previous = {}
+
+    def update(self, predicates: Predicates, timestamp: int) -> list[MemoryEntry]:
+        entries = []
+        for (relation, entity), value in predicates.items():
+            if relation not in RELATIONS:
+                raise ValueError(f"unknown predicate relation {relation!r}; expected one of {sorted(RELATIONS)}")
+            if value == UNKNOWN or self._previous.get((relation, entity), UNKNOWN) == value:
+                continue
+            mtype, entry_relation = RELATIONS[relation]
+            entries.append(MemoryEntry.create(mtype, entity, entry_relation, value, timestamp))
+        self._previous.update(predicates)
+        if entries and self.encoder is not None:
+            vectors = self.encoder.encode([e.text for e in entries])
+            entries = [e.with_embedding(v) for e, v in zip(entries, vectors)]
+        return entries
