@@ -1,0 +1,37 @@
+import pytest
+
+from sb3_memret.memory.schema import IMPORTANCE, TEMPLATES, MemoryEntry, MemoryType, linearize
+from sb3_memret.prompts import PromptTemplate, build_prompt, INSTRUCTION
+
+
+def test_six_types_each_with_template_and_importance():
+    assert len(MemoryType) == 6
+    assert set(TEMPLATES) == set(MemoryType) == set(IMPORTANCE)
+    for template in TEMPLATES.values():
+        assert template == template.lower() and template.endswith(".")
+
+
+def test_texts_are_exactly_the_controller_prompts():
+    cube = MemoryEntry.create(MemoryType.OBJECT_LOCATION, "cube", "is_in", "drawer layer 2", timestamp=30)
+    assert cube.text == "the cube is in drawer layer 2."
+    assert cube.key == (MemoryType.OBJECT_LOCATION, "cube", "is_in")
+    assert cube.importance == IMPORTANCE[MemoryType.OBJECT_LOCATION] and cube.usage_count == 0
+    holding = MemoryEntry.create(MemoryType.HOLDING, "robot", "holding", "cube", timestamp=3)
+    assert holding.text == "the robot is holding the cube."
+    assert MemoryEntry.create(MemoryType.HOLDING, "robot", "holding", "nothing", 0).text == "the robot is holding nothing."
+    out = MemoryEntry.create(MemoryType.OBJECT_LOCATION, "cube", "is_in", "outside", 0)
+    assert out.text == "the cube is out of the drawers."
+    # everything the writer emits for this task passes the scripted controller's prompt contract
+    build_prompt(INSTRUCTION, [cube.text, holding.text, out.text], PromptTemplate())
+
+
+def test_other_types_have_readable_templates():
+    assert linearize(MemoryType.FAILURE, "cube", "grasp", "true") == "the robot failed to grasp the cube."
+    assert linearize(MemoryType.COUNT, "cube", "count", "2") == "there are 2 cube objects."
+    assert linearize(MemoryType.TASK_PROGRESS, "drawer", "state", "open") == "the drawer is open."
+
+
+@pytest.mark.parametrize("bad", ["Cube", " cube", "cube.", ""])
+def test_fields_must_be_lowercase_words(bad):
+    with pytest.raises(ValueError, match="lowercase"):
+        linearize(MemoryType.OBJECT_LOCATION, bad, "is_in", "drawer layer 1")

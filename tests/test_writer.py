@@ -1,0 +1,60 @@
+"""The rule-based writer, on hand-made predicates and on the real simulator."""
+
+import numpy as np
+import pytest
+import torch
+from mani_skill.utils.structs.pose import Pose
+
+from sb3_memret.memory.schema import MemoryType
+from sb3_memret.memory.writer import BoundingBoxPredicateExtractor, EventCompiler
+
+
+class FakeEncoder:
+    def __init__(self):
+        self.calls = []
+
+    def encode(self, texts):
+        self.calls.append(list(texts))
+        return np.ones((len(texts), 384), dtype=np.float32)
+
+
+def test_compiler_emits_only_on_change():
+    encoder = FakeEncoder()
+    compiler = EventCompiler(encoder)
+    preds = {("location", "cube"): "drawer layer 2", ("holding", "robot"): "nothing"}
+    first = compiler.update(preds, 0)
+    assert [e.text for e in first] == ["the cube is in drawer layer 2.", "the robot is holding nothing."]
+    assert all(e.embedding is not None and e.usage_count == 0 and e.importance > 0 for e in first)
+    assert compiler.update(dict(preds), 8) == []
+    assert compiler.update(dict(preds), 16) == []
+    changed = compiler.update({**preds, ("holding", "robot"): "cube"}, 24)
+    assert len(changed) == 1 and changed[0].text == "the robot is holding the cube." and changed[0].timestamp == 24
+    assert changed[0].key == (MemoryType.HOLDING, "robot", "holding")
+    assert encoder.calls == [[e.text for e in first], [changed[0].text]]  # batched, nothing re-encoded
+    compiler.reset()
+    assert len(compiler.update(preds, 0)) == 2
+
+
+def test_unknown_values_are_not_written_and_bad_relations_refused():
+    compiler = EventCompiler()
+    assert compiler.update({("location", "cube"): "unknown"}, 0) == []
+    with pytest.raises(ValueError, match="unknown predicate relation 'colour'"):
+        compiler.update({("colour", "cube"): "red"}, 0)
+
+
+@pytest.mark.parametrize("layer", [1, 2, 3])
+def test_extractor_names_the_right_layer_in_the_real_sim(task_env, layer):
+    task_env.reset(seed=layer, options={"cube_layer": layer})
+    task_env.step(np.zeros(7, dtype=np.float32))
+    preds = BoundingBoxPredicateExtractor().extract(task_env.unwrapped.privileged_state())
+    assert preds == {("location", "cube"): f"drawer layer {layer}", ("holding", "robot"): "nothing"}
+
+
+def test_extractor_changes_when_cube_is_lifted_out(task_env):
+    task_env.reset(seed=0, options={"cube_layer": 2})
+    base = task_env.unwrapped
+    extractor, compiler = BoundingBoxPredicateExtractor(), EventCompiler()
+    compiler.update(extractor.extract(base.privileged_state()), 0)
+    base.cube.set_pose(Pose.create_from_pq(torch.tensor([[base.layout.front_x - 0.2, 0.0, 0.5]])))
+    entries = compiler.update(extractor.extract(base.privileged_state()), 8)
+    assert [e.text for e in entries] == ["the cube is out of the drawers."]
