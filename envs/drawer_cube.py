@@ -106,6 +106,8 @@ class DrawerCubeTakeOutEnv(BaseEnv):
         self.lift_height = self.layout.top_z + 0.02 if lift_height is None else lift_height
         self.front_margin = front_margin
         self._cube_layer_np: np.ndarray | None = None
+        # (3, 2, 3): each layer's interior (low, high) with every drawer closed
+        self._closed_boxes = np.stack([np.stack(self.layout.inner_box(layer)) for layer in LAYERS])
         super().__init__(*args, robot_uids=robot_uids, **kwargs)
 
     # ------------------------------------------------------------------ scene
@@ -181,11 +183,9 @@ class DrawerCubeTakeOutEnv(BaseEnv):
     def privileged_state(self) -> DrawerCubeState:
         """Simulator truth for the memory writer and the reward; never for a controller."""
         qpos = self.cabinet.get_qpos().cpu().numpy().astype(np.float64)
-        lows = np.stack([self.layout.inner_box(layer)[0] for layer in LAYERS])
-        highs = np.stack([self.layout.inner_box(layer)[1] for layer in LAYERS])
-        shift = np.zeros((*qpos.shape, 3))
-        shift[..., 0] = -qpos  # drawers slide towards the robot along -x
-        boxes = np.stack([lows + shift, highs + shift], axis=2)
+        shift = np.zeros((*qpos.shape, 1, 3))
+        shift[..., 0, 0] = -qpos  # drawers slide towards the robot along -x
+        boxes = self._closed_boxes + shift
         tcp = self.agent.tcp.pose.raw_pose.cpu().numpy().astype(np.float64)
         cube = self.cube.pose.raw_pose.cpu().numpy().astype(np.float64)
         # Contact queries are the slow part of a CPU step: only ask when the cube is in reach.
