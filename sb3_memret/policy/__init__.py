@@ -1,0 +1,1 @@
+"""The memory learner: Plackett-Luce retrieval, the retriever and retention networks."""

@@ -1,0 +1,87 @@
+"""A masked Plackett-Luce distribution over ordered top-K selections, for stable-baselines3.
+
+An ordered selection (a_1, ..., a_K) of distinct valid slots has probability
+prod_k exp(s_{a_k}/tau) / sum_{j in R_k} exp(s_j/tau), R_k the valid slots not yet chosen.
+Sampling uses the Gumbel-top-K trick, which draws exactly from this distribution; the
+log-probability is recomputed on the stored ordered selection, at the same temperature.
+"""
+
+from __future__ import annotations
+
+import itertools
+
+import torch
+from stable_baselines3.common.distributions import Distribution
+from torch import nn
+
+NEG_INF = -1e9
+
+
+class PlackettLuceDistribution(Distribution):
+    """Top-``k`` ordered selections among the valid slots of a bank, at temperature ``tau``."""
+
+    def __init__(self, k: int = 1, temperature: float = 0.5):
+        super().__init__()
+        if k < 1:
+            raise ValueError(f"k must be >= 1, got {k}")
+        if temperature <= 0:
+            raise ValueError(f"temperature must be > 0, got {temperature}")
+        self.k = k
+        self.temperature = temperature
+        self.logits: torch.Tensor | None = None  # (B, N) scores / tau, masked slots at NEG_INF
+        self.mask: torch.Tensor | None = None
+
+    def proba_distribution_net(self, *args, **kwargs) -> nn.Module:
+        raise NotImplementedError("scores come from the retriever network, see MemoryRetrievalPolicy")
+
+    def proba_distribution(self, scores: torch.Tensor, mask: torch.Tensor) -> "PlackettLuceDistribution":
+        mask = mask.bool()
+        short = mask.sum(-1) < self.k
+        if short.any():
+            raise ValueError(f"a Plackett-Luce top-{self.k} needs at least {self.k} valid slots; "
+                             f"got banks with {mask.sum(-1)[short].tolist()} entries")
+        self.mask = mask
+        self.logits = torch.where(mask, scores / self.temperature, torch.full_like(scores, NEG_INF))
+        return self
+
+    def log_prob(self, actions: torch.Tensor) -> torch.Tensor:
+        actions = actions.long().reshape(-1, self.k)
+        logits, total = self.logits, torch.zeros(actions.shape[0], device=self.logits.device)
+        for step in range(self.k):
+            chosen = actions[:, step : step + 1]
+            total = total + logits.gather(1, chosen)[:, 0] - torch.logsumexp(logits, dim=-1)
+            logits = logits.scatter(1, chosen, NEG_INF)
+        return total
+
+    def entropy(self) -> torch.Tensor:
+        """Exact entropy by the chain rule, summing over every ordered prefix of length < k."""
+        n = self.logits.shape[-1]
+        total = torch.zeros(self.logits.shape[0], device=self.logits.device)
+        for step in range(self.k):
+            for prefix in itertools.permutations(range(n), step):
+                logits = self.logits
+                log_p_prefix = torch.zeros_like(total)
+                for slot in prefix:
+                    log_p_prefix = log_p_prefix + logits[:, slot] - torch.logsumexp(logits, -1)
+                    logits = logits.index_fill(1, torch.tensor([slot], device=logits.device), NEG_INF)
+                log_p = torch.log_softmax(logits, -1)
+                valid = logits > NEG_INF / 2
+                step_entropy = -(torch.where(valid, log_p.exp() * log_p, torch.zeros_like(log_p))).sum(-1)
+                total = total + log_p_prefix.exp() * step_entropy
+        return total
+
+    def sample(self) -> torch.Tensor:
+        uniform = torch.rand_like(self.logits).clamp_(1e-10, 1 - 1e-10)
+        gumbel = -torch.log(-torch.log(uniform))
+        return torch.topk(self.logits + gumbel, self.k, dim=-1).indices
+
+    def mode(self) -> torch.Tensor:
+        return torch.topk(self.logits, self.k, dim=-1).indices
+
+    def actions_from_params(self, scores: torch.Tensor, mask: torch.Tensor, deterministic: bool = False) -> torch.Tensor:
+        self.proba_distribution(scores, mask)
+        return self.get_actions(deterministic=deterministic)
+
+    def log_prob_from_params(self, scores: torch.Tensor, mask: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
+        actions = self.actions_from_params(scores, mask)
+        return actions, self.log_prob(actions)

@@ -1,0 +1,59 @@
+"""The two small networks of the memory learner (sizes as in the paper, appendix A)."""
+
+from __future__ import annotations
+
+import torch
+from torch import nn
+
+from sb3_memret.memory.encoder import EMBEDDING_DIM
+from sb3_memret.memory.schema import MemoryType
+
+HIDDEN = 128
+TYPE_EMBEDDING_DIM = 32
+AGE_SCALE = 100.0
+USAGE_SCALE = 10.0
+
+
+def mlp(in_dim: int, hidden: int = HIDDEN) -> nn.Sequential:
+    return nn.Sequential(nn.Linear(in_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU(), nn.Linear(hidden, 1))
+
+
+class RelevanceMLP(nn.Module):
+    """Task-aware retriever: scores memory m for instruction g from [h_g, h_m, |h_g-h_m|, h_g*h_m]."""
+
+    def __init__(self, embedding_dim: int = EMBEDDING_DIM, hidden: int = HIDDEN):
+        super().__init__()
+        self.net = mlp(4 * embedding_dim, hidden)
+
+    def forward(self, instruction: torch.Tensor, memories: torch.Tensor) -> torch.Tensor:
+        """instruction (B, D), memories (B, N, D) -> scores (B, N)."""
+        g = instruction.unsqueeze(1).expand_as(memories)
+        x = torch.cat([g, memories, (g - memories).abs(), g * memories], dim=-1)
+        return self.net(x).squeeze(-1)
+
+
+class RetentionScorer(nn.Module):
+    """Task-agnostic keep-score of each memory from [h_m, type embedding, age/100, usage/10].
+
+    It never sees the instruction: it judges how valuable a memory is in general. Its mean
+    over valid slots is the PPO value; its argmin is evicted when the bank is full.
+    """
+
+    def __init__(self, embedding_dim: int = EMBEDDING_DIM, hidden: int = HIDDEN):
+        super().__init__()
+        self.type_embedding = nn.Embedding(len(MemoryType), TYPE_EMBEDDING_DIM)
+        self.net = mlp(embedding_dim + TYPE_EMBEDDING_DIM + 2, hidden)
+
+    def forward(self, memories: torch.Tensor, type_ids: torch.Tensor, age: torch.Tensor, usage: torch.Tensor) -> torch.Tensor:
+        """memories (B, N, D), type_ids/age/usage (B, N) -> keep-scores (B, N)."""
+        x = torch.cat(
+            [memories, self.type_embedding(type_ids.long()), (age / AGE_SCALE).unsqueeze(-1), (usage / USAGE_SCALE).unsqueeze(-1)],
+            dim=-1,
+        )
+        return self.net(x).squeeze(-1)
+
+    def value(self, memories, type_ids, age, usage, mask: torch.Tensor) -> torch.Tensor:
+        """(B,) mean keep-score over the valid slots: the critic's V(s)."""
+        scores = self.forward(memories, type_ids, age, usage)
+        mask = mask.float()
+        return (scores * mask).sum(-1) / mask.sum(-1).clamp(min=1.0)
