@@ -1,0 +1,91 @@
+"""MemoryRetrievalPolicy: an SB3 ActorCriticPolicy whose actor is the retriever and whose
+critic is the retention scorer, acting through a Plackett-Luce distribution."""
+
+from __future__ import annotations
+
+from typing import Any
+
+import torch
+from gymnasium import spaces
+from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
+
+from sb3_memret.memory.encoder import EMBEDDING_DIM
+from sb3_memret.policy.distributions import PlackettLuceDistribution
+from sb3_memret.policy.networks import HIDDEN, RelevanceMLP, RetentionScorer
+
+BANK_KEYS = ("instruction", "memories", "mask", "type_ids", "age", "usage")
+
+
+class BankExtractor(BaseFeaturesExtractor):
+    """Passes the bank observation through unchanged: both networks read its arrays directly."""
+
+    def __init__(self, observation_space: spaces.Dict):
+        missing = [k for k in BANK_KEYS if k not in observation_space.spaces]
+        if missing:
+            raise ValueError(f"observation space lacks {missing}; MemoryRetrievalPolicy needs keys {list(BANK_KEYS)}")
+        super().__init__(observation_space, features_dim=EMBEDDING_DIM)
+
+    def forward(self, observations: dict[str, torch.Tensor]) -> dict[str, torch.Tensor]:
+        return observations
+
+
+class MemoryRetrievalPolicy(ActorCriticPolicy):
+    """Actor: RelevanceMLP scores -> Plackett-Luce top-K at ``temperature``.
+    Critic: the mean RetentionScorer keep-score over valid slots.
+
+    ``predict(obs, deterministic=True)`` is greedy retrieval (top-K by score).
+    """
+
+    def __init__(self, observation_space: spaces.Dict, action_space: spaces.MultiDiscrete, lr_schedule,
+                 temperature: float = 0.5, hidden: int = HIDDEN, **kwargs: Any):
+        if not isinstance(action_space, spaces.MultiDiscrete):
+            raise ValueError(f"MemoryRetrievalPolicy needs a MultiDiscrete action space of slot indices, got {action_space}")
+        self.temperature = temperature
+        self.hidden = hidden
+        kwargs.setdefault("features_extractor_class", BankExtractor)
+        kwargs.setdefault("optimizer_class", torch.optim.AdamW)
+        kwargs["ortho_init"] = False
+        super().__init__(observation_space, action_space, lr_schedule, **kwargs)
+
+    def _build(self, lr_schedule) -> None:
+        self.action_dist = PlackettLuceDistribution(len(self.action_space.nvec), self.temperature)
+        self.retriever = RelevanceMLP(hidden=self.hidden)
+        self.retention = RetentionScorer(hidden=self.hidden)
+        self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
+
+    def scores(self, features: dict[str, torch.Tensor]) -> torch.Tensor:
+        """(B, N) retriever scores of every slot (empty slots included, they are masked later)."""
+        return self.retriever(features["instruction"], features["memories"])
+
+    def _distribution(self, f: dict[str, torch.Tensor]) -> PlackettLuceDistribution:
+        return self.action_dist.proba_distribution(self.scores(f), f["mask"] > 0.5)
+
+    def _value(self, f: dict[str, torch.Tensor]) -> torch.Tensor:
+        return self.retention.value(f["memories"], f["type_ids"].long(), f["age"], f["usage"], f["mask"] > 0.5)[:, None]
+
+    def forward(self, obs, deterministic: bool = False):
+        f = self.extract_features(obs)
+        dist = self._distribution(f)
+        actions = dist.get_actions(deterministic=deterministic)
+        return actions, self._value(f), dist.log_prob(actions)
+
+    def evaluate_actions(self, obs, actions: torch.Tensor):
+        f = self.extract_features(obs)
+        dist = self._distribution(f)
+        return self._value(f), dist.log_prob(actions), dist.entropy()
+
+    def get_distribution(self, obs) -> PlackettLuceDistribution:
+        return self._distribution(self.extract_features(obs))
+
+    def predict_values(self, obs) -> torch.Tensor:
+        return self._value(self.extract_features(obs))
+
+    def retention_state_dict(self) -> dict[str, torch.Tensor]:
+        """CPU copy of the retention weights, to push to the envs that evict with them."""
+        return {k: v.detach().cpu().clone() for k, v in self.retention.state_dict().items()}
+
+    def _get_constructor_parameters(self) -> dict[str, Any]:
+        data = super()._get_constructor_parameters()
+        data.update(temperature=self.temperature, hidden=self.hidden)
+        return data
