@@ -1,0 +1,107 @@
+"""rl-zoo-style YAML hyperparameters: load, validate, and reject anything unknown or out of range."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, Callable
+
+import yaml
+
+Check = tuple[type | tuple[type, ...], Callable[[Any], bool], str]
+
+
+def _positive_int() -> Check:
+    return (int, lambda v: v >= 1, "an integer >= 1")
+
+
+def _unit() -> Check:
+    return ((int, float), lambda v: 0 < v <= 1, "a number in (0, 1]")
+
+
+PPO_KEYS: dict[str, Check] = {
+    "n_timesteps": _positive_int(),
+    "n_envs": _positive_int(),
+    "n_steps": _positive_int(),
+    "batch_size": _positive_int(),
+    "n_epochs": _positive_int(),
+    "gamma": _unit(),
+    "gae_lambda": _unit(),
+    "learning_rate": ((int, float), lambda v: v > 0, "a number > 0"),
+    "clip_range": ((int, float), lambda v: 0 < v < 1, "a number in (0, 1)"),
+    "ent_coef": ((int, float), lambda v: v >= 0, "a number >= 0"),
+    "vf_coef": ((int, float), lambda v: v >= 0, "a number >= 0"),
+}
+POLICY_KEYS: dict[str, Check] = {
+    "temperature": ((int, float), lambda v: v > 0, "a number > 0"),
+    "hidden": _positive_int(),
+}
+ENV_KEYS: dict[str, Check] = {
+    "mode": (str, lambda v: v in ("recall", "oracle", "none"), "one of 'recall', 'oracle', 'none'"),
+    "capacity": _positive_int(),
+    "k": _positive_int(),
+    "replan_every": _positive_int(),
+    "max_episode_steps": _positive_int(),
+    "success_bonus": ((int, float), lambda v: v >= 0, "a number >= 0"),
+}
+
+
+@dataclass
+class TrainConfig:
+    """Validated hyperparameters for one env id."""
+
+    env_id: str
+    ppo: dict[str, Any]
+    policy_kwargs: dict[str, Any] = field(default_factory=dict)
+    env_kwargs: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def n_timesteps(self) -> int:
+        return self.ppo["n_timesteps"]
+
+    @property
+    def n_envs(self) -> int:
+        return self.ppo.get("n_envs", 1)
+
+    def algo_kwargs(self) -> dict[str, Any]:
+        """Keyword arguments for MemRetPPO (everything but the run length and env count)."""
+        kwargs = {k: v for k, v in self.ppo.items() if k not in ("n_timesteps", "n_envs")}
+        return {**kwargs, "policy_kwargs": dict(self.policy_kwargs)}
+
+
+def load_config(path: str | Path, env_id: str) -> TrainConfig:
+    """Read ``path`` and return the validated section for ``env_id``."""
+    path = Path(path)
+    if not path.is_file():
+        raise FileNotFoundError(f"no config file at {str(path)!r}")
+    data = yaml.safe_load(path.read_text()) or {}
+    if not isinstance(data, dict) or env_id not in data:
+        known = list(data) if isinstance(data, dict) else []
+        raise ValueError(f"{path}: no section for env id {env_id!r}; the file has {known}")
+    return parse_section(data[env_id], env_id, where=str(path))
+
+
+def parse_section(section: Any, env_id: str, where: str = "config") -> TrainConfig:
+    if not isinstance(section, dict):
+        raise ValueError(f"{where}: section {env_id!r} must be a mapping, got {type(section).__name__}")
+    section = dict(section)
+    policy_kwargs = _validate(section.pop("policy_kwargs", {}) or {}, POLICY_KEYS, f"{where}: {env_id}.policy_kwargs")
+    env_kwargs = _validate(section.pop("env_kwargs", {}) or {}, ENV_KEYS, f"{where}: {env_id}.env_kwargs")
+    ppo = _validate(section, PPO_KEYS, f"{where}: {env_id}")
+    if "n_timesteps" not in ppo:
+        raise ValueError(f"{where}: {env_id} must set n_timesteps")
+    if "k" in env_kwargs and env_kwargs["k"] > env_kwargs.get("capacity", 6):
+        raise ValueError(f"{where}: {env_id}.env_kwargs: k={env_kwargs['k']} exceeds capacity={env_kwargs.get('capacity', 6)}")
+    return TrainConfig(env_id, ppo, policy_kwargs, env_kwargs)
+
+
+def _validate(values: Any, spec: dict[str, Check], where: str) -> dict[str, Any]:
+    if not isinstance(values, dict):
+        raise ValueError(f"{where} must be a mapping, got {type(values).__name__}")
+    for key, value in values.items():
+        if key not in spec:
+            raise ValueError(f"{where}: unknown key {key!r}; accepted keys are {sorted(spec)}")
+        types, ok, expected = spec[key]
+        if isinstance(value, bool) or not isinstance(value, types) or not ok(value):
+            raise ValueError(f"{where}: {key}={value!r} is invalid; expected {expected}")
+    return dict(values)

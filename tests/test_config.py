@@ -1,0 +1,46 @@
+from pathlib import Path
+
+import pytest
+import yaml
+
+from sb3_memret.config import load_config, parse_section
+
+ZOO = Path(__file__).resolve().parents[1] / "zoo_configs" / "memret_ppo.yml"
+ENV_ID = "sb3_memret/DrawerRecall-v0"
+
+
+def test_shipped_config_has_the_paper_hyperparameters():
+    cfg = load_config(ZOO, ENV_ID)
+    assert cfg.ppo["gamma"] == 0.97 and cfg.ppo["clip_range"] == 0.2 and cfg.ppo["n_epochs"] == 4
+    assert cfg.ppo["learning_rate"] == 3e-4 and cfg.ppo["ent_coef"] == 0.001 and cfg.ppo["vf_coef"] == 0.5
+    assert cfg.policy_kwargs == {"temperature": 0.5}
+    assert cfg.env_kwargs["capacity"] == 6 and cfg.env_kwargs["k"] == 1
+    kwargs = cfg.algo_kwargs()
+    assert "n_timesteps" not in kwargs and "n_envs" not in kwargs and kwargs["policy_kwargs"] == {"temperature": 0.5}
+
+
+@pytest.mark.parametrize(
+    "section,message",
+    [
+        ({"n_timesteps": 10, "gama": 0.9}, "unknown key 'gama'; accepted keys are"),
+        ({"n_timesteps": 10, "gamma": 1.5}, r"gamma=1.5 is invalid; expected a number in \(0, 1\]"),
+        ({"n_timesteps": 0}, "n_timesteps=0 is invalid; expected an integer >= 1"),
+        ({"n_timesteps": 10, "n_steps": True}, "n_steps=True is invalid"),
+        ({"gamma": 0.9}, "must set n_timesteps"),
+        ({"n_timesteps": 10, "env_kwargs": {"mode": "guess"}}, "mode='guess' is invalid; expected one of 'recall'"),
+        ({"n_timesteps": 10, "env_kwargs": {"k": 3, "capacity": 2}}, "k=3 exceeds capacity=2"),
+        ({"n_timesteps": 10, "policy_kwargs": {"tau": 0.5}}, "unknown key 'tau'"),
+    ],
+)
+def test_bad_configs_are_rejected_with_the_key_and_the_accepted_values(section, message):
+    with pytest.raises(ValueError, match=message):
+        parse_section(section, ENV_ID)
+
+
+def test_missing_env_section_and_file(tmp_path):
+    path = tmp_path / "c.yml"
+    path.write_text(yaml.safe_dump({"Other-v0": {"n_timesteps": 1}}))
+    with pytest.raises(ValueError, match=r"no section for env id 'sb3_memret/DrawerRecall-v0'; the file has \['Other-v0'\]"):
+        load_config(path, ENV_ID)
+    with pytest.raises(FileNotFoundError, match="no config file at"):
+        load_config(tmp_path / "missing.yml", ENV_ID)
