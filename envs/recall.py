@@ -89,6 +89,7 @@ class DrawerRecallEnv(gym.Env):
             usage=spaces.Box(0.0, np.inf, (capacity,), np.float32),
         )
         self._obs: Any = None
+        self._phi = np.zeros(1)  # staged potential of the current state
         self._t = 0
         self._layer = 1
         self._true_evicted = False
@@ -122,7 +123,8 @@ class DrawerRecallEnv(gym.Env):
         super().reset(seed=seed)
         options = dict(options or {})
         task_seed = int(self.np_random.integers(2**31 - 1))
-        self._obs, _ = self.task.reset(seed=task_seed, options=options)
+        self._obs, task_info = self.task.reset(seed=task_seed, options=options)
+        self._phi = task_info["potential"].numpy()
         state = self.task.unwrapped.privileged_state()
         self._layer = check_layer(int(state.cube_layer[0]))
         self.controller.reset([task_seed])
@@ -146,7 +148,7 @@ class DrawerRecallEnv(gym.Env):
                 self.bank.mark_used(int(s))
         prompt = self._prompt(chosen)
         chunk = self.controller.act(self._obs, [prompt])[0][: self.replan_every]
-        phi = self.task.unwrapped.evaluate()["potential"].numpy()
+        phi = self._phi
         terminated, truncated, info = False, False, {}
         for action_t in chunk:
             self._obs, _, term, trunc, info = self.task.step(action_t)
@@ -154,7 +156,8 @@ class DrawerRecallEnv(gym.Env):
             terminated, truncated = bool(term), bool(trunc)
             if terminated or truncated:
                 break
-        reward = (1.0 - self.gamma) * float(shaped_reward(phi, info["potential"].numpy(), self.gamma)[0])
+        self._phi = info["potential"].numpy()
+        reward = (1.0 - self.gamma) * float(shaped_reward(phi, self._phi, self.gamma)[0])
         success = bool(info["success"][0])
         if success:
             reward += self.success_bonus
