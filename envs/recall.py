@@ -143,9 +143,8 @@ class DrawerRecallEnv(gym.Env):
             raise ValueError(f"action must be {self.k} slot indices in [0, {self.capacity}), got {action!r}")
         entries = self.bank.entries
         chosen = [entries[s] for s in slots if s < len(entries)]
-        for s in slots:
-            if s < len(entries):
-                self.bank.mark_used(int(s))
+        for s in slots[slots < len(entries)]:
+            self.bank.mark_used(int(s))
         prompt = self._prompt(chosen)
         chunk = self.controller.act(self._obs, [prompt])[0][: self.replan_every]
         phi = self._phi

@@ -68,16 +68,21 @@ def evaluate_condition(
         raise ValueError(f"unknown condition {condition!r}; expected one of {list(CONDITIONS)}")
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
-    env = env or make_task_env()
+    own_env = env is None
+    env = make_task_env() if own_env else env
     controller.check_env(env)
     results = []
-    for layer in layers:
-        prompt = condition_prompt(condition, layer)
-        for k in range(episodes):
-            result = run_episode(env, controller, prompt, seed + k, layer, replan_every)
-            results.append(result)
-            if on_episode is not None:
-                on_episode(result)
+    try:
+        for layer in layers:
+            prompt = condition_prompt(condition, layer)
+            for k in range(episodes):
+                result = run_episode(env, controller, prompt, seed + k, layer, replan_every)
+                results.append(result)
+                if on_episode is not None:
+                    on_episode(result)
+    finally:
+        if own_env:
+            env.close()
     return results
 
 

@@ -8,7 +8,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from sb3_memret.prompts import PromptTemplate, parse_prompt
+from sb3_memret.prompts import ParsedPrompt, PromptTemplate, parse_prompt
 
 Obs = Mapping[str, Any]
 
@@ -44,14 +44,13 @@ class FrozenController(ABC):
         """Start a new episode in each of ``len(seeds)`` envs."""
 
     @abstractmethod
-    def _act(self, obs: Obs, prompts: Sequence[str]) -> np.ndarray:
-        """Return action chunks (B, chunk_len, action_dim) for checked prompts."""
+    def _act(self, obs: Obs, prompts: Sequence[str], parsed: Sequence[ParsedPrompt]) -> np.ndarray:
+        """Return action chunks (B, chunk_len, action_dim) for checked prompts (raw and parsed)."""
 
     def act(self, obs: Obs, prompts: Sequence[str]) -> np.ndarray:
         """Check every prompt against the training template, then predict (B, H, action_dim)."""
-        for prompt in prompts:
-            parse_prompt(prompt, self.spec.prompt_template)
-        chunks = np.asarray(self._act(obs, prompts), dtype=np.float32)
+        parsed = [parse_prompt(prompt, self.spec.prompt_template) for prompt in prompts]
+        chunks = np.asarray(self._act(obs, prompts, parsed), dtype=np.float32)
         expected = (len(prompts), self.spec.chunk_len, self.spec.action_dim)
         if chunks.shape != expected:
             raise RuntimeError(f"{type(self).__name__} returned chunks of shape {chunks.shape}, expected {expected}")

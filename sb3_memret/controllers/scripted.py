@@ -24,7 +24,7 @@ from scipy.spatial.transform import Rotation
 
 from sb3_memret.controllers.base import ControllerSpec, FrozenController, Obs
 from sb3_memret.envs.cabinet import LAYERS, CabinetLayout
-from sb3_memret.prompts import PromptTemplate, parse_prompt
+from sb3_memret.prompts import ParsedPrompt, PromptTemplate
 
 # ManiSkill 3.0.1 pd_ee_delta_pose: translation = action * 0.1 m in the base frame; rotation =
 # action * rot_lower (-0.1 rad) as a base-frame rotation, i.e. +1 turns by -0.1 rad.
@@ -138,12 +138,12 @@ class ScriptedDrawerController(FrozenController):
         """The current phase of every env (for introspection and tests)."""
         return [p.phase for p in self._plans]
 
-    def _act(self, obs: Obs, prompts: Sequence[str]) -> np.ndarray:
+    def _act(self, obs: Obs, prompts: Sequence[str], parsed: Sequence[ParsedPrompt]) -> np.ndarray:
         if len(self._plans) != len(prompts):
             raise RuntimeError(f"reset() was called for {len(self._plans)} envs but act() got {len(prompts)} prompts")
         chunks = []
-        for i, (plan, prompt) in enumerate(zip(self._plans, prompts)):
-            layer = parse_prompt(prompt, self.spec.prompt_template).layer or LAYERS[0]
+        for i, (plan, prompt) in enumerate(zip(self._plans, parsed)):
+            layer = prompt.layer or LAYERS[0]
             seen = Perception.from_obs(obs, i)
             if layer != plan.layer:
                 self._retarget(plan, layer)
