@@ -1,1 +1,9 @@
-"""Stable-baselines3 callbacks for training and evaluating memory policies."""
+"""Stable-baselines3 callbacks for training memory policies: rollout retrieval statistics,
+held-out evaluation with best-model saving, and per-round checkpoints."""
+
+from sb3_memret.callbacks.checkpoint import RoundCheckpointCallback, checkpoint_path, latest_checkpoint
+from sb3_memret.callbacks.evaluation import RetrievalEvalCallback
+from sb3_memret.callbacks.rollout_metrics import RolloutRetrievalCallback
+
+__all__ = ["RetrievalEvalCallback", "RolloutRetrievalCallback", "RoundCheckpointCallback", "checkpoint_path",
+           "latest_checkpoint"]

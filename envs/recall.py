@@ -54,7 +54,7 @@ class DrawerRecallEnv(gym.Env):
         replan_every: int = 8,
         gamma: float = 0.97,
         success_bonus: float = 0.0,
-        max_episode_steps: int = 400,
+        max_control_steps: int = 400,
         seeding: SeedingConfig | None = None,
         encoder: MiniLMEncoder | None = None,
         task_kwargs: dict[str, Any] | None = None,
@@ -70,7 +70,7 @@ class DrawerRecallEnv(gym.Env):
         self.controller = make_controller(controller) if isinstance(controller, str) else controller
         if not 1 <= replan_every <= self.controller.spec.chunk_len:
             raise ValueError(f"replan_every must be in [1, {self.controller.spec.chunk_len}], got {replan_every}")
-        self.task = make_task_env(max_episode_steps=max_episode_steps, **(task_kwargs or {}))
+        self.task = make_task_env(max_episode_steps=max_control_steps, **(task_kwargs or {}))
         self.controller.check_env(self.task)
         self.seeding = seeding or SeedingConfig()
         self.encoder = encoder or MiniLMEncoder()
@@ -142,6 +142,7 @@ class DrawerRecallEnv(gym.Env):
         if slots.shape != (self.k,) or (slots < 0).any() or (slots >= self.capacity).any():
             raise ValueError(f"action must be {self.k} slot indices in [0, {self.capacity}), got {action!r}")
         entries = self.bank.entries
+        decision_true_slot = self.true_slot()
         chosen = [entries[s] for s in slots if s < len(entries)]
         for s in slots[slots < len(entries)]:
             self.bank.mark_used(int(s))
@@ -164,7 +165,8 @@ class DrawerRecallEnv(gym.Env):
         self._write(self.compiler.update(self.extractor.extract(state), self._t))
         self.bank.age(self._t)
         out = self._info(state, success)
-        out.update(prompt=prompt, retrieved_true=any(is_true_cube_memory(e, self._layer) for e in chosen),
+        out.update(prompt=prompt, decision_true_slot=decision_true_slot,
+                   retrieved_true=any(is_true_cube_memory(e, self._layer) for e in chosen),
                    empty_slots=int(self.k - len(chosen)))
         return self._observation(), reward, terminated, truncated and not terminated, out
 

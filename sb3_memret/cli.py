@@ -4,10 +4,15 @@ from __future__ import annotations
 
 import json
 import sys
+from pathlib import Path
 
 import click
 
 from sb3_memret.envs.cabinet import LAYERS
+
+EXPERIMENTS = {"recall": "sb3_memret/DrawerRecall-v0"}
+DEFAULT_CONFIG = Path(__file__).resolve().parents[1] / "zoo_configs" / "memret_ppo.yml"
+HELD_OUT_SEED = 1_000_000
 
 
 def _controller(ctx: click.Context, param: click.Parameter, value: str):
@@ -17,6 +22,12 @@ def _controller(ctx: click.Context, param: click.Parameter, value: str):
         return make_controller(value)
     except ValueError as err:
         raise click.BadParameter(str(err), ctx=ctx, param=param) from err
+
+
+def _controller_spec(ctx: click.Context, param: click.Parameter, value: str) -> str:
+    """Check a controller spec in this process; envs built elsewhere (workers) receive the string."""
+    _controller(ctx, param, value)
+    return value
 
 
 @click.group(context_settings={"help_option_names": ["-h", "--help"]})
@@ -57,3 +68,104 @@ def rollout(controller, condition: str, episodes: int, layer: int | None, seed: 
     for key, rate in summary["success"].items():
         steps = summary["median_steps_to_success"][key]
         click.echo(f"| {key} | {rate:.0%} | {'-' if steps is None else f'{steps:.0f}'} |")
+
+
+@main.command()
+@click.argument("experiment", type=click.Choice(list(EXPERIMENTS)))
+@click.option("--config", "config_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help=f"rl-zoo-style YAML keyed by env id  [default: {DEFAULT_CONFIG.name} of the source tree]")
+@click.option("--controller", default="scripted", show_default=True, callback=_controller_spec,
+              help="Frozen controller the memory serves.")
+@click.option("--n-envs", type=click.IntRange(min=1), default=None, help="Parallel envs (workers)  [default: config]")
+@click.option("--timesteps", type=click.IntRange(min=1), default=None, help="Decisions in all  [default: config]")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Run folder  [default: runs/<experiment>-seed<seed>]")
+@click.option("--resume", is_flag=True, help="Continue the run in --out from its last checkpoint.")
+@click.option("--eval-episodes", type=click.IntRange(min=1), default=50, show_default=True,
+              help="Held-out episodes per evaluation.")
+@click.option("--eval-every", type=click.IntRange(min=1), default=1, show_default=True, help="Evaluate every N rounds.")
+@click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
+def train(experiment: str, config_path: Path | None, controller: str, n_envs: int | None, timesteps: int | None,
+          seed: int, out: Path | None, resume: bool, eval_episodes: int, eval_every: int, progress: bool) -> None:
+    """Train the retriever and retention networks with PPO (e.g. ``sb3-memret train recall``)."""
+    from sb3_memret.config import load_config
+    from sb3_memret.training import RunOptions, train as run_training
+
+    out = out or Path("runs") / f"{experiment}-seed{seed}"
+    config = None
+    if not resume or config_path or timesteps:
+        try:
+            config = load_config(config_path or DEFAULT_CONFIG, EXPERIMENTS[experiment])
+        except (FileNotFoundError, ValueError) as err:
+            raise click.BadParameter(str(err), param_hint="--config") from err
+        if n_envs is not None:
+            config.ppo["n_envs"] = n_envs
+        if timesteps is not None:
+            config.ppo["n_timesteps"] = timesteps
+    options = RunOptions(out=out, controller=controller, seed=seed, resume=resume, eval_episodes=eval_episodes,
+                         eval_every=eval_every, eval_seed=HELD_OUT_SEED, progress_bar=progress)
+    try:
+        result = run_training(config, options)
+    except (FileExistsError, FileNotFoundError) as err:
+        raise click.UsageError(str(err)) from err
+    click.echo(_history_table(result.history))
+    click.echo(f"\n{result.num_timesteps} decisions, {result.rounds} rounds in {result.wall_seconds / 60:.1f} min; "
+               f"run folder {result.out}")
+    if result.interrupted:
+        click.echo(f"interrupted: saved {result.model_path}; continue with "
+                   f"sb3-memret train {experiment} --out {result.out} --resume", err=True)
+        sys.exit(130)
+    click.echo(f"model: {result.model_path} (load with stable_baselines3.PPO.load)")
+
+
+def _history_table(history: list[dict]) -> str:
+    lines = ["| round | decisions | greedy acc. | sampled | entropy | success | layer 1 | layer 2 | layer 3 |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for row in history:
+        layers = " | ".join(f"{row['success'].get(str(layer), float('nan')):.0%}" for layer in LAYERS)
+        lines.append(f"| {row['round']} | {row['timesteps']} | {row['greedy_accuracy']:.0%} | "
+                     f"{row['sampled_fraction']:.0%} | {row['entropy']:.2f} | {row['success']['overall']:.0%} | {layers} |")
+    return "\n".join(lines)
+
+
+@main.command("eval")
+@click.argument("model_path", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@click.option("--condition", type=click.Choice(["recall", "oracle", "none"]), default="recall", show_default=True,
+              help="recall: the layer only via retrieved memory; oracle: in the instruction; none: bare instruction.")
+@click.option("--episodes", type=click.IntRange(min=1), default=50, show_default=True)
+@click.option("--controller", default="scripted", show_default=True, callback=_controller_spec)
+@click.option("--n-envs", type=click.IntRange(min=1), default=1, show_default=True)
+@click.option("--seed", type=click.IntRange(min=0), default=HELD_OUT_SEED, show_default=True,
+              help="Seed of the evaluation episodes (training never uses it).")
+@click.option("--stochastic", is_flag=True, help="Sample retrievals instead of acting greedily.")
+@click.option("--json", "as_json", is_flag=True, help="Print the report as JSON on stdout.")
+def evaluate(model_path: Path, condition: str, episodes: int, controller: str, n_envs: int, seed: int,
+             stochastic: bool, as_json: bool) -> None:
+    """Evaluate a trained model: success per layer and retrieval accuracy."""
+    from sb3_memret.evaluation import evaluate_retrieval
+    from sb3_memret.envs.vec_env import make_recall_vec_env
+    from sb3_memret.policy.ppo import MemRetPPO
+    from sb3_memret.training import eval_env_kwargs
+
+    model = MemRetPPO.load(model_path, device="cpu")
+    venv = make_recall_vec_env(n_envs, eval_env_kwargs(model, model_path, condition, controller))
+    try:
+        with click.progressbar(length=episodes, label=f"{condition} evaluation", file=sys.stderr) as bar:
+            report = evaluate_retrieval(model, venv, episodes, seed=seed, deterministic=not stochastic,
+                                        on_episode=lambda _: bar.update(1))
+    finally:
+        venv.close()
+    if as_json:
+        click.echo(json.dumps({"model": str(model_path), "condition": condition, **report.to_dict()}))
+        return
+    label = "greedy" if not stochastic else "sampled"
+    click.echo(f"model: {model_path}   condition: {condition}   episodes: {report.episodes}")
+    click.echo(f"{label} retrieval accuracy: {report.greedy_accuracy:.1%} over {report.decisions} decisions "
+               f"(sampled fraction {report.sampled_fraction:.1%}, entropy {report.entropy:.2f})")
+    click.echo("| layer | episodes | success |")
+    click.echo("|---|---|---|")
+    for key in [str(layer) for layer in LAYERS] + ["overall"]:
+        if key in report.success:
+            count = report.episodes if key == "overall" else report.episodes_per_layer[key]
+            click.echo(f"| {key} | {count} | {report.success[key]:.0%} |")

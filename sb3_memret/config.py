@@ -41,7 +41,7 @@ ENV_KEYS: dict[str, Check] = {
     "capacity": _positive_int(),
     "k": _positive_int(),
     "replan_every": _positive_int(),
-    "max_episode_steps": _positive_int(),
+    "max_control_steps": _positive_int(),
     "success_bonus": ((int, float), lambda v: v >= 0, "a number >= 0"),
 }
 

@@ -1,52 +1,14 @@
 """MemoryRetrievalPolicy and MemRetPPO on a small synthetic bank task the test makes."""
 
-import gymnasium as gym
 import numpy as np
 import pytest
 import torch
-from gymnasium import spaces
 from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_memret.policy.policy import MemoryRetrievalPolicy
 from sb3_memret.policy.ppo import MemRetPPO
-
-CAP, DIM = 6, 384
-
-
-class ToyBankEnv(gym.Env):
-    """One-decision episodes: the bank holds one 'true' memory near a fixed direction among
-    random decoys; reward 1 for retrieving it. Stands in for the simulator in fast tests."""
-
-    def __init__(self, empty_slots: int = 0):
-        self.empty_slots = empty_slots
-        self.observation_space = spaces.Dict(
-            instruction=spaces.Box(-1, 1, (DIM,), np.float32), memories=spaces.Box(-1, 1, (CAP, DIM), np.float32),
-            mask=spaces.Box(0, 1, (CAP,), np.float32), type_ids=spaces.Box(0, 5, (CAP,), np.float32),
-            age=spaces.Box(0, np.inf, (CAP,), np.float32), usage=spaces.Box(0, np.inf, (CAP,), np.float32))
-        self.action_space = spaces.MultiDiscrete([CAP])
-        direction = np.random.default_rng(123).standard_normal(DIM)
-        self.direction = (direction / np.linalg.norm(direction)).astype(np.float32)
-        self.received_weights = []
-
-    def set_retention_weights(self, state_dict):
-        self.received_weights.append(state_dict)
-
-    def reset(self, *, seed=None, options=None):
-        super().reset(seed=seed)
-        n = CAP - self.empty_slots
-        mem = self.np_random.standard_normal((CAP, DIM)).astype(np.float32)
-        self.true = int(self.np_random.integers(n))
-        mem[self.true] = self.direction + 0.3 * mem[self.true] / np.sqrt(DIM)
-        mem /= np.linalg.norm(mem, axis=1, keepdims=True)
-        mem[n:] = 0
-        mask = (np.arange(CAP) < n).astype(np.float32)
-        self.obs = dict(instruction=np.full(DIM, 1 / np.sqrt(DIM), np.float32), memories=mem, mask=mask,
-                        type_ids=np.zeros(CAP, np.float32), age=np.zeros(CAP, np.float32), usage=np.zeros(CAP, np.float32))
-        return self.obs, {"true_slot": self.true}
-
-    def step(self, action):
-        return self.obs, float(int(action[0]) == self.true), True, False, {"true_slot": self.true}
+from toy_bank import ToyBankEnv
 
 
 def greedy_accuracy(model, episodes=200, empty_slots=0):

@@ -17,7 +17,7 @@ def encoder():
 
 @pytest.fixture(scope="module")
 def recall_env(encoder):
-    env = gym.make(RECALL_ENV_ID, encoder=encoder, max_episode_steps=80)
+    env = gym.make(RECALL_ENV_ID, encoder=encoder, max_control_steps=80)
     yield env
     env.close()
 

@@ -1,0 +1,90 @@
+"""Held-out retrieval evaluation every few rounds, with best-model saving and a JSON-lines history."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.vec_env import VecEnv
+
+from sb3_memret.evaluation import RetrievalReport, evaluate_retrieval
+
+
+class RetrievalEvalCallback(BaseCallback):
+    """Evaluates the current policy greedily on held-out seeds at the start of every
+    ``eval_every``-th round (so row r of the log describes the policy after r updates, the same
+    policy that collects round r) and once more when training ends.
+
+    Logs ``eval/*`` (greedy accuracy, sampled fraction, entropy, success overall and per layer,
+    shaped return and reward, true-memory eviction rate) through the model's logger, appends
+    every report to ``history_path`` and saves ``best_model.zip`` when a policy beats the best
+    so far on (greedy accuracy, success, sampled fraction).
+    """
+
+    def __init__(self, eval_env: VecEnv, n_eval_episodes: int = 50, eval_seed: int = 1_000_000, eval_every: int = 1,
+                 best_model_save_path: str | Path | None = None, history_path: str | Path | None = None,
+                 verbose: int = 0):
+        super().__init__(verbose)
+        if n_eval_episodes < 1 or eval_every < 1:
+            raise ValueError(f"n_eval_episodes and eval_every must be >= 1, got {n_eval_episodes}, {eval_every}")
+        self.eval_env, self.n_eval_episodes, self.eval_seed = eval_env, n_eval_episodes, eval_seed
+        self.eval_every = eval_every
+        self.best_model_save_path = Path(best_model_save_path) if best_model_save_path else None
+        self.history_path = Path(history_path) if history_path else None
+        self.best_key: tuple[float, float, float] | None = None
+        self.last_report: RetrievalReport | None = None
+        self._evaluated_round = -1
+
+    @property
+    def round(self) -> int:
+        """PPO updates applied so far (survives save/load through ``_n_updates``)."""
+        return self.model._n_updates // self.model.n_epochs
+
+    def _init_callback(self) -> None:
+        for path in (self.best_model_save_path, self.history_path and self.history_path.parent):
+            if path:
+                path.mkdir(parents=True, exist_ok=True)
+        if self.history_path and self.history_path.exists():
+            rows = [json.loads(line) for line in self.history_path.read_text().splitlines() if line.strip()]
+            if rows:  # a resumed run keeps competing against its earlier best
+                best = max(rows, key=_key)
+                self.best_key = _key(best)
+
+    def _on_rollout_start(self) -> None:
+        if self.round % self.eval_every == 0:
+            self.evaluate()
+
+    def _on_step(self) -> bool:
+        return True
+
+    def _on_training_end(self) -> None:
+        if self._evaluated_round != self.round:
+            self.evaluate()
+            self.logger.dump(self.num_timesteps)
+
+    def evaluate(self) -> RetrievalReport:
+        start = time.perf_counter()
+        report = evaluate_retrieval(self.model, self.eval_env, self.n_eval_episodes, seed=self.eval_seed)
+        self._evaluated_round, self.last_report = self.round, report
+        for key, value in report.as_metrics().items():
+            self.logger.record(f"eval/{key}", value)
+        self.logger.record("eval/round", self.round)
+        self.logger.record("eval/seconds", time.perf_counter() - start)
+        row = {"round": self.round, "timesteps": self.num_timesteps, **report.to_dict()}
+        if self.history_path:
+            with self.history_path.open("a") as f:
+                f.write(json.dumps(row) + "\n")
+        if self.best_key is None or _key(row) > self.best_key:
+            self.best_key = _key(row)
+            if self.best_model_save_path:
+                self.model.save(self.best_model_save_path / "best_model.zip")
+        if self.verbose:
+            print(f"round {self.round}: greedy {report.greedy_accuracy:.0%}, sampled {report.sampled_fraction:.0%}, "
+                  f"entropy {report.entropy:.2f}, success {report.success['overall']:.0%}")
+        return report
+
+
+def _key(row: dict) -> tuple[float, float, float]:
+    return row["greedy_accuracy"], row["success"]["overall"], row["sampled_fraction"]

@@ -1,0 +1,178 @@
+"""One training run of the memory learner: envs, model, callbacks, logs, checkpoints, resume.
+
+A run lives in one folder::
+
+    config.yml              the hyperparameters it was started with (a resume reuses them)
+    progress.csv            one row per round (SB3 logger; a resume appends)
+    tensorboard/            the same scalars for tensorboard
+    evaluations.jsonl       every held-out evaluation report
+    checkpoints/            memret_<timesteps>_steps.zip after each update (and on Ctrl-C / crash)
+    best_model.zip          the best held-out policy so far
+    final_model.zip         the policy when training ended
+    summary.json            wall time and the last evaluation
+"""
+
+from __future__ import annotations
+
+import json
+import time
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from sb3_memret.callbacks import RetrievalEvalCallback, RolloutRetrievalCallback, RoundCheckpointCallback, latest_checkpoint
+from sb3_memret.callbacks.checkpoint import CHECKPOINT_PATTERN
+from sb3_memret.config import TrainConfig, parse_section
+from sb3_memret.envs.vec_env import make_recall_vec_env
+from sb3_memret.evaluation import RetrievalReport
+from sb3_memret.policy.policy import MemoryRetrievalPolicy
+from sb3_memret.policy.ppo import MemRetPPO
+from sb3_memret.run_logger import make_run_logger
+
+CONFIG_FILE = "config.yml"
+
+
+@dataclass
+class RunOptions:
+    """Everything a run needs besides its hyperparameters."""
+
+    out: Path
+    controller: str = "scripted"
+    seed: int = 0
+    resume: bool = False
+    eval_episodes: int = 50
+    eval_every: int = 1
+    eval_seed: int = 1_000_000
+    progress_bar: bool = False
+    log_formats: tuple[str, ...] = ("stdout", "csv", "tensorboard")
+    verbose: int = 0
+
+
+@dataclass
+class RunResult:
+    out: Path
+    model_path: Path
+    num_timesteps: int
+    rounds: int
+    wall_seconds: float
+    interrupted: bool = False
+    final: RetrievalReport | None = None
+    history: list[dict[str, Any]] = field(default_factory=list)
+
+
+def save_run_config(config: TrainConfig, path: Path) -> None:
+    section = {**config.ppo, "policy_kwargs": config.policy_kwargs, "env_kwargs": config.env_kwargs}
+    path.write_text(yaml.safe_dump({config.env_id: section}, sort_keys=False))
+
+
+def load_run_config(out: Path) -> TrainConfig:
+    data = yaml.safe_load((out / CONFIG_FILE).read_text())
+    (env_id, section), = data.items()
+    return parse_section(section, env_id, where=str(out / CONFIG_FILE))
+
+
+def env_kwargs_for(config: TrainConfig, controller: str) -> dict[str, Any]:
+    """The decision env's arguments: the config's, the controller, and PPO's gamma for the shaping."""
+    return {**config.env_kwargs, "controller": controller, "gamma": config.ppo.get("gamma", 0.97)}
+
+
+def eval_env_kwargs(model: MemRetPPO, model_path: Path, mode: str, controller: str) -> dict[str, Any]:
+    """Decision-env arguments matching a saved model: its bank size and K from its spaces, the
+    rest of the env settings from the run's config.yml when the model sits in a run folder."""
+    kwargs: dict[str, Any] = {}
+    for folder in (Path(model_path).parent, Path(model_path).parent.parent):
+        if (folder / CONFIG_FILE).exists():
+            kwargs = dict(load_run_config(folder).env_kwargs)
+            break
+    nvec = model.action_space.nvec
+    kwargs.update(mode=mode, controller=controller, gamma=model.gamma, capacity=int(nvec[0]), k=len(nvec))
+    return kwargs
+
+
+def train(config: TrainConfig | None, options: RunOptions) -> RunResult:
+    """Train (or, with ``options.resume``, continue) a run in ``options.out``.
+
+    Ctrl-C or an exception saves a checkpoint before leaving, so ``resume`` continues from it.
+    """
+    out = Path(options.out)
+    checkpoints = out / "checkpoints"
+    last = latest_checkpoint(checkpoints)
+    if options.resume:
+        if last is None:
+            raise FileNotFoundError(f"--resume: no checkpoint (checkpoints/memret_<steps>_steps.zip) in {str(out)!r}")
+        saved = load_run_config(out)
+        if config is not None and config.n_timesteps != saved.n_timesteps:
+            saved.ppo["n_timesteps"] = config.n_timesteps  # the only thing a resume may change
+            save_run_config(saved, out / CONFIG_FILE)
+        config = saved
+    else:
+        if config is None:
+            raise ValueError("a new run needs a config")
+        if last is not None or (out / CONFIG_FILE).exists():
+            raise FileExistsError(f"{str(out)!r} already holds a run; pass --resume to continue it or choose another --out")
+        out.mkdir(parents=True, exist_ok=True)
+        save_run_config(config, out / CONFIG_FILE)
+
+    env_kwargs = env_kwargs_for(config, options.controller)
+    done_steps = int(CHECKPOINT_PATTERN.match(last.name).group(1)) if options.resume else 0
+    venv = make_recall_vec_env(config.n_envs, env_kwargs, seed=options.seed + done_steps)  # fresh episodes on resume
+    eval_env = make_recall_vec_env(config.n_envs, env_kwargs)
+    checkpointer = RoundCheckpointCallback(checkpoints, verbose=options.verbose)
+    evaluator = RetrievalEvalCallback(eval_env, options.eval_episodes, options.eval_seed, options.eval_every,
+                                      best_model_save_path=out, history_path=out / "evaluations.jsonl",
+                                      verbose=options.verbose)
+    start, interrupted = time.perf_counter(), False
+    try:
+        if options.resume:
+            model = MemRetPPO.load(last, env=venv)
+        else:
+            model = MemRetPPO(MemoryRetrievalPolicy, venv, seed=options.seed, verbose=options.verbose,
+                              **config.algo_kwargs())
+        model.set_logger(make_run_logger(out, options.log_formats))
+        remaining = config.n_timesteps - model.num_timesteps
+        try:
+            if remaining > 0:
+                model.learn(remaining, callback=[RolloutRetrievalCallback(), evaluator, checkpointer],
+                            reset_num_timesteps=not options.resume, progress_bar=options.progress_bar)
+        except BaseException as err:
+            interrupted = isinstance(err, KeyboardInterrupt)
+            checkpointer.save()
+            if not interrupted:
+                raise
+        model_path = out / "final_model.zip"
+        if not interrupted:
+            model.save(model_path)
+        result = RunResult(out, model_path if not interrupted else latest_checkpoint(checkpoints),
+                           model.num_timesteps, model._n_updates // model.n_epochs, time.perf_counter() - start,
+                           interrupted, evaluator.last_report, read_history(out))
+        _write_summary(result)
+        model.logger.close()
+        return result
+    finally:
+        venv.close()
+        eval_env.close()
+
+
+def read_history(out: Path) -> list[dict[str, Any]]:
+    """Every evaluation report of a run, oldest first; a round evaluated twice (resume) keeps its last."""
+    path = Path(out) / "evaluations.jsonl"
+    if not path.exists():
+        return []
+    rows = {}
+    for line in path.read_text().splitlines():
+        if line.strip():
+            row = json.loads(line)
+            rows[row["round"]] = row
+    return [rows[r] for r in sorted(rows)]
+
+
+def _write_summary(result: RunResult) -> None:
+    summary = {"num_timesteps": result.num_timesteps, "rounds": result.rounds, "wall_seconds": result.wall_seconds,
+               "interrupted": result.interrupted, "model": str(result.model_path),
+               "final_eval": result.final.to_dict() if result.final else None}
+    (result.out / "summary.json").write_text(json.dumps(summary, indent=2))
+
+
+__all__ = ["RunOptions", "RunResult", "env_kwargs_for", "eval_env_kwargs", "load_run_config", "read_history", "train"]

@@ -1,0 +1,89 @@
+"""Callbacks and the run logger on the synthetic bank task: what gets logged, saved and kept."""
+
+import csv
+import json
+
+import pytest
+from stable_baselines3.common.vec_env import DummyVecEnv
+
+from sb3_memret.callbacks import (RetrievalEvalCallback, RolloutRetrievalCallback, RoundCheckpointCallback,
+                                  checkpoint_path, latest_checkpoint)
+from sb3_memret.policy.policy import MemoryRetrievalPolicy
+from sb3_memret.policy.ppo import MemRetPPO
+from sb3_memret.run_logger import make_run_logger
+from toy_bank import ToyBankEnv
+
+ROUND = 32
+
+
+def train_toy(tmp_path, rounds=3, keep=2):
+    model = MemRetPPO(MemoryRetrievalPolicy, DummyVecEnv([ToyBankEnv]), n_steps=ROUND, batch_size=ROUND, seed=0)
+    model.set_logger(make_run_logger(tmp_path, ("csv", "tensorboard")))
+    evaluator = RetrievalEvalCallback(DummyVecEnv([ToyBankEnv]), n_eval_episodes=8, best_model_save_path=tmp_path,
+                                      history_path=tmp_path / "evaluations.jsonl")
+    checkpointer = RoundCheckpointCallback(tmp_path / "checkpoints", keep=keep)
+    model.learn(ROUND * rounds, callback=[RolloutRetrievalCallback(), evaluator, checkpointer])
+    model.logger.close()
+    return model, evaluator
+
+
+def read_csv(path):
+    with open(path) as f:
+        return list(csv.DictReader(f))
+
+
+def test_every_round_logs_rollout_and_eval_metrics(tmp_path):
+    train_toy(tmp_path, rounds=3)
+    rows = read_csv(tmp_path / "progress.csv")
+    assert len(rows) == 4  # rounds 0-2 at collection time, then the final policy
+    for key in ("eval/greedy_accuracy", "eval/sampled_fraction", "eval/entropy", "eval/success", "eval/mean_return",
+                "eval/mean_reward", "eval/true_evicted_rate", "eval/round"):
+        assert all(row[key] != "" for row in rows), key
+    for key in ("rollout/sampled_fraction", "rollout/success", "rollout/episodes", "rollout/true_evicted_rate"):
+        assert all(row[key] != "" for row in rows[:3]), key
+    assert [int(float(row["eval/round"])) for row in rows] == [0, 1, 2, 3]
+    assert any(p.name.startswith("events.out.tfevents") for p in (tmp_path / "tensorboard").iterdir())
+
+
+def test_history_best_model_and_pruned_checkpoints(tmp_path):
+    model, evaluator = train_toy(tmp_path, rounds=3, keep=2)
+    history = [json.loads(line) for line in (tmp_path / "evaluations.jsonl").read_text().splitlines()]
+    assert [row["round"] for row in history] == [0, 1, 2, 3]
+    assert (tmp_path / "best_model.zip").exists()
+    assert evaluator.best_key == max((r["greedy_accuracy"], r["success"]["overall"], r["sampled_fraction"])
+                                     for r in history)
+    kept = sorted(p.name for p in (tmp_path / "checkpoints").iterdir())
+    assert kept == ["memret_64_steps.zip", "memret_96_steps.zip"]
+    assert latest_checkpoint(tmp_path / "checkpoints") == checkpoint_path(tmp_path / "checkpoints", 96)
+    # a checkpoint holds the policy after the update, ready to continue
+    loaded = MemRetPPO.load(latest_checkpoint(tmp_path / "checkpoints"))
+    assert loaded.num_timesteps == 96 and loaded._n_updates == model._n_updates
+
+
+def test_latest_checkpoint_of_empty_folder(tmp_path):
+    assert latest_checkpoint(tmp_path) is None
+    (tmp_path / "memret_x_steps.zip").write_text("")
+    assert latest_checkpoint(tmp_path) is None
+
+
+def test_csv_appends_and_backfills_new_columns(tmp_path):
+    logger = make_run_logger(tmp_path, ("csv",))
+    logger.record("a", 1)
+    logger.dump(0)
+    logger.close()
+    logger = make_run_logger(tmp_path, ("csv",))  # a resumed run
+    logger.record("a", 2)
+    logger.record("b", 3)
+    logger.dump(1)
+    logger.close()
+    rows = read_csv(tmp_path / "progress.csv")
+    assert rows == [{"a": "1", "b": ""}, {"a": "2", "b": "3"}]
+
+
+def test_bad_arguments_are_named():
+    with pytest.raises(ValueError, match="unknown log format 'xml'"):
+        make_run_logger("/tmp", ("xml",))
+    with pytest.raises(ValueError, match="every and keep"):
+        RoundCheckpointCallback("/tmp", every=0)
+    with pytest.raises(ValueError, match="n_eval_episodes"):
+        RetrievalEvalCallback(DummyVecEnv([ToyBankEnv]), n_eval_episodes=0)
