@@ -48,7 +48,7 @@ class RoundCheckpointCallback(BaseCallback):
 
     def save(self) -> Path:
         """Save now (also used when a run is interrupted) and prune old checkpoints."""
-        path = checkpoint_path(self.save_path, self.num_timesteps)
+        path = checkpoint_path(self.save_path, self.model.num_timesteps)
         self.model.save(path)
         if self.verbose:
             print(f"checkpoint: {path}")

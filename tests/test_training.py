@@ -1,0 +1,121 @@
+"""End to end on the real simulator: `sb3-memret train recall` runs, logs every metric, is
+interrupted and resumed from its checkpoint, and `sb3-memret eval` scores the result."""
+
+import csv
+import json
+
+import pytest
+from click.testing import CliRunner
+from stable_baselines3 import PPO
+
+from sb3_memret.callbacks import RolloutRetrievalCallback, latest_checkpoint
+from sb3_memret.cli import main
+from sb3_memret.config import parse_section
+from sb3_memret.training import RunOptions, read_history, train
+
+# Rounds of 16 decisions; episodes of 48 control steps (6 decisions) keep the run short.
+TINY = """sb3_memret/DrawerRecall-v0:
+  n_timesteps: 32
+  n_envs: 1
+  n_steps: 16
+  batch_size: 8
+  n_epochs: 2
+  env_kwargs:
+    max_control_steps: 48
+"""
+METRICS = ["eval/greedy_accuracy", "eval/sampled_fraction", "eval/entropy", "eval/success", "eval/mean_return",
+           "eval/mean_reward", "eval/true_evicted_rate", "rollout/sampled_fraction", "rollout/success",
+           "rollout/true_evicted_rate", "rollout/mean_reward", "train/raw_advantage_std", "train/entropy_loss"]
+
+
+def cli(*args):
+    return CliRunner().invoke(main, [str(a) for a in args])
+
+
+@pytest.fixture(scope="module")
+def run(tmp_path_factory):
+    folder = tmp_path_factory.mktemp("runs")
+    config = folder / "tiny.yml"
+    config.write_text(TINY)
+    out = folder / "run"
+    result = cli("train", "recall", "--config", config, "--out", out, "--eval-episodes", 2, "--no-progress")
+    assert result.exit_code == 0, result.output
+    return out, config, result.output
+
+
+def rows(out):
+    with open(out / "progress.csv") as f:
+        return list(csv.DictReader(f))
+
+
+def test_train_writes_a_complete_run(run):
+    out, _, output = run
+    for name in ("config.yml", "final_model.zip", "best_model.zip", "evaluations.jsonl", "summary.json"):
+        assert (out / name).exists(), name
+    assert any((out / "tensorboard").iterdir())
+    assert latest_checkpoint(out / "checkpoints").name == "memret_32_steps.zip"
+    logged = rows(out)
+    for metric in METRICS:
+        assert any(row.get(metric, "") != "" for row in logged), metric
+    assert [r["round"] for r in read_history(out)] == [0, 1, 2]
+    assert "| round | decisions | greedy acc." in output
+    summary = json.loads((out / "summary.json").read_text())
+    assert summary["num_timesteps"] == 32 and summary["rounds"] == 2 and not summary["interrupted"]
+    model = PPO.load(out / "final_model.zip")  # plain SB3 restores it
+    assert model.num_timesteps == 32
+
+
+def test_resume_continues_the_same_run(run):
+    out, config, _ = run
+    before = len(rows(out))
+    result = cli("train", "recall", "--out", out, "--resume", "--timesteps", 48, "--eval-episodes", 2, "--no-progress")
+    assert result.exit_code == 0, result.output
+    assert json.loads((out / "summary.json").read_text())["num_timesteps"] == 48
+    assert len(rows(out)) > before  # appended, not overwritten
+    assert [r["round"] for r in read_history(out)] == [0, 1, 2, 3]
+    assert latest_checkpoint(out / "checkpoints").name == "memret_48_steps.zip"
+
+
+def test_eval_command_reports_success_and_accuracy(run):
+    out, _, _ = run
+    result = cli("eval", out / "final_model.zip", "--episodes", 2, "--json")
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.stdout.strip().splitlines()[-1])
+    assert report["condition"] == "recall" and report["episodes"] == 2
+    assert 0.0 <= report["greedy_accuracy"] <= 1.0 and "overall" in report["success"]
+    table = cli("eval", out / "final_model.zip", "--episodes", 1, "--condition", "oracle")
+    assert table.exit_code == 0 and "greedy retrieval accuracy" in table.output and "| overall | 1 |" in table.output
+
+
+def test_interrupt_saves_a_checkpoint_that_resumes(tmp_path, monkeypatch):
+    config = parse_section({"n_timesteps": 48, "n_envs": 1, "n_steps": 16, "batch_size": 8, "n_epochs": 1,
+                            "env_kwargs": {"max_control_steps": 48}}, "sb3_memret/DrawerRecall-v0")
+    options = RunOptions(out=tmp_path / "run", eval_episodes=1, log_formats=("csv",))
+    original = RolloutRetrievalCallback._on_step
+    calls = {"n": 0}
+
+    def ctrl_c_on_the_20th_decision(self):
+        calls["n"] += 1
+        if calls["n"] == 20:
+            raise KeyboardInterrupt
+        return original(self)
+
+    monkeypatch.setattr(RolloutRetrievalCallback, "_on_step", ctrl_c_on_the_20th_decision)
+    result = train(config, options)
+    assert result.interrupted and result.num_timesteps == 20
+    assert latest_checkpoint(tmp_path / "run" / "checkpoints").name == "memret_20_steps.zip"
+    monkeypatch.setattr(RolloutRetrievalCallback, "_on_step", original)
+    resumed = train(None, RunOptions(out=tmp_path / "run", resume=True, eval_episodes=1, log_formats=("csv",)))
+    assert not resumed.interrupted and resumed.num_timesteps >= 48
+
+
+def test_run_folder_mistakes_are_refused(run, tmp_path):
+    out, config, _ = run
+    again = cli("train", "recall", "--config", config, "--out", out, "--no-progress")
+    assert again.exit_code == 2 and "already holds a run; pass --resume" in again.output
+    empty = cli("train", "recall", "--out", tmp_path / "nothing", "--resume", "--no-progress")
+    assert empty.exit_code == 2 and "no checkpoint" in empty.output
+    bad = tmp_path / "bad.yml"
+    bad.write_text(TINY.replace("n_epochs: 2", "n_epoch: 2"))
+    result = cli("train", "recall", "--config", bad, "--out", tmp_path / "x", "--no-progress")
+    assert result.exit_code == 2 and "unknown key 'n_epoch'" in result.output
