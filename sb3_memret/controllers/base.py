@@ -12,6 +12,15 @@ from sb3_memret.prompts import ParsedPrompt, PromptTemplate, parse_prompt
 
 Obs = Mapping[str, Any]
 
+# SAPIEN renders with Vulkan. It refuses Debian 12's lavapipe (Mesa 22.3: "failed to find a rendering
+# device"), which lacks VK_KHR_external_semaphore_fd; lavapipe offers that extension from Mesa 24.3 on.
+RENDER_HINT = (
+    "create the env with obs_mode='rgb' and a render backend: render_backend='gpu' on a machine with a "
+    "Vulkan GPU driver, or on a CPU-only machine render_backend='cpu' with a software Vulkan driver "
+    "(a Mesa >= 24.3 lavapipe, e.g. Debian 13's mesa-vulkan-drivers, "
+    "selected with VK_ICD_FILENAMES=<its lvp_icd.x86_64.json>)"
+)
+
 
 @dataclass(frozen=True)
 class ControllerSpec:
@@ -68,5 +77,10 @@ class FrozenController(ABC):
         if self.spec.needs_images and "rgb" not in str(getattr(base, "obs_mode", "")):
             raise ValueError(
                 f"{type(self).__name__} needs camera images but the env's obs_mode is {base.obs_mode!r}; "
-                "create it with obs_mode='rgb' and a render backend"
+                + RENDER_HINT
             )
+
+
+def as_numpy(x: Any) -> np.ndarray:
+    """A numpy view of a torch tensor (any device) or array-like observation entry."""
+    return x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x)

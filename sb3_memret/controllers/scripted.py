@@ -17,12 +17,12 @@ from __future__ import annotations
 
 import enum
 from dataclasses import dataclass
-from typing import Any, Sequence
+from typing import Sequence
 
 import numpy as np
 from scipy.spatial.transform import Rotation
 
-from sb3_memret.controllers.base import ControllerSpec, FrozenController, Obs
+from sb3_memret.controllers.base import ControllerSpec, FrozenController, Obs, as_numpy
 from sb3_memret.envs.cabinet import LAYERS, CabinetLayout
 from sb3_memret.prompts import ParsedPrompt, PromptTemplate
 
@@ -71,8 +71,8 @@ class Perception:
 
     @classmethod
     def from_obs(cls, obs: Obs, i: int) -> "Perception":
-        eef = _np(obs["agent"]["eef_state"])[i]
-        det = _np(obs["extra"]["cube_detection"])[i]
+        eef = as_numpy(obs["agent"]["eef_state"])[i]
+        det = as_numpy(obs["extra"]["cube_detection"])[i]
         cube_rot = Rotation.from_quat(det[[5, 6, 7, 4]]) if det[0] > 0.5 else Rotation.identity()
         x_axis = cube_rot.as_matrix()[:, 0]
         yaw = (np.arctan2(x_axis[1], x_axis[0]) + np.pi / 4) % (np.pi / 2) - np.pi / 4
@@ -80,7 +80,7 @@ class Perception:
             tcp_pos=eef[:3].astype(np.float64),
             tcp_rot=Rotation.from_rotvec(eef[3:6]),
             finger_width=float(eef[6] + eef[7]),
-            opening=_np(obs["extra"]["drawer_opening"])[i].astype(np.float64),
+            opening=as_numpy(obs["extra"]["drawer_opening"])[i].astype(np.float64),
             cube_visible=bool(det[0] > 0.5),
             cube_pos=det[1:4].astype(np.float64),
             cube_yaw=float(yaw),
@@ -289,7 +289,3 @@ class ScriptedDrawerController(FrozenController):
             pos = pos + dp
             rot = Rotation.from_rotvec(dr) * rot
         return chunk
-
-
-def _np(x: Any) -> np.ndarray:
-    return x.detach().cpu().numpy() if hasattr(x, "detach") else np.asarray(x)

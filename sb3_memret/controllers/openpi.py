@@ -1,0 +1,201 @@
+"""π0.5 behind an openpi policy server (``scripts/serve_policy.py``), as a frozen controller.
+
+The server speaks openpi's websocket protocol: on connect it sends its metadata, then answers
+each msgpack-numpy observation with ``{"actions": (H, 7), ...}``, or with a text frame holding
+its traceback when inference fails. It serves one observation per request, so ``act`` sends one
+request per env. Observations are mapped to the ``pi05_libero`` keys exactly as the task renders
+them (no flips, resizes or frame changes): ``observation/image`` is ``base_camera``,
+``observation/wrist_image`` is ``hand_camera``, ``observation/state`` is the 8-D ``eef_state``.
+
+openpi's own client waits forever for a reply; this one bounds every wait (connect, metadata,
+each inference), retries a bounded number of times, then raises naming the server and the limit.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import time
+from dataclasses import dataclass
+from typing import Any, Callable, Sequence, TypeVar
+
+import numpy as np
+
+try:
+    import websockets.exceptions
+    import websockets.sync.client
+    from openpi_client import msgpack_numpy
+except ImportError as err:
+    raise ImportError(
+        f"OpenPIController needs openpi-client and websockets ({err}); install them with "
+        "`pip install --no-deps openpi-client==0.1.2` (it pins numpy<2, which this project does not need) "
+        "and `pip install 'sb3-memret[openpi]'`"
+    ) from err
+
+from sb3_memret.controllers.base import RENDER_HINT, ControllerSpec, FrozenController, Obs, as_numpy
+from sb3_memret.prompts import ParsedPrompt, PromptTemplate
+
+PI05_LIBERO_ACTION_HORIZON = 10  # openpi's pi05_libero config: Pi0Config(pi05=True, action_horizon=10)
+IMAGE_SHAPE = (224, 224, 3)
+STATE_DIM = 8
+CAMERAS = {"observation/image": "base_camera", "observation/wrist_image": "hand_camera"}
+T = TypeVar("T")
+CLOSE_TIMEOUT = 0.5  # s; a dropped connection is not worth waiting longer for its closing handshake
+
+
+class PolicyServerError(RuntimeError):
+    """The policy server answered a request with an error instead of actions."""
+
+
+@dataclass(frozen=True)
+class ServerLimits:
+    """How long to wait for the server and how often to try before giving up (seconds)."""
+
+    connect_timeout: float = 10.0
+    infer_timeout: float = 30.0
+    attempts: int = 3
+    backoff: float = 0.5
+
+    def __post_init__(self) -> None:
+        if self.attempts < 1 or min(self.connect_timeout, self.infer_timeout) <= 0 or self.backoff < 0:
+            raise ValueError(f"invalid server limits {self}: need attempts >= 1, timeouts > 0, backoff >= 0")
+
+
+class PolicyServerClient:
+    """One websocket connection to an openpi server; every wait bounded, failures retried then raised."""
+
+    def __init__(self, host: str, port: int, limits: ServerLimits | None = None):
+        self.uri = f"ws://[{host}]:{port}" if ":" in host else f"ws://{host}:{port}"  # IPv6 literals in brackets
+        self.limits = limits or ServerLimits()
+        self._ws: websockets.sync.client.ClientConnection | None = None
+        self._closer = contextlib.ExitStack()  # closes the open connection, if any
+        self.metadata: dict = {}
+        self._retrying(self._connect, "connect")
+
+    def infer(self, request: dict[str, Any]) -> dict[str, Any]:
+        """Send one observation, return the server's reply; PolicyServerError if it reports an error."""
+        return self._retrying(lambda: self._infer_once(request), "infer")
+
+    def close(self) -> None:
+        self._closer.close()
+        self._ws = None
+
+    def _connect(self) -> None:
+        self.close()
+        with contextlib.ExitStack() as stack:
+            # No keepalive pings: openpi's server cannot answer them during inference, and every wait
+            # here is bounded anyway.
+            ws = stack.enter_context(websockets.sync.client.connect(
+                self.uri, open_timeout=self.limits.connect_timeout, close_timeout=CLOSE_TIMEOUT, ping_interval=None,
+                compression=None, max_size=None,
+            ))
+            self.metadata = msgpack_numpy.unpackb(ws.recv(timeout=self.limits.connect_timeout))
+            self._ws, self._closer = ws, stack.pop_all()
+
+    def _infer_once(self, request: dict[str, Any]) -> dict[str, Any]:
+        if self._ws is None:
+            self._connect()
+        self._ws.send(msgpack_numpy.packb(request))
+        reply = self._ws.recv(timeout=self.limits.infer_timeout)
+        if isinstance(reply, str):  # openpi sends the traceback as text, then closes the connection
+            self.close()
+            raise PolicyServerError(f"openpi server at {self.uri} failed on the request:\n{reply}")
+        return msgpack_numpy.unpackb(reply)
+
+    def _retrying(self, call: Callable[[], T], what: str) -> T:
+        """Run ``call`` up to ``attempts`` times; a timeout or a lost connection drops the socket first."""
+        limit = self.limits.connect_timeout if what == "connect" else self.limits.infer_timeout
+        failures = []
+        for attempt in range(self.limits.attempts):
+            if attempt:
+                time.sleep(self.limits.backoff * attempt)
+            try:
+                return call()
+            except (TimeoutError, OSError, websockets.exceptions.WebSocketException) as err:
+                self.close()  # a late reply must never answer the next request
+                failures.append(err)
+        timed_out = all(isinstance(e, TimeoutError) for e in failures)
+        error = TimeoutError if timed_out else ConnectionError
+        detail = f"no reply within {limit:g} s" if timed_out else f"last error: {failures[-1]!r}"
+        raise error(
+            f"openpi policy server at {self.uri}: {what} failed {len(failures)} times ({detail}); "
+            "is `scripts/serve_policy.py` running there and reachable?"
+        ) from failures[-1]
+
+
+class OpenPIController(FrozenController):
+    """π0.5 (``pi05_libero`` inputs and outputs) served by openpi, queried once per env and decision.
+
+    ``chunk_len`` defaults to the ``action_horizon`` the server's metadata publishes, else to
+    pi05_libero's 10; every reply must match it exactly.
+    """
+
+    def __init__(
+        self,
+        host: str,
+        port: int,
+        chunk_len: int | None = None,
+        limits: ServerLimits | None = None,
+        prompt_template: PromptTemplate | None = None,
+    ):
+        if chunk_len is not None and chunk_len < 1:
+            raise ValueError(f"chunk_len must be >= 1, got {chunk_len}")
+        self.client = PolicyServerClient(host, port, limits)
+        served_horizon = int(self.client.metadata.get("action_horizon", PI05_LIBERO_ACTION_HORIZON))
+        self.spec = ControllerSpec(
+            action_convention="pd_ee_delta_pose",
+            chunk_len=chunk_len or served_horizon,
+            needs_images=True,
+            prompt_template=prompt_template or PromptTemplate(),
+        )
+        self._num_envs = 0
+
+    def reset(self, seeds: Sequence[int]) -> None:
+        self._num_envs = len(seeds)  # the server keeps no episode state
+
+    def close(self) -> None:
+        self.client.close()
+
+    def _act(self, obs: Obs, prompts: Sequence[str], parsed: Sequence[ParsedPrompt]) -> np.ndarray:
+        if self._num_envs != len(prompts):
+            raise RuntimeError(f"reset() was called for {self._num_envs} envs but act() got {len(prompts)} prompts")
+        return np.stack([self._chunk(self.client.infer(pi05_libero_request(obs, i, p))) for i, p in enumerate(prompts)])
+
+    def _chunk(self, reply: dict[str, Any]) -> np.ndarray:
+        """The reply's action chunk, refused unless it is (chunk_len, 7) as the env's controller takes it."""
+        if "actions" not in reply:
+            raise PolicyServerError(
+                f"openpi server at {self.client.uri} replied without 'actions': keys {sorted(reply)}")
+        actions = np.asarray(reply["actions"], dtype=np.float32)
+        expected = (self.spec.chunk_len, self.spec.action_dim)
+        if actions.shape != expected:
+            raise PolicyServerError(
+                f"openpi server at {self.client.uri} returned actions of shape {actions.shape}, expected {expected}: "
+                f"{self.spec.action_dim}-D {self.spec.action_convention} actions, chunks of {self.spec.chunk_len} "
+                "(pass chunk_len= to match the served model's action horizon; actions are never transformed here)"
+            )
+        return actions
+
+
+def pi05_libero_request(obs: Obs, i: int, prompt: str) -> dict[str, Any]:
+    """Env ``i`` of a batched DrawerCubeTakeOut-v1 observation as one pi05_libero request."""
+    request: dict[str, Any] = {key: _camera_image(obs, camera, i) for key, camera in CAMERAS.items()}
+    state = as_numpy(obs["agent"]["eef_state"])[i].astype(np.float32)
+    if state.shape != (STATE_DIM,):
+        raise ValueError(f"agent/eef_state of env {i} has shape {state.shape}; pi05_libero takes ({STATE_DIM},)")
+    request["observation/state"] = state
+    request["prompt"] = prompt
+    return request
+
+
+def _camera_image(obs: Obs, camera: str, i: int) -> np.ndarray:
+    rgb = obs.get("sensor_data", {}).get(camera, {}).get("rgb")
+    if rgb is None:
+        raise ValueError(
+            f"the observation has no {camera} image (sensor_data/{camera}/rgb) and π0.5 needs both cameras; "
+            + RENDER_HINT
+        )
+    image = as_numpy(rgb)[i]
+    if image.shape != IMAGE_SHAPE or image.dtype != np.uint8:
+        raise ValueError(
+            f"{camera} image of env {i} is {image.dtype}{image.shape}; pi05_libero takes uint8{IMAGE_SHAPE}")
+    return np.ascontiguousarray(image)

@@ -1,0 +1,116 @@
+"""``--controller`` values: parsing, the errors for malformed ones, and what they build."""
+
+import socket
+import sys
+
+import pytest
+
+from sb3_memret.controllers import (
+    CONTROLLER_SPECS,
+    ScriptedDrawerController,
+    make_controller,
+    parse_lerobot_spec,
+    parse_openpi_spec,
+)
+
+
+def test_scripted():
+    assert isinstance(make_controller("scripted"), ScriptedDrawerController)
+
+
+@pytest.mark.parametrize("spec, expected", [
+    ("openpi://localhost:8000", ("localhost", 8000, {})),
+    ("openpi://10.1.2.3:9000?timeout=60&attempts=5", ("10.1.2.3", 9000, {"timeout": 60.0, "attempts": 5})),
+    ("openpi://gpu-box:8000?chunk_len=10", ("gpu-box", 8000, {"chunk_len": 10})),
+    ("openpi://[::1]:8000", ("::1", 8000, {})),
+])
+def test_openpi_specs(spec, expected):
+    assert parse_openpi_spec(spec) == expected
+
+
+@pytest.mark.parametrize("spec, message", [
+    ("openpi://localhost", "malformed openpi controller 'openpi://localhost'"),
+    ("openpi://:8000", "malformed openpi controller"),
+    ("openpi://localhost:99999", "malformed openpi controller"),
+    ("openpi://localhost:port", "malformed openpi controller"),
+    ("openpi://localhost:8000/policy", "malformed openpi controller"),
+    ("openpi:localhost:8000", "malformed openpi controller"),
+    ("openpi://localhost:8000?timeout=soon", r"option timeout='soon' .* is not a valid float"),
+    ("openpi://localhost:8000?retries=3", r"bad option 'retries'='3'.*\['attempts', 'chunk_len', 'timeout'\]"),
+    ("openpi://localhost:8000?timeout=1&timeout=2", "bad option 'timeout'='2'"),
+    ("openpi://localhost:8000?timeout=", "bad option 'timeout'=''"),
+    ("openpi://localhost:8000?timeout", "bad option"),
+])
+def test_malformed_openpi_specs_are_refused_with_the_accepted_form(spec, message):
+    with pytest.raises(ValueError, match=message) as err:
+        make_controller(spec)
+    assert spec in str(err.value)
+
+
+@pytest.mark.parametrize("spec, expected", [
+    ("lerobot:/ckpt/pi05", ("/ckpt/pi05", {})),
+    ("lerobot:runs/pi05?device=cuda", ("runs/pi05", {"device": "cuda"})),
+    ("lerobot:/ckpt?adapter=/lora&tokenizer=/tok", ("/ckpt", {"adapter": "/lora", "tokenizer": "/tok"})),
+])
+def test_lerobot_specs(spec, expected):
+    assert parse_lerobot_spec(spec) == expected
+
+
+@pytest.mark.parametrize("spec, message", [
+    ("lerobot:", "malformed lerobot controller 'lerobot:'"),
+    ("lerobot:?adapter=/lora", "malformed lerobot controller"),
+    ("lerobot:/ckpt?adaptor=/lora", r"bad option 'adaptor'.*\['adapter', 'device', 'tokenizer'\]"),
+    ("lerobot:/ckpt?adapter=", "bad option 'adapter'=''"),
+])
+def test_malformed_lerobot_specs_are_refused(spec, message):
+    with pytest.raises(ValueError, match=message):
+        make_controller(spec)
+
+
+@pytest.mark.parametrize("spec", ["pi0", "openpi", "lerobot", "Scripted", " scripted"])
+def test_unknown_specs_list_every_accepted_form(spec):
+    with pytest.raises(ValueError, match=r"unknown controller|malformed") as err:
+        make_controller(spec)
+    if "unknown" in str(err.value):
+        assert all(form in str(err.value) for form in CONTROLLER_SPECS)
+
+
+def test_openpi_spec_builds_the_client_with_its_options(monkeypatch):
+    pytest.importorskip("openpi_client", reason="openpi-client is not installed")
+    from sb3_memret.controllers import openpi
+
+    built = {}
+    monkeypatch.setattr(openpi, "OpenPIController", lambda host, port, **kw: built.update(host=host, port=port, **kw))
+    make_controller("openpi://gpu-box:8000?timeout=60&attempts=5&chunk_len=10")
+    assert built == {"host": "gpu-box", "port": 8000, "chunk_len": 10,
+                     "limits": openpi.ServerLimits(infer_timeout=60.0, attempts=5)}
+
+
+def test_openpi_spec_of_a_server_that_is_down_fails_fast():
+    pytest.importorskip("openpi_client", reason="openpi-client is not installed")
+    with socket.socket() as s:
+        s.bind(("127.0.0.1", 0))
+        port = s.getsockname()[1]
+    with pytest.raises(ConnectionError, match=rf"ws://127\.0\.0\.1:{port}: connect failed 1 times"):
+        make_controller(f"openpi://127.0.0.1:{port}?attempts=1")
+
+
+def test_lerobot_spec_passes_its_options(monkeypatch):
+    from sb3_memret.controllers import lerobot_pi05
+
+    built = {}
+    monkeypatch.setattr(lerobot_pi05, "LeRobotPi05Controller", lambda path, **kw: built.update(path=path, **kw))
+    make_controller("lerobot:/ckpt?adapter=/lora&tokenizer=/tok&device=cpu")
+    assert built == {"path": "/ckpt", "adapter": "/lora", "tokenizer": "/tok", "device": "cpu"}
+
+
+def test_openpi_spec_without_openpi_client_says_how_to_install(monkeypatch):
+    monkeypatch.setitem(sys.modules, "openpi_client", None)  # as if not installed
+    monkeypatch.delitem(sys.modules, "sb3_memret.controllers.openpi", raising=False)
+    with pytest.raises(ImportError, match=r"pip install --no-deps openpi-client==0\.1\.2.*sb3-memret\[openpi\]"):
+        make_controller("openpi://localhost:8000")
+
+
+def test_lerobot_spec_of_a_missing_folder_names_it(tmp_path):
+    with pytest.raises(FileNotFoundError, match=rf"checkpoint folder {tmp_path / 'nope'} does not exist"):
+        make_controller(f"lerobot:{tmp_path / 'nope'}")

@@ -1,0 +1,322 @@
+"""LeRobotPi05Controller: the strict load checks (no lerobot needed), and a tiny random PI05 end to end."""
+
+from __future__ import annotations
+
+import contextlib
+import functools
+import importlib.util
+import shutil
+from pathlib import Path
+
+import numpy as np
+import pytest
+import torch
+from torch import nn
+
+from sb3_memret.controllers.weights import LoadReport, WeightsNotLoadedError, check_loaded, compare_tensors
+
+HAS_LEROBOT = importlib.util.find_spec("lerobot") is not None
+NO_LEROBOT = "lerobot >= 0.5 with its pi and peft extras is not installed (it needs Python >= 3.12)"
+
+
+# ------------------------------------------------------------ the checks, on plain torch modules
+class Tiny(nn.Module):
+    def __init__(self, tied: bool = False):
+        super().__init__()
+        self.embed = nn.Embedding(5, 3)
+        self.head = nn.Linear(3, 5, bias=False)
+        self.norm = nn.LayerNorm(3)
+        if tied:
+            self.head.weight = self.embed.weight
+
+
+def saved_copy(module: nn.Module) -> dict[str, torch.Tensor]:
+    return {k: v.detach().clone() for k, v in module.state_dict().items()}
+
+
+def test_exact_copy_passes():
+    model = Tiny()
+    assert compare_tensors(model.state_dict(), saved_copy(model)).ok
+    check_loaded(model.state_dict(), saved_copy(model), "checkpoint x")
+
+
+def test_missing_weight_raises():
+    model = Tiny()
+    saved = saved_copy(model)
+    del saved["norm.bias"]
+    with pytest.raises(WeightsNotLoadedError, match=r"checkpoint x was not loaded as saved: 1 missing: norm\.bias"):
+        check_loaded(model.state_dict(), saved, "checkpoint x")
+
+
+def test_values_left_at_initialisation_raise():
+    """The known failure: the loader gave up quietly and the model kept its random weights."""
+    saved = saved_copy(Tiny())  # another random initialisation (the norm's ones and zeros coincide)
+    with pytest.raises(WeightsNotLoadedError, match=r"2 differing: embed\.weight, head\.weight$"):
+        check_loaded(Tiny().state_dict(), saved, "checkpoint x")
+
+
+def test_mismatched_shape_raises():
+    model = Tiny()
+    saved = {**saved_copy(model), "head.weight": torch.zeros(6, 3)}
+    with pytest.raises(WeightsNotLoadedError, match=r"1 mismatched: head\.weight \(6, 3\)->\(5, 3\)"):
+        check_loaded(model.state_dict(), saved, "checkpoint x")
+
+
+def test_saved_dtype_is_cast_like_loading_does():
+    model = Tiny().to(torch.bfloat16)
+    saved = {k: v.float() for k, v in saved_copy(model).items()}
+    assert compare_tensors(model.state_dict(), saved).ok
+
+
+def test_tied_weights_stored_once_are_not_missing():
+    model = Tiny(tied=True)
+    saved = saved_copy(model)
+    del saved["head.weight"]  # safetensors keeps one name per shared storage
+    assert compare_tensors(model.state_dict(), saved).ok
+
+
+def lora_state(model: nn.Module, prefix: str = "base_model.model.") -> dict[str, torch.Tensor]:
+    """A peft-style adapter state: rank-2 LoRA factors for ``model``'s head, saved-file names."""
+    gen = torch.Generator().manual_seed(0)
+    return {f"{prefix}head.lora_A.weight": torch.randn(2, 3, generator=gen),
+            f"{prefix}head.lora_B.weight": torch.randn(5, 2, generator=gen)}
+
+
+def test_adapter_with_dropped_tensors_raises():
+    """Adapter tensors whose names match no module are skipped by peft: missing and unexpected here."""
+    held = {k: torch.zeros_like(v) for k, v in lora_state(Tiny()).items()}  # LoRA layers left at init
+    saved = lora_state(Tiny(), prefix="base_model.model.model.")  # saved under another wrapping
+    report = compare_tensors(held, saved)
+    assert len(report.missing) == 2 and len(report.unexpected) == 2
+    with pytest.raises(WeightsNotLoadedError,
+                       match=r"LoRA adapter a was not loaded as saved: 2 missing: .*; 2 unexpected"):
+        check_loaded(held, saved, "LoRA adapter a")
+
+
+def test_adapter_with_a_missing_tensor_raises():
+    saved = lora_state(Tiny())
+    held = dict(saved)
+    held["base_model.model.head.lora_B.weight"] = torch.zeros(5, 2)  # peft's zero init: the adapter does nothing
+    partial = {k: v for k, v in saved.items() if "lora_B" not in k}
+    with pytest.raises(WeightsNotLoadedError, match=r"1 missing: base_model\.model\.head\.lora_B\.weight"):
+        check_loaded(held, partial, "LoRA adapter a")
+
+
+def test_nothing_saved_raises():
+    with pytest.raises(WeightsNotLoadedError, match="LoRA adapter a holds no tensors"):
+        check_loaded(Tiny().state_dict(), {}, "LoRA adapter a")
+
+
+def test_long_reports_are_cut():
+    report = LoadReport(missing=tuple(f"w{i}" for i in range(20)), unexpected=(), mismatched=(), differing=())
+    assert report.describe() == "20 missing: w0, w1, w2, w3, w4, w5, w6, w7 and 12 more"
+
+
+@pytest.mark.skipif(HAS_LEROBOT, reason="checks the message shown where lerobot is missing")
+def test_without_lerobot_the_controller_says_how_to_install(tmp_path):
+    from sb3_memret.controllers.lerobot_pi05 import LeRobotPi05Controller
+
+    (tmp_path / "model.safetensors").touch()
+    with pytest.raises(ImportError, match=r"pip install 'sb3-memret\[lerobot\]'.*Python >= 3\.12"):
+        LeRobotPi05Controller(tmp_path)
+
+
+# ---------------------------------------------------------------- a tiny random PI05, end to end
+TINY_WIDTH = 64
+TINY_VISION = dict(model_type="siglip_vision_model", hidden_size=32, intermediate_size=64, num_hidden_layers=1,
+                   num_attention_heads=2, patch_size=56, vision_use_head=False)
+PROMPTS = ["pick out the cube. the cube is in drawer layer 2.", "pick out the cube."]
+
+
+class TinyProjector(nn.Module):
+    """PaliGemma's image projector, onto the (tiny) language width instead of lerobot's fixed 2048."""
+
+    def __init__(self, config):
+        super().__init__()
+        self.linear = nn.Linear(config.vision_config.hidden_size, config.text_config.hidden_size)
+
+    def forward(self, image_features: torch.Tensor) -> torch.Tensor:
+        return self.linear(image_features)
+
+
+@contextlib.contextmanager
+def tiny_sizes():
+    """Shrink PI05 where lerobot reads its fixed sizes (gemma_300m/2b, the So400m vision tower, a
+    2048-wide image projector), for building and loading alike."""
+    from transformers import GemmaConfig, PaliGemmaConfig
+    from transformers.models.paligemma import modeling_paligemma
+
+    from lerobot.policies.pi05 import modeling_pi05
+
+    gemma = modeling_pi05.GemmaConfig(width=TINY_WIDTH, depth=2, mlp_dim=128, num_heads=2, num_kv_heads=1,
+                                      head_dim=32)
+    with pytest.MonkeyPatch.context() as mp:
+        mp.setattr(modeling_pi05, "get_gemma_config", lambda variant: gemma)
+        mp.setattr(modeling_pi05, "CONFIG_MAPPING",
+                   {"paligemma": functools.partial(PaliGemmaConfig, vision_config=TINY_VISION), "gemma": GemmaConfig})
+        mp.setattr(modeling_paligemma, "PaliGemmaMultiModalProjector", TinyProjector)
+        yield
+
+
+@pytest.fixture(scope="module")
+def tiny_pi05(tmp_path_factory):
+    """A randomly initialised PI05 (~50 M parameters, mostly the 257k-token embeddings), saved as a
+    checkpoint with its processors, a LoRA adapter and a local tokenizer."""
+    if not HAS_LEROBOT:
+        pytest.skip(NO_LEROBOT)
+    peft = pytest.importorskip("peft", reason=NO_LEROBOT)
+    from lerobot.configs import FeatureType, PolicyFeature
+    from lerobot.policies.pi05 import PI05Config, PI05Policy
+    from lerobot.policies.pi05.processor_pi05 import make_pi05_pre_post_processors
+    from lerobot.processor import tokenizer_processor
+
+    root = tmp_path_factory.mktemp("tiny_pi05")
+    tokenizer = make_tokenizer(root / "tokenizer")
+    feature = lambda kind, shape: PolicyFeature(type=kind, shape=shape)  # noqa: E731
+    config = PI05Config(
+        device="cpu", chunk_size=10, n_action_steps=10, num_inference_steps=2,
+        input_features={"observation.images.image": feature(FeatureType.VISUAL, (3, 224, 224)),
+                        "observation.images.wrist_image": feature(FeatureType.VISUAL, (3, 224, 224)),
+                        "observation.state": feature(FeatureType.STATE, (8,))},
+        output_features={"action": feature(FeatureType.ACTION, (7,))},
+    )
+    with tiny_sizes(), pytest.MonkeyPatch.context() as hub:
+        torch.manual_seed(0)
+        policy = PI05Policy(config)
+        policy.save_pretrained(root / "checkpoint")
+        stats = {key: {"q01": -torch.ones(n), "q99": torch.ones(n)}
+                 for key, n in (("observation.state", 8), ("action", 7))}
+        hub.setattr(tokenizer_processor.AutoTokenizer, "from_pretrained", lambda name, **kw: tokenizer)  # not the hub's
+        for pipeline in make_pi05_pre_post_processors(config, dataset_stats=stats):
+            pipeline.save_pretrained(root / "checkpoint")
+        lora = peft.LoraConfig(r=4, target_modules=policy._get_default_peft_targets()["target_modules"],
+                               init_lora_weights=False)  # random B: the adapter changes the actions
+        peft.get_peft_model(policy, lora).save_pretrained(root / "adapter")
+    return root
+
+
+def make_tokenizer(folder: Path):
+    """A word-level tokenizer saved like a hub one, standing in for PaliGemma's gated tokenizer."""
+    from tokenizers import Tokenizer, models, pre_tokenizers
+    from transformers import PreTrainedTokenizerFast
+
+    words = "Task: State: Action: pick out the cube. is in drawer layer".split() + [str(i) for i in range(256)]
+    vocab = {w: i for i, w in enumerate(["<pad>", "<unk>", "<bos>", "<eos>", *dict.fromkeys(words)])}
+    model = Tokenizer(models.WordLevel(vocab, unk_token="<unk>"))
+    model.pre_tokenizer = pre_tokenizers.WhitespaceSplit()
+    tokenizer = PreTrainedTokenizerFast(tokenizer_object=model, pad_token="<pad>", unk_token="<unk>",
+                                        bos_token="<bos>", eos_token="<eos>")
+    tokenizer.save_pretrained(folder)
+    return tokenizer
+
+
+@pytest.fixture
+def load(tiny_pi05):
+    """Build the controller (by default on the tiny checkpoint and tokenizer) with the tiny sizes in place."""
+    from sb3_memret.controllers.lerobot_pi05 import LeRobotPi05Controller
+
+    def build(checkpoint: Path | None = None, **kwargs) -> LeRobotPi05Controller:
+        kwargs.setdefault("tokenizer", tiny_pi05 / "tokenizer")
+        with tiny_sizes():
+            return LeRobotPi05Controller(checkpoint or tiny_pi05 / "checkpoint", **kwargs)
+
+    return build
+
+
+def fake_obs(batch: int = 2) -> dict:
+    rng = np.random.default_rng(0)
+    return {
+        "agent": {"eef_state": rng.uniform(-1, 1, size=(batch, 8)).astype(np.float32)},
+        "sensor_data": {cam: {"rgb": rng.integers(0, 256, (batch, 224, 224, 3), dtype=np.uint8)}
+                        for cam in ("base_camera", "hand_camera")},
+    }
+
+
+def test_tiny_pi05_with_adapter_acts_end_to_end(tiny_pi05, load):
+    controller = load(adapter=tiny_pi05 / "adapter")
+    assert controller.spec.chunk_len == 10 and controller.spec.needs_images
+    controller.reset([0, 1])
+    first = controller.act(fake_obs(), PROMPTS)
+    assert first.shape == (2, 10, 7) and first.dtype == np.float32 and np.isfinite(first).all()
+    controller.reset([0, 1])
+    np.testing.assert_array_equal(controller.act(fake_obs(), PROMPTS), first)  # seeded per env
+    base = load()
+    base.reset([0, 1])
+    assert not np.allclose(base.act(fake_obs(), PROMPTS), first)  # the adapter is in effect
+
+
+def test_tiny_pi05_rolls_out_a_few_steps_on_the_task(load):
+    """Observations from the real task (state from the simulator, images drawn since nothing renders here)."""
+    from sb3_memret.rollout import make_task_env
+
+    controller = load()
+    env = make_task_env(robot_init_qpos_noise=0.0)
+    obs, _ = env.reset(seed=3, options={"cube_layer": 2})
+    controller.reset([3])
+    images = fake_obs(1)["sensor_data"]
+    for _ in range(3):
+        chunk = controller.act({**obs, "sensor_data": images}, [PROMPTS[0]])[0]
+        for action in chunk[:8]:
+            obs, *_ = env.step(np.clip(action, -1, 1))
+    assert np.isfinite(obs["agent"]["eef_state"].numpy()).all()
+    env.close()
+
+
+def test_missing_images_are_refused(load):
+    controller = load()
+    controller.reset([0, 1])
+    obs = fake_obs()
+    del obs["sensor_data"]["base_camera"]
+    with pytest.raises(ValueError, match=r"no base_camera image.*observation\.images\.image.*render_backend"):
+        controller.act(obs, PROMPTS)
+
+
+def test_drifted_prompt_is_refused(load):
+    controller = load()
+    controller.reset([0, 1])
+    with pytest.raises(ValueError, match="matches no trained template"):
+        controller.act(fake_obs(), ["pick out the cube. the cube sits in drawer layer 2.", PROMPTS[1]])
+
+
+def copy_with(src: Path, dst: Path, file: str, edit) -> Path:
+    """A copy of folder ``src`` whose safetensors ``file`` went through ``edit``."""
+    from safetensors.torch import load_file, save_file
+
+    shutil.copytree(src, dst)
+    save_file(edit(load_file(dst / file)), dst / file)
+    return dst
+
+
+def test_checkpoint_missing_a_weight_raises(tiny_pi05, load, tmp_path):
+    key = "model.action_out_proj.bias"
+    checkpoint = copy_with(tiny_pi05 / "checkpoint", tmp_path / "ckpt", "model.safetensors",
+                           lambda t: {k: v for k, v in t.items() if k != key})
+    with pytest.raises(WeightsNotLoadedError, match=rf"1 missing: {key}"):
+        load(checkpoint)
+
+
+def test_checkpoint_without_weights_raises(tiny_pi05, load, tmp_path):
+    checkpoint = shutil.copytree(tiny_pi05 / "checkpoint", tmp_path / "ckpt")
+    (checkpoint / "model.safetensors").unlink()
+    with pytest.raises(FileNotFoundError, match="has no model.safetensors"):
+        load(checkpoint)
+
+
+@pytest.mark.filterwarnings("ignore:Found missing adapter keys")  # peft's warning is what these turn into errors
+@pytest.mark.parametrize("case", ["renamed", "dropped", "extra", "wrong_rank"])
+def test_adapter_with_missing_or_mismatched_tensors_raises(tiny_pi05, load, tmp_path, case):
+    def edit(tensors: dict) -> dict:
+        if case == "renamed":  # saved under another wrapping: peft would skip them all
+            return {k.replace("base_model.model.model.", "base_model.model."): v for k, v in tensors.items()}
+        if case == "dropped":
+            return {k: v for k, v in tensors.items() if "action_out_proj.lora_B" not in k}
+        if case == "extra":
+            return {**tensors, "base_model.model.model.time_mlp_in.lora_A.weight": torch.ones(4, TINY_WIDTH)}
+        key = next(k for k in tensors if k.endswith("lora_A.weight"))
+        return {**tensors, key: torch.zeros(5, tensors[key].shape[1])}
+
+    adapter = copy_with(tiny_pi05 / "adapter", tmp_path / "adapter", "adapter_model.safetensors", edit)
+    expected = {"renamed": "12 missing.*12 unexpected", "dropped": "1 missing: .*action_out_proj.lora_B",
+                "extra": "1 unexpected: .*time_mlp_in", "wrong_rank": "does not fit the policy.*size mismatch"}[case]
+    with pytest.raises(WeightsNotLoadedError, match=rf"(?s)LoRA adapter .*{expected}"):
+        load(adapter=adapter)
