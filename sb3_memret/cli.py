@@ -20,7 +20,7 @@ def _controller(ctx: click.Context, param: click.Parameter, value: str):
 
     try:
         return make_controller(value)
-    except ValueError as err:
+    except (ValueError, OSError, ImportError, RuntimeError) as err:  # bad spec, server down, missing extra or weights
         raise click.BadParameter(str(err), ctx=ctx, param=param) from err
 
 
@@ -90,7 +90,7 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
           seed: int, out: Path | None, resume: bool, eval_episodes: int, eval_every: int, progress: bool) -> None:
     """Train the retriever and retention networks with PPO (e.g. ``sb3-memret train recall``)."""
     from sb3_memret.config import load_config
-    from sb3_memret.training import RunOptions, train as run_training
+    from sb3_memret.training import RunOptions, format_history, train as run_training
 
     out = out or Path("runs") / f"{experiment}-seed{seed}"
     config = None
@@ -109,7 +109,7 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
         result = run_training(config, options)
     except (FileExistsError, FileNotFoundError) as err:
         raise click.UsageError(str(err)) from err
-    click.echo(_history_table(result.history))
+    click.echo(format_history(result.history))
     click.echo(f"\n{result.num_timesteps} decisions, {result.rounds} rounds in {result.wall_seconds / 60:.1f} min; "
                f"run folder {result.out}")
     if result.interrupted:
@@ -117,16 +117,6 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
                    f"sb3-memret train {experiment} --out {result.out} --resume", err=True)
         sys.exit(130)
     click.echo(f"model: {result.model_path} (load with stable_baselines3.PPO.load)")
-
-
-def _history_table(history: list[dict]) -> str:
-    lines = ["| round | decisions | greedy acc. | sampled | entropy | success | layer 1 | layer 2 | layer 3 |",
-             "|---|---|---|---|---|---|---|---|---|"]
-    for row in history:
-        layers = " | ".join(f"{row['success'].get(str(layer), float('nan')):.0%}" for layer in LAYERS)
-        lines.append(f"| {row['round']} | {row['timesteps']} | {row['greedy_accuracy']:.0%} | "
-                     f"{row['sampled_fraction']:.0%} | {row['entropy']:.2f} | {row['success']['overall']:.0%} | {layers} |")
-    return "\n".join(lines)
 
 
 @main.command("eval")

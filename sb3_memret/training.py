@@ -25,6 +25,7 @@ import yaml
 from sb3_memret.callbacks import RetrievalEvalCallback, RolloutRetrievalCallback, RoundCheckpointCallback, latest_checkpoint
 from sb3_memret.callbacks.checkpoint import CHECKPOINT_PATTERN
 from sb3_memret.config import TrainConfig, parse_section
+from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.evaluation import RetrievalReport
 from sb3_memret.policy.policy import MemoryRetrievalPolicy
@@ -168,6 +169,18 @@ def read_history(out: Path) -> list[dict[str, Any]]:
     return [rows[r] for r in sorted(rows)]
 
 
+def format_history(history: list[dict[str, Any]]) -> str:
+    """The per-round evaluation table of a run, in markdown."""
+    lines = ["| round | decisions | greedy acc. | sampled | entropy | success | layer 1 | layer 2 | layer 3 |",
+             "|---|---|---|---|---|---|---|---|---|"]
+    for row in history:
+        layers = " | ".join(f"{row['success'][str(layer)]:.0%}" if str(layer) in row["success"] else "-"
+                            for layer in LAYERS)
+        lines.append(f"| {row['round']} | {row['timesteps']} | {row['greedy_accuracy']:.0%} | "
+                     f"{row['sampled_fraction']:.0%} | {row['entropy']:.2f} | {row['success']['overall']:.0%} | {layers} |")
+    return "\n".join(lines)
+
+
 def _write_summary(result: RunResult) -> None:
     summary = {"num_timesteps": result.num_timesteps, "rounds": result.rounds, "wall_seconds": result.wall_seconds,
                "interrupted": result.interrupted, "model": str(result.model_path),
@@ -175,4 +188,4 @@ def _write_summary(result: RunResult) -> None:
     (result.out / "summary.json").write_text(json.dumps(summary, indent=2))
 
 
-__all__ = ["RunOptions", "RunResult", "env_kwargs_for", "eval_env_kwargs", "load_run_config", "read_history", "train"]
+__all__ = ["RunOptions", "RunResult", "env_kwargs_for", "eval_env_kwargs", "format_history", "load_run_config", "read_history", "train"]
