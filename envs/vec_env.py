@@ -11,6 +11,8 @@ from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv,
 
 def _env_factory(env_id: str, env_kwargs: dict[str, Any], in_worker: bool) -> Callable[[], gym.Env]:
     def make() -> gym.Env:
+        import sb3_memret.envs  # noqa: F401  (registers the env ids in a fresh worker process)
+
         if in_worker:
             # Ctrl-C belongs to the trainer, which saves a checkpoint and then closes the workers;
             # one torch thread per worker keeps n workers from oversubscribing the cores.
