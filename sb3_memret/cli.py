@@ -84,7 +84,8 @@ def rollout(controller, condition: str, episodes: int, layer: int | None, seed: 
 @click.option("--resume", is_flag=True, help="Continue the run in --out from its last checkpoint.")
 @click.option("--eval-episodes", type=click.IntRange(min=1), default=50, show_default=True,
               help="Held-out episodes per evaluation.")
-@click.option("--eval-every", type=click.IntRange(min=1), default=1, show_default=True, help="Evaluate every N rounds.")
+@click.option("--eval-every", type=click.IntRange(min=1), default=5, show_default=True,
+              help="Evaluate every N rounds (and at the end).")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
 def train(experiment: str, config_path: Path | None, controller: str, n_envs: int | None, timesteps: int | None,
           seed: int, out: Path | None, resume: bool, eval_episodes: int, eval_every: int, progress: bool) -> None:

@@ -44,7 +44,7 @@ class RunOptions:
     seed: int = 0
     resume: bool = False
     eval_episodes: int = 50
-    eval_every: int = 1
+    eval_every: int = 5
     eval_seed: int = 1_000_000
     progress_bar: bool = False
     log_formats: tuple[str, ...] = ("stdout", "csv", "tensorboard")
@@ -132,6 +132,7 @@ def train(config: TrainConfig | None, options: RunOptions) -> RunResult:
             model = MemRetPPO(MemoryRetrievalPolicy, venv, seed=options.seed, verbose=options.verbose,
                               **config.algo_kwargs())
         model.set_logger(make_run_logger(out, options.log_formats))
+        checkpointer.init_callback(model)  # so an interrupt even before the first round can save
         remaining = config.n_timesteps - model.num_timesteps
         try:
             if remaining > 0:
