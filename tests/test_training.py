@@ -119,3 +119,33 @@ def test_run_folder_mistakes_are_refused(run, tmp_path):
     bad.write_text(TINY.replace("n_epochs: 2", "n_epoch: 2"))
     result = cli("train", "recall", "--config", bad, "--out", tmp_path / "x", "--no-progress")
     assert result.exit_code == 2 and "unknown key 'n_epoch'" in result.output
+
+
+@pytest.mark.slow
+def test_retrieval_is_learned_on_the_real_simulator():
+    """Ten rounds of the default config from random initialisation: the greedy retriever picks the
+    true cube memory and the sampling policy has moved well away from chance (scripts/bench_learning.py
+    runs the full 48 rounds)."""
+    from sb3_memret.cli import DEFAULT_CONFIG
+    from sb3_memret.config import load_config
+    from sb3_memret.envs.vec_env import make_recall_vec_env
+    from sb3_memret.evaluation import evaluate_retrieval
+    from sb3_memret.policy.policy import MemoryRetrievalPolicy
+    from sb3_memret.policy.ppo import MemRetPPO
+    from sb3_memret.training import env_kwargs_for
+
+    config = load_config(DEFAULT_CONFIG, "sb3_memret/DrawerRecall-v0")
+    kwargs = env_kwargs_for(config, "scripted")
+    venv = make_recall_vec_env(config.n_envs, kwargs, seed=0)
+    held_out = make_recall_vec_env(config.n_envs, kwargs)
+    try:
+        model = MemRetPPO(MemoryRetrievalPolicy, venv, seed=0, **config.algo_kwargs())
+        before = evaluate_retrieval(model, held_out, 6, seed=1_000_000)
+        model.learn(10 * config.n_envs * config.ppo["n_steps"])
+        after = evaluate_retrieval(model, held_out, 20, seed=1_000_000)
+    finally:
+        venv.close()
+        held_out.close()
+    assert before.entropy > 1.75  # uniform over six is 1.79
+    assert after.greedy_accuracy >= 0.9, after
+    assert after.sampled_fraction > 0.25 and after.entropy < 1.65, after
