@@ -89,7 +89,8 @@ def rollout(controller, condition: str, episodes: int, layer: int | None, seed: 
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
 def train(experiment: str, config_path: Path | None, controller: str, n_envs: int | None, timesteps: int | None,
           seed: int, out: Path | None, resume: bool, eval_episodes: int, eval_every: int, progress: bool) -> None:
-    """Train the retriever and retention networks with PPO (e.g. ``sb3-memret train recall``)."""
+    """Train the retriever and retention networks with PPO on EXPERIMENT (recall: the drawer layer
+    reaches the controller only through a retrieved memory)."""
     from sb3_memret.config import load_config
     from sb3_memret.training import RunOptions, format_history, train as run_training
 
@@ -124,8 +125,9 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
 @click.argument("model_path", type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @click.option("--condition", type=click.Choice(["recall", "oracle", "none"]), default="recall", show_default=True,
               help="recall: the layer only via retrieved memory; oracle: in the instruction; none: bare instruction.")
-@click.option("--episodes", type=click.IntRange(min=1), default=50, show_default=True)
-@click.option("--controller", default="scripted", show_default=True, callback=_controller_spec)
+@click.option("--episodes", type=click.IntRange(min=1), default=50, show_default=True, help="Held-out episodes.")
+@click.option("--controller", default="scripted", show_default=True, callback=_controller_spec,
+              help="Frozen controller the memory serves.")
 @click.option("--n-envs", type=click.IntRange(min=1), default=1, show_default=True)
 @click.option("--seed", type=click.IntRange(min=0), default=HELD_OUT_SEED, show_default=True,
               help="Seed of the evaluation episodes (training never uses it).")

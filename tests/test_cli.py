@@ -7,7 +7,7 @@ from sb3_memret.cli import main
 
 def test_every_command_has_help():
     runner = CliRunner()
-    for args in ([], ["rollout"]):
+    for args in ([], ["rollout"], ["train"], ["eval"]):
         result = runner.invoke(main, [*args, "--help"])
         assert result.exit_code == 0 and "Usage" in result.output
 
