@@ -38,7 +38,7 @@ def run(tmp_path_factory):
     config = folder / "tiny.yml"
     config.write_text(TINY)
     out = folder / "run"
-    result = cli("train", "recall", "--config", config, "--out", out, "--eval-episodes", 2, "--no-progress")
+    result = cli("train", "recall", "--config", config, "--out", out, "--eval-episodes", 2, "--eval-every", 1, "--no-progress")
     assert result.exit_code == 0, result.output
     return out, config, result.output
 
@@ -68,7 +68,7 @@ def test_train_writes_a_complete_run(run):
 def test_resume_continues_the_same_run(run):
     out, config, _ = run
     before = len(rows(out))
-    result = cli("train", "recall", "--out", out, "--resume", "--timesteps", 48, "--eval-episodes", 2, "--no-progress")
+    result = cli("train", "recall", "--out", out, "--resume", "--timesteps", 48, "--eval-episodes", 2, "--eval-every", 1, "--no-progress")
     assert result.exit_code == 0, result.output
     assert json.loads((out / "summary.json").read_text())["num_timesteps"] == 48
     assert len(rows(out)) > before  # appended, not overwritten
@@ -90,7 +90,7 @@ def test_eval_command_reports_success_and_accuracy(run):
 def test_interrupt_saves_a_checkpoint_that_resumes(tmp_path, monkeypatch):
     config = parse_section({"n_timesteps": 48, "n_envs": 1, "n_steps": 16, "batch_size": 8, "n_epochs": 1,
                             "env_kwargs": {"max_control_steps": 48}}, "sb3_memret/DrawerRecall-v0")
-    options = RunOptions(out=tmp_path / "run", eval_episodes=1, log_formats=("csv",))
+    options = RunOptions(out=tmp_path / "run", eval_episodes=1, eval_every=1, log_formats=("csv",))
     original = RolloutRetrievalCallback._on_step
     calls = {"n": 0}
 
