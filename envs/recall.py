@@ -55,6 +55,7 @@ class DrawerRecallEnv(gym.Env):
         gamma: float = 0.97,
         success_bonus: float = 0.0,
         max_control_steps: int = 400,
+        render_backend: str = "none",
         seeding: SeedingConfig | None = None,
         encoder: MiniLMEncoder | None = None,
         task_kwargs: dict[str, Any] | None = None,
@@ -63,14 +64,15 @@ class DrawerRecallEnv(gym.Env):
             raise ValueError(f"unknown mode {mode!r}; expected one of {list(MODES)}")
         if not 1 <= k <= capacity:
             raise ValueError(f"k must be in [1, capacity={capacity}], got {k}")
-        from sb3_memret.rollout import make_task_env
+        from sb3_memret.rollout import make_task_env, task_env_kwargs
 
         self.mode, self.capacity, self.k = mode, capacity, k
         self.replan_every, self.gamma, self.success_bonus = replan_every, gamma, success_bonus
         self.controller = make_controller(controller) if isinstance(controller, str) else controller
         if not 1 <= replan_every <= self.controller.spec.chunk_len:
             raise ValueError(f"replan_every must be in [1, {self.controller.spec.chunk_len}], got {replan_every}")
-        self.task = make_task_env(max_episode_steps=max_control_steps, **(task_kwargs or {}))
+        task_kwargs = {**task_env_kwargs(self.controller, render_backend), **(task_kwargs or {})}
+        self.task = make_task_env(max_episode_steps=max_control_steps, **task_kwargs)
         self.controller.check_env(self.task)
         self.seeding = seeding or SeedingConfig()
         self.encoder = encoder or MiniLMEncoder()

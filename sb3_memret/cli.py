@@ -24,6 +24,11 @@ def _controller(ctx: click.Context, param: click.Parameter, value: str):
         raise click.BadParameter(str(err), ctx=ctx, param=param) from err
 
 
+def _render_backend_option(command):
+    return click.option("--render-backend", type=click.Choice(["none", "cpu", "gpu"]), default="none", show_default=True,
+                        help="SAPIEN render backend; controllers that read camera images need cpu or gpu.")(command)
+
+
 def _controller_spec(ctx: click.Context, param: click.Parameter, value: str) -> str:
     """Check a controller spec in this process; envs built elsewhere (workers) receive the string."""
     _controller(ctx, param, value)
@@ -48,15 +53,16 @@ def main() -> None:
 @click.option("--replan-every", type=click.IntRange(min=1), default=8, show_default=True,
               help="Control steps executed from each action chunk before replanning.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
+@_render_backend_option
 def rollout(controller, condition: str, episodes: int, layer: int | None, seed: int, replan_every: int,
-            as_json: bool) -> None:
+            as_json: bool, render_backend: str) -> None:
     """Run a frozen controller on DrawerCubeTakeOut-v1 and print success per layer."""
     from sb3_memret.rollout import evaluate_condition, summarize
 
     layers = (layer,) if layer else LAYERS
     with click.progressbar(length=episodes * len(layers), label=f"{condition} rollouts", file=sys.stderr) as bar:
         results = evaluate_condition(controller, condition, episodes, layers, seed, replan_every,
-                                     on_episode=lambda _: bar.update(1))
+                                     on_episode=lambda _: bar.update(1), render_backend=render_backend)
     summary = summarize(results)
     if as_json:
         click.echo(json.dumps({"condition": condition, "episodes": episodes, "success": summary["success"],
@@ -87,8 +93,10 @@ def rollout(controller, condition: str, episodes: int, layer: int | None, seed: 
 @click.option("--eval-every", type=click.IntRange(min=1), default=5, show_default=True,
               help="Evaluate every N rounds (and at the end).")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
+@_render_backend_option
 def train(experiment: str, config_path: Path | None, controller: str, n_envs: int | None, timesteps: int | None,
-          seed: int, out: Path | None, resume: bool, eval_episodes: int, eval_every: int, progress: bool) -> None:
+          seed: int, out: Path | None, resume: bool, eval_episodes: int, eval_every: int, progress: bool,
+          render_backend: str) -> None:
     """Train the retriever and retention networks with PPO on EXPERIMENT (recall: the drawer layer
     reaches the controller only through a retrieved memory)."""
     from sb3_memret.config import load_config
@@ -106,7 +114,8 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
         if timesteps is not None:
             config.ppo["n_timesteps"] = timesteps
     options = RunOptions(out=out, controller=controller, seed=seed, resume=resume, eval_episodes=eval_episodes,
-                         eval_every=eval_every, eval_seed=HELD_OUT_SEED, progress_bar=progress)
+                         eval_every=eval_every, eval_seed=HELD_OUT_SEED, progress_bar=progress,
+                         render_backend=render_backend)
     try:
         result = run_training(config, options)
     except (FileExistsError, FileNotFoundError) as err:
@@ -133,8 +142,9 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
               help="Seed of the evaluation episodes (training never uses it).")
 @click.option("--stochastic", is_flag=True, help="Sample retrievals instead of acting greedily.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON on stdout.")
+@_render_backend_option
 def evaluate(model_path: Path, condition: str, episodes: int, controller: str, n_envs: int, seed: int,
-             stochastic: bool, as_json: bool) -> None:
+             stochastic: bool, as_json: bool, render_backend: str) -> None:
     """Evaluate a trained model: success per layer and retrieval accuracy."""
     from sb3_memret.evaluation import evaluate_retrieval
     from sb3_memret.envs.vec_env import make_recall_vec_env
@@ -142,7 +152,7 @@ def evaluate(model_path: Path, condition: str, episodes: int, controller: str, n
     from sb3_memret.training import eval_env_kwargs
 
     model = MemRetPPO.load(model_path, device="cpu")
-    venv = make_recall_vec_env(n_envs, eval_env_kwargs(model, model_path, condition, controller))
+    venv = make_recall_vec_env(n_envs, eval_env_kwargs(model, model_path, condition, controller, render_backend))
     try:
         with click.progressbar(length=episodes, label=f"{condition} evaluation", file=sys.stderr) as bar:
             report = evaluate_retrieval(model, venv, episodes, seed=seed, deterministic=not stochastic,

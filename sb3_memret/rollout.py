@@ -9,12 +9,13 @@ import gymnasium as gym
 import numpy as np
 
 import sb3_memret.envs  # noqa: F401  (registers DrawerCubeTakeOut-v1)
-from sb3_memret.controllers.base import FrozenController
+from sb3_memret.controllers.base import RENDER_HINT, FrozenController
 from sb3_memret.envs.cabinet import LAYERS, check_layer
 from sb3_memret.prompts import CONDITIONS, condition_prompt
 
 ENV_ID = "DrawerCubeTakeOut-v1"
 DEFAULT_REPLAN_EVERY = 8
+RENDER_BACKENDS = ("none", "cpu", "gpu")
 
 
 @dataclass(frozen=True)
@@ -28,6 +29,19 @@ class EpisodeResult:
 def make_task_env(obs_mode: str = "state_dict", render_backend: str = "none", **kwargs) -> gym.Env:
     """DrawerCubeTakeOut-v1 as a frozen controller consumes it (CPU physics, no renderer)."""
     return gym.make(ENV_ID, obs_mode=obs_mode, render_backend=render_backend, **kwargs)
+
+
+def task_env_kwargs(controller: FrozenController, render_backend: str = "none") -> dict[str, str]:
+    """The obs mode and render backend ``controller`` needs: camera images ("rgb") for an image
+    controller, which therefore cannot run without a render backend."""
+    if render_backend not in RENDER_BACKENDS:
+        raise ValueError(f"unknown render backend {render_backend!r}; expected one of {list(RENDER_BACKENDS)}")
+    if not controller.spec.needs_images:
+        return {"obs_mode": "state_dict", "render_backend": render_backend}
+    if render_backend == "none":
+        raise ValueError(f"{type(controller).__name__} needs camera images, so choose a render backend "
+                         f"(--render-backend cpu or gpu): {RENDER_HINT}")
+    return {"obs_mode": "rgb", "render_backend": render_backend}
 
 
 def run_episode(
@@ -62,6 +76,7 @@ def evaluate_condition(
     replan_every: int = DEFAULT_REPLAN_EVERY,
     env: gym.Env | None = None,
     on_episode: Callable[[EpisodeResult], None] | None = None,
+    render_backend: str = "none",
 ) -> list[EpisodeResult]:
     """``episodes`` episodes per layer with the prompt of ``condition``; seeds seed..seed+episodes-1."""
     if condition not in CONDITIONS:
@@ -69,7 +84,7 @@ def evaluate_condition(
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     own_env = env is None
-    env = make_task_env() if own_env else env
+    env = make_task_env(**task_env_kwargs(controller, render_backend)) if own_env else env
     controller.check_env(env)
     results = []
     try:
@@ -100,4 +115,5 @@ def summarize(results: Iterable[EpisodeResult]) -> dict:
     return summary
 
 
-__all__ = ["EpisodeResult", "evaluate_condition", "make_task_env", "run_episode", "summarize"]
+__all__ = ["EpisodeResult", "RENDER_BACKENDS", "evaluate_condition", "make_task_env", "run_episode", "summarize",
+           "task_env_kwargs"]

@@ -48,6 +48,7 @@ class RunOptions:
     eval_seed: int = 1_000_000
     progress_bar: bool = False
     log_formats: tuple[str, ...] = ("stdout", "csv", "tensorboard")
+    render_backend: str = "none"  # image controllers need "cpu" or "gpu"
     verbose: int = 0
 
 
@@ -74,12 +75,14 @@ def load_run_config(out: Path) -> TrainConfig:
     return parse_section(section, env_id, where=str(out / CONFIG_FILE))
 
 
-def env_kwargs_for(config: TrainConfig, controller: str) -> dict[str, Any]:
+def env_kwargs_for(config: TrainConfig, controller: str, render_backend: str = "none") -> dict[str, Any]:
     """The decision env's arguments: the config's, the controller, and PPO's gamma for the shaping."""
-    return {**config.env_kwargs, "controller": controller, "gamma": config.ppo.get("gamma", 0.97)}
+    return {**config.env_kwargs, "controller": controller, "gamma": config.ppo.get("gamma", 0.97),
+            "render_backend": render_backend}
 
 
-def eval_env_kwargs(model: MemRetPPO, model_path: Path, mode: str, controller: str) -> dict[str, Any]:
+def eval_env_kwargs(model: MemRetPPO, model_path: Path, mode: str, controller: str,
+                    render_backend: str = "none") -> dict[str, Any]:
     """Decision-env arguments matching a saved model: its bank size and K from its spaces, the
     rest of the env settings from the run's config.yml when the model sits in a run folder."""
     kwargs: dict[str, Any] = {}
@@ -88,7 +91,8 @@ def eval_env_kwargs(model: MemRetPPO, model_path: Path, mode: str, controller: s
             kwargs = dict(load_run_config(folder).env_kwargs)
             break
     nvec = model.action_space.nvec
-    kwargs.update(mode=mode, controller=controller, gamma=model.gamma, capacity=int(nvec[0]), k=len(nvec))
+    kwargs.update(mode=mode, controller=controller, gamma=model.gamma, capacity=int(nvec[0]), k=len(nvec),
+                  render_backend=render_backend)
     return kwargs
 
 
@@ -116,7 +120,7 @@ def train(config: TrainConfig | None, options: RunOptions) -> RunResult:
         out.mkdir(parents=True, exist_ok=True)
         save_run_config(config, out / CONFIG_FILE)
 
-    env_kwargs = env_kwargs_for(config, options.controller)
+    env_kwargs = env_kwargs_for(config, options.controller, options.render_backend)
     done_steps = int(CHECKPOINT_PATTERN.match(last.name).group(1)) if options.resume else 0
     venv = make_recall_vec_env(config.n_envs, env_kwargs, seed=options.seed + done_steps)  # fresh episodes on resume
     eval_env = make_recall_vec_env(config.n_envs, env_kwargs)
