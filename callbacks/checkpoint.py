@@ -14,11 +14,16 @@ def checkpoint_path(folder: str | Path, num_timesteps: int) -> Path:
     return Path(folder) / f"memret_{num_timesteps}_steps.zip"
 
 
+def checkpoints(folder: str | Path) -> list[tuple[int, Path]]:
+    """(timesteps, path) of every checkpoint in ``folder``, oldest first."""
+    return sorted((int(m.group(1)), p) for p in Path(folder).glob("memret_*_steps.zip")
+                  if (m := CHECKPOINT_PATTERN.match(p.name)))
+
+
 def latest_checkpoint(folder: str | Path) -> Path | None:
     """The checkpoint in ``folder`` with the most timesteps, or None if there is none."""
-    folder = Path(folder)
-    found = [(int(m.group(1)), p) for p in folder.glob("memret_*_steps.zip") if (m := CHECKPOINT_PATTERN.match(p.name))]
-    return max(found)[1] if found else None
+    found = checkpoints(folder)
+    return found[-1][1] if found else None
 
 
 class RoundCheckpointCallback(BaseCallback):
@@ -52,8 +57,6 @@ class RoundCheckpointCallback(BaseCallback):
         self.model.save(path)
         if self.verbose:
             print(f"checkpoint: {path}")
-        found = sorted((int(m.group(1)), p) for p in self.save_path.glob("memret_*_steps.zip")
-                       if (m := CHECKPOINT_PATTERN.match(p.name)))
-        for _, old in found[: -self.keep]:
+        for _, old in checkpoints(self.save_path)[: -self.keep]:
             old.unlink()
         return path

@@ -19,7 +19,6 @@ class RolloutRetrievalCallback(BaseCallback):
         self.decisions = self.hits = self.steps = 0
         self.reward = 0.0
         self.successes: list[bool] = []
-        self.layers: list[int] = []
         self.evicted: list[bool] = []
 
     def _on_rollout_start(self) -> None:
@@ -34,7 +33,6 @@ class RolloutRetrievalCallback(BaseCallback):
                 self.hits += bool(info["retrieved_true"])
             if done:
                 self.successes.append(bool(info["success"]))
-                self.layers.append(int(info["cube_layer"]))
                 self.evicted.append(bool(info["true_evicted"]))
         return True
 

@@ -23,7 +23,7 @@ from typing import Any
 import yaml
 
 from sb3_memret.callbacks import RetrievalEvalCallback, RolloutRetrievalCallback, RoundCheckpointCallback, latest_checkpoint
-from sb3_memret.callbacks.checkpoint import CHECKPOINT_PATTERN
+from sb3_memret.callbacks.checkpoint import checkpoints as list_checkpoints
 from sb3_memret.config import TrainConfig, parse_section
 from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.vec_env import make_recall_vec_env
@@ -121,7 +121,7 @@ def train(config: TrainConfig | None, options: RunOptions) -> RunResult:
         save_run_config(config, out / CONFIG_FILE)
 
     env_kwargs = env_kwargs_for(config, options.controller, options.render_backend)
-    done_steps = int(CHECKPOINT_PATTERN.match(last.name).group(1)) if options.resume else 0
+    done_steps = list_checkpoints(checkpoints)[-1][0] if options.resume else 0
     venv = make_recall_vec_env(config.n_envs, env_kwargs, seed=options.seed + done_steps)  # fresh episodes on resume
     eval_env = make_recall_vec_env(config.n_envs, env_kwargs)
     checkpointer = RoundCheckpointCallback(checkpoints, verbose=options.verbose)
