@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 import sys
 from pathlib import Path
 
@@ -30,8 +31,9 @@ def _render_backend_option(command):
 
 
 def _controller_spec(ctx: click.Context, param: click.Parameter, value: str) -> str:
-    """Check a controller spec in this process; envs built elsewhere (workers) receive the string."""
-    _controller(ctx, param, value)
+    """Check a controller spec in this process (kept in ``ctx.meta["controller"]``); envs built
+    elsewhere (workers) receive the string."""
+    ctx.meta["controller"] = _controller(ctx, param, value)
     return value
 
 
@@ -172,3 +174,129 @@ def evaluate(model_path: Path, condition: str, episodes: int, controller: str, n
         if key in report.success:
             count = report.episodes if key == "overall" else report.episodes_per_layer[key]
             click.echo(f"| {key} | {count} | {report.success[key]:.0%} |")
+
+
+@main.command()
+@click.argument("ablation", type=click.Choice(["replan", "prompt", "memcount"]))
+@click.option("--controller", default="scripted", show_default=True, callback=_controller_spec,
+              help="Frozen controller to characterise.")
+@click.option("--episodes", type=click.IntRange(min=1), default=17, show_default=True, help="Episodes per cell.")
+@click.option("--seed", type=click.IntRange(min=0), default=HELD_OUT_SEED, show_default=True,
+              help="First placement seed; every cell plays the same placements.")
+@click.option("--n-envs", type=click.IntRange(min=1), default=os.cpu_count() or 1, show_default=True,
+              help="Envs played in parallel (one worker process each).")
+@click.option("--layer", type=click.IntRange(min=min(LAYERS), max=max(LAYERS)), default=2, show_default=True,
+              help="prompt: the cube's drawer layer.")
+@click.option("--intervals", default=",".join(map(str, (5, 8, 10, 12, 16, 20, 24, 28, 32))), show_default=True,
+              help="replan: comma-separated replan intervals.")
+@click.option("--replan-every", type=click.IntRange(min=1), default=8, show_default=True,
+              help="prompt, memcount: control steps executed per action chunk.")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Also write <ablation>.md, .csv and .json into this folder.")
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout instead of the table.")
+@click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
+@_render_backend_option
+@click.pass_context
+def ablate(ctx: click.Context, ablation: str, controller: str, episodes: int, seed: int, n_envs: int, layer: int,
+           intervals: str, replan_every: int, out: Path | None, as_json: bool, progress: bool,
+           render_backend: str) -> None:
+    """Characterise how a frozen controller consumes memory: ABLATION is replan (success per layer
+    per replan interval, oracle memory), prompt (object word x layer number) or memcount (zero, one
+    or two memories)."""
+    from sb3_memret.ablations import memcount_ablation, prompt_ablation, replan_ablation, run_ablation
+
+    chunk_len = ctx.meta["controller"].spec.chunk_len
+    if ablation == "replan":
+        try:
+            steps = [int(i) for i in intervals.split(",")]
+        except ValueError:
+            raise click.BadParameter(f"{intervals!r} is not a comma-separated list of integers",
+                                     param_hint="--intervals") from None
+        if not steps or min(steps) < 1 or max(steps) > chunk_len:
+            raise click.BadParameter(f"intervals {steps} must lie in [1, {chunk_len}] (the controller's chunk length)",
+                                     param_hint="--intervals")
+        spec = replan_ablation(steps)
+    else:
+        if replan_every > chunk_len:
+            raise click.BadParameter(f"{replan_every} exceeds the controller's chunk length {chunk_len}",
+                                     param_hint="--replan-every")
+        spec = prompt_ablation(layer, replan_every) if ablation == "prompt" else memcount_ablation(replan_every)
+    total = len(spec.cells) * episodes
+    with click.progressbar(length=total, label=f"{ablation} ablation ({len(spec.cells)} cells)", file=sys.stderr,
+                           hidden=not progress) as bar:
+        result = run_ablation(spec, controller, episodes, seed, n_envs, render_backend,
+                              on_episode=lambda *_: bar.update(1))
+    if out is not None:
+        out.mkdir(parents=True, exist_ok=True)
+        (out / f"{ablation}.md").write_text(result.to_markdown() + "\n")
+        (out / f"{ablation}.csv").write_text(result.to_csv())
+        (out / f"{ablation}.json").write_text(json.dumps(result.to_dict(), indent=2))
+    click.echo(json.dumps(result.to_dict()) if as_json else result.to_markdown())
+
+
+def _trace_targets(paths: tuple[Path, ...]) -> list[Path]:
+    """Model files to trace: a run folder stands for its initial and final models (before/after)."""
+    from sb3_memret.training import INITIAL_MODEL
+
+    targets = []
+    for path in paths:
+        if path.is_dir():
+            pair = [path / INITIAL_MODEL, path / "final_model.zip"]
+            missing = [p.name for p in pair if not p.exists()]
+            if missing:
+                raise click.BadParameter(f"run folder {str(path)!r} lacks {missing}; pass model files instead",
+                                         param_hint="MODELS")
+            targets += pair
+        else:
+            targets.append(path)
+    return targets
+
+
+@main.command()
+@click.argument("models", nargs=-1, required=True, type=click.Path(exists=True, path_type=Path))
+@click.option("--seed", type=click.IntRange(min=0), default=HELD_OUT_SEED, show_default=True,
+              help="Episode whose first decision is traced (the same bank for every model).")
+@click.option("--sample-seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Seed of the Plackett-Luce draw marked with '*'.")
+@click.option("--controller", default="scripted", show_default=True, callback=_controller_spec,
+              help="Frozen controller the memory serves.")
+@click.option("--json", "as_json", is_flag=True, help="Print the traces as JSON on stdout.")
+@_render_backend_option
+def trace(models: tuple[Path, ...], seed: int, sample_seed: int, controller: str, as_json: bool,
+          render_backend: str) -> None:
+    """Show every memory in the bank at the first retrieval step with each model's retriever score
+    ('*' = sampled, 'C' = the true cube memory). MODELS are model files or run folders (a run
+    folder traces its untrained and final policies: before and after training)."""
+    from sb3_memret.policy.ppo import MemRetPPO
+    from sb3_memret.trace import model_label, trace_models
+    from sb3_memret.training import eval_env_kwargs
+
+    paths = _trace_targets(models)
+    loaded = [(path, MemRetPPO.load(path, device="cpu")) for path in paths]
+    env_kwargs = eval_env_kwargs(loaded[0][1], paths[0], "recall", controller, render_backend)
+    traces = trace_models([(model_label(m, p), m) for p, m in loaded], env_kwargs, seed, sample_seed)
+    if as_json:
+        click.echo(json.dumps([t.to_dict() for t in traces]))
+        return
+    click.echo(f'instruction: "{traces[0].instruction}"   episode seed {seed}, cube in layer {traces[0].cube_layer}   '
+               f"( * = sampled, C = true cube memory )")
+    for t in traces:
+        click.echo("\n" + t.format())
+
+
+@main.command()
+@click.argument("run", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="PNG to write  [default: RUN/learning_curves.png]")
+def plot(run: Path, out: Path | None) -> None:
+    """Plot the learning curves of a training run: held-out greedy accuracy and success, training
+    sampled fraction, and policy entropy on a second axis."""
+    from sb3_memret.plotting import plot_learning_curves
+    from sb3_memret.training import retrieval_chance
+
+    try:
+        path = plot_learning_curves(run, out, chance=retrieval_chance(run))
+    except (FileNotFoundError, ValueError) as err:
+        raise click.UsageError(str(err)) from err
+    click.echo(str(path))
+

@@ -8,6 +8,7 @@ A run lives in one folder::
     evaluations.jsonl       every held-out evaluation report
     checkpoints/            memret_<timesteps>_steps.zip after each update (and on Ctrl-C / crash)
     best_model.zip          the best held-out policy so far
+    initial_model.zip       the untrained policy (round 0), for before/after traces
     final_model.zip         the policy when training ended
     summary.json            wall time and the last evaluation
 """
@@ -21,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import yaml
+from stable_baselines3.common.save_util import load_from_zip_file
 
 from sb3_memret.callbacks import RetrievalEvalCallback, RolloutRetrievalCallback, RoundCheckpointCallback, latest_checkpoint
 from sb3_memret.callbacks.checkpoint import checkpoints as list_checkpoints
@@ -33,6 +35,7 @@ from sb3_memret.policy.ppo import MemRetPPO
 from sb3_memret.run_logger import make_run_logger
 
 CONFIG_FILE = "config.yml"
+INITIAL_MODEL = "initial_model.zip"
 
 
 @dataclass
@@ -136,6 +139,8 @@ def train(config: TrainConfig | None, options: RunOptions) -> RunResult:
             model = MemRetPPO(MemoryRetrievalPolicy, venv, seed=options.seed, verbose=options.verbose,
                               **config.algo_kwargs())
         model.set_logger(make_run_logger(out, options.log_formats))
+        if not options.resume:
+            model.save(out / INITIAL_MODEL)
         checkpointer.init_callback(model)  # so an interrupt even before the first round can save
         remaining = config.n_timesteps - model.num_timesteps
         try:
@@ -186,6 +191,16 @@ def format_history(history: list[dict[str, Any]]) -> str:
     return "\n".join(lines)
 
 
+def retrieval_chance(out: Path) -> float | None:
+    """K / capacity for a run's models: how often a uniformly random top-K holds the true memory."""
+    for name in (INITIAL_MODEL, "final_model.zip"):
+        if (Path(out) / name).exists():
+            data, _, _ = load_from_zip_file(Path(out) / name, load_data=True)
+            nvec = data["action_space"].nvec
+            return len(nvec) / int(nvec[0])
+    return None
+
+
 def _write_summary(result: RunResult) -> None:
     summary = {"num_timesteps": result.num_timesteps, "rounds": result.rounds, "wall_seconds": result.wall_seconds,
                "interrupted": result.interrupted, "model": str(result.model_path),
@@ -193,4 +208,5 @@ def _write_summary(result: RunResult) -> None:
     (result.out / "summary.json").write_text(json.dumps(summary, indent=2))
 
 
-__all__ = ["RunOptions", "RunResult", "env_kwargs_for", "eval_env_kwargs", "format_history", "load_run_config", "read_history", "train"]
+__all__ = ["INITIAL_MODEL", "RunOptions", "RunResult", "env_kwargs_for", "eval_env_kwargs", "format_history",
+           "load_run_config", "read_history", "retrieval_chance", "train"]

@@ -50,7 +50,7 @@ def rows(out):
 
 def test_train_writes_a_complete_run(run):
     out, _, output = run
-    for name in ("config.yml", "final_model.zip", "best_model.zip", "evaluations.jsonl", "summary.json"):
+    for name in ("config.yml", "initial_model.zip", "final_model.zip", "best_model.zip", "evaluations.jsonl", "summary.json"):
         assert (out / name).exists(), name
     assert any((out / "tensorboard").iterdir())
     assert latest_checkpoint(out / "checkpoints").name == "memret_32_steps.zip"
