@@ -300,3 +300,27 @@ def plot(run: Path, out: Path | None) -> None:
         raise click.UsageError(str(err)) from err
     click.echo(str(path))
 
+
+
+@main.command()
+@click.argument("run", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--controller", default="scripted", show_default=True, callback=_controller_spec,
+              help="Frozen controller for the baseline evaluations and the trace.")
+@click.option("--baseline-episodes", type=click.IntRange(min=0), default=None,
+              help="Episodes of the oracle and no-memory baselines (0 skips them)  [default: as the final evaluation]")
+@click.option("--n-envs", type=click.IntRange(min=1), default=os.cpu_count() or 1, show_default=True)
+@click.option("--trace-seed", type=click.IntRange(min=0), default=None,
+              help="Episode of the introspection trace  [default: the run's held-out seed]")
+@_render_backend_option
+def report(run: Path, controller: str, baseline_episodes: int | None, n_envs: int, trace_seed: int | None,
+           render_backend: str) -> None:
+    """Write RUN/report.md: what was learned, the learning curves, the evaluation tables, the
+    baselines, the before/after trace, any saved ablations and the configuration."""
+    from sb3_memret.report import ReportOptions, write_report
+
+    options = ReportOptions(controller, baseline_episodes, n_envs, trace_seed, render_backend)
+    try:
+        path = write_report(run, options, on_progress=lambda step: click.echo(step + " ...", err=True))
+    except (FileNotFoundError, ValueError) as err:
+        raise click.UsageError(str(err)) from err
+    click.echo(str(path))

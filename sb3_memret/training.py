@@ -158,7 +158,7 @@ def train(config: TrainConfig | None, options: RunOptions) -> RunResult:
         result = RunResult(out, model_path if not interrupted else latest_checkpoint(checkpoints),
                            model.num_timesteps, model._n_updates // model.n_epochs, time.perf_counter() - start,
                            interrupted, evaluator.last_report, read_history(out))
-        _write_summary(result)
+        _write_summary(result, options)
         model.logger.close()
         return result
     finally:
@@ -201,9 +201,10 @@ def retrieval_chance(out: Path) -> float | None:
     return None
 
 
-def _write_summary(result: RunResult) -> None:
+def _write_summary(result: RunResult, options: RunOptions) -> None:
     summary = {"num_timesteps": result.num_timesteps, "rounds": result.rounds, "wall_seconds": result.wall_seconds,
-               "interrupted": result.interrupted, "model": str(result.model_path),
+               "interrupted": result.interrupted, "model": str(result.model_path), "controller": options.controller,
+               "seed": options.seed, "eval_seed": options.eval_seed, "eval_episodes": options.eval_episodes,
                "final_eval": result.final.to_dict() if result.final else None}
     (result.out / "summary.json").write_text(json.dumps(summary, indent=2))
 

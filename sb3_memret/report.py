@@ -1,0 +1,196 @@
+"""One markdown report of a training run: what was learned, the curves, the tables, the trace, the config.
+
+It reads what the run folder already holds (``summary.json``, ``evaluations.jsonl``,
+``progress.csv``, ``config.yml``, the initial and final models, any ``ablations/*.md`` written
+by ``sb3-memret ablate --out RUN/ablations``) and adds what only a fresh evaluation can say:
+the oracle and no-memory baselines on the same held-out episodes as the final evaluation,
+and the before/after introspection trace.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any, Callable
+
+from sb3_memret.envs.cabinet import LAYERS
+from sb3_memret.envs.vec_env import make_recall_vec_env
+from sb3_memret.evaluation import RetrievalReport, evaluate_retrieval
+from sb3_memret.plotting import plot_learning_curves
+from sb3_memret.policy.ppo import MemRetPPO
+from sb3_memret.trace import model_label, trace_models
+from sb3_memret.training import (CONFIG_FILE, INITIAL_MODEL, eval_env_kwargs, format_history, read_history,
+                                 retrieval_chance)
+
+REPORT_FILE = "report.md"
+FIGURE_FILE = "learning_curves.png"
+MASTERY = 0.95  # greedy accuracy that counts as "learned"
+CONDITION_PROMPTS = {
+    "recall": "the instruction + the memory the retriever picks",
+    "oracle": "the instruction + the true cube memory",
+    "none": "the bare instruction",
+}
+
+
+@dataclass
+class ReportOptions:
+    """How to fill the parts of a report that need fresh evaluation."""
+
+    controller: str = "scripted"
+    baseline_episodes: int | None = None  # None: as many as the final evaluation; 0: skip the baselines
+    n_envs: int = 2
+    trace_seed: int | None = None  # None: the run's held-out evaluation seed
+    render_backend: str = "none"
+
+
+def write_report(run: Path, options: ReportOptions | None = None,
+                 on_progress: Callable[[str], None] | None = None) -> Path:
+    """Write ``run/report.md`` (and ``run/learning_curves.png``) and return the report's path."""
+    run, options = Path(run), options or ReportOptions()
+    say = on_progress or (lambda _: None)
+    summary_path = run / "summary.json"
+    if not summary_path.exists():
+        raise FileNotFoundError(f"{str(run)!r} has no summary.json: not a finished training run "
+                                f"(sb3-memret train writes it when training ends)")
+    summary = json.loads(summary_path.read_text())
+    history = read_history(run)
+    if not history:
+        raise ValueError(f"{str(run)!r} holds no evaluations (evaluations.jsonl is missing or empty)")
+    final_path = run / "final_model.zip"
+    if not final_path.exists():
+        raise FileNotFoundError(f"{str(run)!r} has no final_model.zip (an interrupted run: resume it to finish)")
+    say("plotting learning curves")
+    chance = retrieval_chance(run)
+    plot_learning_curves(run, run / FIGURE_FILE, chance=chance)
+    eval_seed = summary.get("eval_seed", 1_000_000)
+    final = RetrievalReport(**summary["final_eval"]) if summary.get("final_eval") else None
+    model = MemRetPPO.load(final_path, device="cpu")
+    baselines = _baselines(model, final_path, final, eval_seed, options, say)
+    say("tracing the first decision")
+    traces = _traces(run, model, final_path, options, options.trace_seed if options.trace_seed is not None else eval_seed)
+    sections = [
+        f"# Training report: {run.name}",
+        _overview(summary, history, chance, final, baselines),
+        f"![learning curves]({FIGURE_FILE})",
+        "*Held-out greedy retrieval accuracy and task success (markers at each evaluation), the fraction of "
+        "training-time sampled retrievals that held the true memory (every round), and the policy entropy "
+        "(right axis).*",
+        "## Held-out evaluations during training",
+        f"{history[0]['episodes']} episodes per evaluation, placement seed {eval_seed}; "
+        "greedy accuracy counts decisions where the acted memory was the true one, sampled is the chance "
+        "a training-time draw holds it.",
+        format_history(history),
+        "## Final policy against the baselines",
+        _baseline_table(final, baselines),
+        "## Introspection trace",
+        *_trace_section(traces),
+        "## Controller ablations",
+        _ablations(run),
+        "## Configuration",
+        f"`{run / CONFIG_FILE}`:",
+        "```yaml\n" + (run / CONFIG_FILE).read_text().rstrip() + "\n```",
+        f"Frozen controller: `{summary.get('controller', options.controller)}`"
+        + (f"; training seed {summary['seed']}" if "seed" in summary else "")
+        + f"; {summary['num_timesteps']} decisions in {summary['rounds']} rounds.",
+        "## Reproduce",
+        "```bash\n" + "\n".join([
+            f"sb3-memret train recall --seed {summary.get('seed', 0)} --out {run}",
+            f"sb3-memret plot {run}",
+            f"sb3-memret trace {run if (run / INITIAL_MODEL).exists() else final_path}",
+            f"sb3-memret eval {final_path} --condition recall --episodes {history[-1]['episodes']}",
+            f"sb3-memret ablate memcount --out {run / 'ablations'}",
+            f"sb3-memret report {run}",
+        ]) + "\n```",
+    ]
+    path = run / REPORT_FILE
+    path.write_text("\n\n".join(sections) + "\n")
+    return path
+
+
+def _overview(summary: dict[str, Any], history: list[dict[str, Any]], chance: float | None,
+              final: RetrievalReport | None, baselines: dict[str, RetrievalReport]) -> str:
+    first, last = history[0], history[-1]
+    mastered = next((row for row in history if row["greedy_accuracy"] >= MASTERY), None)
+    chance_text = f" (a random pick: {chance:.0%})" if chance is not None else ""
+    lines = [
+        f"PPO trained the retriever (actor) and the retention scorer (critic) from random initialisation for "
+        f"{summary['rounds']} rounds ({summary['num_timesteps']} decisions, {summary['wall_seconds'] / 60:.1f} min). "
+        "The drawer holding the cube reaches the frozen controller only through the memory the retriever appends "
+        "to its prompt; the reward is physics only, and no label says which memory is right.",
+        "",
+        "**What was learned**",
+        "",
+        f"- Greedy retrieval of the true cube memory on held-out episodes: {first['greedy_accuracy']:.0%} at "
+        f"round {first['round']}{chance_text} → {last['greedy_accuracy']:.0%} at round {last['round']}.",
+        f"- Greedy accuracy first reached {MASTERY:.0%} at round {mastered['round']} "
+        f"({mastered['timesteps']} decisions)." if mastered else
+        f"- Greedy accuracy never reached {MASTERY:.0%}; the best was {max(r['greedy_accuracy'] for r in history):.0%}.",
+        f"- A training-time (sampled) retrieval holds the true memory {first['sampled_fraction']:.0%} → "
+        f"{last['sampled_fraction']:.0%} of the time; policy entropy {first['entropy']:.2f} → {last['entropy']:.2f} nats.",
+        f"- Task success: {first['success']['overall']:.0%} → {last['success']['overall']:.0%}.",
+    ]
+    if final is not None and baselines:
+        parts = ", ".join(f"{name} {report.success['overall']:.0%} ({report.episodes})" for name, report in baselines.items())
+        lines.append(f"- Final held-out success (episodes, from the same placement seeds): recall "
+                     f"{final.success['overall']:.0%} ({final.episodes}); baselines {parts}.")
+    return "\n".join(lines)
+
+
+def _baselines(model: MemRetPPO, model_path: Path, final: RetrievalReport | None, eval_seed: int,
+               options: ReportOptions, say: Callable[[str], None]) -> dict[str, RetrievalReport]:
+    """The oracle and no-memory conditions on the final evaluation's episodes."""
+    episodes = options.baseline_episodes if options.baseline_episodes is not None else (final.episodes if final else 0)
+    reports = {}
+    for condition in ("oracle", "none") if episodes > 0 else ():
+        say(f"evaluating the {condition} baseline ({episodes} episodes)")
+        venv = make_recall_vec_env(options.n_envs, eval_env_kwargs(model, model_path, condition, options.controller,
+                                                                   options.render_backend))
+        try:
+            reports[condition] = evaluate_retrieval(model, venv, episodes, seed=eval_seed)
+        finally:
+            venv.close()
+    return reports
+
+
+def _baseline_table(final: RetrievalReport | None, baselines: dict[str, RetrievalReport]) -> str:
+    rows = ([("recall", final)] if final else []) + list(baselines.items())
+    if not rows:
+        return "No final evaluation was recorded."
+    lines = ["| condition | prompt | episodes | greedy acc. | success | " + " | ".join(f"layer {l}" for l in LAYERS) + " |",
+             "|---|---|---|---|---|" + "---|" * len(LAYERS)]
+    for name, report in rows:
+        layers = " | ".join(f"{report.success[str(l)]:.0%}" if str(l) in report.success else "–" for l in LAYERS)
+        accuracy = f"{report.greedy_accuracy:.0%}" if name == "recall" else "–"
+        lines.append(f"| {name} | {CONDITION_PROMPTS[name]} | {report.episodes} | {accuracy} | "
+                     f"{report.success['overall']:.0%} | {layers} |")
+    return "\n".join(lines)
+
+
+def _traces(run: Path, model: MemRetPPO, final_path: Path, options: ReportOptions, seed: int) -> list:
+    models = [(model_label(model, final_path), model)]
+    if (run / INITIAL_MODEL).exists():
+        initial = MemRetPPO.load(run / INITIAL_MODEL, device="cpu")
+        models.insert(0, (model_label(initial, run / INITIAL_MODEL), initial))
+    kwargs = eval_env_kwargs(model, final_path, "recall", options.controller, options.render_backend)
+    return trace_models(models, kwargs, seed)
+
+
+def _trace_section(traces: list) -> list[str]:
+    head = (f'Instruction "{traces[0].instruction}". '
+            f"Every memory in the bank at the first decision of held-out episode {traces[0].seed} (cube in layer "
+            f"{traces[0].cube_layer}), with the retriever's score and first-pick probability; `*` marks a sampled "
+            "pick, `C` the true cube memory.")
+    note = "" if len(traces) > 1 else "\n\n(The run has no initial_model.zip, so only the final policy is traced.)"
+    return [head + note, "```text\n" + "\n\n".join(t.format() for t in traces) + "\n```"]
+
+
+def _ablations(run: Path) -> str:
+    tables = sorted((run / "ablations").glob("*.md")) if (run / "ablations").is_dir() else []
+    if not tables:
+        return (f"None saved with this run. `sb3-memret ablate replan|prompt|memcount --out {run / 'ablations'}` "
+                "measures how the frozen controller consumes memory, and the next report includes the tables.")
+    return "\n\n".join(path.read_text().strip() for path in tables)
+
+
+__all__ = ["ReportOptions", "write_report"]
