@@ -7,7 +7,7 @@ from sb3_memret.cli import main
 
 def test_every_command_has_help():
     runner = CliRunner()
-    for args in ([], ["rollout"], ["train"], ["eval"]):
+    for args in ([], ["rollout"], ["train"], ["eval"], ["ablate"], ["plot"], ["trace"], ["report"]):
         result = runner.invoke(main, [*args, "--help"])
         assert result.exit_code == 0 and "Usage" in result.output
 
@@ -29,3 +29,25 @@ def test_bad_options_give_clear_errors():
     assert result.exit_code == 2 and "unknown controller 'pi0'" in result.output
     result = runner.invoke(main, ["rollout", "--layer", "4"])
     assert result.exit_code == 2 and "--layer" in result.output
+
+
+def test_ablate_refuses_intervals_the_controller_cannot_run():
+    runner = CliRunner()
+    result = runner.invoke(main, ["ablate", "replan", "--intervals", "8,40", "--no-progress"])
+    assert result.exit_code == 2 and "must lie in [1, 32] (the controller's chunk length)" in result.output
+    result = runner.invoke(main, ["ablate", "replan", "--intervals", "eight", "--no-progress"])
+    assert result.exit_code == 2 and "'eight' is not a comma-separated list of integers" in result.output
+    result = runner.invoke(main, ["ablate", "prompt", "--replan-every", "33", "--no-progress"])
+    assert result.exit_code == 2 and "33 exceeds the controller's chunk length 32" in result.output
+    result = runner.invoke(main, ["ablate", "tables"])
+    assert result.exit_code == 2 and "'tables' is not one of 'replan', 'prompt', 'memcount'" in result.output
+
+
+def test_run_commands_refuse_folders_that_are_not_runs(tmp_path):
+    runner = CliRunner()
+    result = runner.invoke(main, ["plot", str(tmp_path)])
+    assert result.exit_code == 2 and "progress.csv" in result.output and str(tmp_path.name) in result.output
+    result = runner.invoke(main, ["report", str(tmp_path)])
+    assert result.exit_code == 2 and "no summary.json" in result.output
+    result = runner.invoke(main, ["trace", str(tmp_path)])
+    assert result.exit_code == 2 and "lacks ['initial_model.zip', 'final_model.zip']" in result.output

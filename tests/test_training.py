@@ -87,6 +87,43 @@ def test_eval_command_reports_success_and_accuracy(run):
     assert table.exit_code == 0 and "greedy retrieval accuracy" in table.output and "| overall | 1 |" in table.output
 
 
+def test_plot_trace_ablate_and_report_of_a_run(run):
+    out, _, _ = run
+    result = cli("plot", out)
+    assert result.exit_code == 0, result.output
+    png = out / "learning_curves.png"
+    assert png.read_bytes()[:8] == b"\x89PNG\r\n\x1a\n" and png.stat().st_size > 10_000
+
+    result = cli("trace", out, "--json")
+    assert result.exit_code == 0, result.output
+    before, after = json.loads(result.stdout.strip().splitlines()[-1])
+    assert before["label"] == "initial_model.zip (round 0)" and after["label"].startswith("final_model.zip (round ")
+    for trace in (before, after):
+        (true_row,) = [row for row in trace["rows"] if row["true"]]
+        assert true_row["text"] == f"the cube is in drawer layer {trace['cube_layer']}."
+    assert sorted(r["text"] for r in before["rows"]) == sorted(r["text"] for r in after["rows"])  # the same bank
+    text = cli("trace", out).output
+    assert "C the cube is in drawer layer" in text and "retriever top-1 =" in text
+
+    result = cli("ablate", "prompt", "--episodes", 1, "--n-envs", 1, "--no-progress", "--out", out / "ablations")
+    assert result.exit_code == 0, result.output
+    assert {p.name for p in (out / "ablations").iterdir()} == {"prompt.md", "prompt.csv", "prompt.json"}
+
+    result = cli("report", out, "--baseline-episodes", 1, "--n-envs", 1)
+    assert result.exit_code == 0, result.output
+    report = (out / "report.md").read_text()
+    for heading in ("# Training report: run", "**What was learned**", "## Held-out evaluations during training",
+                    "## Final policy against the baselines", "## Introspection trace", "## Controller ablations",
+                    "## Configuration", "## Reproduce"):
+        assert heading in report, heading
+    assert "![learning curves](learning_curves.png)" in report
+    assert "| oracle | the instruction + the true cube memory | 1 |" in report and "| none | the bare instruction | 1 |" in report
+    assert "initial_model.zip (round 0)" in report and "**Prompt ablation: cube in drawer layer 2**" in report
+    history_rows = [line for line in report.splitlines() if line.startswith("| ") and line[2].isdigit()]
+    assert len(history_rows) == len(read_history(out))
+    assert "n_steps: 16" in report  # the run's own configuration
+
+
 def test_interrupt_saves_a_checkpoint_that_resumes(tmp_path, monkeypatch):
     config = parse_section({"n_timesteps": 48, "n_envs": 1, "n_steps": 16, "batch_size": 8, "n_epochs": 1,
                             "env_kwargs": {"max_control_steps": 48}}, "sb3_memret/DrawerRecall-v0")

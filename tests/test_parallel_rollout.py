@@ -1,0 +1,79 @@
+"""run_jobs: controller episodes in-process or over worker processes, results in job order."""
+
+from collections import Counter
+
+import pytest
+
+from sb3_memret import parallel_rollout
+from sb3_memret.parallel_rollout import EpisodeJob, run_jobs
+from sb3_memret.prompts import condition_prompt
+
+# The slow episode (a wrong layer plays to the 400-step limit) comes first, so with two workers
+# later jobs finish before it: results must still come back in job order.
+JOBS = [
+    EpisodeJob(condition_prompt("wrong", 1), 1, 1_000_003),
+    EpisodeJob(condition_prompt("oracle", 2), 2, 1_000_000),
+    EpisodeJob(condition_prompt("oracle", 3), 3, 1_000_001, replan_every=12),
+    EpisodeJob(condition_prompt("none", 1), 1, 1_000_002),
+]
+
+
+def play(n_envs):
+    received = []
+    results = run_jobs("scripted", JOBS, n_envs=n_envs, on_result=lambda job, result: received.append((job, result)))
+    return results, received
+
+
+@pytest.fixture(scope="module")
+def in_process():
+    return play(n_envs=1)
+
+
+@pytest.fixture(scope="module")
+def two_workers():
+    return play(n_envs=2)
+
+
+@pytest.mark.parametrize("run", ["in_process", "two_workers"])
+def test_results_come_back_in_job_order(run, request):
+    results, _ = request.getfixturevalue(run)
+    assert len(results) == len(JOBS)
+    for job, result in zip(JOBS, results):
+        assert (result.layer, result.seed) == (job.layer, job.seed)
+    assert [r.success for r in results] == [False, True, True, True]  # the wrong layer fails; the rest succeed
+    assert all(1 <= r.steps <= 400 for r in results)
+
+
+def test_workers_play_exactly_what_one_process_plays(in_process, two_workers):
+    assert two_workers[0] == in_process[0]
+
+
+@pytest.mark.parametrize("run", ["in_process", "two_workers"])
+def test_on_result_gets_every_job_and_result_once(run, request):
+    results, received = request.getfixturevalue(run)
+    assert len(received) == len(JOBS)
+    assert Counter(received) == Counter(zip(JOBS, results))
+
+
+@pytest.mark.parametrize("n_envs", [1, 2])
+def test_no_jobs_start_nothing(n_envs, monkeypatch):
+    def refuse(*args, **kwargs):
+        raise AssertionError("run_jobs started an env or a worker for no jobs")
+
+    monkeypatch.setattr(parallel_rollout, "_Player", refuse)
+    monkeypatch.setattr(parallel_rollout, "ProcessPoolExecutor", refuse)
+    assert run_jobs("scripted", [], n_envs=n_envs, on_result=refuse) == []
+
+
+def test_n_envs_must_be_positive():
+    with pytest.raises(ValueError, match="n_envs must be >= 1, got 0"):
+        run_jobs("scripted", JOBS, n_envs=0)
+
+
+@pytest.mark.parametrize("n_envs", [1, 2], ids=["in-process", "worker"])
+def test_replan_interval_longer_than_a_chunk_is_refused(n_envs):
+    received = []
+    job = EpisodeJob(condition_prompt("oracle", 1), 1, 0, replan_every=40)
+    with pytest.raises(ValueError, match=r"chunk length.*got 40"):
+        run_jobs("scripted", [job], n_envs=n_envs, on_result=lambda *pair: received.append(pair))
+    assert received == []
