@@ -70,7 +70,7 @@ def assert_consistent(trace, info):
     scores = [row.score for row in trace.rows]
     assert scores == sorted(scores, reverse=True)
     probs = [row.probability for row in trace.rows]
-    assert all(0.0 < p < 1.0 for p in probs)
+    assert all(0.0 <= p <= 1.0 for p in probs)
     assert sum(probs) == pytest.approx(1.0)
     assert trace.greedy_correct == trace.rows[0].true
     assert trace.temperature == 0.5
@@ -81,6 +81,7 @@ def test_untrained_trace_describes_the_bank(model, env, episode):
     trace = trace_first_retrieval(model, env, seed, "untrained")
     assert (trace.label, trace.seed, trace.instruction) == ("untrained", seed, "pick out the cube.")
     assert_consistent(trace, info)
+    assert all(0.0 < row.probability < 1.0 for row in trace.rows)
 
 
 def test_same_seeds_give_the_same_trace(model, env, episode):
