@@ -138,10 +138,12 @@ def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, flo
     """The Wilson score interval of a binomial rate (sensible at 0 and n, unlike the normal one)."""
     if n <= 0:
         raise ValueError(f"n must be >= 1, got {n}")
+    if not 0 <= successes <= n:
+        raise ValueError(f"successes must be in [0, {n}], got {successes}")
     p = successes / n
     centre = (p + z * z / (2 * n)) / (1 + z * z / n)
     half = z * math.sqrt(p * (1 - p) / n + z * z / (4 * n * n)) / (1 + z * z / n)
-    return max(0.0, centre - half), min(1.0, centre + half)
+    return max(0.0, min(p, centre - half)), min(1.0, max(p, centre + half))  # p stays inside despite rounding
 
 
 def _layer_column(layer: int) -> str:

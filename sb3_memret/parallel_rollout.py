@@ -17,7 +17,7 @@ import gymnasium as gym
 
 from sb3_memret.controllers import make_controller
 from sb3_memret.controllers.base import FrozenController
-from sb3_memret.rollout import EpisodeResult, make_task_env, run_episode, task_env_kwargs
+from sb3_memret.rollout import DEFAULT_REPLAN_EVERY, EpisodeResult, make_task_env, run_episode, task_env_kwargs
 
 
 @dataclass(frozen=True)
@@ -27,7 +27,7 @@ class EpisodeJob:
     prompt: str
     layer: int
     seed: int
-    replan_every: int = 8
+    replan_every: int = DEFAULT_REPLAN_EVERY
 
 
 class _Player:
@@ -77,6 +77,10 @@ def run_jobs(
     if n_envs == 1:
         player = _Player(controller, render_backend)
         try:
+            too_long = sorted({job.replan_every for job in jobs if job.replan_every > player.controller.spec.chunk_len})
+            if too_long:
+                raise ValueError(f"the controller's chunk length is {player.controller.spec.chunk_len}; replan "
+                                 f"intervals {too_long} exceed it")
             results = []
             for job in jobs:
                 results.append(player.play(job))

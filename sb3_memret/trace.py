@@ -70,7 +70,7 @@ def trace_first_retrieval(model: BaseAlgorithm, env: gym.Env, seed: int, label: 
     tensors, _ = policy.obs_to_tensor(obs)
     features = policy.extract_features(tensors)
     mask = (tensors["mask"] > 0.5)[0].cpu().numpy()
-    scores = policy.scores(features)[0].cpu().numpy()
+    scores = policy.scores(features)[0].cpu().numpy().astype(np.float64)  # float64: tiny probabilities stay > 0
     with torch.random.fork_rng(devices=[]):
         torch.manual_seed(sample_seed)
         sampled = set(policy.get_distribution(tensors).get_actions(deterministic=False)[0].tolist())

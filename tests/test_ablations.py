@@ -146,13 +146,8 @@ def test_run_ablation_plays_each_cell_on_the_same_seeds(monkeypatch):
 # ------------------------------------------------------------------ Wilson interval
 
 
-ROUNDING = pytest.mark.xfail(strict=True, reason="wilson_interval rounds the bound at 0/n or n/n to just inside "
-                             "the rate (e.g. high(100, 100) = 0.9999999999999999); fix: clamp low <= p <= high")
-
-
 @pytest.mark.parametrize("k, n", [(0, 1), (1, 3), (5, 10), (9, 17), (0, 17), (17, 17), (16, 17),
-                                  pytest.param(0, 11, marks=ROUNDING), pytest.param(6, 6, marks=ROUNDING),
-                                  pytest.param(100, 100, marks=ROUNDING)])
+                                  (0, 11), (6, 6), (100, 100)])
 def test_wilson_interval_contains_the_rate_within_unit_interval(k, n):
     low, high = wilson_interval(k, n)
     assert 0.0 <= low <= k / n <= high <= 1.0
@@ -172,9 +167,11 @@ def test_wilson_interval_narrows_with_more_episodes():
     assert widths[0] > widths[1] > widths[2]
 
 
-def test_wilson_interval_needs_an_episode():
+def test_wilson_interval_needs_an_episode_and_a_possible_count():
     with pytest.raises(ValueError, match="got 0"):
         wilson_interval(0, 0)
+    with pytest.raises(ValueError, match=r"successes must be in \[0, 3\], got 4"):
+        wilson_interval(4, 3)
 
 
 # ------------------------------------------------------------------ result tables

@@ -87,6 +87,9 @@ def test_untrained_trace_describes_the_bank(model, env, episode):
 def test_same_seeds_give_the_same_trace(model, env, episode):
     seed, _ = episode
     assert trace_first_retrieval(model, env, seed, "a", sample_seed=3) == trace_first_retrieval(model, env, seed, "a", sample_seed=3)
+    # the untrained retriever is near uniform, so the sample seed (and only it) moves the sampled pick
+    picks = {next(r.slot for r in trace_first_retrieval(model, env, seed, "a", s).rows if r.sampled) for s in range(10)}
+    assert len(picks) > 1
 
 
 def test_trace_leaves_the_global_torch_rng_alone(model, env, episode):
