@@ -17,14 +17,13 @@ from typing import Any, Callable
 from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.evaluation import RetrievalReport, evaluate_retrieval
-from sb3_memret.plotting import plot_learning_curves
+from sb3_memret.plotting import PLOT_FILE, plot_learning_curves
 from sb3_memret.policy.ppo import MemRetPPO
 from sb3_memret.trace import model_label, trace_models
 from sb3_memret.training import (CONFIG_FILE, INITIAL_MODEL, eval_env_kwargs, format_history, read_history,
                                  retrieval_chance)
 
 REPORT_FILE = "report.md"
-FIGURE_FILE = "learning_curves.png"
 MASTERY = 0.95  # greedy accuracy that counts as "learned"
 CONDITION_PROMPTS = {
     "recall": "the instruction + the memory the retriever picks",
@@ -62,7 +61,7 @@ def write_report(run: Path, options: ReportOptions | None = None,
         raise FileNotFoundError(f"{str(run)!r} has no final_model.zip (an interrupted run: resume it to finish)")
     say("plotting learning curves")
     chance = retrieval_chance(run)
-    plot_learning_curves(run, run / FIGURE_FILE, chance=chance)
+    plot_learning_curves(run, run / PLOT_FILE, chance=chance)
     eval_seed = summary.get("eval_seed", 1_000_000)
     final = RetrievalReport(**summary["final_eval"]) if summary.get("final_eval") else None
     model = MemRetPPO.load(final_path, device="cpu")
@@ -72,7 +71,7 @@ def write_report(run: Path, options: ReportOptions | None = None,
     sections = [
         f"# Training report: {run.name}",
         _overview(summary, history, chance, final, baselines),
-        f"![learning curves]({FIGURE_FILE})",
+        f"![learning curves]({PLOT_FILE})",
         "*Held-out greedy retrieval accuracy and task success (markers at each evaluation), the fraction of "
         "training-time sampled retrievals that held the true memory (every round), and the policy entropy "
         "(right axis).*",

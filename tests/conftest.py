@@ -1,8 +1,17 @@
-"""Shared fixtures: one real DrawerCubeTakeOut-v1 per test module (building it takes ~1 s)."""
+"""Shared fixtures: one real DrawerCubeTakeOut-v1 per test module (building it takes ~1 s), and
+SB3's default log folder inside pytest's temporary directory rather than the system's."""
 
 import pytest
 
 from sb3_memret.rollout import make_task_env
+
+
+@pytest.fixture(scope="session", autouse=True)
+def sb3_log_folder(tmp_path_factory):
+    """A ``learn`` without its own logger makes an SB3-<date> folder under $SB3_LOGDIR or /tmp."""
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv("SB3_LOGDIR", str(tmp_path_factory.mktemp("sb3_logs")))
+        yield
 
 
 @pytest.fixture(scope="module")
