@@ -18,6 +18,7 @@ install: $(VENV)/.installed
 
 train: install
 	$(VENV)/bin/sb3-memret train recall
+	$(VENV)/bin/sb3-memret report runs/recall-seed0
 
 test: install
 	$(PY) -m pytest $(PYTEST_ARGS)

@@ -130,6 +130,7 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
                    f"sb3-memret train {experiment} --out {result.out} --resume", err=True)
         sys.exit(130)
     click.echo(f"model: {result.model_path} (load with stable_baselines3.PPO.load)")
+    click.echo(f"report: sb3-memret report {result.out}")
 
 
 @main.command("eval")
