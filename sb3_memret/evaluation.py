@@ -73,7 +73,7 @@ def evaluate_retrieval(
     n = venv.num_envs
     targets = np.array([(n_episodes + i) // n for i in range(n)])
     counts = np.zeros(n, dtype=int)
-    returns, evicted = np.zeros(n), np.zeros(n, dtype=bool)
+    returns, evicted, lengths = np.zeros(n), np.zeros(n, dtype=bool), np.zeros(n, dtype=int)
     hits = sampled = entropy = decisions = 0.0
     rewards_total, steps_total = 0.0, 0
     episodes: list[dict[str, Any]] = []
@@ -92,6 +92,7 @@ def evaluate_retrieval(
                 if counts[i] >= targets[i]:
                     continue
                 returns[i] += rewards[i]
+                lengths[i] += 1
                 rewards_total, steps_total = rewards_total + float(rewards[i]), steps_total + 1
                 evicted[i] |= bool(info["true_evicted"])
                 true = int(info["decision_true_slot"])
@@ -102,12 +103,13 @@ def evaluate_retrieval(
                     entropy += float(ent[i])
                 if dones[i]:
                     episode = dict(layer=int(info["cube_layer"]), success=bool(info["success"]),
-                                   shaped_return=float(returns[i]), true_evicted=bool(evicted[i]))
+                                   shaped_return=float(returns[i]), true_evicted=bool(evicted[i]),
+                                   decisions=int(lengths[i]))
                     episodes.append(episode)
                     if on_episode is not None:
                         on_episode(episode)
                     counts[i] += 1
-                    returns[i], evicted[i] = 0.0, False
+                    returns[i], evicted[i], lengths[i] = 0.0, False, 0
     finally:
         policy.set_training_mode(was_training)
     return _report(episodes, decisions, hits, sampled, entropy, rewards_total / max(steps_total, 1), deterministic)

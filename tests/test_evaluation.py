@@ -33,6 +33,7 @@ def test_counts_every_episode_once_over_several_envs():
     report = evaluate_retrieval(model, venv, n_episodes=10, seed=5, on_episode=seen.append)
     assert report.episodes == len(seen) == 10
     assert report.decisions == 10  # one decision per toy episode, the true memory always present
+    assert [episode["decisions"] for episode in seen] == [1] * 10
     assert sum(report.episodes_per_layer.values()) == 10
     assert set(report.success) >= {"overall"}
 
