@@ -51,7 +51,10 @@ class RetrievalTrace:
 
     def format(self) -> str:
         """A plain-text block like Figure 6 of the seed paper."""
-        verdict = "the cube  [CORRECT]" if self.greedy_correct else "a decoy  [WRONG]"
+        if not any(row.true for row in self.rows):
+            verdict = "a decoy  [the true cube memory is not in the bank: evicted]"
+        else:
+            verdict = "the cube  [CORRECT]" if self.greedy_correct else "a decoy  [WRONG]"
         width = max(len(row.text) for row in self.rows) + 4
         lines = [f"{self.label}  retriever top-1 = {verdict}",
                  f"  {'':{width}}{'score':>8}{'p(first)':>10}"]

@@ -11,7 +11,7 @@ from sb3_memret.envs import RECALL_ENV_ID
 from sb3_memret.memory.encoder import MiniLMEncoder
 from sb3_memret.policy.policy import MemoryRetrievalPolicy
 from sb3_memret.policy.ppo import MemRetPPO
-from sb3_memret.trace import trace_first_retrieval, trace_models
+from sb3_memret.trace import RetrievalTrace, TraceRow, trace_first_retrieval, trace_models
 
 
 @pytest.fixture(scope="module")
@@ -154,3 +154,12 @@ def test_trace_models_traces_each_model_on_the_same_bank(env, encoder, episode, 
         assert_consistent(trace, info)
     assert [row.score for row in traces[0].rows] != [row.score for row in traces[1].rows]
     assert traces[1].greedy_correct
+
+
+
+def test_a_bank_without_the_true_memory_says_so():
+    rows = (TraceRow(0, "the key is in drawer layer 1.", 0.2, 0.6, True, False),
+            TraceRow(1, "the robot is holding the mug.", -0.1, 0.4, False, False))
+    trace = RetrievalTrace("after eviction", "pick out the cube.", 0, 2, 0.5, rows)
+    assert not trace.greedy_correct
+    assert "the true cube memory is not in the bank" in trace.format()
