@@ -19,6 +19,8 @@ import math
 from dataclasses import asdict, dataclass, field
 from typing import Any, Callable, Sequence
 
+import numpy as np
+
 from sb3_memret.envs.cabinet import LAYERS, check_layer
 from sb3_memret.parallel_rollout import EpisodeJob, run_jobs
 from sb3_memret.prompts import HOLDING_NOTHING_TEXT, INSTRUCTION, build_prompt, location_text
@@ -55,7 +57,8 @@ class AblationSpec:
 
 @dataclass
 class CellResult:
-    """A cell's outcome: successes out of episodes, with a 95% Wilson interval."""
+    """A cell's outcome: successes out of episodes, with a 95% Wilson interval and the median
+    control steps of the successful episodes (None without one)."""
 
     row: str
     column: str
@@ -64,6 +67,7 @@ class CellResult:
     replan_every: int
     episodes: int
     successes: int
+    win_steps: tuple[int, ...] = ()  # control steps of each successful episode
     ci_low: float = field(init=False)
     ci_high: float = field(init=False)
 
@@ -73,6 +77,10 @@ class CellResult:
     @property
     def success(self) -> float:
         return self.successes / self.episodes
+
+    @property
+    def median_steps(self) -> float | None:
+        return float(np.median(self.win_steps)) if self.win_steps else None
 
 
 @dataclass
@@ -106,6 +114,9 @@ class AblationResult:
                  "|" + "---|" * (len(spec.columns) + 1)]
         for row, rates in self.table().items():
             lines.append("| " + " | ".join([row, *("–" if r is None else f"{r:.0%}" for r in rates.values())]) + " |")
+        steps = {row: [n for c in self.cells if c.row == row for n in c.win_steps] for row in spec.rows}
+        lines += ["", "Median control steps to success: " + " · ".join(
+            f"{row}: {np.median(n):.0f}" if n else f"{row}: –" for row, n in steps.items())]
         lines += ["", "Prompts:"]
         seen = set()
         for cell in self.cells:
@@ -119,18 +130,18 @@ class AblationResult:
         return {"ablation": self.spec.name, "title": self.spec.title, "controller": self.controller,
                 "episodes_per_cell": self.episodes, "seed": self.seed, "row_header": self.spec.row_header,
                 "rows": list(self.spec.rows), "columns": list(self.spec.columns), "table": self.table(),
-                "cells": [asdict(c) | {"success": c.success} for c in self.cells]}
+                "cells": [asdict(c) | {"success": c.success, "median_steps": c.median_steps} for c in self.cells]}
 
     def to_csv(self) -> str:
         """One line per cell, long format."""
         buffer = io.StringIO()
         fields = ["ablation", "row", "column", "layer", "replan_every", "episodes", "successes", "success",
-                  "ci_low", "ci_high", "prompt"]
+                  "ci_low", "ci_high", "median_steps", "prompt"]
         writer = csv.DictWriter(buffer, fieldnames=fields, lineterminator="\n")
         writer.writeheader()
         for cell in self.cells:
             writer.writerow({"ablation": self.spec.name, **{k: v for k, v in asdict(cell).items() if k in fields},
-                             "success": cell.success})
+                             "success": cell.success, "median_steps": cell.median_steps})
         return buffer.getvalue()
 
 
@@ -211,8 +222,9 @@ def run_ablation(
     cells = []
     for i, cell in enumerate(spec.cells):
         outcome = results[i * episodes:(i + 1) * episodes]
-        cells.append(CellResult(cell.row, cell.column, cell.prompt, cell.layer, cell.replan_every, episodes,
-                                sum(r.success for r in outcome)))
+        wins = [r.steps for r in outcome if r.success]
+        cells.append(CellResult(cell.row, cell.column, cell.prompt, cell.layer, cell.replan_every, episodes, len(wins),
+                                tuple(wins)))
     return AblationResult(spec, episodes, seed, controller, cells)
 
 

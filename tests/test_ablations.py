@@ -272,6 +272,10 @@ def test_scripted_controller_follows_the_layer_not_the_object_word(prompt_run):
     assert result.rate(none_row, "wrong layer") == 0.0  # opens the top drawer; the cube is in layer 2
     assert result.rate(none_row, "correct layer") is None
     assert "| " + none_row + " | – | 0% |" in result.to_markdown().splitlines()
+    for cell in result.cells:  # steps to success are kept for the successful episodes only
+        assert len(cell.win_steps) == cell.successes
+        assert (cell.median_steps is None) == (cell.successes == 0)
+        assert all(0 < steps <= 400 for steps in cell.win_steps)  # the task's episode limit
 
 
 def test_prompt_ablation_reports_every_episode_once(prompt_run):
