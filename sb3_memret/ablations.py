@@ -118,12 +118,13 @@ class AblationResult:
         lines += ["", "Median control steps to success: " + " · ".join(
             f"{row}: {np.median(n):.0f}" if n else f"{row}: –" for row, n in steps.items())]
         lines += ["", "Prompts:"]
-        seen = set()
-        for cell in self.cells:
-            if cell.prompt not in seen:
-                seen.add(cell.prompt)
-                where = cell.row if sum(c.row == cell.row for c in self.cells) == 1 else f"{cell.row}, {cell.column}"
-                lines.append(f"- {where}: `{cell.prompt}`")
+        for prompt in dict.fromkeys(c.prompt for c in self.cells):
+            users = [c for c in self.cells if c.prompt == prompt]
+            rows, columns = {c.row for c in users}, {c.column for c in users}
+            where = [*rows] if len(rows) == 1 else []
+            if len(columns) == 1 and not (where and sum(c.row == where[0] for c in self.cells) == 1):
+                where += columns  # a row of one cell needs no column
+            lines.append(f"- {', '.join(where) or 'every cell'}: `{prompt}`")
         return "\n".join(lines)
 
     def to_dict(self) -> dict[str, Any]:

@@ -14,6 +14,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+from sb3_memret.ablations import ABLATIONS
 from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.evaluation import RetrievalReport, evaluate_retrieval
@@ -185,7 +186,8 @@ def _trace_section(traces: list) -> list[str]:
 
 
 def _ablations(run: Path) -> str:
-    tables = sorted((run / "ablations").glob("*.md")) if (run / "ablations").is_dir() else []
+    order = list(ABLATIONS)  # replan, prompt, memcount: the seed paper's order
+    tables = [run / "ablations" / f"{name}.md" for name in order if (run / "ablations" / f"{name}.md").exists()]
     if not tables:
         return (f"None saved with this run. `sb3-memret ablate replan|prompt|memcount --out {run / 'ablations'}` "
                 "measures how the frozen controller consumes memory, and the next report includes the tables.")

@@ -291,3 +291,12 @@ def test_memory_count_on_the_simulator_with_two_workers(memcount_run):
     for row in (one_row, two_row):
         assert [result.rate(row, column) for column in (*LAYER_COLUMNS, "overall")] == [1.0] * 4
     assert_called_once_per_episode(spec, played)
+
+
+def test_prompt_legend_lists_each_prompt_once_with_where_it_is_used():
+    spec = replan_ablation()
+    result = AblationResult(spec, 1, 0, "scripted", [CellResult(c.row, c.column, c.prompt, c.layer, c.replan_every,
+                                                                1, 1, (200,)) for c in spec.cells])
+    legend = result.to_markdown().split("Prompts:")[1].strip().splitlines()
+    assert legend == [f"- layer {layer}: `pick out the cube. the cube is in drawer layer {layer}.`" for layer in (1, 2, 3)]
+    assert "Median control steps to success: 5: 200 · 8: 200" in result.to_markdown()
