@@ -51,3 +51,10 @@ def test_run_commands_refuse_folders_that_are_not_runs(tmp_path):
     assert result.exit_code == 2 and "no summary.json" in result.output
     result = runner.invoke(main, ["trace", str(tmp_path)])
     assert result.exit_code == 2 and "lacks ['initial_model.zip', 'final_model.zip']" in result.output
+
+
+def test_ablate_default_intervals_are_the_library_default():
+    from sb3_memret.ablations import REPLAN_INTERVALS
+
+    option = next(p for p in main.commands["ablate"].params if p.name == "intervals")
+    assert tuple(int(i) for i in option.default.split(",")) == REPLAN_INTERVALS
