@@ -17,9 +17,8 @@ from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator, PercentFormatter
 
 from sb3_memret.run_logger import PROGRESS_CSV
-from sb3_memret.training import read_history
+from sb3_memret.training import HISTORY_FILE, read_history
 
-HISTORY_JSONL = "evaluations.jsonl"
 PLOT_FILE = "learning_curves.png"
 
 
@@ -45,9 +44,9 @@ def _number(cell: str | None) -> float:
 def learning_curves(run: Path) -> LearningCurves:
     """The curves of the run in folder ``run``; a round is a progress.csv row that collected a rollout."""
     run = Path(run)
-    progress, history_path = run / PROGRESS_CSV, run / HISTORY_JSONL
+    progress, history_path = run / PROGRESS_CSV, run / HISTORY_FILE
     if not progress.exists() and not history_path.exists():
-        raise FileNotFoundError(f"no training logs in {run}: expected {PROGRESS_CSV} and/or {HISTORY_JSONL}")
+        raise FileNotFoundError(f"no training logs in {run}: expected {PROGRESS_CSV} and/or {HISTORY_FILE}")
     rows = []
     if progress.exists():
         with open(progress, newline="") as f:

@@ -108,10 +108,15 @@ def write_report(run: Path, options: ReportOptions | None = None,
     return path
 
 
+def first_mastered(history: list[dict[str, Any]]) -> dict[str, Any] | None:
+    """The first evaluation whose greedy accuracy reached MASTERY, or None."""
+    return next((row for row in history if row["greedy_accuracy"] >= MASTERY), None)
+
+
 def _overview(summary: dict[str, Any], history: list[dict[str, Any]], chance: float | None,
               final: RetrievalReport | None, baselines: dict[str, RetrievalReport]) -> str:
     first, last = history[0], history[-1]
-    mastered = next((row for row in history if row["greedy_accuracy"] >= MASTERY), None)
+    mastered = first_mastered(history)
     chance_text = f" (a random pick: {chance:.0%})" if chance is not None else ""
     lines = [
         f"PPO trained the retriever (actor) and the retention scorer (critic) from random initialisation for "
@@ -194,4 +199,4 @@ def _ablations(run: Path) -> str:
     return "\n\n".join(path.read_text().strip() for path in tables)
 
 
-__all__ = ["ReportOptions", "write_report"]
+__all__ = ["MASTERY", "ReportOptions", "first_mastered", "write_report"]

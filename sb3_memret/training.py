@@ -36,6 +36,7 @@ from sb3_memret.run_logger import make_run_logger
 
 CONFIG_FILE = "config.yml"
 INITIAL_MODEL = "initial_model.zip"
+HISTORY_FILE = "evaluations.jsonl"
 
 
 @dataclass
@@ -129,7 +130,7 @@ def train(config: TrainConfig | None, options: RunOptions) -> RunResult:
     eval_env = make_recall_vec_env(config.n_envs, env_kwargs)
     checkpointer = RoundCheckpointCallback(checkpoints, verbose=options.verbose)
     evaluator = RetrievalEvalCallback(eval_env, options.eval_episodes, options.eval_seed, options.eval_every,
-                                      best_model_save_path=out, history_path=out / "evaluations.jsonl",
+                                      best_model_save_path=out, history_path=out / HISTORY_FILE,
                                       verbose=options.verbose)
     start, interrupted = time.perf_counter(), False
     try:
@@ -168,7 +169,7 @@ def train(config: TrainConfig | None, options: RunOptions) -> RunResult:
 
 def read_history(out: Path) -> list[dict[str, Any]]:
     """Every evaluation report of a run, oldest first; a round evaluated twice (resume) keeps its last."""
-    path = Path(out) / "evaluations.jsonl"
+    path = Path(out) / HISTORY_FILE
     if not path.exists():
         return []
     rows = {}
@@ -209,5 +210,5 @@ def _write_summary(result: RunResult, options: RunOptions) -> None:
     (result.out / "summary.json").write_text(json.dumps(summary, indent=2))
 
 
-__all__ = ["INITIAL_MODEL", "RunOptions", "RunResult", "env_kwargs_for", "eval_env_kwargs", "format_history",
+__all__ = ["HISTORY_FILE", "INITIAL_MODEL", "RunOptions", "RunResult", "env_kwargs_for", "eval_env_kwargs", "format_history",
            "load_run_config", "read_history", "retrieval_chance", "train"]

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sb3_memret.report import MASTERY
+from sb3_memret.report import MASTERY, first_mastered
 from sb3_memret.training import read_history
 
 
@@ -24,7 +24,7 @@ def run_row(run: Path) -> dict[str, float]:
     if not history:
         raise SystemExit(f"{run}: no evaluations.jsonl, so not a training run")
     summary = json.loads((run / "summary.json").read_text()) if (run / "summary.json").exists() else {}
-    mastered = next((row["round"] for row in history if row["greedy_accuracy"] >= MASTERY), float("nan"))
+    mastered = row["round"] if (row := first_mastered(history)) else float("nan")
     last = history[-1]
     return {"seed": summary.get("seed", "?"), "first_mastered": mastered, "round": last["round"],
             "greedy": last["greedy_accuracy"], "sampled": last["sampled_fraction"], "entropy": last["entropy"],
