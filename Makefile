@@ -1,30 +1,43 @@
-# One-command set-up: each target creates .venv and installs the pinned stack on first use.
+# One-command set-up: each target creates .venv (Python 3.12) and installs the pinned stack on first use.
+# PYTHON=/path/to/python3.12 overrides the interpreter; by default the first Python 3.12 found on PATH
+# or among pyenv's versions.
 VENV ?= .venv
 PY := $(VENV)/bin/python
 PYTEST_ARGS ?=
+RENDERER ?= .renderer
+is_py312 = $(shell $(1) -c 'import sys; assert sys.version_info[:2] == (3, 12)' >/dev/null 2>&1 && echo yes)
+PYTHON ?= $(firstword $(foreach p,python3.12 $(wildcard $(HOME)/.pyenv/versions/3.12*/bin/python3.12),$(if $(call is_py312,$(p)),$(p))))
 
-.PHONY: install train test bench clean
+.PHONY: install renderer train test bench clean
 
 $(VENV)/.installed: setup.cfg pyproject.toml constraints.txt
-	python3 -m venv $(VENV)
+	@test -n "$(PYTHON)" || { echo "error: no Python 3.12 found; install one (e.g. pyenv install 3.12) or pass PYTHON=/path/to/python3.12" >&2; exit 1; }
+	rm -rf $(VENV)
+	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
-	$(PY) -m pip install --quiet torch==2.13.0
-	$(PY) -m pip install --quiet -c constraints.txt -e ".[test,openpi]"
+	# torch 2.11.0 from the package index: the same build runs on the CPU and on CUDA 13 GPUs
+	$(PY) -m pip install --quiet -c constraints.txt torch==2.11.0 -e ".[test,openpi]"
 	# openpi-client pins numpy<2 but works with numpy 2: install it without its pins
 	$(PY) -m pip install --quiet --no-deps openpi-client==0.1.2
 	touch $@
 
+# Mesa 25 lavapipe, a software Vulkan driver SAPIEN can render with on a CPU (render_backend="cpu")
+$(RENDERER)/lvp_icd.json: scripts/install_lavapipe.sh
+	bash scripts/install_lavapipe.sh $(RENDERER)
+
 install: $(VENV)/.installed
+
+renderer: $(RENDERER)/lvp_icd.json
 
 train: install
 	$(VENV)/bin/sb3-memret train recall
 	$(VENV)/bin/sb3-memret report runs/recall-seed0
 
-test: install
+test: install renderer
 	$(PY) -m pytest $(PYTEST_ARGS)
 
 bench: install
 	$(PY) scripts/bench_env.py
 
 clean:
-	rm -rf $(VENV) runs
+	rm -rf $(VENV) $(RENDERER) runs

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from contextlib import contextmanager
 from dataclasses import dataclass
-from typing import Any
+from typing import Any, Iterator
 
 import numpy as np
 import sapien
@@ -80,7 +81,9 @@ class DrawerCubeTakeOutEnv(BaseEnv):
     axis-angle in the robot base frame, two gripper joints). ``extra/drawer_opening`` (3) is
     what a camera sees of the drawers; ``extra/cube_detection`` (8: visible flag, position,
     wxyz quaternion) is the cube as a camera would see it: zeros while its drawer is closed.
-    With a render backend, ``base_camera`` and ``hand_camera`` give 224x224 RGB images.
+    With a render backend, ``base_camera`` and ``hand_camera`` give 224x224 RGB images; inside
+    ``sensors_paused()`` steps return the state part only, so a controller that reads images
+    once per action chunk pays for one render per chunk, not one per control step.
 
     **Action:** 7-D ``pd_ee_delta_pose`` (3 translation, 3 rotation, gripper), sent unmodified.
     """
@@ -106,6 +109,7 @@ class DrawerCubeTakeOutEnv(BaseEnv):
         self.lift_height = self.layout.top_z + 0.02 if lift_height is None else lift_height
         self.front_margin = front_margin
         self._cube_layer_np: np.ndarray | None = None
+        self._sensors_paused = False
         # (3, 2, 3): each layer's interior (low, high) with every drawer closed
         self._closed_boxes = np.stack([np.stack(self.layout.inner_box(layer)) for layer in LAYERS])
         super().__init__(*args, robot_uids=robot_uids, **kwargs)
@@ -240,6 +244,21 @@ class DrawerCubeTakeOutEnv(BaseEnv):
         tcp = self.agent.tcp.pose.raw_pose
         gripper = self.agent.robot.get_qpos()[:, -2:]
         return torch.cat([tcp[:, :3], quaternion_to_axis_angle(tcp[:, 3:]), gripper], dim=1)
+
+    @contextmanager
+    def sensors_paused(self) -> Iterator[None]:
+        """Observations inside leave out camera images (no render): for control steps whose
+        observation no controller reads."""
+        self._sensors_paused = True
+        try:
+            yield
+        finally:
+            self._sensors_paused = False
+
+    def _get_obs_with_sensor_data(self, info: dict, apply_texture_transforms: bool = True) -> dict:
+        if self._sensors_paused:
+            return self._get_obs_state_dict(info)
+        return super()._get_obs_with_sensor_data(info, apply_texture_transforms)
 
     def _get_obs_extra(self, info: dict) -> dict[str, torch.Tensor]:
         opening = self.cabinet.get_qpos()

@@ -24,6 +24,7 @@ from sb3_memret.memory.writer import BoundingBoxPredicateExtractor, EventCompile
 from sb3_memret.policy.networks import RetentionScorer
 from sb3_memret.prompts import INSTRUCTION, build_prompt, location_text
 from sb3_memret.rewards import shaped_reward
+from sb3_memret.rollout import execute_chunk, make_task_env, task_env_kwargs
 
 MODES = ("recall", "oracle", "none")
 
@@ -64,7 +65,6 @@ class DrawerRecallEnv(gym.Env):
             raise ValueError(f"unknown mode {mode!r}; expected one of {list(MODES)}")
         if not 1 <= k <= capacity:
             raise ValueError(f"k must be in [1, capacity={capacity}], got {k}")
-        from sb3_memret.rollout import make_task_env, task_env_kwargs
 
         self.mode, self.capacity, self.k = mode, capacity, k
         self.replan_every, self.gamma, self.success_bonus = replan_every, gamma, success_bonus
@@ -149,15 +149,10 @@ class DrawerRecallEnv(gym.Env):
         for s in slots[slots < len(entries)]:
             self.bank.mark_used(int(s))
         prompt = self._prompt(chosen)
-        chunk = self.controller.act(self._obs, [prompt])[0][: self.replan_every]
+        outcome = execute_chunk(self.task, self.controller.act(self._obs, [prompt])[0][: self.replan_every])
         phi = self._phi
-        terminated, truncated, info = False, False, {}
-        for action_t in chunk:
-            self._obs, _, term, trunc, info = self.task.step(action_t)
-            self._t += 1
-            terminated, truncated = bool(term), bool(trunc)
-            if terminated or truncated:
-                break
+        self._obs, self._t, info = outcome.obs, self._t + outcome.steps, outcome.info
+        terminated, truncated = outcome.terminated, outcome.truncated
         self._phi = info["potential"].numpy()
         reward = (1.0 - self.gamma) * float(shaped_reward(phi, self._phi, self.gamma)[0])
         success = bool(info["success"][0])

@@ -2,11 +2,16 @@
 
 from __future__ import annotations
 
-import signal
+from multiprocessing.connection import Connection
+from multiprocessing.process import BaseProcess
 from typing import Any, Callable
 
 import gymnasium as gym
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecMonitor
+
+from sb3_memret.workers import WorkerDiedError, exit_description, init_worker_process
+
+CLOSE_TIMEOUT = 10.0  # seconds a live worker gets to exit after a sibling died
 
 
 def _env_factory(env_id: str, env_kwargs: dict[str, Any], in_worker: bool) -> Callable[[], gym.Env]:
@@ -14,15 +19,76 @@ def _env_factory(env_id: str, env_kwargs: dict[str, Any], in_worker: bool) -> Ca
         import sb3_memret.envs  # noqa: F401  (registers the env ids in a fresh worker process)
 
         if in_worker:
-            # Ctrl-C belongs to the trainer, which saves a checkpoint and then closes the workers;
-            # one torch thread per worker keeps n workers from oversubscribing the cores.
-            import torch
-
-            signal.signal(signal.SIGINT, signal.SIG_IGN)
-            torch.set_num_threads(1)
+            init_worker_process()
         return gym.make(env_id, **env_kwargs)
 
     return make
+
+
+class _WatchedPipe:
+    """The parent's end of a worker pipe that names the worker when it is gone."""
+
+    def __init__(self, conn: Connection, process: BaseProcess, index: int):
+        self.conn, self.process, self.index = conn, process, index
+
+    def died(self, err: BaseException, doing: str) -> WorkerDiedError:
+        return WorkerDiedError(f"env worker {self.index} (pid {self.process.pid}) {exit_description(self.process)} "
+                               f"{doing} ({type(err).__name__})")
+
+    def send(self, message: Any) -> None:
+        try:
+            self.conn.send(message)
+        except (EOFError, OSError) as err:
+            raise self.died(err, "before it could take a command") from None
+
+    def recv(self) -> Any:
+        try:
+            return self.conn.recv()
+        except (EOFError, OSError) as err:
+            raise self.died(err, "before it answered") from None
+
+    def close(self) -> None:
+        self.conn.close()
+
+
+class WatchedSubprocVecEnv(SubprocVecEnv):
+    """``SubprocVecEnv`` whose dead workers are reported by env index, pid and exit signal
+    (``WorkerDiedError``) instead of a bare EOFError, and whose ``close`` still shuts the live
+    workers down after one died."""
+
+    def __init__(self, env_fns: list[Callable[[], gym.Env]], start_method: str = "forkserver"):
+        try:
+            super().__init__(env_fns, start_method=start_method)
+        except (EOFError, OSError) as err:  # worker 0 failed to build its env (its traceback is above)
+            self._watch()
+            error = self.remotes[0].died(err, "while building its env")
+            self.close()
+            raise error from None
+        self._watch()
+
+    def _watch(self) -> None:
+        self.remotes = [_WatchedPipe(r, p, i) for i, (r, p) in enumerate(zip(self.remotes, self.processes))]
+
+    def close(self) -> None:
+        if self.closed:
+            return
+        if all(p.is_alive() for p in self.processes):
+            super().close()
+            return
+        for remote, process in zip(self.remotes, self.processes):
+            if process.is_alive():
+                try:
+                    remote.send(("close", None))
+                except WorkerDiedError:
+                    pass
+        for process in self.processes:
+            process.join(timeout=CLOSE_TIMEOUT)
+            if process.is_alive():
+                process.terminate()
+                process.join()
+        for remote in self.remotes:
+            remote.close()
+        self.closed = True
 
 
 def make_recall_vec_env(
@@ -34,7 +100,7 @@ def make_recall_vec_env(
 ) -> VecEnv:
     """``n_envs`` copies of DrawerRecall-v0 behind a ``VecMonitor`` (episode return/length logs).
 
-    Several envs run in ``SubprocVecEnv`` workers (each builds its own simulator and
+    Several envs run in ``WatchedSubprocVecEnv`` workers (each builds its own simulator and
     controller), one env in-process; ``subprocess`` overrides that choice. Env ``i`` is seeded
     with ``seed + i``.
     """
@@ -44,10 +110,10 @@ def make_recall_vec_env(
         raise ValueError(f"n_envs must be >= 1, got {n_envs}")
     use_workers = n_envs > 1 if subprocess is None else subprocess
     factories = [_env_factory(env_id or RECALL_ENV_ID, dict(env_kwargs or {}), use_workers) for _ in range(n_envs)]
-    venv = SubprocVecEnv(factories, start_method="forkserver") if use_workers else DummyVecEnv(factories)
+    venv = WatchedSubprocVecEnv(factories) if use_workers else DummyVecEnv(factories)
     if seed is not None:
         venv.seed(seed)
     return VecMonitor(venv)
 
 
-__all__ = ["make_recall_vec_env"]
+__all__ = ["WatchedSubprocVecEnv", "make_recall_vec_env"]

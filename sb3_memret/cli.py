@@ -25,9 +25,32 @@ def _controller(ctx: click.Context, param: click.Parameter, value: str):
         raise click.BadParameter(str(err), ctx=ctx, param=param) from err
 
 
+def _render_backend(ctx: click.Context, param: click.Parameter, value: str) -> str:
+    """Refuse ``cpu`` here, with the install command, when the project's lavapipe is missing."""
+    if value == "cpu":
+        from sb3_memret.rendering import RendererNotFoundError, use_cpu_renderer
+
+        try:
+            use_cpu_renderer()
+        except RendererNotFoundError as err:
+            raise click.BadParameter(str(err), ctx=ctx, param=param) from None
+    return value
+
+
 def _render_backend_option(command):
     return click.option("--render-backend", type=click.Choice(["none", "cpu", "gpu"]), default="none", show_default=True,
-                        help="SAPIEN render backend; controllers that read camera images need cpu or gpu.")(command)
+                        callback=_render_backend,
+                        help="SAPIEN render backend; controllers that read camera images need cpu (the software "
+                             "renderer of `make renderer`) or gpu.")(command)
+
+
+def _load_models(paths: list[Path], param_hint: str) -> list:
+    from sb3_memret.policy.ppo import load_model
+
+    try:
+        return [load_model(path) for path in paths]
+    except ValueError as err:
+        raise click.BadParameter(str(err), param_hint=param_hint) from None
 
 
 def _controller_spec(ctx: click.Context, param: click.Parameter, value: str) -> str:
@@ -37,7 +60,32 @@ def _controller_spec(ctx: click.Context, param: click.Parameter, value: str) -> 
     return value
 
 
-@click.group(context_settings={"help_option_names": ["-h", "--help"]})
+class _Cli(click.Group):
+    """Every mistake ends in one line that names the value and what is accepted, with a non-zero
+    exit status and no traceback; SIGTERM (a scheduler's stop) is handled as Ctrl-C."""
+
+    def main(self, *args, **kwargs):  # type: ignore[override]
+        from sb3_memret.controllers.weights import WeightsNotLoadedError
+        from sb3_memret.rendering import RendererNotFoundError
+        from sb3_memret.workers import StopRequested, WorkerDiedError, stop_signals_interrupt
+
+        try:
+            with stop_signals_interrupt():
+                return super().main(*args, standalone_mode=False, **kwargs)
+        except click.exceptions.Abort as err:
+            click.echo("Aborted.", err=True)
+            sys.exit(143 if isinstance(err.__cause__, StopRequested) else 130)
+        except click.ClickException as err:
+            ctx = getattr(err, "ctx", None)
+            hint = f"  (see: {ctx.command_path} --help)" if isinstance(err, click.UsageError) and ctx else ""
+            click.echo(f"Error: {err.format_message()}{hint}".replace("\n", " "), err=True)
+            sys.exit(err.exit_code)
+        except (WorkerDiedError, RendererNotFoundError, WeightsNotLoadedError) as err:
+            click.echo(f"Error: {err}", err=True)
+            sys.exit(1)
+
+
+@click.group(cls=_Cli, context_settings={"help_option_names": ["-h", "--help"]})
 @click.version_option(package_name="sb3-memret")
 def main() -> None:
     """A learnable external language memory for frozen robot policies."""
@@ -79,7 +127,7 @@ def rollout(controller, condition: str, episodes: int, layer: int | None, seed: 
 
 
 @main.command()
-@click.argument("experiment", type=click.Choice(list(EXPERIMENTS)))
+@click.argument("experiment", type=click.Choice(list(EXPERIMENTS)), metavar="EXPERIMENT")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help=f"rl-zoo-style YAML keyed by env id  [default: {DEFAULT_CONFIG.name} of the source tree]")
 @click.option("--controller", default="scripted", show_default=True, callback=_controller_spec,
@@ -94,7 +142,8 @@ def rollout(controller, condition: str, episodes: int, layer: int | None, seed: 
               help="Held-out episodes per evaluation.")
 @click.option("--eval-every", type=click.IntRange(min=1), default=5, show_default=True,
               help="Evaluate every N rounds (and at the end).")
-@click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
+@click.option("--progress/--no-progress", default=True, show_default=True,
+              help="Show a progress bar (without it, SB3 prints every round's statistics).")
 @_render_backend_option
 def train(experiment: str, config_path: Path | None, controller: str, n_envs: int | None, timesteps: int | None,
           seed: int, out: Path | None, resume: bool, eval_episodes: int, eval_every: int, progress: bool,
@@ -117,7 +166,9 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
             config.ppo["n_timesteps"] = timesteps
     options = RunOptions(out=out, controller=controller, seed=seed, resume=resume, eval_episodes=eval_episodes,
                          eval_every=eval_every, eval_seed=HELD_OUT_SEED, progress_bar=progress,
-                         render_backend=render_backend)
+                         render_backend=render_backend,
+                         # the bar and the closing table say enough; without the bar, SB3's per-round dumps
+                         log_formats=("csv", "tensorboard") if progress else ("stdout", "csv", "tensorboard"))
     try:
         result = run_training(config, options)
     except (FileExistsError, FileNotFoundError) as err:
@@ -126,9 +177,9 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
     click.echo(f"\n{result.num_timesteps} decisions, {result.rounds} rounds in {result.wall_seconds / 60:.1f} min; "
                f"run folder {result.out}")
     if result.interrupted:
-        click.echo(f"interrupted: saved {result.model_path}; continue with "
+        click.echo(f"stopped by {result.stopped_by}: saved {result.model_path}; continue with "
                    f"sb3-memret train {experiment} --out {result.out} --resume", err=True)
-        sys.exit(130)
+        sys.exit({"Ctrl-C": 130, "SIGTERM": 143}.get(result.stopped_by, 1))
     click.echo(f"model: {result.model_path} (load with stable_baselines3.PPO.load)")
     click.echo(f"report: sb3-memret report {result.out}")
 
@@ -151,10 +202,9 @@ def evaluate(model_path: Path, condition: str, episodes: int, controller: str, n
     """Evaluate a trained model: success per layer and retrieval accuracy."""
     from sb3_memret.evaluation import evaluate_retrieval
     from sb3_memret.envs.vec_env import make_recall_vec_env
-    from sb3_memret.policy.ppo import MemRetPPO
     from sb3_memret.training import eval_env_kwargs
 
-    model = MemRetPPO.load(model_path, device="cpu")
+    model, = _load_models([model_path], "MODEL_PATH")
     venv = make_recall_vec_env(n_envs, eval_env_kwargs(model, model_path, condition, controller, render_backend))
     try:
         with click.progressbar(length=episodes, label=f"{condition} evaluation", file=sys.stderr) as bar:
@@ -268,12 +318,11 @@ def trace(models: tuple[Path, ...], seed: int, sample_seed: int, controller: str
     """Show every memory in the bank at the first retrieval step with each model's retriever score
     ('*' = sampled, 'C' = the true cube memory). MODELS are model files or run folders (a run
     folder traces its untrained and final policies: before and after training)."""
-    from sb3_memret.policy.ppo import MemRetPPO
     from sb3_memret.trace import model_label, trace_models
     from sb3_memret.training import eval_env_kwargs
 
     paths = _trace_targets(models)
-    loaded = [(path, MemRetPPO.load(path, device="cpu")) for path in paths]
+    loaded = list(zip(paths, _load_models(paths, "MODELS")))
     env_kwargs = eval_env_kwargs(loaded[0][1], paths[0], "recall", controller, render_backend)
     traces = trace_models([(model_label(m, p), m) for p, m in loaded], env_kwargs, seed, sample_seed)
     if as_json:

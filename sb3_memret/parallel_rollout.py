@@ -8,7 +8,6 @@ the episodes it is handed. Results come back in job order whatever order they fi
 from __future__ import annotations
 
 import multiprocessing
-import signal
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from dataclasses import dataclass
 from typing import Callable, Sequence
@@ -18,6 +17,7 @@ import gymnasium as gym
 from sb3_memret.controllers import make_controller
 from sb3_memret.controllers.base import FrozenController
 from sb3_memret.rollout import DEFAULT_REPLAN_EVERY, EpisodeResult, make_task_env, run_episode, task_env_kwargs
+from sb3_memret.workers import init_worker_process
 
 
 @dataclass(frozen=True)
@@ -50,10 +50,7 @@ _worker_player: _Player | None = None
 
 def _init_worker(controller: str, render_backend: str) -> None:
     global _worker_player
-    signal.signal(signal.SIGINT, signal.SIG_IGN)  # Ctrl-C is the parent's to handle
-    import torch
-
-    torch.set_num_threads(1)
+    init_worker_process()
     _worker_player = _Player(controller, render_backend)
 
 

@@ -19,7 +19,7 @@ from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.evaluation import RetrievalReport, evaluate_retrieval
 from sb3_memret.plotting import PLOT_FILE, plot_learning_curves
-from sb3_memret.policy.ppo import MemRetPPO
+from sb3_memret.policy.ppo import MemRetPPO, load_model
 from sb3_memret.trace import model_label, trace_models
 from sb3_memret.training import (CONFIG_FILE, INITIAL_MODEL, eval_env_kwargs, format_history, read_history,
                                  retrieval_chance)
@@ -65,7 +65,7 @@ def write_report(run: Path, options: ReportOptions | None = None,
     plot_learning_curves(run, run / PLOT_FILE, chance=chance)
     eval_seed = summary.get("eval_seed", 1_000_000)
     final = RetrievalReport(**summary["final_eval"]) if summary.get("final_eval") else None
-    model = MemRetPPO.load(final_path, device="cpu")
+    model = load_model(final_path)
     baselines = _baselines(model, final_path, final, eval_seed, options, say)
     say("tracing the first decision")
     traces = _traces(run, model, final_path, options, options.trace_seed if options.trace_seed is not None else eval_seed)
@@ -175,7 +175,7 @@ def _baseline_table(final: RetrievalReport | None, baselines: dict[str, Retrieva
 def _traces(run: Path, model: MemRetPPO, final_path: Path, options: ReportOptions, seed: int) -> list:
     models = [(model_label(model, final_path), model)]
     if (run / INITIAL_MODEL).exists():
-        initial = MemRetPPO.load(run / INITIAL_MODEL, device="cpu")
+        initial = load_model(run / INITIAL_MODEL)
         models.insert(0, (model_label(initial, run / INITIAL_MODEL), initial))
     kwargs = eval_env_kwargs(model, final_path, "recall", options.controller, options.render_backend)
     return trace_models(models, kwargs, seed)

@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
+from contextlib import nullcontext
 from dataclasses import dataclass
-from typing import Callable, Iterable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -26,9 +27,43 @@ class EpisodeResult:
     steps: int  # control steps until success, or the episode limit
 
 
+@dataclass
+class ChunkOutcome:
+    """Where executing (a prefix of) an action chunk left the task env."""
+
+    obs: Any
+    info: dict
+    steps: int  # control steps executed
+    terminated: bool
+    truncated: bool
+
+
 def make_task_env(obs_mode: str = "state_dict", render_backend: str = "none", **kwargs) -> gym.Env:
-    """DrawerCubeTakeOut-v1 as a frozen controller consumes it (CPU physics, no renderer)."""
+    """DrawerCubeTakeOut-v1 as a frozen controller consumes it (CPU physics; cameras only with a
+    render backend, ``"cpu"`` being the project's lavapipe)."""
+    if render_backend == "cpu":
+        from sb3_memret.rendering import use_cpu_renderer
+
+        use_cpu_renderer()
     return gym.make(ENV_ID, obs_mode=obs_mode, render_backend=render_backend, **kwargs)
+
+
+def execute_chunk(env: gym.Env, actions: Sequence[np.ndarray] | np.ndarray) -> ChunkOutcome:
+    """Execute ``actions`` in order until the episode ends.
+
+    A controller reads the observation only when it is next called, so cameras render only
+    for the one after the last action (the next decision), not for every control step.
+    """
+    paused = env.unwrapped.sensors_paused
+    obs, info, steps, terminated, truncated = None, {}, 0, False, False
+    for i, action in enumerate(actions):
+        with paused() if i < len(actions) - 1 else nullcontext():
+            obs, _, term, trunc, info = env.step(action)
+        steps += 1
+        terminated, truncated = bool(term), bool(trunc)
+        if terminated or truncated:
+            break
+    return ChunkOutcome(obs, info, steps, terminated, truncated)
 
 
 def task_env_kwargs(controller: FrozenController, render_backend: str = "none") -> dict[str, str]:
@@ -59,12 +94,10 @@ def run_episode(
     controller.reset([seed])
     steps = 0
     while True:
-        chunk = controller.act(obs, [prompt])[0]
-        for action in chunk[:replan_every]:
-            obs, _, terminated, truncated, info = env.step(action)
-            steps += 1
-            if bool(terminated) or bool(truncated):
-                return EpisodeResult(layer, seed, bool(info["success"]), steps)
+        outcome = execute_chunk(env, controller.act(obs, [prompt])[0][:replan_every])
+        obs, steps = outcome.obs, steps + outcome.steps
+        if outcome.terminated or outcome.truncated:
+            return EpisodeResult(layer, seed, bool(outcome.info["success"]), steps)
 
 
 def evaluate_condition(
@@ -115,5 +148,5 @@ def summarize(results: Iterable[EpisodeResult]) -> dict:
     return summary
 
 
-__all__ = ["EpisodeResult", "RENDER_BACKENDS", "evaluate_condition", "make_task_env", "run_episode", "summarize",
-           "task_env_kwargs"]
+__all__ = ["ChunkOutcome", "EpisodeResult", "RENDER_BACKENDS", "evaluate_condition", "execute_chunk", "make_task_env",
+           "run_episode", "summarize", "task_env_kwargs"]

@@ -33,6 +33,7 @@ from sb3_memret.evaluation import RetrievalReport
 from sb3_memret.policy.policy import MemoryRetrievalPolicy
 from sb3_memret.policy.ppo import MemRetPPO
 from sb3_memret.run_logger import make_run_logger
+from sb3_memret.workers import StopRequested, WorkerDiedError, stop_signals_interrupt
 
 CONFIG_FILE = "config.yml"
 INITIAL_MODEL = "initial_model.zip"
@@ -63,9 +64,20 @@ class RunResult:
     num_timesteps: int
     rounds: int
     wall_seconds: float
-    interrupted: bool = False
+    stopped_by: str | None = None  # why training stopped early (Ctrl-C, SIGTERM, a dead env worker), if it did
     final: RetrievalReport | None = None
     history: list[dict[str, Any]] = field(default_factory=list)
+
+    @property
+    def interrupted(self) -> bool:
+        return self.stopped_by is not None
+
+
+def stop_reason(err: BaseException) -> str:
+    """What stopped a run, in words: 'Ctrl-C', 'SIGTERM', or how an env worker died."""
+    if isinstance(err, StopRequested):
+        return err.signal_name
+    return str(err) if isinstance(err, WorkerDiedError) else "Ctrl-C"
 
 
 def save_run_config(config: TrainConfig, path: Path) -> None:
@@ -103,7 +115,8 @@ def eval_env_kwargs(model: MemRetPPO, model_path: Path, mode: str, controller: s
 def train(config: TrainConfig | None, options: RunOptions) -> RunResult:
     """Train (or, with ``options.resume``, continue) a run in ``options.out``.
 
-    Ctrl-C or an exception saves a checkpoint before leaving, so ``resume`` continues from it.
+    Ctrl-C, SIGTERM, a dead env worker or an exception saves a checkpoint before leaving, so
+    ``resume`` continues from it; the first three return a result whose ``stopped_by`` says why.
     """
     out = Path(options.out)
     checkpoints = out / "checkpoints"
@@ -132,7 +145,7 @@ def train(config: TrainConfig | None, options: RunOptions) -> RunResult:
     evaluator = RetrievalEvalCallback(eval_env, options.eval_episodes, options.eval_seed, options.eval_every,
                                       best_model_save_path=out, history_path=out / HISTORY_FILE,
                                       verbose=options.verbose)
-    start, interrupted = time.perf_counter(), False
+    start, stopped_by = time.perf_counter(), None
     try:
         if options.resume:
             model = MemRetPPO.load(last, env=venv)
@@ -145,20 +158,22 @@ def train(config: TrainConfig | None, options: RunOptions) -> RunResult:
         checkpointer.init_callback(model)  # so an interrupt even before the first round can save
         remaining = config.n_timesteps - model.num_timesteps
         try:
-            if remaining > 0:
-                model.learn(remaining, callback=[RolloutRetrievalCallback(), evaluator, checkpointer],
-                            reset_num_timesteps=not options.resume, progress_bar=options.progress_bar)
-        except BaseException as err:
-            interrupted = isinstance(err, KeyboardInterrupt)
+            with stop_signals_interrupt():
+                if remaining > 0:
+                    model.learn(remaining, callback=[RolloutRetrievalCallback(), evaluator, checkpointer],
+                                reset_num_timesteps=not options.resume, progress_bar=options.progress_bar)
+        except (KeyboardInterrupt, WorkerDiedError) as err:
             checkpointer.save()
-            if not interrupted:
-                raise
+            stopped_by = stop_reason(err)
+        except BaseException:
+            checkpointer.save()
+            raise
         model_path = out / "final_model.zip"
-        if not interrupted:
+        if stopped_by is None:
             model.save(model_path)
-        result = RunResult(out, model_path if not interrupted else latest_checkpoint(checkpoints),
+        result = RunResult(out, model_path if stopped_by is None else latest_checkpoint(checkpoints),
                            model.num_timesteps, model._n_updates // model.n_epochs, time.perf_counter() - start,
-                           interrupted, evaluator.last_report, read_history(out))
+                           stopped_by, evaluator.last_report, read_history(out))
         _write_summary(result, options)
         model.logger.close()
         return result
@@ -204,7 +219,7 @@ def retrieval_chance(out: Path) -> float | None:
 
 def _write_summary(result: RunResult, options: RunOptions) -> None:
     summary = {"num_timesteps": result.num_timesteps, "rounds": result.rounds, "wall_seconds": result.wall_seconds,
-               "interrupted": result.interrupted, "model": str(result.model_path), "controller": options.controller,
+               "interrupted": result.interrupted, "stopped_by": result.stopped_by, "model": str(result.model_path), "controller": options.controller,
                "seed": options.seed, "eval_seed": options.eval_seed, "eval_episodes": options.eval_episodes,
                "final_eval": result.final.to_dict() if result.final else None}
     (result.out / "summary.json").write_text(json.dumps(summary, indent=2))

@@ -1,10 +1,9 @@
-"""LeRobotPi05Controller: the strict load checks (no lerobot needed), and a tiny random PI05 end to end."""
+"""LeRobotPi05Controller: the strict load checks on plain torch modules, and a tiny random PI05 end to end."""
 
 from __future__ import annotations
 
 import contextlib
 import functools
-import importlib.util
 import shutil
 from pathlib import Path
 
@@ -15,8 +14,6 @@ from torch import nn
 
 from sb3_memret.controllers.weights import LoadReport, WeightsNotLoadedError, check_loaded, compare_tensors
 
-HAS_LEROBOT = importlib.util.find_spec("lerobot") is not None
-NO_LEROBOT = "lerobot >= 0.5 with its pi and peft extras is not installed (it needs Python >= 3.12)"
 
 
 # ------------------------------------------------------------ the checks, on plain torch modules
@@ -112,15 +109,6 @@ def test_long_reports_are_cut():
     assert report.describe() == "20 missing: w0, w1, w2, w3, w4, w5, w6, w7 and 12 more"
 
 
-@pytest.mark.skipif(HAS_LEROBOT, reason="checks the message shown where lerobot is missing")
-def test_without_lerobot_the_controller_says_how_to_install(tmp_path):
-    from sb3_memret.controllers.lerobot_pi05 import LeRobotPi05Controller
-
-    (tmp_path / "model.safetensors").touch()
-    with pytest.raises(ImportError, match=r"pip install 'sb3-memret\[lerobot\]'.*Python >= 3\.12"):
-        LeRobotPi05Controller(tmp_path)
-
-
 # ---------------------------------------------------------------- a tiny random PI05, end to end
 TINY_WIDTH = 64
 TINY_VISION = dict(model_type="siglip_vision_model", hidden_size=32, intermediate_size=64, num_hidden_layers=1,
@@ -162,9 +150,7 @@ def tiny_sizes():
 def tiny_pi05(tmp_path_factory):
     """A randomly initialised PI05 (~50 M parameters, mostly the 257k-token embeddings), saved as a
     checkpoint with its processors, a LoRA adapter and a local tokenizer."""
-    if not HAS_LEROBOT:
-        pytest.skip(NO_LEROBOT)
-    peft = pytest.importorskip("peft", reason=NO_LEROBOT)
+    import peft
     from lerobot.configs import FeatureType, PolicyFeature
     from lerobot.policies.pi05 import PI05Config, PI05Policy
     from lerobot.policies.pi05.processor_pi05 import make_pi05_pre_post_processors

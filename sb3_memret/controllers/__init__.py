@@ -6,10 +6,10 @@ Accepted values (``CONTROLLER_SPECS``):
 - ``openpi://HOST:PORT[?timeout=S&attempts=N&chunk_len=H]``: π0.5 served by openpi
   (needs the ``openpi`` extra); ``timeout`` bounds each inference in seconds.
 - ``lerobot:/PATH/TO/CHECKPOINT[?adapter=PATH&tokenizer=PATH&device=DEV]``: lerobot's PI05Policy
-  in-process (needs the ``lerobot`` extra), with an optional peft LoRA adapter folder and a local
+  in-process, with an optional peft LoRA adapter folder and a local
   PaliGemma tokenizer folder.
 
-The optional controllers are imported only when named, so their dependencies stay optional.
+The π0.5 controllers are imported only when named: their dependencies are slow to import.
 """
 
 from __future__ import annotations

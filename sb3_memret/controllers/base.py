@@ -12,13 +12,12 @@ from sb3_memret.prompts import ParsedPrompt, PromptTemplate, parse_prompt
 
 Obs = Mapping[str, Any]
 
-# SAPIEN renders with Vulkan. It refuses Debian 12's lavapipe (Mesa 22.3: "failed to find a rendering
-# device"), which lacks VK_KHR_external_semaphore_fd; lavapipe offers that extension from Mesa 24.3 on.
+# SAPIEN renders with Vulkan. On a CPU-only machine that takes a software driver newer than Debian 12's
+# lavapipe (Mesa 22.3 lacks VK_KHR_external_semaphore_fd); `make renderer` unpacks Mesa 25's.
 RENDER_HINT = (
     "create the env with obs_mode='rgb' and a render backend: render_backend='gpu' on a machine with a "
-    "Vulkan GPU driver, or on a CPU-only machine render_backend='cpu' with a software Vulkan driver "
-    "(a Mesa >= 24.3 lavapipe, e.g. Debian 13's mesa-vulkan-drivers, "
-    "selected with VK_ICD_FILENAMES=<its lvp_icd.x86_64.json>)"
+    "Vulkan GPU driver, or render_backend='cpu' on a CPU-only machine, which renders with the software "
+    "Vulkan driver lavapipe (Mesa >= 24.3) that `make renderer` installs into .renderer/"
 )
 
 

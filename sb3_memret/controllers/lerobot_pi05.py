@@ -9,8 +9,8 @@ returns a randomly initialised model when weights fail to load, and peft skips a
 cannot place; so after loading, every weight and every adapter tensor is compared by name, shape
 and value with the files, and any difference raises.
 
-lerobot >= 0.5 needs Python >= 3.12 (``pip install 'sb3-memret[lerobot]'``); it is imported only
-when this controller is built.
+lerobot (a dependency of sb3-memret) is imported only when this controller is built: it takes
+seconds to import.
 """
 
 from __future__ import annotations
@@ -30,8 +30,6 @@ LIBERO_CAMERAS = {"observation.images.image": "base_camera", "observation.images
 STATE_KEY, ACTION_KEY, TASK_KEY = "observation.state", "action", "task"
 STATE_DIM = 8
 WEIGHTS_FILE, ADAPTER_FILE = "model.safetensors", "adapter_model.safetensors"
-INSTALL_HINT = ("install it with `pip install 'sb3-memret[lerobot]'` "
-                "(lerobot >= 0.5 with its pi and peft extras, Python >= 3.12)")
 
 
 class LeRobotPi05Controller(FrozenController):
@@ -157,11 +155,9 @@ def _folder(path: str | Path, what: str, required_file: str | None = None) -> Pa
 
 
 def _import_lerobot() -> tuple[Any, Any, Any]:
-    """lerobot's (PreTrainedConfig, PI05Policy, make_pre_post_processors), or an ImportError saying how to get them."""
-    try:
-        from lerobot.configs import PreTrainedConfig
-        from lerobot.policies.factory import make_pre_post_processors
-        from lerobot.policies.pi05 import PI05Policy
-    except ImportError as err:
-        raise ImportError(f"LeRobotPi05Controller needs lerobot's PI05Policy ({err}); {INSTALL_HINT}") from err
+    """lerobot's (PreTrainedConfig, PI05Policy, make_pre_post_processors)."""
+    from lerobot.configs import PreTrainedConfig
+    from lerobot.policies.factory import make_pre_post_processors
+    from lerobot.policies.pi05 import PI05Policy
+
     return PreTrainedConfig, PI05Policy, make_pre_post_processors

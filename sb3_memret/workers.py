@@ -1,0 +1,68 @@
+"""Worker processes and stop signals: who handles Ctrl-C and SIGTERM, and what a dead worker says.
+
+Ctrl-C (SIGINT) and a scheduler's SIGTERM reach the whole process group. Only the parent acts
+on them: it saves a checkpoint and then closes its workers, which therefore ignore both.
+"""
+
+from __future__ import annotations
+
+import signal
+from contextlib import contextmanager
+from multiprocessing.process import BaseProcess
+from typing import Iterator
+
+STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+
+
+class StopRequested(KeyboardInterrupt):
+    """A stop signal arrived; handled like Ctrl-C (checkpoint, clean shutdown, resume hint)."""
+
+    def __init__(self, signum: int):
+        super().__init__(signal.Signals(signum).name)
+        self.signal_name = signal.Signals(signum).name
+
+
+class WorkerDiedError(RuntimeError):
+    """A worker process ended while the parent still needed it (killed, out of memory, crashed)."""
+
+
+def init_worker_process() -> None:
+    """Make this process a quiet worker: stop signals are the parent's, one torch thread each so
+    n workers do not oversubscribe the cores."""
+    import torch
+
+    for signum in STOP_SIGNALS:
+        signal.signal(signum, signal.SIG_IGN)
+    torch.set_num_threads(1)
+
+
+@contextmanager
+def stop_signals_interrupt() -> Iterator[None]:
+    """Within, SIGTERM raises ``StopRequested`` in the main thread as Ctrl-C raises KeyboardInterrupt."""
+
+    def handler(signum: int, frame: object) -> None:
+        raise StopRequested(signum)
+
+    previous = signal.signal(signal.SIGTERM, handler)
+    try:
+        yield
+    finally:
+        signal.signal(signal.SIGTERM, previous)
+
+
+def exit_description(process: BaseProcess) -> str:
+    """How a worker process ended, e.g. 'killed by SIGKILL' or 'exited with code 1'."""
+    process.join(timeout=1.0)
+    code = process.exitcode
+    if code is None:
+        return "stopped answering (still running)"
+    if code < 0:
+        try:
+            return f"killed by {signal.Signals(-code).name}"
+        except ValueError:
+            return f"killed by signal {-code}"
+    return f"exited with code {code}"
+
+
+__all__ = ["STOP_SIGNALS", "StopRequested", "WorkerDiedError", "exit_description", "init_worker_process",
+           "stop_signals_interrupt"]
