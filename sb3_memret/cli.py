@@ -69,9 +69,10 @@ class _Cli(click.Group):
         from sb3_memret.rendering import RendererNotFoundError
         from sb3_memret.workers import StopRequested, WorkerDiedError, stop_signals_interrupt
 
+        kwargs["standalone_mode"] = False  # errors come back here instead of click's usage block
         try:
             with stop_signals_interrupt():
-                return super().main(*args, standalone_mode=False, **kwargs)
+                return super().main(*args, **kwargs)
         except click.exceptions.Abort as err:
             click.echo("Aborted.", err=True)
             sys.exit(143 if isinstance(err.__cause__, StopRequested) else 130)

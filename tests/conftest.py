@@ -1,5 +1,6 @@
-"""Shared fixtures: one real DrawerCubeTakeOut-v1 per test module (building it takes ~1 s), and
-SB3's default log folder inside pytest's temporary directory rather than the system's."""
+"""Shared fixtures: one real DrawerCubeTakeOut-v1 per test module (building it takes ~1 s), one with
+both cameras rendered by the CPU renderer per session, and SB3's default log folder inside
+pytest's temporary directory rather than the system's."""
 
 import pytest
 
@@ -17,5 +18,14 @@ def sb3_log_folder(tmp_path_factory):
 @pytest.fixture(scope="module")
 def task_env():
     env = make_task_env(robot_init_qpos_noise=0.0)
+    yield env
+    env.close()
+
+
+@pytest.fixture(scope="session")
+def rgb_task_env():
+    """DrawerCubeTakeOut-v1 with both 224x224 cameras, rendered on the CPU by the project's lavapipe
+    (``make renderer``; missing, it fails with the command to run)."""
+    env = make_task_env(obs_mode="rgb", render_backend="cpu", robot_init_qpos_noise=0.0)
     yield env
     env.close()

@@ -231,21 +231,24 @@ def test_tiny_pi05_with_adapter_acts_end_to_end(tiny_pi05, load):
     assert not np.allclose(base.act(fake_obs(), PROMPTS), first)  # the adapter is in effect
 
 
-def test_tiny_pi05_rolls_out_a_few_steps_on_the_task(load):
-    """Observations from the real task (state from the simulator, images drawn since nothing renders here)."""
-    from sb3_memret.rollout import make_task_env
+def test_tiny_pi05_acts_on_rendered_camera_images(load, rgb_task_env):
+    """A few decisions on the real task with both cameras rendered on the CPU; the images matter."""
+    from sb3_memret.rollout import execute_chunk
 
     controller = load()
-    env = make_task_env(robot_init_qpos_noise=0.0)
-    obs, _ = env.reset(seed=3, options={"cube_layer": 2})
+    obs, _ = rgb_task_env.reset(seed=3, options={"cube_layer": 2})
     controller.reset([3])
-    images = fake_obs(1)["sensor_data"]
     for _ in range(3):
-        chunk = controller.act({**obs, "sensor_data": images}, [PROMPTS[0]])[0]
-        for action in chunk[:8]:
-            obs, *_ = env.step(np.clip(action, -1, 1))
-    assert np.isfinite(obs["agent"]["eef_state"].numpy()).all()
-    env.close()
+        chunk = controller.act(obs, [PROMPTS[0]])[0]
+        assert chunk.shape == (10, 7) and np.isfinite(chunk).all()
+        outcome = execute_chunk(rgb_task_env, np.clip(chunk[:8], -1, 1))
+        obs = outcome.obs
+    assert outcome.steps == 8 and obs["sensor_data"]["base_camera"]["rgb"].shape == (1, 224, 224, 3)
+    dark = {**obs, "sensor_data": {cam: {"rgb": torch.zeros_like(v["rgb"])} for cam, v in obs["sensor_data"].items()}}
+    controller.reset([3])
+    seen = controller.act(obs, [PROMPTS[0]])
+    controller.reset([3])
+    assert not np.allclose(controller.act(dark, [PROMPTS[0]]), seen)
 
 
 def test_missing_images_are_refused(load):

@@ -119,6 +119,31 @@ def test_full_request_response_cycle(serve):
     assert controller.spec.action_convention == "pd_ee_delta_pose" and controller.spec.needs_images
 
 
+def test_a_few_decisions_on_rendered_camera_images(serve, rgb_task_env):
+    """The real task with both cameras rendered on the CPU: what reaches the server is the rendered
+    frames, unchanged, at every decision, and the server's actions drive the robot."""
+    from sb3_memret.rollout import execute_chunk
+
+    server = serve(lambda request, n: {"actions": np.tile([0.5, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], (10, 1))})
+    controller = OpenPIController("127.0.0.1", server.port, limits=FAST)
+    controller.check_env(rgb_task_env)
+    obs, _ = rgb_task_env.reset(seed=5, options={"cube_layer": 3})
+    controller.reset([5])
+    start = obs["agent"]["eef_state"][0, :3].clone()
+    sent = []
+    for _ in range(3):
+        sent.append({k: obs["sensor_data"][cam]["rgb"][0].numpy().copy()
+                     for k, cam in (("observation/image", "base_camera"), ("observation/wrist_image", "hand_camera"))})
+        obs = execute_chunk(rgb_task_env, controller.act(obs, [condition_prompt("oracle", 3)])[0][:8]).obs
+    assert len(server.requests) == 3
+    for request, images in zip(server.requests, sent):
+        for key, image in images.items():
+            np.testing.assert_array_equal(request[key], image)
+            assert image.std() > 10  # a rendered scene, not a blank frame
+    assert not np.array_equal(server.requests[0]["observation/wrist_image"], server.requests[2]["observation/wrist_image"])
+    assert float((obs["agent"]["eef_state"][0, :3] - start).norm()) > 0.02  # the server's actions moved the hand
+
+
 def test_chunk_len_comes_from_server_metadata(serve):
     server = serve(lambda r, n: chunk_for(r, n, horizon=15), metadata={"action_horizon": 15})
     controller = controller_for(server)
