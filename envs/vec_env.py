@@ -9,9 +9,9 @@ from typing import Any, Callable
 import gymnasium as gym
 from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecMonitor
 
-from sb3_memret.workers import WorkerDiedError, exit_description, init_worker_process
+from sb3_memret.workers import START_METHOD, WorkerDiedError, exit_description, init_worker_process
 
-CLOSE_TIMEOUT = 10.0  # seconds a live worker gets to exit after a sibling died
+CLOSE_TIMEOUT = 10.0  # seconds a worker gets to finish its step and exit
 
 
 def _env_factory(env_id: str, env_kwargs: dict[str, Any], in_worker: bool) -> Callable[[], gym.Env]:
@@ -31,21 +31,21 @@ class _WatchedPipe:
     def __init__(self, conn: Connection, process: BaseProcess, index: int):
         self.conn, self.process, self.index = conn, process, index
 
-    def died(self, err: BaseException, doing: str) -> WorkerDiedError:
+    def died(self, doing: str) -> WorkerDiedError:
         return WorkerDiedError(f"env worker {self.index} (pid {self.process.pid}) {exit_description(self.process)} "
-                               f"{doing} ({type(err).__name__})")
+                               f"{doing}")
 
     def send(self, message: Any) -> None:
         try:
             self.conn.send(message)
         except (EOFError, OSError) as err:
-            raise self.died(err, "before it could take a command") from None
+            raise self.died("before it could take a command") from err
 
     def recv(self) -> Any:
         try:
             return self.conn.recv()
         except (EOFError, OSError) as err:
-            raise self.died(err, "before it answered") from None
+            raise self.died("before it answered") from err
 
     def close(self) -> None:
         self.conn.close()
@@ -53,27 +53,31 @@ class _WatchedPipe:
 
 class WatchedSubprocVecEnv(SubprocVecEnv):
     """``SubprocVecEnv`` whose dead workers are reported by env index, pid and exit signal
-    (``WorkerDiedError``) instead of a bare EOFError, and whose ``close`` still shuts the live
-    workers down after one died."""
+    (``WorkerDiedError``) instead of a bare EOFError, and whose ``close`` shuts the live workers
+    down cleanly after an interrupt or a dead sibling."""
 
-    def __init__(self, env_fns: list[Callable[[], gym.Env]], start_method: str = "forkserver"):
+    def __init__(self, env_fns: list[Callable[[], gym.Env]], start_method: str = START_METHOD):
         try:
             super().__init__(env_fns, start_method=start_method)
         except (EOFError, OSError) as err:  # worker 0 failed to build its env (its traceback is above)
             self._watch()
-            error = self.remotes[0].died(err, "while building its env")
+            error = self.remotes[0].died("while building its env")
             self.close()
-            raise error from None
+            raise error from err
         self._watch()
 
     def _watch(self) -> None:
         self.remotes = [_WatchedPipe(r, p, i) for i, (r, p) in enumerate(zip(self.remotes, self.processes))]
 
     def close(self) -> None:
+        """Tell every live worker to close, wait for it, then close the pipes.
+
+        Unlike SB3's ``close`` this never waits for a step's replies: after an interrupt inside
+        ``step_wait`` some are already read and some are not, and reading one that never comes
+        would hang. A worker answers a pending step, reads "close" and exits before its pipe is
+        closed here, so nothing it sent is cut off under it.
+        """
         if self.closed:
-            return
-        if all(p.is_alive() for p in self.processes):
-            super().close()
             return
         for remote, process in zip(self.remotes, self.processes):
             if process.is_alive():

@@ -17,7 +17,7 @@ import gymnasium as gym
 from sb3_memret.controllers import make_controller
 from sb3_memret.controllers.base import FrozenController
 from sb3_memret.rollout import DEFAULT_REPLAN_EVERY, EpisodeResult, make_task_env, run_episode, task_env_kwargs
-from sb3_memret.workers import init_worker_process
+from sb3_memret.workers import START_METHOD, init_worker_process
 
 
 @dataclass(frozen=True)
@@ -87,7 +87,7 @@ def run_jobs(
         finally:
             player.close()
     results: list[EpisodeResult | None] = [None] * len(jobs)
-    context = multiprocessing.get_context("forkserver")
+    context = multiprocessing.get_context(START_METHOD)
     with ProcessPoolExecutor(min(n_envs, len(jobs)), mp_context=context, initializer=_init_worker,
                              initargs=(controller, render_backend)) as pool:
         pending: dict[Future, int] = {pool.submit(_play_in_worker, job): i for i, job in enumerate(jobs)}

@@ -12,6 +12,10 @@ from multiprocessing.process import BaseProcess
 from typing import Iterator
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+# Workers are the parent's own children. Under "forkserver" they are the children of a server
+# process that a SIGTERM to the group kills, after which the parent can no longer tell whether
+# they are alive ("fork" is unsafe with the threads torch and SAPIEN start).
+START_METHOD = "spawn"
 
 
 class StopRequested(KeyboardInterrupt):
@@ -64,5 +68,5 @@ def exit_description(process: BaseProcess) -> str:
     return f"exited with code {code}"
 
 
-__all__ = ["STOP_SIGNALS", "StopRequested", "WorkerDiedError", "exit_description", "init_worker_process",
+__all__ = ["START_METHOD", "STOP_SIGNALS", "StopRequested", "WorkerDiedError", "exit_description", "init_worker_process",
            "stop_signals_interrupt"]

@@ -58,3 +58,28 @@ def test_ablate_default_intervals_are_the_library_default():
 
     option = next(p for p in main.commands["ablate"].params if p.name == "intervals")
     assert tuple(int(i) for i in option.default.split(",")) == REPLAN_INTERVALS
+
+
+def test_mistakes_are_one_line_without_a_traceback(tmp_path, monkeypatch):
+    """What a new user trips over: a file that is not a model, a YAML typo, no CPU renderer."""
+    from sb3_memret.rendering import RENDERER_DIR_ENV
+
+    notes = tmp_path / "notes.txt"
+    notes.write_text("not a model")
+    broken = tmp_path / "broken.yml"
+    broken.write_text("sb3_memret/DrawerRecall-v0:\n  n_timesteps: [128\n  n_envs: 2\n")
+    monkeypatch.delenv("VK_ICD_FILENAMES", raising=False)
+    monkeypatch.setenv(RENDERER_DIR_ENV, str(tmp_path / "no-renderer"))
+    cases = {
+        ("eval", str(notes)): f"{str(notes)!r} is not a model saved by sb3-memret",
+        ("trace", str(notes)): "is not a model saved by sb3-memret",
+        ("train", "recall", "--config", str(broken), "--out", str(tmp_path / "r")):
+            f"{broken} is not valid YAML at line 3, column 9",
+        ("rollout", "--render-backend", "cpu"): "install it with: make renderer",
+    }
+    for args, expected in cases.items():
+        result = CliRunner().invoke(main, list(args), prog_name="sb3-memret")
+        lines = result.output.strip().splitlines()
+        assert result.exit_code == 2 and len(lines) == 1 and lines[0].startswith("Error: "), result.output
+        assert expected in lines[0] and f"(see: sb3-memret {args[0]} --help)" in lines[0], lines[0]
+        assert result.exception is None or isinstance(result.exception, SystemExit)
