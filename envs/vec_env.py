@@ -87,8 +87,8 @@ class WatchedSubprocVecEnv(SubprocVecEnv):
                     pass
         for process in self.processes:
             process.join(timeout=CLOSE_TIMEOUT)
-            if process.is_alive():
-                process.terminate()
+            if process.is_alive():  # workers ignore SIGTERM
+                process.kill()
                 process.join()
         for remote in self.remotes:
             remote.close()

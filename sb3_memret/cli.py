@@ -67,7 +67,7 @@ class _Cli(click.Group):
     def main(self, *args, **kwargs):  # type: ignore[override]
         from sb3_memret.controllers.weights import WeightsNotLoadedError
         from sb3_memret.rendering import RendererNotFoundError
-        from sb3_memret.workers import StopRequested, WorkerDiedError, stop_signals_interrupt
+        from sb3_memret.workers import StopRequested, WorkerDiedError, exit_status, stop_signals_interrupt
 
         kwargs["standalone_mode"] = False  # errors come back here instead of click's usage block
         try:
@@ -75,7 +75,7 @@ class _Cli(click.Group):
                 return super().main(*args, **kwargs)
         except click.exceptions.Abort as err:
             click.echo("Aborted.", err=True)
-            sys.exit(143 if isinstance(err.__cause__, StopRequested) else 130)
+            sys.exit(exit_status(err.__cause__.signal_name if isinstance(err.__cause__, StopRequested) else "Ctrl-C"))
         except click.ClickException as err:
             ctx = getattr(err, "ctx", None)
             hint = f"  (see: {ctx.command_path} --help)" if isinstance(err, click.UsageError) and ctx else ""
@@ -153,6 +153,7 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
     reaches the controller only through a retrieved memory)."""
     from sb3_memret.config import load_config
     from sb3_memret.training import RunOptions, format_history, train as run_training
+    from sb3_memret.workers import exit_status
 
     out = out or Path("runs") / f"{experiment}-seed{seed}"
     config = None
@@ -180,7 +181,7 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
     if result.interrupted:
         click.echo(f"stopped by {result.stopped_by}: saved {result.model_path}; continue with "
                    f"sb3-memret train {experiment} --out {result.out} --resume", err=True)
-        sys.exit({"Ctrl-C": 130, "SIGTERM": 143}.get(result.stopped_by, 1))
+        sys.exit(exit_status(result.stopped_by))
     click.echo(f"model: {result.model_path} (load with stable_baselines3.PPO.load)")
     click.echo(f"report: sb3-memret report {result.out}")
 

@@ -8,7 +8,9 @@ the episodes it is handed. Results come back in job order whatever order they fi
 from __future__ import annotations
 
 import multiprocessing
+import signal
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Callable, Sequence
 
@@ -17,7 +19,7 @@ import gymnasium as gym
 from sb3_memret.controllers import make_controller
 from sb3_memret.controllers.base import FrozenController
 from sb3_memret.rollout import DEFAULT_REPLAN_EVERY, EpisodeResult, make_task_env, run_episode, task_env_kwargs
-from sb3_memret.workers import START_METHOD, init_worker_process
+from sb3_memret.workers import START_METHOD, WorkerDiedError, init_worker_process
 
 
 @dataclass(frozen=True)
@@ -50,7 +52,8 @@ _worker_player: _Player | None = None
 
 def _init_worker(controller: str, render_backend: str) -> None:
     global _worker_player
-    init_worker_process()
+    # SIGTERM stays fatal: a broken ProcessPoolExecutor ends its remaining workers with it.
+    init_worker_process(ignored=(signal.SIGINT,))
     _worker_player = _Player(controller, render_backend)
 
 
@@ -99,6 +102,8 @@ def run_jobs(
                     results[i] = future.result()
                     if on_result is not None:
                         on_result(jobs[i], results[i])
+        except BrokenProcessPool as err:  # a worker was killed (out of memory, a signal)
+            raise WorkerDiedError(f"an episode worker process died while playing: {err}") from err
         except BaseException:
             pool.shutdown(wait=True, cancel_futures=True)
             raise

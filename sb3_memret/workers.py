@@ -30,12 +30,12 @@ class WorkerDiedError(RuntimeError):
     """A worker process ended while the parent still needed it (killed, out of memory, crashed)."""
 
 
-def init_worker_process() -> None:
-    """Make this process a quiet worker: stop signals are the parent's, one torch thread each so
-    n workers do not oversubscribe the cores."""
+def init_worker_process(ignored: tuple[signal.Signals, ...] = STOP_SIGNALS) -> None:
+    """Make this process a quiet worker: the ``ignored`` stop signals are the parent's, and one
+    torch thread each keeps n workers from oversubscribing the cores."""
     import torch
 
-    for signum in STOP_SIGNALS:
+    for signum in ignored:
         signal.signal(signum, signal.SIG_IGN)
     torch.set_num_threads(1)
 
@@ -54,6 +54,13 @@ def stop_signals_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+def exit_status(stopped_by: str) -> int:
+    """The shell's convention for a run stopped early: 128 + the signal's number for Ctrl-C and
+    SIGTERM, 1 for anything else (a dead worker)."""
+    signum = {"Ctrl-C": signal.SIGINT, "SIGTERM": signal.SIGTERM}.get(stopped_by)
+    return 128 + signum if signum is not None else 1
+
+
 def exit_description(process: BaseProcess) -> str:
     """How a worker process ended, e.g. 'killed by SIGKILL' or 'exited with code 1'."""
     process.join(timeout=1.0)
@@ -68,5 +75,6 @@ def exit_description(process: BaseProcess) -> str:
     return f"exited with code {code}"
 
 
-__all__ = ["START_METHOD", "STOP_SIGNALS", "StopRequested", "WorkerDiedError", "exit_description", "init_worker_process",
+__all__ = ["START_METHOD", "STOP_SIGNALS", "StopRequested", "WorkerDiedError", "exit_description", "exit_status",
+           "init_worker_process",
            "stop_signals_interrupt"]

@@ -2,11 +2,13 @@
 
 from collections import Counter
 
+import psutil
 import pytest
 
 from sb3_memret import parallel_rollout
 from sb3_memret.parallel_rollout import EpisodeJob, run_jobs
 from sb3_memret.prompts import condition_prompt
+from sb3_memret.workers import WorkerDiedError
 
 # The slow episode (a wrong layer plays to the 400-step limit) comes first, so with two workers
 # later jobs finish before it: results must still come back in job order.
@@ -77,3 +79,19 @@ def test_replan_interval_longer_than_a_chunk_is_refused(n_envs):
     with pytest.raises(ValueError, match=r"chunk length.*40"):
         run_jobs("scripted", [job], n_envs=n_envs, on_result=lambda *pair: received.append(pair))
     assert received == []
+
+
+def test_a_killed_episode_worker_is_reported():
+    """A worker killed mid-run (out of memory, a signal) ends the run with WorkerDiedError."""
+    killed = []
+
+    def kill_a_worker(job, result):
+        if not killed:
+            workers = [p for p in psutil.Process().children() if "spawn_main" in " ".join(p.cmdline())]
+            workers[0].kill()
+            killed.append(workers[0].pid)
+
+    jobs = [EpisodeJob(condition_prompt("oracle", 1), 1, seed) for seed in range(8)]
+    with pytest.raises(WorkerDiedError, match="an episode worker process died while playing"):
+        run_jobs("scripted", jobs, n_envs=2, on_result=kill_a_worker)
+    assert killed
