@@ -7,6 +7,7 @@ on them: it saves a checkpoint and then closes its workers, which therefore igno
 from __future__ import annotations
 
 import signal
+import threading
 from contextlib import contextmanager
 from multiprocessing.process import BaseProcess
 from typing import Iterator
@@ -42,11 +43,17 @@ def init_worker_process(ignored: tuple[signal.Signals, ...] = STOP_SIGNALS) -> N
 
 @contextmanager
 def stop_signals_interrupt() -> Iterator[None]:
-    """Within, SIGTERM raises ``StopRequested`` in the main thread as Ctrl-C raises KeyboardInterrupt."""
+    """Within, SIGTERM raises ``StopRequested`` in the main thread as Ctrl-C raises KeyboardInterrupt.
+
+    Outside the main thread (where Python cannot install handlers) it changes nothing.
+    """
 
     def handler(signum: int, frame: object) -> None:
         raise StopRequested(signum)
 
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
     previous = signal.signal(signal.SIGTERM, handler)
     try:
         yield

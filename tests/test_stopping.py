@@ -45,6 +45,11 @@ def start_training(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
     return process, out
 
 
+def env_workers(pid: int) -> list[psutil.Process]:
+    """The spawned env worker processes of the trainer ``pid`` (not its resource tracker)."""
+    return [p for p in psutil.Process(pid).children() if "spawn_main" in " ".join(p.cmdline())]
+
+
 def finish(process: subprocess.Popen) -> tuple[int, str]:
     try:
         _, stderr = process.communicate(timeout=120)
@@ -64,17 +69,17 @@ def assert_resumable(out: Path, stderr: str) -> None:
 
 def test_sigterm_to_the_job_checkpoints_and_shuts_down_cleanly(tmp_path):
     process, out = start_training(tmp_path)
-    workers = psutil.Process(process.pid).children(recursive=True)
+    workers = env_workers(process.pid)
     os.killpg(process.pid, signal.SIGTERM)
     code, stderr = finish(process)
     assert code == 143 and "stopped by SIGTERM: saved" in stderr, stderr
     assert_resumable(out, stderr)
-    assert not [w for w in workers if w.is_running() and w.status() != psutil.STATUS_ZOMBIE]
+    assert len(workers) == 4 and not psutil.wait_procs(workers, timeout=10)[1]  # every worker has exited
 
 
 def test_a_killed_env_worker_is_named_and_the_run_can_resume(tmp_path):
     process, out = start_training(tmp_path)
-    workers = [p for p in psutil.Process(process.pid).children() if "spawn_main" in " ".join(p.cmdline())]
+    workers = env_workers(process.pid)
     assert len(workers) == 4  # training and held-out envs, two each
     workers[0].kill()
     code, stderr = finish(process)
