@@ -8,7 +8,7 @@ RENDERER ?= .renderer
 is_py312 = $(shell $(1) -c 'import sys; assert sys.version_info[:2] == (3, 12)' >/dev/null 2>&1 && echo yes)
 PYTHON ?= $(firstword $(foreach p,python3.12 $(wildcard $(HOME)/.pyenv/versions/3.12*/bin/python3.12),$(if $(call is_py312,$(p)),$(p))))
 
-.PHONY: install renderer train test bench clean
+.PHONY: install renderer train test bench controller clean
 
 $(VENV)/.installed: setup.cfg pyproject.toml constraints.txt
 	@test -n "$(PYTHON)" || { echo "error: no Python 3.12 found; install one (e.g. pyenv install 3.12) or pass PYTHON=/path/to/python3.12" >&2; exit 1; }
@@ -35,6 +35,21 @@ train: install
 
 test: install renderer
 	$(PY) -m pytest $(PYTEST_ARGS)
+
+# Rebuild the shipped learned controller (`--controller learned`): expert demonstrations, then two DAgger
+# rounds in which the learned policy acts and the expert labels; about 25 minutes on 2 CPU cores.
+STAGE1 ?= runs/stage1
+SHIPPED := sb3_memret/controllers/checkpoints/drawer-learned
+controller: install
+	rm -rf $(STAGE1)
+	$(VENV)/bin/sb3-memret demos --episodes 240 --out $(STAGE1)/demos
+	$(VENV)/bin/sb3-memret finetune $(STAGE1)/demos --out $(STAGE1)/round0
+	$(VENV)/bin/sb3-memret demos --episodes 150 --seed 200000 --noisy-fraction 0 --learner learned:$(STAGE1)/round0 --out $(STAGE1)/dagger1
+	$(VENV)/bin/sb3-memret finetune $(STAGE1)/demos $(STAGE1)/dagger1 --out $(STAGE1)/round1
+	$(VENV)/bin/sb3-memret demos --episodes 150 --seed 300000 --noisy-fraction 0 --learner learned:$(STAGE1)/round1 --out $(STAGE1)/dagger2
+	$(VENV)/bin/sb3-memret finetune $(STAGE1)/demos $(STAGE1)/dagger1 $(STAGE1)/dagger2 --out $(STAGE1)/round2
+	mkdir -p $(SHIPPED)
+	cp $(STAGE1)/round2/config.json $(STAGE1)/round2/model.safetensors $(STAGE1)/round2/train_log.csv $(SHIPPED)/
 
 bench: install
 	$(PY) scripts/bench_env.py

@@ -9,6 +9,8 @@ every other cell, so cells differ only in what they vary.
   cube in one layer (Table 2).
 - ``memcount``: zero, one (oracle) and two (oracle + another true fact) memories, per layer
   (Table 3).
+- ``wording``: the oracle memory reworded in ways no training prompt was, per layer. Its cells
+  waive the prompt contract, which every other command enforces: that is what it measures.
 """
 
 from __future__ import annotations
@@ -40,6 +42,7 @@ class Cell:
     prompt: str
     layer: int
     replan_every: int = DEFAULT_REPLAN_EVERY
+    check_prompt: bool = True
 
 
 @dataclass(frozen=True)
@@ -199,10 +202,36 @@ def memcount_ablation(replan_every: int = DEFAULT_REPLAN_EVERY) -> AblationSpec:
                         (*map(_layer_column, LAYERS), OVERALL), cells, pooled_column=OVERALL)
 
 
+ORDINALS = {1: "first", 2: "second", 3: "third"}
+# The trained wording first, as the reference; then paraphrases never in any training prompt.
+WORDINGS: tuple[str, ...] = (
+    "the cube is in drawer layer {layer}.",
+    "the cube is inside drawer layer {layer}.",
+    "the cube is located in drawer layer {layer}.",
+    "the cube is in layer {layer}.",
+    "the cube is in drawer {layer}.",
+    "the cube is in the {ordinal} drawer.",
+    "drawer layer {layer} holds the cube.",
+)
+
+
+def wording_ablation(replan_every: int = DEFAULT_REPLAN_EVERY, wordings: Sequence[str] = WORDINGS) -> AblationSpec:
+    """The oracle memory in each wording, per layer; prompts are not checked against the template."""
+    rows = tuple(w.replace("{layer}", "L").replace("{ordinal}", "N-th") for w in wordings)
+    cells = tuple(
+        Cell(row, _layer_column(layer),
+             f"{INSTRUCTION} {wording.format(layer=layer, ordinal=ORDINALS[layer])}", layer, replan_every,
+             check_prompt=False)
+        for row, wording in zip(rows, wordings) for layer in LAYERS)
+    return AblationSpec("wording", "Memory wording: success with the oracle memory reworded", "memory sentence", rows,
+                        (*map(_layer_column, LAYERS), OVERALL), cells, pooled_column=OVERALL)
+
+
 ABLATIONS: dict[str, Callable[..., AblationSpec]] = {
     "replan": replan_ablation,
     "prompt": prompt_ablation,
     "memcount": memcount_ablation,
+    "wording": wording_ablation,
 }
 
 
@@ -218,7 +247,7 @@ def run_ablation(
     """Play every cell for ``episodes`` placements (seeds seed..seed+episodes-1) over ``n_envs`` envs."""
     if episodes < 1:
         raise ValueError(f"episodes per cell must be >= 1, got {episodes}")
-    jobs = [EpisodeJob(cell.prompt, cell.layer, seed + k, cell.replan_every) for cell in spec.cells for k in range(episodes)]
+    jobs = [EpisodeJob(cell.prompt, cell.layer, seed + k, cell.replan_every, cell.check_prompt) for cell in spec.cells for k in range(episodes)]
     results = run_jobs(controller, jobs, n_envs, render_backend, on_episode)
     cells = []
     for i, cell in enumerate(spec.cells):
@@ -230,4 +259,4 @@ def run_ablation(
 
 
 __all__ = ["ABLATIONS", "AblationResult", "AblationSpec", "Cell", "CellResult", "REPLAN_INTERVALS", "memcount_ablation",
-           "prompt_ablation", "replan_ablation", "run_ablation", "wilson_interval"]
+           "prompt_ablation", "replan_ablation", "run_ablation", "wilson_interval", "wording_ablation"]

@@ -14,6 +14,8 @@ from sb3_memret.envs.cabinet import LAYERS
 EXPERIMENTS = {"recall": "sb3_memret/DrawerRecall-v0"}
 DEFAULT_CONFIG = Path(__file__).resolve().parents[1] / "zoo_configs" / "memret_ppo.yml"
 HELD_OUT_SEED = 1_000_000
+DEFAULT_CONTROLLER = "learned"  # sb3_memret.controllers.DEFAULT_CONTROLLER, without importing torch for --help
+DEMO_SEED = 100_000  # demonstrations never share a placement with rollout (0..) or held-out (1e6..) episodes
 
 
 def _controller(ctx: click.Context, param: click.Parameter, value: str):
@@ -93,8 +95,9 @@ def main() -> None:
 
 
 @main.command()
-@click.option("--controller", "controller", default="scripted", show_default=True, callback=_controller,
-              help="Frozen controller to run: 'scripted' (CPU).")
+@click.option("--controller", "controller", default=DEFAULT_CONTROLLER, show_default=True, callback=_controller,
+              help="Frozen controller to run: 'learned' (the shipped learned policy), 'learned:PATH', 'scripted' "
+                   "(the expert), 'openpi://HOST:PORT' or 'lerobot:PATH'.")
 @click.option("--condition", type=click.Choice(["oracle", "none", "wrong"]), default="oracle", show_default=True,
               help="Prompt: oracle names the cube's layer, wrong names another layer, none is the bare instruction.")
 @click.option("--episodes", type=click.IntRange(min=1), default=10, show_default=True, help="Episodes per layer.")
@@ -128,10 +131,127 @@ def rollout(controller, condition: str, episodes: int, layer: int | None, seed: 
 
 
 @main.command()
+@click.option("--episodes", type=click.IntRange(min=1), default=240, show_default=True, help="Episodes to record.")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="New folder for the LeRobotDataset.")
+@click.option("--seed", type=click.IntRange(min=0), default=DEMO_SEED, show_default=True,
+              help="First placement seed (episodes use seed..seed+episodes-1).")
+@click.option("--noise", type=click.FloatRange(min=0.0), default=0.05, show_default=True,
+              help="Std of the Gaussian noise added to the executed arm actions of noisy episodes (labels stay clean).")
+@click.option("--noisy-fraction", type=click.FloatRange(0.0, 1.0), default=0.5, show_default=True,
+              help="Share of episodes played with action noise.")
+@click.option("--learner", default=None,
+              help="DAgger round: this controller (e.g. learned:PATH) acts while the expert labels every frame.")
+@click.option("--n-envs", type=click.IntRange(min=1), default=os.cpu_count() or 1, show_default=True,
+              help="Worker processes.")
+@click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
+@_render_backend_option
+def demos(episodes: int, out: Path, seed: int, noise: float, noisy_fraction: float, learner: str | None, n_envs: int,
+          progress: bool, render_backend: str) -> None:
+    """Record the scripted expert's demonstrations as a LeRobotDataset (v3.0) for finetuning.
+
+    \b
+    Per frame: observation.state (19: end-effector state, drawer openings, cube detection, which is
+    zero until the cube's drawer is open), action (the expert's 7-D end-effector delta pose), task
+    (the exact prompt), and with --render-backend cpu|gpu the two cameras as
+    observation.images.image / observation.images.wrist_image.
+    \b
+    Prompts in the data: the bare instruction (the expert opens the top drawer) in 20% of episodes,
+    and "pick out the cube. the cube is in drawer layer L." naming the cube's layer (60%) or
+    another layer (20%: the expert opens it, finds it empty and holds still). Kept out, so they
+    stay held-out tests: two-memory prompts, other objects' and holding facts, and paraphrases.
+    Off the expert's path: --noisy-fraction of the episodes run with --noise on the arm (clean
+    labels), and --learner makes a DAgger round. Ctrl-C keeps every episode saved so far.
+    """
+    from tqdm import tqdm
+
+    from sb3_memret.stage1.demos import plan_episodes, record_demos
+
+    if out.exists():
+        raise click.BadParameter(f"{str(out)!r} already exists; demonstrations go to a new folder", param_hint="--out")
+    if learner is not None:
+        _controller(click.get_current_context(), None, learner)
+    planned = plan_episodes(episodes, seed, noise, noisy_fraction)
+    wins = 0
+    with tqdm(total=episodes, desc="demonstrations", unit="episode", disable=not progress) as bar:
+        def on_episode(frames) -> None:
+            nonlocal wins
+            wins += frames.success
+            bar.update(1)
+            bar.set_postfix(success=f"{wins}/{bar.n}")
+
+        record_demos(out, planned, render_backend, learner, n_envs, on_episode=on_episode)
+    click.echo(f"{episodes} episodes ({wins} successful) written to {out}")
+
+
+@main.command()
+@click.argument("datasets", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True, help="Checkpoint folder.")
+@click.option("--policy", type=click.Choice(["learned", "pi05"]), default="learned", show_default=True,
+              help="learned: the project's small policy (CPU, minutes); pi05: LoRA on lerobot's PI05.")
+@click.option("--steps", type=click.IntRange(min=1), default=None,
+              help="Gradient steps  [default: 8000 learned, 2000 pi05]")
+@click.option("--batch-size", type=click.IntRange(min=1), default=None, help="[default: 256 learned, 8 pi05]")
+@click.option("--lr", "learning_rate", type=click.FloatRange(min=0.0, min_open=True), default=None,
+              help="[default: 1e-3 learned, 1e-4 pi05]")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--pretrained", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
+              help="pi05: the pretrained PI05 checkpoint folder.")
+@click.option("--tokenizer", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
+              help="pi05: a local PaliGemma tokenizer folder.")
+@click.option("--lora-rank", type=click.IntRange(min=1), default=16, show_default=True, help="pi05: LoRA rank.")
+@click.option("--device", default="cpu", show_default=True, help="pi05: torch device.")
+@click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
+def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | None, batch_size: int | None,
+             learning_rate: float | None, seed: int, pretrained: Path | None, tokenizer: Path | None, lora_rank: int,
+             device: str, progress: bool) -> None:
+    """Train a frozen controller from DATASETS (LeRobotDatasets written by `sb3-memret demos`).
+
+    The learned policy reads the prompt as frozen MiniLM per-token features, the 19-D state (and
+    the cameras when the datasets have them) and predicts a 32 x 7 action chunk; the checkpoint
+    (config.json + model.safetensors) loads as --controller learned:OUT. pi05 writes OUT/checkpoint
+    and OUT/adapter, which load as --controller 'lerobot:OUT/checkpoint?adapter=OUT/adapter'.
+    """
+    from tqdm import tqdm
+
+    if policy == "pi05":
+        if pretrained is None:
+            raise click.BadParameter("--policy pi05 needs --pretrained PATH (a PI05 checkpoint folder)",
+                                     param_hint="--pretrained")
+        from sb3_memret.stage1.finetune_pi05 import finetune_pi05
+
+        steps = steps or 2000
+        with tqdm(total=steps, desc="finetune pi05 (LoRA)", disable=not progress) as bar:
+            finetune_pi05(datasets, pretrained, out, steps=steps, batch_size=batch_size or 8,
+                          learning_rate=learning_rate or 1e-4, lora_rank=lora_rank, device=device,
+                          tokenizer=tokenizer, seed=seed, on_step=lambda step, loss: bar.update(1))
+        click.echo(f"LoRA adapter written: --controller 'lerobot:{out}/checkpoint?adapter={out}/adapter'")
+        return
+    if pretrained is not None or tokenizer is not None:
+        raise click.BadParameter("--pretrained and --tokenizer apply to --policy pi05 only", param_hint="--policy")
+    from sb3_memret.stage1.finetune import FinetuneSettings
+    from sb3_memret.stage1.finetune import finetune as train_policy
+
+    settings = FinetuneSettings(steps=steps or 8000, batch_size=batch_size or 256,
+                                learning_rate=learning_rate or 1e-3, seed=seed)
+    with tqdm(total=settings.steps, desc="finetune learned", disable=not progress) as bar:
+        def on_step(step: int, loss: float) -> None:
+            bar.update(1)
+            if step % 100 == 0:
+                bar.set_postfix(loss=f"{loss:.4f}")
+
+        try:
+            train_policy(datasets, out, settings=settings, on_step=on_step)
+        except (FileNotFoundError, ValueError) as err:
+            raise click.UsageError(str(err)) from err
+    click.echo(f"checkpoint written: --controller learned:{out}")
+
+
+@main.command()
 @click.argument("experiment", type=click.Choice(list(EXPERIMENTS)), metavar="EXPERIMENT")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help=f"rl-zoo-style YAML keyed by env id  [default: {DEFAULT_CONFIG.name} of the source tree]")
-@click.option("--controller", default="scripted", show_default=True, callback=_controller_spec,
+@click.option("--controller", default=DEFAULT_CONTROLLER, show_default=True, callback=_controller_spec,
               help="Frozen controller the memory serves.")
 @click.option("--n-envs", type=click.IntRange(min=1), default=None, help="Parallel envs (workers)  [default: config]")
 @click.option("--timesteps", type=click.IntRange(min=1), default=None, help="Decisions in all  [default: config]")
@@ -191,7 +311,7 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
 @click.option("--condition", type=click.Choice(["recall", "oracle", "none"]), default="recall", show_default=True,
               help="recall: the layer only via retrieved memory; oracle: in the instruction; none: bare instruction.")
 @click.option("--episodes", type=click.IntRange(min=1), default=50, show_default=True, help="Held-out episodes.")
-@click.option("--controller", default="scripted", show_default=True, callback=_controller_spec,
+@click.option("--controller", default=DEFAULT_CONTROLLER, show_default=True, callback=_controller_spec,
               help="Frozen controller the memory serves.")
 @click.option("--n-envs", type=click.IntRange(min=1), default=1, show_default=True)
 @click.option("--seed", type=click.IntRange(min=0), default=HELD_OUT_SEED, show_default=True,
@@ -230,8 +350,8 @@ def evaluate(model_path: Path, condition: str, episodes: int, controller: str, n
 
 
 @main.command()
-@click.argument("ablation", type=click.Choice(["replan", "prompt", "memcount"]))
-@click.option("--controller", default="scripted", show_default=True, callback=_controller_spec,
+@click.argument("ablation", type=click.Choice(["replan", "prompt", "memcount", "wording"]))
+@click.option("--controller", default=DEFAULT_CONTROLLER, show_default=True, callback=_controller_spec,
               help="Frozen controller to characterise.")
 @click.option("--episodes", type=click.IntRange(min=1), default=17, show_default=True, help="Episodes per cell.")
 @click.option("--seed", type=click.IntRange(min=0), default=HELD_OUT_SEED, show_default=True,
@@ -255,8 +375,10 @@ def ablate(ctx: click.Context, ablation: str, controller: str, episodes: int, se
            render_backend: str) -> None:
     """Characterise how a frozen controller consumes memory: ABLATION is replan (success per layer
     per replan interval, oracle memory), prompt (object word x layer number) or memcount (zero, one
-    or two memories)."""
-    from sb3_memret.ablations import memcount_ablation, prompt_ablation, replan_ablation, run_ablation
+    or two memories) or wording (the oracle memory reworded as no training prompt was; these
+    cells alone waive the prompt contract)."""
+    from sb3_memret.ablations import (memcount_ablation, prompt_ablation, replan_ablation, run_ablation,
+                                      wording_ablation)
 
     chunk_len = ctx.meta["controller"].spec.chunk_len
     if ablation == "replan":
@@ -273,7 +395,9 @@ def ablate(ctx: click.Context, ablation: str, controller: str, episodes: int, se
         if replan_every > chunk_len:
             raise click.BadParameter(f"{replan_every} exceeds the controller's chunk length {chunk_len}",
                                      param_hint="--replan-every")
-        spec = prompt_ablation(layer, replan_every) if ablation == "prompt" else memcount_ablation(replan_every)
+        specs = {"prompt": lambda: prompt_ablation(layer, replan_every), "memcount": lambda: memcount_ablation(replan_every),
+                 "wording": lambda: wording_ablation(replan_every)}
+        spec = specs[ablation]()
     total = len(spec.cells) * episodes
     with click.progressbar(length=total, label=f"{ablation} ablation ({len(spec.cells)} cells)", file=sys.stderr,
                            hidden=not progress) as bar:
@@ -311,7 +435,7 @@ def _trace_targets(paths: tuple[Path, ...]) -> list[Path]:
               help="Episode whose first decision is traced (the same bank for every model).")
 @click.option("--sample-seed", type=click.IntRange(min=0), default=0, show_default=True,
               help="Seed of the Plackett-Luce draw marked with '*'.")
-@click.option("--controller", default="scripted", show_default=True, callback=_controller_spec,
+@click.option("--controller", default=DEFAULT_CONTROLLER, show_default=True, callback=_controller_spec,
               help="Frozen controller the memory serves.")
 @click.option("--json", "as_json", is_flag=True, help="Print the traces as JSON on stdout.")
 @_render_backend_option
@@ -356,7 +480,7 @@ def plot(run: Path, out: Path | None) -> None:
 
 @main.command()
 @click.argument("run", type=click.Path(exists=True, file_okay=False, path_type=Path))
-@click.option("--controller", default="scripted", show_default=True, callback=_controller_spec,
+@click.option("--controller", default=DEFAULT_CONTROLLER, show_default=True, callback=_controller_spec,
               help="Frozen controller for the baseline evaluations and the trace.")
 @click.option("--baseline-episodes", type=click.IntRange(min=0), default=None,
               help="Episodes of the oracle and no-memory baselines (0 skips them)  [default: as the final evaluation]")

@@ -86,15 +86,18 @@ def run_episode(
     seed: int,
     layer: int,
     replan_every: int = DEFAULT_REPLAN_EVERY,
+    check_prompt: bool = True,
 ) -> EpisodeResult:
-    """One episode: replan every ``replan_every`` steps, execute that prefix of each chunk."""
+    """One episode: replan every ``replan_every`` steps, execute that prefix of each chunk.
+
+    ``check_prompt=False`` waives the prompt contract (``FrozenController.act``)."""
     if not 1 <= replan_every <= controller.spec.chunk_len:
         raise ValueError(f"replan_every must be in [1, {controller.spec.chunk_len}] (the chunk length), got {replan_every}")
     obs, _ = env.reset(seed=seed, options={"cube_layer": check_layer(layer)})
     controller.reset([seed])
     steps = 0
     while True:
-        outcome = execute_chunk(env, controller.act(obs, [prompt])[0][:replan_every])
+        outcome = execute_chunk(env, controller.act(obs, [prompt], check_prompt)[0][:replan_every])
         obs, steps = outcome.obs, steps + outcome.steps
         if outcome.terminated or outcome.truncated:
             return EpisodeResult(layer, seed, bool(outcome.info["success"]), steps)

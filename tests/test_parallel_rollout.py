@@ -92,6 +92,6 @@ def test_a_killed_episode_worker_is_reported():
             killed.append(workers[0].pid)
 
     jobs = [EpisodeJob(condition_prompt("oracle", 1), 1, seed) for seed in range(8)]
-    with pytest.raises(WorkerDiedError, match="an episode worker process died while playing"):
+    with pytest.raises(WorkerDiedError, match="a worker process died while playing"):
         run_jobs("scripted", jobs, n_envs=2, on_result=kill_a_worker)
     assert killed

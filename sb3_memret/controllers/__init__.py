@@ -2,7 +2,10 @@
 
 Accepted values (``CONTROLLER_SPECS``):
 
-- ``scripted``: the CPU scripted controller.
+- ``learned``: the project's learned language-conditioned controller shipped with the package
+  (``make controller`` rebuilds it: expert demonstrations, DAgger, finetuning).
+- ``learned:/PATH/TO/CHECKPOINT[?device=DEV]``: a checkpoint ``sb3-memret finetune`` wrote.
+- ``scripted``: the scripted expert (CPU); it obeys its prompt by construction.
 - ``openpi://HOST:PORT[?timeout=S&attempts=N&chunk_len=H]``: π0.5 served by openpi
   (needs the ``openpi`` extra); ``timeout`` bounds each inference in seconds.
 - ``lerobot:/PATH/TO/CHECKPOINT[?adapter=PATH&tokenizer=PATH&device=DEV]``: lerobot's PI05Policy
@@ -20,12 +23,16 @@ from urllib.parse import parse_qsl, urlsplit
 from sb3_memret.controllers.base import ControllerSpec, FrozenController
 from sb3_memret.controllers.scripted import ScriptedDrawerController
 
+DEFAULT_CONTROLLER = "learned"
 CONTROLLER_SPECS = (
+    "learned",
+    "learned:/PATH/TO/CHECKPOINT[?device=DEV]",
     "scripted",
     "openpi://HOST:PORT[?timeout=S&attempts=N&chunk_len=H]",
     "lerobot:/PATH/TO/CHECKPOINT[?adapter=PATH&tokenizer=PATH&device=DEV]",
 )
 OPENPI_OPTIONS: dict[str, Callable[[str], Any]] = {"timeout": float, "attempts": int, "chunk_len": int}
+LEARNED_OPTIONS: dict[str, Callable[[str], Any]] = {"device": str}
 LEROBOT_OPTIONS: dict[str, Callable[[str], Any]] = {"adapter": str, "tokenizer": str, "device": str}
 
 
@@ -33,6 +40,13 @@ def make_controller(spec: str) -> FrozenController:
     """Build the controller a CLI ``--controller`` value names, or raise a ValueError listing the forms."""
     if spec == "scripted":
         return ScriptedDrawerController()
+    if spec == "learned" or spec.startswith("learned:"):
+        from sb3_memret.controllers.learned import LearnedController
+
+        path, _, query = spec.removeprefix("learned").removeprefix(":").partition("?")
+        if spec.startswith("learned:") and not path:
+            raise ValueError(f"malformed learned controller {spec!r}; expected 'learned' or {CONTROLLER_SPECS[1]!r}")
+        return LearnedController(path or None, **_options(spec, query, LEARNED_OPTIONS))
     if spec.startswith("openpi:"):
         host, port, options = parse_openpi_spec(spec)
         from sb3_memret.controllers.openpi import OpenPIController, ServerLimits
@@ -50,7 +64,7 @@ def make_controller(spec: str) -> FrozenController:
 
 def parse_openpi_spec(spec: str) -> tuple[str, int, dict[str, Any]]:
     """``openpi://HOST:PORT[?k=v...]`` -> (host, port, options), or a ValueError naming the problem."""
-    form = CONTROLLER_SPECS[1]
+    form = CONTROLLER_SPECS[3]
     parts = urlsplit(spec)
     try:
         port = parts.port
@@ -65,7 +79,7 @@ def parse_lerobot_spec(spec: str) -> tuple[str, dict[str, Any]]:
     """``lerobot:PATH[?k=v...]`` -> (checkpoint path, options), or a ValueError naming the problem."""
     path, _, query = spec.removeprefix("lerobot:").partition("?")
     if not path:
-        raise ValueError(f"malformed lerobot controller {spec!r}; expected {CONTROLLER_SPECS[2]!r}")
+        raise ValueError(f"malformed lerobot controller {spec!r}; expected {CONTROLLER_SPECS[4]!r}")
     return path, _options(spec, query, LEROBOT_OPTIONS)
 
 
@@ -90,6 +104,7 @@ def _options(spec: str, query: str, accepted: dict[str, Callable[[str], Any]]) -
 
 __all__ = [
     "CONTROLLER_SPECS",
+    "DEFAULT_CONTROLLER",
     "ControllerSpec",
     "FrozenController",
     "ScriptedDrawerController",

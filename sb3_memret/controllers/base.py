@@ -55,9 +55,17 @@ class FrozenController(ABC):
     def _act(self, obs: Obs, prompts: Sequence[str], parsed: Sequence[ParsedPrompt]) -> np.ndarray:
         """Return action chunks (B, chunk_len, action_dim) for checked prompts (raw and parsed)."""
 
-    def act(self, obs: Obs, prompts: Sequence[str]) -> np.ndarray:
-        """Check every prompt against the training template, then predict (B, H, action_dim)."""
-        parsed = [parse_prompt(prompt, self.spec.prompt_template) for prompt in prompts]
+    def act(self, obs: Obs, prompts: Sequence[str], check_prompts: bool = True) -> np.ndarray:
+        """Check every prompt against the training template, then predict (B, H, action_dim).
+
+        ``check_prompts=False`` waives the prompt contract: only for measuring how a controller
+        copes with wording it was never trained on (``ablate wording``). A prompt that does not
+        parse then reaches ``_act`` as its first sentence with no facts.
+        """
+        if check_prompts:
+            parsed = [parse_prompt(prompt, self.spec.prompt_template) for prompt in prompts]
+        else:
+            parsed = [_parse_or_bare(prompt, self.spec.prompt_template) for prompt in prompts]
         chunks = np.asarray(self._act(obs, prompts, parsed), dtype=np.float32)
         expected = (len(prompts), self.spec.chunk_len, self.spec.action_dim)
         if chunks.shape != expected:
@@ -78,6 +86,14 @@ class FrozenController(ABC):
                 f"{type(self).__name__} needs camera images but the env's obs_mode is {base.obs_mode!r}; "
                 + RENDER_HINT
             )
+
+
+def _parse_or_bare(prompt: str, template: PromptTemplate) -> ParsedPrompt:
+    """The parsed prompt, or its first sentence with no facts when it is worded off the template."""
+    try:
+        return parse_prompt(prompt, template)
+    except ValueError:
+        return ParsedPrompt(prompt.split(".")[0] + ".")
 
 
 def as_numpy(x: Any) -> np.ndarray:

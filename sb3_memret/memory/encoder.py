@@ -85,6 +85,7 @@ class MiniLMEncoder:
             raise ValueError(f"model at {str(path)!r} embeds into {dim} dimensions, expected {EMBEDDING_DIM}")
         self.batch_size = batch_size
         self._cache: dict[str, np.ndarray] = {}
+        self._token_cache: dict[str, np.ndarray] = {}
         self.hits = 0
         self.misses = 0
 
@@ -106,3 +107,23 @@ class MiniLMEncoder:
 
     def encode_one(self, text: str) -> np.ndarray:
         return self.encode([text])[0]
+
+    def encode_tokens(self, texts: Sequence[str]) -> list[np.ndarray]:
+        """Per-token features (n_tokens_i, 384) of each text: MiniLM's last hidden states, [CLS] and
+        [SEP] included, before pooling. A pooled vector hardly separates "drawer layer 1." from
+        "drawer layer 2." (cosine 0.99); the digit's own token does. Cached by text like ``encode``."""
+        import torch
+
+        texts = list(texts)
+        new = list(dict.fromkeys(t for t in texts if t not in self._token_cache))
+        if new:
+            module = self.model[0]
+            batch = module.tokenizer(new, padding=True, truncation=True, max_length=module.max_seq_length,
+                                     return_tensors="pt").to(self.model.device)
+            with torch.no_grad():
+                hidden = module.auto_model(**batch).last_hidden_state.float().cpu().numpy()
+            for text, states, mask in zip(new, hidden, batch["attention_mask"].cpu().numpy().astype(bool)):
+                features = np.ascontiguousarray(states[mask])
+                features.setflags(write=False)
+                self._token_cache[text] = features
+        return [self._token_cache[t] for t in texts]

@@ -1,0 +1,74 @@
+"""What a learned controller checkpoint was trained with: sizes, inputs, and its training prompts."""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass, field, fields
+from pathlib import Path
+from typing import Any
+
+from sb3_memret.controllers.observation import ACTION_DIM, IMAGE_KEYS, STATE_DIM
+from sb3_memret.prompts import PromptTemplate
+
+CONFIG_FILE = "config.json"
+POLICY_TYPE = "sb3_memret_learned"
+
+
+@dataclass
+class LearnedPolicyConfig:
+    """Sizes of the network and the contract it was trained under.
+
+    ``prompt_template`` lists the instruction and fact templates of the training prompts (every
+    prompt is checked against it before the policy acts); ``training_prompts`` the exact prompts
+    the demonstrations held, for the record.
+    """
+
+    state_dim: int = STATE_DIM
+    action_dim: int = ACTION_DIM
+    chunk_len: int = 32
+    token_dim: int = 384  # MiniLM hidden size
+    text_dim: int = 128
+    text_heads: int = 4
+    hidden_dim: int = 512
+    n_layers: int = 3
+    image_features: tuple[str, ...] = ()  # camera features read, empty for a state-only policy
+    image_size: int = 64  # cameras are average-pooled to this size before the CNN
+    image_dim: int = 64
+    action_convention: str = "pd_ee_delta_pose"
+    instructions: tuple[str, ...] = field(default_factory=lambda: PromptTemplate().instructions)
+    fact_templates: tuple[str, ...] = field(default_factory=lambda: PromptTemplate().fact_templates)
+    training_prompts: tuple[str, ...] = ()
+    type: str = POLICY_TYPE
+
+    def __post_init__(self) -> None:
+        for name in ("image_features", "instructions", "fact_templates", "training_prompts"):
+            setattr(self, name, tuple(getattr(self, name)))
+        unknown = set(self.image_features) - set(IMAGE_KEYS)
+        if unknown:
+            raise ValueError(f"unknown image features {sorted(unknown)}; the task's cameras are {sorted(IMAGE_KEYS)}")
+        if min(self.chunk_len, self.hidden_dim, self.n_layers, self.text_dim, self.text_heads) < 1:
+            raise ValueError(f"sizes must be positive: {self}")
+        if self.text_dim % self.text_heads:
+            raise ValueError(f"text_dim {self.text_dim} must be a multiple of text_heads {self.text_heads}")
+
+    @property
+    def prompt_template(self) -> PromptTemplate:
+        return PromptTemplate(self.instructions, self.fact_templates)
+
+    def save(self, folder: Path) -> None:
+        (folder / CONFIG_FILE).write_text(json.dumps(asdict(self), indent=2) + "\n")
+
+    @classmethod
+    def load(cls, folder: Path) -> "LearnedPolicyConfig":
+        path = folder / CONFIG_FILE
+        if not path.is_file():
+            raise FileNotFoundError(f"no {CONFIG_FILE} in {str(folder)!r}: not a learned controller checkpoint "
+                                    "(sb3-memret finetune writes one)")
+        data: dict[str, Any] = json.loads(path.read_text())
+        if data.get("type") != POLICY_TYPE:
+            raise ValueError(f"{path} describes a {data.get('type')!r} policy, not {POLICY_TYPE!r}")
+        known = {f.name for f in fields(cls)}
+        unknown = sorted(set(data) - known)
+        if unknown:
+            raise ValueError(f"{path} has unknown keys {unknown}; accepted {sorted(known)}")
+        return cls(**data)

@@ -1,0 +1,60 @@
+"""The learned, language-conditioned controller as a frozen controller the memory serves."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Sequence
+
+import numpy as np
+import torch
+
+from sb3_memret.controllers.base import ControllerSpec, FrozenController, Obs
+from sb3_memret.controllers.learned.modeling import LearnedPolicy
+from sb3_memret.controllers.learned.processing import LearnedPolicyProcessor, PromptTokenizer
+from sb3_memret.prompts import ParsedPrompt
+
+SHIPPED_CHECKPOINT = Path(__file__).resolve().parent.parent / "checkpoints" / "drawer-learned"
+
+
+def default_checkpoint() -> Path:
+    """The checkpoint ``--controller learned`` names: trained by ``make controller`` and shipped in the package."""
+    if not (SHIPPED_CHECKPOINT / "model.safetensors").is_file():
+        raise FileNotFoundError(f"the shipped learned controller is missing from {SHIPPED_CHECKPOINT}; rebuild it "
+                                "with `make controller` (demos, then finetune)")
+    return SHIPPED_CHECKPOINT
+
+
+class LearnedController(FrozenController):
+    """A LearnedPolicy checkpoint acting on the task's state (and cameras, if it was trained on them).
+
+    It keeps no state between calls, so ``reset`` only records how many envs a batch holds.
+    """
+
+    def __init__(self, checkpoint: str | Path | None = None, device: str = "cpu",
+                 tokenizer: PromptTokenizer | None = None):
+        self.checkpoint = Path(checkpoint) if checkpoint is not None else default_checkpoint()
+        self.device = torch.device(device)
+        self.policy = LearnedPolicy.from_pretrained(self.checkpoint, self.device)
+        config = self.policy.config
+        self.processor = LearnedPolicyProcessor(config, tokenizer)
+        self.spec = ControllerSpec(
+            action_convention=config.action_convention,
+            chunk_len=config.chunk_len,
+            action_dim=config.action_dim,
+            needs_images=bool(config.image_features),
+            prompt_template=config.prompt_template,
+        )
+        self._num_envs = 0
+
+    def reset(self, seeds: Sequence[int]) -> None:
+        self._num_envs = len(seeds)
+
+    @torch.no_grad()
+    def _act(self, obs: Obs, prompts: Sequence[str], parsed: Sequence[ParsedPrompt]) -> np.ndarray:
+        if self._num_envs != len(prompts):
+            raise RuntimeError(f"reset() was called for {self._num_envs} envs but act() got {len(prompts)} prompts")
+        inputs = self.processor(obs, prompts)
+        prompt = self.policy.encode_prompts(inputs["tokens"].to(self.device), inputs["token_mask"].to(self.device))
+        chunks = self.policy(inputs["state"].to(self.device), prompt,
+                             [image.to(self.device) for image in inputs["images"]])
+        return chunks.cpu().numpy()

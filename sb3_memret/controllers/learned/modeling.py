@@ -1,0 +1,132 @@
+"""The learned controller's network: prompt tokens, state (and camera images) in, an action chunk out.
+
+The prompt arrives as frozen MiniLM per-token features; multi-head attention pooling with learned
+queries lets the network find the one token that matters (the layer digit), which a pooled
+sentence vector blurs. State is normalised with the demonstrations' statistics, kept as buffers
+so a checkpoint carries them. An MLP maps the concatenation to ``chunk_len`` x ``action_dim``.
+"""
+
+from __future__ import annotations
+
+import math
+from pathlib import Path
+
+import torch
+from safetensors.torch import load_file, save_file
+from torch import nn
+from torch.nn import functional as F
+
+from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig
+from sb3_memret.controllers.weights import WeightsNotLoadedError, check_loaded
+
+WEIGHTS_FILE = "model.safetensors"
+MIN_STATE_STD = 1e-2  # features that never vary in the demos (the cube's tilt) are not blown up
+
+
+class AttentionPool(nn.Module):
+    """Learned queries (one per head) attend over token features: (B, T, D), mask (B, T) -> (B, text_dim)."""
+
+    def __init__(self, token_dim: int, text_dim: int, heads: int):
+        super().__init__()
+        self.heads, self.head_dim = heads, text_dim // heads
+        self.keys = nn.Linear(token_dim, text_dim)
+        self.values = nn.Linear(token_dim, text_dim)
+        self.queries = nn.Parameter(torch.randn(heads, self.head_dim) / math.sqrt(self.head_dim))
+        self.norm = nn.LayerNorm(text_dim)
+
+    def forward(self, tokens: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        b, t, _ = tokens.shape
+        keys = self.keys(tokens).view(b, t, self.heads, self.head_dim)
+        values = self.values(tokens).view(b, t, self.heads, self.head_dim)
+        scores = torch.einsum("bthd,hd->bht", keys, self.queries) / math.sqrt(self.head_dim)
+        weights = scores.masked_fill(~mask[:, None, :], float("-inf")).softmax(dim=-1)
+        return self.norm(torch.einsum("bht,bthd->bhd", weights, values).reshape(b, -1))
+
+
+class ImageEncoder(nn.Module):
+    """A small CNN for one camera: (B, 3, S, S) in [0, 1] -> (B, image_dim)."""
+
+    def __init__(self, image_dim: int):
+        super().__init__()
+        self.net = nn.Sequential(
+            nn.Conv2d(3, 32, 5, stride=2, padding=2), nn.ReLU(),
+            nn.Conv2d(32, 64, 3, stride=2, padding=1), nn.ReLU(),
+            nn.Conv2d(64, 64, 3, stride=2, padding=1), nn.ReLU(),
+            nn.AdaptiveAvgPool2d(1), nn.Flatten(), nn.Linear(64, image_dim), nn.ReLU(),
+        )
+
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        return self.net(images)
+
+
+class LearnedPolicy(nn.Module):
+    """Predicts an action chunk (B, chunk_len, action_dim) from state, prompt tokens and optional images."""
+
+    def __init__(self, config: LearnedPolicyConfig):
+        super().__init__()
+        self.config = config
+        self.register_buffer("state_mean", torch.zeros(config.state_dim))
+        self.register_buffer("state_std", torch.ones(config.state_dim))
+        self.text = AttentionPool(config.token_dim, config.text_dim, config.text_heads)
+        self.cameras = nn.ModuleList(ImageEncoder(config.image_dim) for _ in config.image_features)
+        width = config.state_dim + config.text_dim + config.image_dim * len(config.image_features)
+        layers: list[nn.Module] = []
+        for _ in range(config.n_layers):
+            layers += [nn.Linear(width, config.hidden_dim), nn.GELU()]
+            width = config.hidden_dim
+        layers.append(nn.Linear(width, config.chunk_len * config.action_dim))
+        self.head = nn.Sequential(*layers)
+
+    def set_state_stats(self, mean: torch.Tensor, std: torch.Tensor) -> None:
+        """Normalise states with the demonstrations' mean and std (std floored at MIN_STATE_STD)."""
+        self.state_mean.copy_(torch.as_tensor(mean, dtype=torch.float32))
+        self.state_std.copy_(torch.as_tensor(std, dtype=torch.float32).clamp(min=MIN_STATE_STD))
+
+    def encode_prompts(self, tokens: torch.Tensor, token_mask: torch.Tensor) -> torch.Tensor:
+        """(P, T, 384) token features and (P, T) mask -> (P, text_dim): one vector per prompt."""
+        return self.text(tokens, token_mask)
+
+    def forward(self, state: torch.Tensor, prompt: torch.Tensor, images: list[torch.Tensor] | None = None) -> torch.Tensor:
+        """(B, state_dim) states, (B, text_dim) ``encode_prompts`` vectors, per camera (B, 3, S, S) images."""
+        images = images or []
+        if len(images) != len(self.cameras):
+            raise ValueError(f"the policy reads {len(self.cameras)} cameras {list(self.config.image_features)}, "
+                             f"got {len(images)} image batches")
+        parts = [(state - self.state_mean) / self.state_std, prompt]
+        parts += [encoder(image) for encoder, image in zip(self.cameras, images)]
+        out = self.head(torch.cat(parts, dim=-1))
+        return out.view(-1, self.config.chunk_len, self.config.action_dim)
+
+    def save_pretrained(self, folder: str | Path) -> Path:
+        """Write ``config.json`` and ``model.safetensors`` into ``folder``."""
+        folder = Path(folder)
+        folder.mkdir(parents=True, exist_ok=True)
+        self.config.save(folder)
+        save_file({k: v.detach().cpu().contiguous() for k, v in self.state_dict().items()}, folder / WEIGHTS_FILE)
+        return folder
+
+    @classmethod
+    def from_pretrained(cls, folder: str | Path, device: str | torch.device = "cpu") -> "LearnedPolicy":
+        """Load a checkpoint and check every tensor landed by name, shape and value."""
+        folder = Path(folder).expanduser()
+        if not folder.is_dir():
+            raise FileNotFoundError(f"learned controller checkpoint {str(folder)!r} is not a folder; expected what "
+                                    "`sb3-memret finetune` writes (config.json, model.safetensors)")
+        config = LearnedPolicyConfig.load(folder)
+        if not (folder / WEIGHTS_FILE).is_file():
+            raise WeightsNotLoadedError(f"no {WEIGHTS_FILE} in {str(folder)!r}")
+        model = cls(config)
+        saved = load_file(folder / WEIGHTS_FILE)
+        try:
+            model.load_state_dict(saved, strict=False)
+        except RuntimeError as err:  # a size mismatch
+            raise WeightsNotLoadedError(f"checkpoint {folder} does not fit its config: {err}") from err
+        check_loaded(model.state_dict(), saved, f"learned controller checkpoint {folder}")
+        return model.to(device).eval()
+
+
+def chunk_loss(predicted: torch.Tensor, target: torch.Tensor, is_pad: torch.Tensor) -> torch.Tensor:
+    """Mean L1 error over the chunk steps that lie inside the episode (``is_pad`` (B, H) marks the rest)."""
+    error = F.l1_loss(predicted, target, reduction="none").mean(dim=-1)
+    keep = (~is_pad).float()
+    return (error * keep).sum() / keep.sum().clamp(min=1.0)

@@ -1,0 +1,248 @@
+"""Expert demonstrations as a LeRobotDataset (v3.0), written with lerobot's own recording API.
+
+Data design (decided up front; the held-out tests depend on what stays out):
+
+- **Prompts in the data**: the bare instruction (``pick out the cube.``: the expert opens the top
+  drawer, as the seed's finetuned π0.5 does) and single-fact prompts
+  ``pick out the cube. the cube is in drawer layer L.`` for every layer L. The named layer is the
+  cube's layer in most episodes and another layer in the rest (the expert opens the named drawer,
+  finds it empty and holds still), so the policy learns to follow the prompt, not the cube.
+- **Prompts kept out**: two-memory prompts, other objects' facts, holding facts and any paraphrase
+  of the fact sentence, so ``ablate memcount``, ``ablate prompt`` and ``ablate wording`` stay true
+  held-out tests.
+- **States off the expert's path**: a share of the episodes executes the expert's actions with
+  Gaussian noise on the arm (the labels stay the expert's clean actions), and DAgger rounds
+  (``learner=``) let a learned controller act while the expert, which can label any state,
+  shadows it and supplies every label.
+
+Per frame: ``observation.state`` (19: what a controller may see; see
+``sb3_memret.controllers.observation``), ``action`` (the expert's 7-D end-effector delta pose for
+that step), ``task`` (the exact prompt), and with a renderer the two cameras under the keys
+π0.5-LIBERO finetuning reads. An episode ends at success, at the time limit, or once the expert
+has held still for ``idle_stop`` steps (an empty drawer). Episodes are written as they finish;
+an interrupted run finalises the dataset with every episode saved so far.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Callable, Sequence
+
+import numpy as np
+
+from sb3_memret.controllers import make_controller
+from sb3_memret.controllers.base import FrozenController
+from sb3_memret.controllers.observation import (ACTION_KEY, IMAGE_KEYS, STATE_KEY, TASK_KEY, camera_images,
+                                                dataset_features, observation_state)
+from sb3_memret.controllers.scripted import Phase, ScriptedDrawerController
+from sb3_memret.envs.cabinet import LAYERS
+from sb3_memret.prompts import INSTRUCTION, build_prompt, location_text
+from sb3_memret.rollout import DEFAULT_REPLAN_EVERY, RENDER_BACKENDS, make_task_env
+
+FPS = 20  # pd_ee_delta_pose control frequency of DrawerCubeTakeOut-v1
+EPISODES_FILE = "sb3_memret_episodes.jsonl"  # one line per saved episode: how it was played
+
+
+@dataclass(frozen=True)
+class PromptMix:
+    """How episodes' prompts are drawn: bare, fact naming the cube's layer, fact naming another layer."""
+
+    bare: float = 0.2
+    matching: float = 0.6
+    mismatched: float = 0.2
+
+    def __post_init__(self) -> None:
+        weights = (self.bare, self.matching, self.mismatched)
+        if min(weights) < 0 or not np.isclose(sum(weights), 1.0):
+            raise ValueError(f"prompt mix {weights} must be non-negative and sum to 1")
+
+
+@dataclass(frozen=True)
+class DemoEpisode:
+    """One demonstration to record: placement seed, cube layer, prompt, action noise on the arm."""
+
+    seed: int
+    cube_layer: int
+    prompt: str
+    noise: float = 0.0
+
+
+@dataclass
+class EpisodeFrames:
+    """A recorded episode: per-frame states, expert labels, and camera images when rendered."""
+
+    episode: DemoEpisode
+    states: np.ndarray  # (T, 19)
+    actions: np.ndarray  # (T, 7)
+    images: dict[str, np.ndarray]  # feature -> (T, 224, 224, 3) uint8, empty without a renderer
+    success: bool
+    learner_acted: bool
+
+
+def plan_episodes(n: int, seed: int = 0, noise: float = 0.0, noisy_fraction: float = 0.5,
+                  mix: PromptMix | None = None) -> list[DemoEpisode]:
+    """``n`` episodes with placement seeds ``seed..seed+n-1``, cube layers cycling over the layers, prompts
+    drawn by ``mix`` and ``noisy_fraction`` of them with arm noise ``noise``."""
+    if n < 1:
+        raise ValueError(f"episodes must be >= 1, got {n}")
+    if noise < 0 or not 0 <= noisy_fraction <= 1:
+        raise ValueError(f"noise must be >= 0 and noisy_fraction in [0, 1], got {noise}, {noisy_fraction}")
+    mix = mix or PromptMix()
+    rng = np.random.default_rng(seed)
+    episodes = []
+    for k in range(n):
+        layer = LAYERS[k % len(LAYERS)]
+        kind = rng.choice(3, p=[mix.bare, mix.matching, mix.mismatched])
+        if kind == 0:
+            prompt = INSTRUCTION
+        else:
+            others = [other for other in LAYERS if other != layer]
+            named = layer if kind == 1 else int(rng.choice(others))
+            prompt = build_prompt(INSTRUCTION, [location_text("cube", named)])
+        noisy = rng.random() < noisy_fraction
+        episodes.append(DemoEpisode(seed + k, layer, prompt, noise if noisy else 0.0))
+    return episodes
+
+
+def record_episode(env, expert: ScriptedDrawerController, episode: DemoEpisode,
+                   learner: FrozenController | None = None, replan_every: int = DEFAULT_REPLAN_EVERY,
+                   idle_stop: int = 16, with_images: bool = False) -> EpisodeFrames:
+    """Play one episode, the expert labelling every frame; the learner acts instead when given."""
+    rng = np.random.default_rng(episode.seed)
+    obs, _ = env.reset(seed=episode.seed, options={"cube_layer": episode.cube_layer})
+    expert.reset([episode.seed])
+    if learner is not None:
+        learner.reset([episode.seed])
+    states, actions, images = [], [], {key: [] for key in IMAGE_KEYS} if with_images else {}
+    idle, success, done = 0, False, False
+    while not done:
+        labels = expert.act(obs, [episode.prompt])[0][:replan_every]
+        executed = learner.act(obs, [episode.prompt])[0][:replan_every] if learner is not None else labels.copy()
+        for label, action in zip(labels, executed):
+            states.append(observation_state(obs)[0])
+            actions.append(label)
+            for key, frames in camera_images(obs).items() if with_images else ():
+                images[key].append(frames[0])
+            if episode.noise:
+                action = action.copy()
+                action[:6] = np.clip(action[:6] + rng.normal(0.0, episode.noise, 6), -1.0, 1.0)
+            obs, _, terminated, truncated, info = env.step(action)
+            success = bool(info["success"])
+            idle = idle + 1 if expert.phases()[0] is Phase.IDLE else 0
+            if terminated or truncated or idle >= idle_stop:
+                done = True
+                break
+    return EpisodeFrames(episode, np.asarray(states, np.float32), np.asarray(actions, np.float32),
+                         {key: np.stack(frames) for key, frames in images.items()}, success, learner is not None)
+
+
+class _Recorder:
+    """A task env, the expert and an optional learner, recording episodes one after another."""
+
+    def __init__(self, render_backend: str, learner: str | None, replan_every: int, max_steps: int | None):
+        self.with_images = render_backend != "none"
+        limit = {} if max_steps is None else {"max_episode_steps": max_steps}
+        self.env = make_task_env(obs_mode="rgb" if self.with_images else "state_dict", render_backend=render_backend,
+                                 **limit)
+        self.expert = ScriptedDrawerController()
+        self.expert.check_env(self.env)
+        self.learner = make_controller(learner) if learner is not None else None
+        if self.learner is not None:
+            self.learner.check_env(self.env)
+        self.replan_every = replan_every
+
+    def record(self, episode: DemoEpisode) -> EpisodeFrames:
+        return record_episode(self.env, self.expert, episode, self.learner, self.replan_every,
+                              with_images=self.with_images)
+
+
+_recorder: _Recorder | None = None
+
+
+def _init_recorder(render_backend: str, learner: str | None, replan_every: int, max_steps: int | None,
+                   in_worker: bool = True) -> None:
+    global _recorder
+    if in_worker:
+        from sb3_memret.parallel_rollout import init_pool_worker
+
+        init_pool_worker()
+    _recorder = _Recorder(render_backend, learner, replan_every, max_steps)
+
+
+def _record(episode: DemoEpisode) -> EpisodeFrames:
+    assert _recorder is not None, "recorder used before its initializer ran"
+    return _recorder.record(episode)
+
+
+def record_demos(
+    out: str | Path,
+    episodes: Sequence[DemoEpisode],
+    render_backend: str = "none",
+    learner: str | None = None,
+    n_workers: int = 1,
+    replan_every: int = DEFAULT_REPLAN_EVERY,
+    max_steps: int | None = None,
+    on_episode: Callable[[EpisodeFrames], None] | None = None,
+) -> Path:
+    """Record ``episodes`` into a new LeRobotDataset at ``out`` and return its folder.
+
+    ``learner`` (a controller spec) makes this a DAgger round: the learner acts, the expert labels.
+    ``max_steps`` shortens the task's 400-step limit (quick checks).
+    """
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    out = Path(out)
+    if render_backend not in RENDER_BACKENDS:
+        raise ValueError(f"unknown render backend {render_backend!r}; expected one of {list(RENDER_BACKENDS)}")
+    if out.exists():
+        raise FileExistsError(f"{out} already exists; demonstrations are written to a new folder")
+    if learner is not None:
+        make_controller(learner)  # a bad spec fails here, before any worker starts
+    with_images = render_backend != "none"
+    dataset = LeRobotDataset.create(repo_id=f"sb3_memret/{out.name}", fps=FPS, root=out, robot_type="panda",
+                                    features=dataset_features(with_images), use_videos=False,
+                                    video_backend="pyav")  # images are PNGs: no video decoder to probe
+
+    def save(_: DemoEpisode, frames: EpisodeFrames) -> None:
+        for t in range(len(frames.actions)):
+            frame = {STATE_KEY: frames.states[t], ACTION_KEY: frames.actions[t], TASK_KEY: frames.episode.prompt}
+            frame.update({key: images[t] for key, images in frames.images.items()})
+            dataset.add_frame(frame)
+        dataset.save_episode()
+        record = {**asdict(frames.episode), "frames": len(frames.actions), "success": frames.success,
+                  "learner": learner}
+        with open(out / EPISODES_FILE, "a") as f:
+            f.write(json.dumps(record) + "\n")
+        if on_episode is not None:
+            on_episode(frames)
+
+    from datasets.utils import logging as datasets_logging
+
+    from sb3_memret.parallel_rollout import map_in_workers
+
+    global _recorder
+    bars = datasets_logging.is_progress_bar_enabled()
+    datasets_logging.disable_progress_bar()  # a "Map" bar per saved episode would bury the run's own
+    try:
+        map_in_workers(_init_recorder, (render_backend, learner, replan_every, max_steps), _record, list(episodes),
+                       n_workers, save)
+    finally:
+        dataset.finalize()  # an interrupted run keeps every episode saved so far
+        if bars:
+            datasets_logging.enable_progress_bar()
+        if _recorder is not None:
+            _recorder.env.close()
+            _recorder = None
+    return out
+
+
+def read_episode_log(root: str | Path) -> list[dict]:
+    """The per-episode records ``record_demos`` wrote beside the dataset."""
+    path = Path(root) / EPISODES_FILE
+    return [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
+
+
+__all__ = ["DemoEpisode", "EpisodeFrames", "FPS", "PromptMix", "plan_episodes", "read_episode_log", "record_demos",
+           "record_episode"]

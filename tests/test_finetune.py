@@ -1,0 +1,63 @@
+"""Finetuning the learned controller: chunk targets stay inside their episode, datasets are checked, the
+policy learns the expert's labels on a small budget, and the checkpoint loads as a controller."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from sb3_memret.controllers import make_controller
+from sb3_memret.controllers.learned import LearnedPolicyConfig
+from sb3_memret.prompts import INSTRUCTION, condition_prompt
+from sb3_memret.stage1.demos import DemoEpisode, record_demos
+from sb3_memret.stage1.finetune import Demonstrations, FinetuneSettings, finetune, load_demonstrations, read_log
+
+SMALL = LearnedPolicyConfig(hidden_dim=64, n_layers=2, text_dim=32, text_heads=2, chunk_len=8)
+
+
+@pytest.fixture(scope="module")
+def demos(tmp_path_factory):
+    root = tmp_path_factory.mktemp("finetune") / "demos"
+    episodes = [DemoEpisode(40, 1, condition_prompt("oracle", 1)), DemoEpisode(41, 3, condition_prompt("oracle", 3)),
+                DemoEpisode(42, 2, INSTRUCTION)]
+    return record_demos(root, episodes, max_steps=48)
+
+
+def test_chunks_are_padded_at_each_episode_end():
+    demos = Demonstrations(states=np.zeros((5, 19), np.float32), actions=np.arange(35, dtype=np.float32).reshape(5, 7),
+                           episodes=np.array([0, 0, 0, 1, 1]), task_ids=np.zeros(5, np.int64), tasks=["x"], images={})
+    index, pad = demos.chunk_indices(3)
+    np.testing.assert_array_equal(index, [[0, 1, 2], [1, 2, 2], [2, 2, 2], [3, 4, 4], [4, 4, 4]])
+    np.testing.assert_array_equal(pad, [[0, 0, 0], [0, 0, 1], [0, 1, 1], [0, 0, 1], [0, 1, 1]])
+
+
+def test_datasets_are_read_with_their_prompts(demos):
+    data = load_demonstrations([demos, demos])
+    assert data.states.shape == (288, 19) and data.actions.shape == (288, 7)
+    assert sorted(data.tasks) == sorted({condition_prompt("oracle", 1), condition_prompt("oracle", 3), INSTRUCTION})
+    assert len(np.unique(data.episodes)) == 6  # the second copy's episodes are new episodes
+    with pytest.raises(FileNotFoundError, match="not a LeRobotDataset"):
+        load_demonstrations([demos.parent])
+
+
+def test_policy_learns_the_experts_labels(demos, tmp_path):
+    out = finetune([demos], tmp_path / "ckpt", SMALL, FinetuneSettings(steps=300, batch_size=64,
+                                                                         validation_fraction=0.0))
+    losses = [float(row["train_loss"]) for row in read_log(out)]
+    assert losses[-1] < 0.5 * losses[0], losses
+    controller = make_controller(f"learned:{out}")
+    assert controller.policy.config.training_prompts == tuple(sorted(load_demonstrations([demos]).tasks))
+    data = load_demonstrations([demos])
+    first = np.flatnonzero(np.r_[True, np.diff(data.episodes) != 0])
+    controller.reset(list(range(len(first))))
+    obs = {"agent": {"eef_state": data.states[first, :8]},
+           "extra": {"drawer_opening": data.states[first, 8:11], "cube_detection": data.states[first, 11:]}}
+    chunks = controller.act(obs, [data.tasks[t] for t in data.task_ids[first]])
+    target = np.stack([data.actions[i: i + 8] for i in first])
+    assert np.abs(chunks - target).mean() < 0.5 * np.abs(target).mean()
+
+
+def test_prompts_outside_the_contract_are_refused(demos, tmp_path):
+    config = LearnedPolicyConfig(fact_templates=("the robot is holding the {value}.",))
+    with pytest.raises(ValueError, match="matches no trained template"):
+        finetune([demos], tmp_path / "ckpt", config, FinetuneSettings(steps=1))
