@@ -7,13 +7,13 @@ from sb3_memret.cli import main
 
 def test_every_command_has_help():
     runner = CliRunner()
-    for args in ([], ["rollout"], ["train"], ["eval"], ["ablate"], ["plot"], ["trace"], ["report"]):
+    for args in ([], ["rollout"], ["train"], ["eval"], ["ablate"], ["plot"], ["trace"], ["report"], ["demos"], ["finetune"]):
         result = runner.invoke(main, [*args, "--help"])
         assert result.exit_code == 0 and "Usage" in result.output
 
 
 def test_rollout_json():
-    result = CliRunner().invoke(main, ["rollout", "--episodes", "1", "--layer", "1", "--json"])
+    result = CliRunner().invoke(main, ["rollout", "--controller", "scripted", "--episodes", "1", "--layer", "1", "--json"])
     assert result.exit_code == 0, result.output
     payload = json.loads(result.stdout.strip().splitlines()[-1])
     assert payload["condition"] == "oracle" and payload["episodes"] == 1

@@ -61,3 +61,23 @@ def test_prompts_outside_the_contract_are_refused(demos, tmp_path):
     config = LearnedPolicyConfig(fact_templates=("the robot is holding the {value}.",))
     with pytest.raises(ValueError, match="matches no trained template"):
         finetune([demos], tmp_path / "ckpt", config, FinetuneSettings(steps=1))
+
+
+def test_demos_finetune_rollout_through_the_cli(tmp_path):
+    from click.testing import CliRunner
+
+    from sb3_memret.cli import main
+
+    runner = CliRunner()
+    result = runner.invoke(main, ["demos", "--episodes", "2", "--n-envs", "1", "--out", str(tmp_path / "d"), "--no-progress"])
+    assert result.exit_code == 0 and "2 episodes" in result.output, result.output
+    result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "c"), "--steps", "20",
+                                  "--no-progress"])
+    assert result.exit_code == 0 and f"--controller learned:{tmp_path / 'c'}" in result.output, result.output
+    result = runner.invoke(main, ["rollout", "--controller", f"learned:{tmp_path / 'c'}", "--episodes", "1",
+                                  "--layer", "2", "--json"])
+    assert result.exit_code == 0, result.output
+    result = runner.invoke(main, ["demos", "--out", str(tmp_path / "d")])
+    assert result.exit_code == 2 and "already exists" in result.output
+    result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "p"), "--policy", "pi05"])
+    assert result.exit_code == 2 and "--policy pi05 needs --pretrained" in result.output

@@ -3,11 +3,14 @@
 The checkpoint folder is what ``PI05Policy.save_pretrained`` plus the policy's processor pipelines
 write (``config.json``, ``model.safetensors``, ``policy_preprocessor.json``,
 ``policy_postprocessor.json`` and their normalisation stats); the optional adapter folder is what
-peft's ``save_pretrained`` writes (``adapter_config.json``, ``adapter_model.safetensors``). The
+peft's ``save_pretrained`` writes (``adapter_config.json``, ``adapter_model.safetensors``);
+``sb3_memret.stage1.finetune_pi05`` writes both. The
 tokenizer folder replaces the gated hub tokenizer the processors name. lerobot's loader warns and
 returns a randomly initialised model when weights fail to load, and peft skips adapter tensors it
 cannot place; so after loading, every weight and every adapter tensor is compared by name, shape
-and value with the files, and any difference raises.
+and value with the files, and any difference raises. A checkpoint's ``observation.state`` is either
+LIBERO's 8-D end-effector state (lerobot's and openpi's LIBERO finetunes) or the project's 19-D
+``observation_state`` (finetuned on the project's demonstrations); the batch carries the matching one.
 
 lerobot (a dependency of sb3-memret) is imported only when this controller is built: it takes
 seconds to import.
@@ -16,24 +19,37 @@ seconds to import.
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 import torch
 
-from sb3_memret.controllers.base import RENDER_HINT, ControllerSpec, FrozenController, Obs, as_numpy
+from sb3_memret.controllers.base import ControllerSpec, FrozenController, Obs, as_numpy
+from sb3_memret.controllers.observation import (ACTION_DIM, ACTION_KEY, IMAGE_KEYS, STATE_DIM, STATE_KEY, TASK_KEY,
+                                                camera_images, observation_state)
 from sb3_memret.controllers.weights import WeightsNotLoadedError, check_loaded
 from sb3_memret.prompts import ParsedPrompt, PromptTemplate
 
-# lerobot's LIBERO feature names for the two cameras, mapped to the task's cameras.
-LIBERO_CAMERAS = {"observation.images.image": "base_camera", "observation.images.wrist_image": "hand_camera"}
-STATE_KEY, ACTION_KEY, TASK_KEY = "observation.state", "action", "task"
-STATE_DIM = 8
+LIBERO_STATE_DIM = 8
 WEIGHTS_FILE, ADAPTER_FILE = "model.safetensors", "adapter_model.safetensors"
 
 
+def libero_state(obs: Obs) -> np.ndarray:
+    """(B, 8) float32 end-effector state, the ``observation.state`` of LIBERO finetunes."""
+    state = as_numpy(obs["agent"]["eef_state"])
+    if state.ndim != 2 or state.shape[1] != LIBERO_STATE_DIM:
+        raise ValueError(f"agent/eef_state has shape {state.shape}; expected (B, {LIBERO_STATE_DIM})")
+    return state.astype(np.float32)
+
+
+# The observation.state layouts a checkpoint may take, by size, and how each is read from the env observation.
+STATE_READERS: Mapping[int, Callable[[Obs], np.ndarray]] = {LIBERO_STATE_DIM: libero_state,
+                                                            STATE_DIM: observation_state}
+
+
 class LeRobotPi05Controller(FrozenController):
-    """lerobot's PI05Policy (plus an optional LoRA adapter) acting on the task's two cameras and 8-D state.
+    """lerobot's PI05Policy (plus an optional LoRA adapter) acting on the task's two cameras and the 8-D or
+    19-D state its checkpoint takes.
 
     ``reset(seeds)`` seeds one noise generator per env, so an episode's action chunks depend on
     its seed and observations only.
@@ -45,29 +61,31 @@ class LeRobotPi05Controller(FrozenController):
         adapter: str | Path | None = None,
         tokenizer: str | Path | None = None,
         device: str = "cpu",
-        cameras: Mapping[str, str] = LIBERO_CAMERAS,
+        cameras: Mapping[str, str] = IMAGE_KEYS,
         prompt_template: PromptTemplate | None = None,
     ):
-        self.checkpoint = _folder(checkpoint, "checkpoint", WEIGHTS_FILE)
-        PreTrainedConfig, PI05Policy, make_pre_post_processors = _import_lerobot()
-        self.cameras = dict(cameras)
-        config = PreTrainedConfig.from_pretrained(self.checkpoint, local_files_only=True)
-        if config.type != "pi05":
-            raise ValueError(f"checkpoint {self.checkpoint} holds a {config.type!r} policy, not 'pi05'")
-        config.device = device
-        _check_features(config, self.cameras, self.checkpoint)
+        self.checkpoint = local_folder(checkpoint, "checkpoint", WEIGHTS_FILE)
+        from lerobot.policies.factory import make_pre_post_processors
 
-        self.policy = PI05Policy.from_pretrained(self.checkpoint, config=config, local_files_only=True)
-        saved = _saved_policy_state(self.policy, self.checkpoint)
-        check_loaded(self.policy.state_dict(), saved, f"checkpoint {self.checkpoint}")
+        unknown = set(cameras.values()) - set(IMAGE_KEYS.values())
+        if unknown:
+            raise ValueError(f"cameras= maps features to {sorted(unknown)}; the task's cameras are "
+                             f"{sorted(IMAGE_KEYS.values())}")
+        self.cameras = dict(cameras)
+        config = load_pi05_config(self.checkpoint, "checkpoint")
+        config.device = device
+        check_features(config, self.cameras, f"checkpoint {self.checkpoint}")
+        self._read_state = STATE_READERS[config.input_features[STATE_KEY].shape[0]]
+
+        self.policy = load_checked_policy(self.checkpoint, config, f"checkpoint {self.checkpoint}")
         self.adapter = None  # the PeftModel around the policy, when an adapter is applied
         if adapter is not None:
-            self._load_adapter(_folder(adapter, "adapter", ADAPTER_FILE))
+            self._load_adapter(local_folder(adapter, "adapter", ADAPTER_FILE))
         self.policy.eval()
 
         overrides = {"device_processor": {"device": device}}
         if tokenizer is not None:
-            overrides["tokenizer_processor"] = {"tokenizer_name": str(_folder(tokenizer, "tokenizer"))}
+            overrides["tokenizer_processor"] = {"tokenizer_name": str(local_folder(tokenizer, "tokenizer"))}
         self.preprocess, self.postprocess = make_pre_post_processors(
             config, pretrained_path=str(self.checkpoint), preprocessor_overrides=overrides,
             postprocessor_overrides={"device_processor": {"device": "cpu"}},
@@ -110,31 +128,51 @@ class LeRobotPi05Controller(FrozenController):
         return as_numpy(self.postprocess(chunks))
 
     def _batch(self, obs: Obs, prompts: Sequence[str]) -> dict[str, Any]:
-        """The lerobot batch: float CHW images in [0, 1] per camera feature, the 8-D state, the prompts."""
-        batch: dict[str, Any] = {}
-        for feature, camera in self.cameras.items():
-            rgb = obs.get("sensor_data", {}).get(camera, {}).get("rgb")
-            if rgb is None:
-                raise ValueError(f"the observation has no {camera} image (sensor_data/{camera}/rgb), which π0.5 "
-                                 f"reads as {feature}; " + RENDER_HINT)
-            batch[feature] = torch.as_tensor(as_numpy(rgb)).permute(0, 3, 1, 2).float() / 255.0
-        batch[STATE_KEY] = torch.as_tensor(as_numpy(obs["agent"]["eef_state"]), dtype=torch.float32)
+        """The lerobot batch: float CHW images in [0, 1] per camera feature, the checkpoint's state, the prompts."""
+        by_camera = {IMAGE_KEYS[feature]: image for feature, image in camera_images(obs).items()}
+        batch: dict[str, Any] = {feature: torch.as_tensor(by_camera[camera]).permute(0, 3, 1, 2).float() / 255.0
+                                 for feature, camera in self.cameras.items()}
+        batch[STATE_KEY] = torch.as_tensor(self._read_state(obs))
         batch[TASK_KEY] = list(prompts)
         return batch
 
 
-def _check_features(config: Any, cameras: Mapping[str, str], checkpoint: Path) -> None:
-    """Refuse a checkpoint whose inputs or outputs are not the task's cameras, 8-D state and 7-D actions."""
+def load_pi05_config(folder: Path, what: str) -> Any:
+    """The PI05Config in a local folder's config.json; another policy type raises."""
+    from lerobot.configs import PreTrainedConfig
+
+    config = PreTrainedConfig.from_pretrained(folder, local_files_only=True)
+    if config.type != "pi05":
+        raise ValueError(f"{what} {folder} holds a {config.type!r} policy, not 'pi05'")
+    return config
+
+
+def load_checked_policy(folder: Path, config: Any, what: str) -> Any:
+    """``PI05Policy.from_pretrained`` on a local folder, then every weight compared with its model.safetensors."""
+    from lerobot.policies.pi05 import PI05Policy
+
+    policy = PI05Policy.from_pretrained(folder, config=config, local_files_only=True)
+    check_loaded(policy.state_dict(), _saved_policy_state(policy, folder), what)
+    return policy
+
+
+def check_features(config: Any, cameras: Mapping[str, str], source: str) -> None:
+    """Refuse features other than the mapped cameras, an 8-D or 19-D state (within the state padding) and
+    7-D actions; ``source`` names what they come from."""
     images = set(config.image_features)
     if images != set(cameras):
-        raise ValueError(f"checkpoint {checkpoint} reads images {sorted(images)}, but the cameras are mapped to "
-                         f"{sorted(cameras)}; pass cameras= mapping its image features to base_camera/hand_camera")
+        raise ValueError(f"{source} has image features {sorted(images)}, but the task's cameras are mapped to "
+                         f"{sorted(cameras)} (LeRobotPi05Controller's cameras=: feature -> base_camera/hand_camera)")
     state = config.input_features.get(STATE_KEY)
-    if state is None or tuple(state.shape) != (STATE_DIM,):
-        raise ValueError(f"checkpoint {checkpoint} takes {STATE_KEY} {state}; the task's eef_state is ({STATE_DIM},)")
+    if state is None or len(state.shape) != 1 or state.shape[0] not in STATE_READERS:
+        raise ValueError(f"{source} has {STATE_KEY} {state}; the controller builds LIBERO's ({LIBERO_STATE_DIM},) "
+                         f"eef_state or the project's ({STATE_DIM},) observation_state")
+    if state.shape[0] > config.max_state_dim:
+        raise ValueError(f"{source} has a {state.shape[0]}-D {STATE_KEY}; PI05 pads states to at most "
+                         f"max_state_dim={config.max_state_dim}")
     action = config.output_features.get(ACTION_KEY)
-    if action is None or tuple(action.shape) != (7,):
-        raise ValueError(f"checkpoint {checkpoint} emits {ACTION_KEY} {action}; pd_ee_delta_pose takes (7,) actions")
+    if action is None or tuple(action.shape) != (ACTION_DIM,):
+        raise ValueError(f"{source} has {ACTION_KEY} {action}; pd_ee_delta_pose takes ({ACTION_DIM},) actions")
 
 
 def _saved_policy_state(policy: Any, checkpoint: Path) -> dict[str, torch.Tensor]:
@@ -145,7 +183,8 @@ def _saved_policy_state(policy: Any, checkpoint: Path) -> dict[str, torch.Tensor
     return {key if key.startswith("model.") else f"model.{key}": value for key, value in fixed.items()}
 
 
-def _folder(path: str | Path, what: str, required_file: str | None = None) -> Path:
+def local_folder(path: str | Path, what: str, required_file: str | None = None) -> Path:
+    """``path`` as an existing local folder (holding ``required_file``), or FileNotFoundError naming it."""
     folder = Path(path).expanduser()
     if not folder.is_dir():
         raise FileNotFoundError(f"{what} folder {folder} does not exist (only local folders are read, never a hub)")
@@ -153,11 +192,3 @@ def _folder(path: str | Path, what: str, required_file: str | None = None) -> Pa
         raise FileNotFoundError(f"{what} folder {folder} has no {required_file}")
     return folder
 
-
-def _import_lerobot() -> tuple[Any, Any, Any]:
-    """lerobot's (PreTrainedConfig, PI05Policy, make_pre_post_processors)."""
-    from lerobot.configs import PreTrainedConfig
-    from lerobot.policies.factory import make_pre_post_processors
-    from lerobot.policies.pi05 import PI05Policy
-
-    return PreTrainedConfig, PI05Policy, make_pre_post_processors

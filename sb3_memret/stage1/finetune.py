@@ -91,8 +91,9 @@ def load_demonstrations(roots: Sequence[str | Path], image_size: int | None = No
                              "train on datasets recorded with the same render backend")
         image_keys = keys
         columns = dataset.hf_dataset.with_format("numpy")
-        local_tasks = list(dataset.meta.tasks.index)
-        task_map = np.array([_task_id(t, tasks) for t in local_tasks])
+        local = dataset.meta.tasks["task_index"]
+        task_map = np.zeros(int(local.max()) + 1, dtype=np.int64)
+        task_map[local.to_numpy()] = [_task_id(task, tasks) for task in local.index]
         episode_index = np.asarray(columns["episode_index"])
         part = {
             "states": np.asarray(columns[STATE_KEY], dtype=np.float32),
