@@ -218,14 +218,17 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
         if pretrained is None:
             raise click.BadParameter("--policy pi05 needs --pretrained PATH (a PI05 checkpoint folder)",
                                      param_hint="--pretrained")
+        if len(datasets) != 1:
+            raise click.BadParameter(f"--policy pi05 trains on one dataset, got {len(datasets)}", param_hint="DATASETS")
         from sb3_memret.stage1.finetune_pi05 import finetune_pi05
 
         steps = steps or 2000
         with tqdm(total=steps, desc="finetune pi05 (LoRA)", disable=not progress) as bar:
-            finetune_pi05(datasets, pretrained, out, steps=steps, batch_size=batch_size or 8,
+            finetune_pi05(datasets[0], pretrained, out, steps=steps, batch_size=batch_size or 8,
                           learning_rate=learning_rate or 1e-4, lora_rank=lora_rank, device=device,
                           tokenizer=tokenizer, seed=seed, on_step=lambda step, loss: bar.update(1))
-        click.echo(f"LoRA adapter written: --controller 'lerobot:{out}/checkpoint?adapter={out}/adapter'")
+        tok = f"&tokenizer={tokenizer}" if tokenizer is not None else ""
+        click.echo(f"LoRA adapter written: --controller 'lerobot:{out}/checkpoint?adapter={out}/adapter{tok}'")
         return
     if pretrained is not None or tokenizer is not None:
         raise click.BadParameter("--pretrained and --tokenizer apply to --policy pi05 only", param_hint="--policy")

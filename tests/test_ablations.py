@@ -300,3 +300,27 @@ def test_prompt_legend_lists_each_prompt_once_with_where_it_is_used():
     legend = result.to_markdown().split("Prompts:")[1].strip().splitlines()
     assert legend == [f"- layer {layer}: `pick out the cube. the cube is in drawer layer {layer}.`" for layer in (1, 2, 3)]
     assert "Median control steps to success: 5: 200 · 8: 200" in result.to_markdown()
+
+
+def test_wording_spec_rewords_only_the_oracle_fact_and_waives_the_contract():
+    spec = ablations.wording_ablation()
+    assert spec.rows[0] == "the cube is in drawer layer L." and len(spec.cells) == 3 * len(ablations.WORDINGS)
+    trained = [c for c in spec.cells if c.row == spec.rows[0]]
+    assert [parse_prompt(c.prompt).layer for c in trained] == [1, 2, 3]
+    for cell in spec.cells:
+        assert not cell.check_prompt and cell.prompt.startswith("pick out the cube. ")
+        if cell.row != spec.rows[0]:
+            with pytest.raises(ValueError, match="matches no trained template"):
+                parse_prompt(cell.prompt)
+    assert "the cube is in the second drawer." in {c.prompt.removeprefix("pick out the cube. ") for c in spec.cells}
+
+
+def test_wording_cells_reach_the_controller_unchecked(task_env):
+    from sb3_memret.controllers.scripted import ScriptedDrawerController
+    from sb3_memret.rollout import run_episode
+
+    prompt = "pick out the cube. the cube is in layer 3."
+    with pytest.raises(ValueError, match="matches no trained template"):
+        run_episode(task_env, ScriptedDrawerController(), prompt, seed=0, layer=1)
+    # unchecked, the expert cannot parse it and falls back to its bare-prompt behaviour: the top drawer
+    assert run_episode(task_env, ScriptedDrawerController(), prompt, seed=0, layer=1, check_prompt=False).success

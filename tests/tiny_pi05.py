@@ -37,8 +37,9 @@ def tiny_sizes():
 
     from lerobot.policies.pi05 import modeling_pi05
 
-    gemma = modeling_pi05.GemmaConfig(width=TINY_WIDTH, depth=2, mlp_dim=128, num_heads=2, num_kv_heads=1,
-                                      head_dim=32)
+    # 8 heads: lerobot's training forward (compute_layer_complete) hardcodes PaliGemma's 8 attention heads.
+    gemma = modeling_pi05.GemmaConfig(width=TINY_WIDTH, depth=2, mlp_dim=128, num_heads=8, num_kv_heads=1,
+                                      head_dim=TINY_WIDTH // 8)
     with pytest.MonkeyPatch.context() as mp:
         mp.setattr(modeling_pi05, "get_gemma_config", lambda variant: gemma)
         mp.setattr(modeling_pi05, "CONFIG_MAPPING",

@@ -40,16 +40,19 @@ def finetune_pi05(
     tokenizer: str | Path | None = None,
     seed: int = 0,
     on_step: Callable[[int, float], None] | None = None,
+    num_workers: int = 4,
 ) -> Path:
     """Train a rank-``lora_rank`` LoRA adapter for the PI05 checkpoint folder ``pretrained`` on the LeRobotDataset
     at ``dataset_root`` and write ``out``/checkpoint, ``out``/adapter and ``out``/train_log.csv; returns ``out``.
 
     ``tokenizer`` is a local tokenizer folder replacing the gated hub one the processors name; ``on_step``
-    is called with (step, loss) after every optimiser step.
+    is called with (step, loss) after every optimiser step. ``num_workers`` data-loader processes (lerobot-train's
+    default 4) read the samples: lerobot decodes every column of each action-chunk row, camera images included.
     """
-    if steps < 1 or batch_size < 1 or lora_rank < 1 or not learning_rate > 0:
-        raise ValueError(f"steps, batch_size and lora_rank must be >= 1 and learning_rate > 0; got steps={steps}, "
-                         f"batch_size={batch_size}, lora_rank={lora_rank}, learning_rate={learning_rate}")
+    if steps < 1 or batch_size < 1 or lora_rank < 1 or num_workers < 0 or not learning_rate > 0:
+        raise ValueError(f"steps, batch_size and lora_rank must be >= 1, num_workers >= 0 and learning_rate > 0; got "
+                         f"steps={steps}, batch_size={batch_size}, lora_rank={lora_rank}, num_workers={num_workers}, "
+                         f"learning_rate={learning_rate}")
     dataset_root = local_folder(dataset_root, "dataset", "meta/info.json")
     pretrained = local_folder(pretrained, "pretrained PI05", WEIGHTS_FILE)
     tokenizer = None if tokenizer is None else local_folder(tokenizer, "tokenizer")
@@ -59,6 +62,7 @@ def finetune_pi05(
 
     from lerobot.configs import FeatureType
     from lerobot.datasets.dataset_metadata import LeRobotDatasetMetadata
+    from lerobot.datasets.factory import resolve_delta_timestamps
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
     from lerobot.policies.factory import make_pre_post_processors
     from lerobot.utils.feature_utils import dataset_to_policy_features
@@ -81,9 +85,15 @@ def finetune_pi05(
     if meta.stats is None:
         raise ValueError(f"dataset {dataset_root} has no meta/stats.json; finalize() it after recording")
 
-    # Each sample: the frame's observation and the chunk of the next chunk_size actions (action_is_pad past the end).
-    dataset = LeRobotDataset(repo_id, root=dataset_root, video_backend="pyav",
-                             delta_timestamps={ACTION_KEY: [i / meta.fps for i in range(config.chunk_size)]})
+    # Each sample: the frame's observation and its chunk of chunk_size actions (action_is_pad past the episode's end).
+    delta_timestamps = resolve_delta_timestamps(config, meta)
+    if delta_timestamps != {ACTION_KEY: [i / meta.fps for i in range(config.chunk_size)]}:
+        raise RuntimeError(f"lerobot asks PI05 samples for {delta_timestamps}, not one chunk of {config.chunk_size} "
+                           "actions")
+    dataset = LeRobotDataset(repo_id, root=dataset_root, delta_timestamps=delta_timestamps,
+                             video_backend="pyav")  # decodes videos, if any, without torchcodec's FFmpeg libraries
+    if len(dataset) < batch_size:
+        raise ValueError(f"dataset {dataset_root} has {len(dataset)} frames, fewer than batch_size={batch_size}")
     normalisation = {"features": {**config.input_features, **config.output_features},
                      "norm_map": config.normalization_mapping, "stats": meta.stats}
     preprocessor_overrides: dict[str, dict[str, Any]] = {
@@ -108,7 +118,7 @@ def finetune_pi05(
 
     out.mkdir(parents=True, exist_ok=True)
     model.train()
-    batches = _batches(dataset, batch_size, seed)
+    batches = _batches(dataset, batch_size, seed, num_workers)
     with open(out / LOG_FILE, "w", newline="") as f:
         log = csv.writer(f)
         log.writerow(["step", "loss"])
@@ -136,14 +146,13 @@ def finetune_pi05(
     return out
 
 
-def _batches(dataset: Any, batch_size: int, seed: int) -> Iterator[dict[str, Any]]:
-    """Shuffled batches, epoch after epoch, collated as lerobot's trainer does."""
+def _batches(dataset: Any, batch_size: int, seed: int, num_workers: int) -> Iterator[dict[str, Any]]:
+    """Shuffled full batches, epoch after epoch, collated as lerobot's trainer does."""
     from lerobot.utils.collate import lerobot_collate_fn
 
-    if len(dataset) < batch_size:
-        raise ValueError(f"the dataset has {len(dataset)} frames, fewer than batch_size={batch_size}")
     loader = torch.utils.data.DataLoader(dataset, batch_size=batch_size, shuffle=True, drop_last=True,
-                                         collate_fn=lerobot_collate_fn,
+                                         collate_fn=lerobot_collate_fn, num_workers=num_workers,
+                                         persistent_workers=num_workers > 0,
                                          generator=torch.Generator().manual_seed(seed))
     while True:
         yield from loader
