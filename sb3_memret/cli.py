@@ -251,6 +251,23 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
 
 
 @main.command()
+@click.argument("controller", metavar="CONTROLLER")
+@click.option("--host", default="0.0.0.0", show_default=True)
+@click.option("--port", type=click.IntRange(1, 65535), default=8000, show_default=True)
+def serve(controller: str, host: str, port: int) -> None:
+    """Serve the frozen CONTROLLER (as --controller takes it) over openpi's websocket protocol, with
+    openpi's own server: `--controller openpi://HOST:PORT` then runs it from any command."""
+    from sb3_memret.stage1.serve import ControllerPolicy, serve as serve_policy
+
+    try:
+        policy = ControllerPolicy(controller)
+    except (ValueError, OSError, ImportError, RuntimeError) as err:
+        raise click.BadParameter(str(err), param_hint="CONTROLLER") from err
+    click.echo(f"serving {controller} on ws://{host}:{port} (openpi protocol; Ctrl-C stops)", err=True)
+    serve_policy(policy, host, port)
+
+
+@main.command()
 @click.argument("experiment", type=click.Choice(list(EXPERIMENTS)), metavar="EXPERIMENT")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help=f"rl-zoo-style YAML keyed by env id  [default: {DEFAULT_CONFIG.name} of the source tree]")

@@ -46,6 +46,7 @@ class FrozenController(ABC):
     """
 
     spec: ControllerSpec
+    stateful: bool = True  # keeps per-episode state between act calls (False: only the observation matters)
 
     @abstractmethod
     def reset(self, seeds: Sequence[int]) -> None:

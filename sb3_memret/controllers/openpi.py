@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import contextlib
 import time
+import uuid
 from dataclasses import dataclass
 from typing import Any, Callable, Sequence, TypeVar
 
@@ -38,6 +39,10 @@ PI05_LIBERO_ACTION_HORIZON = 10  # openpi's pi05_libero config: Pi0Config(pi05=T
 IMAGE_SHAPE = (224, 224, 3)
 STATE_DIM = 8
 CAMERAS = {"observation/image": "base_camera", "observation/wrist_image": "hand_camera"}
+# Sent beside the pi05_libero keys (a pi05_libero server ignores them): what a state-only controller
+# served by `sb3-memret serve` reads, and episode boundaries for controllers that keep per-episode state.
+EXTRA_STATE = {"observation/drawer_opening": "drawer_opening", "observation/cube_detection": "cube_detection"}
+CLIENT_KEY, ENV_KEY, EPISODE_KEY = "sb3_memret/client", "sb3_memret/env", "sb3_memret/episode"
 T = TypeVar("T")
 CLOSE_TIMEOUT = 0.5  # s; a dropped connection is not worth waiting longer for its closing handshake
 
@@ -126,7 +131,9 @@ class OpenPIController(FrozenController):
     """π0.5 (``pi05_libero`` inputs and outputs) served by openpi, queried once per env and decision.
 
     ``chunk_len`` defaults to the ``action_horizon`` the server's metadata publishes, else to
-    pi05_libero's 10; every reply must match it exactly.
+    pi05_libero's 10; every reply must match it exactly. A server started by ``sb3-memret serve``
+    also publishes whether its controller reads images, its action size and convention and its
+    prompt template, which this client then follows (prompts are still checked here).
     """
 
     def __init__(
@@ -140,25 +147,37 @@ class OpenPIController(FrozenController):
         if chunk_len is not None and chunk_len < 1:
             raise ValueError(f"chunk_len must be >= 1, got {chunk_len}")
         self.client = PolicyServerClient(host, port, limits)
-        served_horizon = int(self.client.metadata.get("action_horizon", PI05_LIBERO_ACTION_HORIZON))
+        served = self.client.metadata
+        served_horizon = int(served.get("action_horizon", PI05_LIBERO_ACTION_HORIZON))
+        if prompt_template is None and "prompt_template" in served:
+            template = served["prompt_template"]
+            prompt_template = PromptTemplate(tuple(template["instructions"]), tuple(template["fact_templates"]))
         self.spec = ControllerSpec(
-            action_convention="pd_ee_delta_pose",
+            action_convention=str(served.get("action_convention", "pd_ee_delta_pose")),
             chunk_len=chunk_len or served_horizon,
-            needs_images=True,
+            action_dim=int(served.get("action_dim", 7)),
+            needs_images=bool(served.get("needs_images", True)),
             prompt_template=prompt_template or PromptTemplate(),
         )
-        self._num_envs = 0
+        self._client_id = uuid.uuid4().hex
+        self._episodes: list[int] = []
+        self._resets = 0
 
     def reset(self, seeds: Sequence[int]) -> None:
-        self._num_envs = len(seeds)  # the server keeps no episode state
+        """Start new episodes: every env slot gets a fresh episode number the server can key state on."""
+        self._episodes = [self._resets * len(seeds) + i for i in range(len(seeds))]
+        self._resets += 1
 
     def close(self) -> None:
         self.client.close()
 
     def _act(self, obs: Obs, prompts: Sequence[str], parsed: Sequence[ParsedPrompt]) -> np.ndarray:
-        if self._num_envs != len(prompts):
-            raise RuntimeError(f"reset() was called for {self._num_envs} envs but act() got {len(prompts)} prompts")
-        return np.stack([self._chunk(self.client.infer(pi05_libero_request(obs, i, p))) for i, p in enumerate(prompts)])
+        if len(self._episodes) != len(prompts):
+            raise RuntimeError(f"reset() was called for {len(self._episodes)} envs but act() got {len(prompts)} prompts")
+        requests = [pi05_libero_request(obs, i, p, self.spec.needs_images)
+                    | {CLIENT_KEY: self._client_id, ENV_KEY: i, EPISODE_KEY: self._episodes[i]}
+                    for i, p in enumerate(prompts)]
+        return np.stack([self._chunk(self.client.infer(request)) for request in requests])
 
     def _chunk(self, reply: dict[str, Any]) -> np.ndarray:
         """The reply's action chunk, refused unless it is (chunk_len, 7) as the env's controller takes it."""
@@ -176,9 +195,13 @@ class OpenPIController(FrozenController):
         return actions
 
 
-def pi05_libero_request(obs: Obs, i: int, prompt: str) -> dict[str, Any]:
-    """Env ``i`` of a batched DrawerCubeTakeOut-v1 observation as one pi05_libero request."""
-    request: dict[str, Any] = {key: _camera_image(obs, camera, i) for key, camera in CAMERAS.items()}
+def pi05_libero_request(obs: Obs, i: int, prompt: str, with_images: bool = True) -> dict[str, Any]:
+    """Env ``i`` of a batched DrawerCubeTakeOut-v1 observation as one pi05_libero request, plus the drawer
+    openings and cube detection when the observation has them."""
+    request: dict[str, Any] = {key: _camera_image(obs, camera, i) for key, camera in CAMERAS.items()} if with_images else {}
+    extra = obs.get("extra", {})
+    request.update({key: as_numpy(extra[part])[i].astype(np.float32) for key, part in EXTRA_STATE.items()
+                    if part in extra})
     state = as_numpy(obs["agent"]["eef_state"])[i].astype(np.float32)
     if state.shape != (STATE_DIM,):
         raise ValueError(f"agent/eef_state of env {i} has shape {state.shape}; pi05_libero takes ({STATE_DIM},)")

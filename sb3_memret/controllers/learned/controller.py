@@ -30,6 +30,8 @@ class LearnedController(FrozenController):
     It keeps no state between calls, so ``reset`` only records how many envs a batch holds.
     """
 
+    stateful = False
+
     def __init__(self, checkpoint: str | Path | None = None, device: str = "cpu",
                  tokenizer: PromptTokenizer | None = None):
         self.checkpoint = Path(checkpoint) if checkpoint is not None else default_checkpoint()
