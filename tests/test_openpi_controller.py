@@ -109,8 +109,10 @@ def test_full_request_response_cycle(serve):
     assert chunks.shape == (2, 10, 7) and chunks.dtype == np.float32
     assert [r["prompt"] for r in server.requests] == prompts  # verbatim, one request per env
     for i, request in enumerate(server.requests):
-        assert set(request) == PI05_KEYS | {"sb3_memret/client", "sb3_memret/env", "sb3_memret/episode"}
-        assert request["sb3_memret/env"] == i and request["sb3_memret/episode"] == i  # first reset: episodes 0, 1
+        assert set(request) == PI05_KEYS | {"sb3_memret/client", "sb3_memret/env", "sb3_memret/episode",
+                                            "sb3_memret/seed"}
+        assert request["sb3_memret/env"] == request["sb3_memret/seed"] == i  # reset(range(2))
+        assert request["sb3_memret/episode"] == 0  # the first reset
         for key, camera in (("observation/image", "base_camera"), ("observation/wrist_image", "hand_camera")):
             assert request[key].dtype == np.uint8 and request[key].shape == (224, 224, 3)
             np.testing.assert_array_equal(request[key], obs["sensor_data"][camera]["rgb"][i])

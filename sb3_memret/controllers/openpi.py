@@ -6,6 +6,10 @@ its traceback when inference fails. It serves one observation per request, so ``
 request per env. Observations are mapped to the ``pi05_libero`` keys exactly as the task renders
 them (no flips, resizes or frame changes): ``observation/image`` is ``base_camera``,
 ``observation/wrist_image`` is ``hand_camera``, ``observation/state`` is the 8-D ``eef_state``.
+Beside them go the drawer openings, the cube detection and the episode keys (client id, env slot,
+episode number, seed): a pi05_libero server ignores them, ``sb3-memret serve`` reads them
+(``sb3_memret.stage1.serve``). Cameras are sent only when the server's metadata does not say its
+controller works without them.
 
 openpi's own client waits forever for a reply; this one bounds every wait (connect, metadata,
 each inference), retries a bounded number of times, then raises naming the server and the limit.
@@ -42,7 +46,8 @@ CAMERAS = {"observation/image": "base_camera", "observation/wrist_image": "hand_
 # Sent beside the pi05_libero keys (a pi05_libero server ignores them): what a state-only controller
 # served by `sb3-memret serve` reads, and episode boundaries for controllers that keep per-episode state.
 EXTRA_STATE = {"observation/drawer_opening": "drawer_opening", "observation/cube_detection": "cube_detection"}
-CLIENT_KEY, ENV_KEY, EPISODE_KEY = "sb3_memret/client", "sb3_memret/env", "sb3_memret/episode"
+CLIENT_KEY, ENV_KEY = "sb3_memret/client", "sb3_memret/env"
+EPISODE_KEY, SEED_KEY = "sb3_memret/episode", "sb3_memret/seed"
 T = TypeVar("T")
 CLOSE_TIMEOUT = 0.5  # s; a dropped connection is not worth waiting longer for its closing handshake
 
@@ -160,22 +165,23 @@ class OpenPIController(FrozenController):
             prompt_template=prompt_template or PromptTemplate(),
         )
         self._client_id = uuid.uuid4().hex
-        self._episodes: list[int] = []
-        self._resets = 0
+        self._seeds: list[int] = []
+        self._episode = -1  # bumped by every reset: each env slot then starts a new episode
 
     def reset(self, seeds: Sequence[int]) -> None:
-        """Start new episodes: every env slot gets a fresh episode number the server can key state on."""
-        self._episodes = [self._resets * len(seeds) + i for i in range(len(seeds))]
-        self._resets += 1
+        """Start new episodes: record each env slot's seed and a new episode number, which the server keys
+        its per-slot controller state on (a server started by ``sb3-memret serve`` resets it with the seed)."""
+        self._seeds = [int(seed) for seed in seeds]
+        self._episode += 1
 
     def close(self) -> None:
         self.client.close()
 
     def _act(self, obs: Obs, prompts: Sequence[str], parsed: Sequence[ParsedPrompt]) -> np.ndarray:
-        if len(self._episodes) != len(prompts):
-            raise RuntimeError(f"reset() was called for {len(self._episodes)} envs but act() got {len(prompts)} prompts")
+        if len(self._seeds) != len(prompts):
+            raise RuntimeError(f"reset() was called for {len(self._seeds)} envs but act() got {len(prompts)} prompts")
         requests = [pi05_libero_request(obs, i, p, self.spec.needs_images)
-                    | {CLIENT_KEY: self._client_id, ENV_KEY: i, EPISODE_KEY: self._episodes[i]}
+                    | {CLIENT_KEY: self._client_id, ENV_KEY: i, EPISODE_KEY: self._episode, SEED_KEY: self._seeds[i]}
                     for i, p in enumerate(prompts)]
         return np.stack([self._chunk(self.client.infer(request)) for request in requests])
 
