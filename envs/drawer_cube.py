@@ -41,6 +41,10 @@ class DrawerCubeState:
     eef_pos: np.ndarray  # (B, 3) tool centre point
     eef_quat: np.ndarray  # (B, 4) wxyz
 
+    def select(self, index: int) -> "DrawerCubeState":
+        """Env ``index`` alone, as a batch of one."""
+        return DrawerCubeState(**{name: value[index:index + 1] for name, value in vars(self).items()})
+
     @property
     def cube_in_layer(self) -> np.ndarray:
         """(B,) the layer whose interior box holds the cube's centre, 0 if none."""

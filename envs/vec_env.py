@@ -1,123 +1,254 @@
-"""Vectorised DrawerRecall-v0 for SB3: one process per env when there are several."""
+"""DrawerRecallVecEnv: N recall envs served by ONE frozen controller call per decision round.
+
+The memory banks, writers, encoder, retention critic and the frozen controller live here, in
+the trainer process; the task physics runs in a backend (``sb3_memret.envs.physics``): worker
+processes on the CPU, one batched ManiSkill env on the GPU, or Ray actors. One decision round::
+
+    slots (N, K) ──banks──▶ N prompts ──controller.act(obs[N], prompts[N])──▶ chunks (N, H, 7)
+      ──physics: replan_every steps in every env──▶ frames ──writers──▶ banks, rewards, infos
+
+Episodes that end are reset at once (SB3's auto-reset: ``info["terminal_observation"]``), each
+env drawing its next episode from its own generator, seeded by ``seed(s)`` as ``s + i``.
+"""
 
 from __future__ import annotations
 
-from multiprocessing.connection import Connection
-from multiprocessing.process import BaseProcess
-from typing import Any, Callable
+from typing import Any, Sequence
 
 import gymnasium as gym
-from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv, VecEnv, VecMonitor
+import numpy as np
+import torch
+from gymnasium import spaces
+from gymnasium.utils import seeding as gym_seeding
+from stable_baselines3.common.vec_env import VecEnv, VecMonitor
+from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvStepReturn
 
-from sb3_memret.workers import START_METHOD, WorkerDiedError, exit_description, init_worker_process
-
-CLOSE_TIMEOUT = 10.0  # seconds a worker gets to finish its step and exit
-
-
-def _env_factory(env_id: str, env_kwargs: dict[str, Any], in_worker: bool) -> Callable[[], gym.Env]:
-    def make() -> gym.Env:
-        import sb3_memret.envs  # noqa: F401  (registers the env ids in a fresh worker process)
-
-        if in_worker:
-            init_worker_process()
-        return gym.make(env_id, **env_kwargs)
-
-    return make
-
-
-class _WatchedPipe:
-    """The parent's end of a worker pipe that names the worker when it is gone."""
-
-    def __init__(self, conn: Connection, process: BaseProcess, index: int):
-        self.conn, self.process, self.index = conn, process, index
-
-    def died(self, doing: str) -> WorkerDiedError:
-        return WorkerDiedError(f"env worker {self.index} (pid {self.process.pid}) {exit_description(self.process)} "
-                               f"{doing}")
-
-    def send(self, message: Any) -> None:
-        try:
-            self.conn.send(message)
-        except (EOFError, OSError) as err:
-            raise self.died("before it could take a command") from err
-
-    def recv(self) -> Any:
-        try:
-            return self.conn.recv()
-        except (EOFError, OSError) as err:
-            raise self.died("before it answered") from err
-
-    def close(self) -> None:
-        self.conn.close()
+from sb3_memret.controllers import FrozenController, make_controller
+from sb3_memret.envs.physics import EnvFrame, PhysicsBackend, ResetRequest, make_physics, stack_obs
+from sb3_memret.envs.recall_memory import EpisodeMemory, check_mode, observation_space
+from sb3_memret.memory.bank import importance_scorer
+from sb3_memret.memory.encoder import MiniLMEncoder
+from sb3_memret.memory.schema import MemoryEntry
+from sb3_memret.memory.seeding import SeedingConfig
+from sb3_memret.policy.networks import RetentionScorer
+from sb3_memret.rewards import shaped_reward
+from sb3_memret.rollout import task_env_kwargs
 
 
-class WatchedSubprocVecEnv(SubprocVecEnv):
-    """``SubprocVecEnv`` whose dead workers are reported by env index, pid and exit signal
-    (``WorkerDiedError``) instead of a bare EOFError, and whose ``close`` shuts the live workers
-    down cleanly after an interrupt or a dead sibling."""
+class DrawerRecallVecEnv(VecEnv):
+    """Retrieval decisions over a bounded language memory for a frozen controller, ``num_envs`` at once.
 
-    def __init__(self, env_fns: list[Callable[[], gym.Env]], start_method: str = START_METHOD):
-        try:
-            super().__init__(env_fns, start_method=start_method)
-        except (EOFError, OSError) as err:  # worker 0 failed to build its env (its traceback is above)
-            self._watch()
-            error = self.remotes[0].died("while building its env")
-            self.close()
-            raise error from err
-        self._watch()
+    Modes: ``recall`` (the layer reaches the controller only through retrieved memories),
+    ``oracle`` (the layer is in the instruction; retrieval is ignored) and ``none`` (the bare
+    instruction). Action per env: ``MultiDiscrete([capacity] * k)``, ordered slots; an empty slot
+    adds no text (``info["empty_slots"]`` counts them).
 
-    def _watch(self) -> None:
-        self.remotes = [_WatchedPipe(r, p, i) for i, (r, p) in enumerate(zip(self.remotes, self.processes))]
+    Reward: (1 - gamma) * (gamma * Phi(s') - Phi(s)), s and s' the states before and after the
+    executed control steps, plus ``success_bonus`` on success. Shaping at the decision level,
+    with the gamma PPO discounts decisions by, telescopes exactly, so it cannot change which
+    retrieval policy is optimal (Ng et al., 1999).
 
-    def close(self) -> None:
-        """Tell every live worker to close, wait for it, then close the pipes.
-
-        Unlike SB3's ``close`` this never waits for a step's replies: after an interrupt inside
-        ``step_wait`` some are already read and some are not, and reading one that never comes
-        would hang. A worker answers a pending step, reads "close" and exits before its pipe is
-        closed here, so nothing it sent is cut off under it.
-        """
-        if self.closed:
-            return
-        for remote, process in zip(self.remotes, self.processes):
-            if process.is_alive():
-                try:
-                    remote.send(("close", None))
-                except WorkerDiedError:
-                    pass
-        for process in self.processes:
-            process.join(timeout=CLOSE_TIMEOUT)
-            if process.is_alive():  # workers ignore SIGTERM
-                process.kill()
-                process.join()
-        for remote in self.remotes:
-            remote.close()
-        self.closed = True
-
-
-def make_recall_vec_env(
-    n_envs: int = 1,
-    env_kwargs: dict[str, Any] | None = None,
-    seed: int | None = None,
-    env_id: str | None = None,
-    subprocess: bool | None = None,
-) -> VecEnv:
-    """``n_envs`` copies of DrawerRecall-v0 behind a ``VecMonitor`` (episode return/length logs).
-
-    Several envs run in ``WatchedSubprocVecEnv`` workers (each builds its own simulator and
-    controller), one env in-process; ``subprocess`` overrides that choice. Env ``i`` is seeded
-    with ``seed + i``.
+    ``backend`` picks where the physics runs (``sb3_memret.envs.physics.BACKENDS``; ``auto``:
+    in-process for one env, worker processes for several); ``ray_address`` a Ray cluster.
+    ``controller_calls`` counts ``controller.act`` calls: one per decision round.
     """
-    from sb3_memret.envs import RECALL_ENV_ID
 
+    def __init__(
+        self,
+        num_envs: int = 1,
+        mode: str = "recall",
+        controller: str | FrozenController = "scripted",
+        capacity: int = 6,
+        k: int = 1,
+        replan_every: int = 8,
+        gamma: float = 0.97,
+        success_bonus: float = 0.0,
+        max_control_steps: int = 400,
+        render_backend: str = "none",
+        seeding: SeedingConfig | None = None,
+        encoder: MiniLMEncoder | None = None,
+        task_kwargs: dict[str, Any] | None = None,
+        backend: str = "auto",
+        ray_address: str | None = None,
+    ):
+        check_mode(mode)
+        if not 1 <= k <= capacity:
+            raise ValueError(f"k must be in [1, capacity={capacity}], got {k}")
+        self.mode, self.capacity, self.k = mode, capacity, k
+        self.replan_every, self.gamma, self.success_bonus = replan_every, gamma, success_bonus
+        self.controller = make_controller(controller) if isinstance(controller, str) else controller
+        if not 1 <= replan_every <= self.controller.spec.chunk_len:
+            raise ValueError(f"replan_every must be in [1, {self.controller.spec.chunk_len}], got {replan_every}")
+        task_kwargs = {**task_env_kwargs(self.controller, render_backend), **(task_kwargs or {})}
+        self.encoder = encoder or MiniLMEncoder()
+        self.retention: RetentionScorer | None = None
+        super().__init__(num_envs, observation_space(capacity), spaces.MultiDiscrete([capacity] * k))
+        self.physics: PhysicsBackend = make_physics(backend, num_envs, task_kwargs, max_control_steps, ray_address)
+        try:
+            self.controller.check_env(self.physics.env_info)
+        except ValueError:
+            self.physics.close()
+            raise
+        template = self.controller.spec.prompt_template
+        self.memories = [EpisodeMemory(capacity, mode, self.encoder, self.keep_scores, template, seeding)
+                         for _ in range(num_envs)]
+        self.rngs: list[np.random.Generator | None] = [None] * num_envs
+        self.frames: list[EnvFrame | None] = [None] * num_envs
+        self.controller_calls = 0
+        self.closed = False
+        self._actions: np.ndarray | None = None
+        self._controller_batch = False  # whether controller.reset has set up the batch of num_envs
+
+    # ------------------------------------------------------------ retention
+    def set_retention_weights(self, state_dict: dict[str, torch.Tensor]) -> None:
+        """Use these retention-network weights for eviction (pushed by the trainer each rollout)."""
+        if self.retention is None:
+            self.retention = RetentionScorer()
+        self.retention.load_state_dict(state_dict)
+        self.retention.eval()
+
+    def keep_scores(self, entries: Sequence[MemoryEntry], t: int) -> np.ndarray:
+        """Keep-scores at decision time ``t``: the retention critic's, or the fixed type prior before any push."""
+        if self.retention is None:
+            return importance_scorer(entries)
+        with torch.no_grad():
+            mem = torch.as_tensor(np.stack([e.embedding for e in entries]))[None]
+            types = torch.tensor([[int(e.type) for e in entries]])
+            age = torch.tensor([[float(t - e.timestamp) for e in entries]])
+            usage = torch.tensor([[float(e.usage_count) for e in entries]])
+            return self.retention(mem, types, age, usage)[0].numpy()
+
+    # ------------------------------------------------------------ episodes
+    def reset_envs(self, env_ids: Sequence[int], seeds: Sequence[int | None] | None = None,
+                   options: Sequence[dict[str, Any]] | None = None) -> dict[int, dict[str, Any]]:
+        """Start new episodes in ``env_ids``: a ``seeds`` entry reseeds that env's generator (None
+        continues it); ``options`` go to the task's reset (e.g. ``{"cube_layer": 2}``). Returns the
+        reset infos by env id."""
+        seeds = list(seeds) if seeds is not None else [None] * len(env_ids)
+        options = list(options) if options is not None else [{}] * len(env_ids)
+        requests = []
+        for i, seed, opts in zip(env_ids, seeds, options):
+            if seed is not None or self.rngs[i] is None:
+                self.rngs[i], _ = gym_seeding.np_random(seed)
+            requests.append(ResetRequest(i, int(self.rngs[i].integers(2**31 - 1)), dict(opts or {})))
+        frames = self.physics.reset(requests)
+        task_seeds = [r.seed for r in requests]
+        if self._controller_batch:
+            self.controller.reset_envs(list(env_ids), task_seeds)
+        else:
+            if len(env_ids) != self.num_envs:
+                raise RuntimeError("the first reset must start every env")
+            by_env = dict(zip(env_ids, task_seeds))
+            self.controller.reset([by_env[i] for i in range(self.num_envs)])
+            self._controller_batch = True
+        infos = {}
+        for request in requests:
+            i, frame = request.env_id, frames[request.env_id]
+            self.frames[i] = frame
+            self.memories[i].start(frame.state, self.rngs[i])
+            infos[i] = self.memories[i].info(success=False)
+        return infos
+
+    def decide(self, actions: np.ndarray) -> tuple[list[dict], np.ndarray, np.ndarray, np.ndarray, list[dict]]:
+        """One decision round without auto-reset: observations, rewards, terminated, truncated, infos."""
+        actions = np.asarray(actions, dtype=np.int64).reshape(self.num_envs, -1)
+        if actions.shape[1] != self.k or (actions < 0).any() or (actions >= self.capacity).any():
+            raise ValueError(f"actions must be {self.k} slot indices in [0, {self.capacity}) per env, "
+                             f"got {actions.tolist()!r}")
+        if any(frame is None for frame in self.frames):
+            raise RuntimeError("reset the envs before stepping them")
+        true_slots, chosen, prompts = [], [], []
+        for memory, slots in zip(self.memories, actions):
+            true_slots.append(memory.true_slot())
+            chosen.append(memory.choose(slots))
+            prompts.append(memory.prompt(chosen[-1]))
+        chunks = self.controller.act(stack_obs([frame.obs for frame in self.frames]), prompts)
+        self.controller_calls += 1
+        frames = self.physics.execute({i: chunks[i, : self.replan_every] for i in range(self.num_envs)})
+        rewards = np.zeros(self.num_envs, dtype=np.float32)
+        terminated, truncated = np.zeros(self.num_envs, bool), np.zeros(self.num_envs, bool)
+        observations, infos = [], []
+        for i, memory in enumerate(self.memories):
+            before, frame = self.frames[i], frames[i]
+            self.frames[i] = frame
+            reward = (1.0 - self.gamma) * float(shaped_reward(np.array([before.potential]),
+                                                              np.array([frame.potential]), self.gamma)[0])
+            rewards[i] = reward + (self.success_bonus if frame.success else 0.0)
+            terminated[i], truncated[i] = frame.terminated, frame.truncated and not frame.terminated
+            memory.observe(frame.state, frame.steps)
+            info = memory.info(frame.success)
+            info.update(prompt=prompts[i], decision_true_slot=true_slots[i],
+                        retrieved_true=memory.retrieved_true(chosen[i]), empty_slots=int(self.k - len(chosen[i])))
+            observations.append(memory.observation())
+            infos.append(info)
+        return observations, rewards, terminated, truncated, infos
+
+    # ------------------------------------------------------------ VecEnv API
+    def reset(self) -> dict[str, np.ndarray]:
+        infos = self.reset_envs(range(self.num_envs), self._seeds, self._options)
+        self.reset_infos = [infos[i] for i in range(self.num_envs)]
+        self._reset_seeds()
+        self._reset_options()
+        return self._stack([memory.observation() for memory in self.memories])
+
+    def step_async(self, actions: np.ndarray) -> None:
+        self._actions = actions
+
+    def step_wait(self) -> VecEnvStepReturn:
+        if self._actions is None:
+            raise RuntimeError("step_wait() without step_async()")
+        observations, rewards, terminated, truncated, infos = self.decide(self._actions)
+        self._actions = None
+        dones = terminated | truncated
+        done_ids = [i for i in range(self.num_envs) if dones[i]]
+        for i in done_ids:
+            infos[i]["terminal_observation"] = observations[i]
+            infos[i]["TimeLimit.truncated"] = bool(truncated[i])
+        if done_ids:
+            reset_infos = self.reset_envs(done_ids)
+            for i in done_ids:
+                self.reset_infos[i] = reset_infos[i]
+                observations[i] = self.memories[i].observation()
+        return self._stack(observations), rewards, dones, infos
+
+    def close(self) -> None:
+        if not self.closed:
+            self.closed = True
+            self.physics.close()
+
+    def get_attr(self, attr_name: str, indices: VecEnvIndices = None) -> list[Any]:
+        """Attributes are shared by every env of the batch (``render_mode`` is None: nothing renders)."""
+        value = None if attr_name == "render_mode" else getattr(self, attr_name)
+        return [value for _ in self._get_indices(indices)]
+
+    def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
+        setattr(self, attr_name, value)
+
+    def env_method(self, method_name: str, *method_args, indices: VecEnvIndices = None, **method_kwargs) -> list[Any]:
+        """Methods act on the shared trainer-side state once (e.g. ``set_retention_weights``)."""
+        result = getattr(self, method_name)(*method_args, **method_kwargs)
+        return [result for _ in self._get_indices(indices)]
+
+    def env_is_wrapped(self, wrapper_class: type[gym.Wrapper], indices: VecEnvIndices = None) -> list[bool]:
+        return [False for _ in self._get_indices(indices)]
+
+    def _stack(self, observations: list[dict[str, np.ndarray]]) -> dict[str, np.ndarray]:
+        return {key: np.stack([obs[key] for obs in observations]) for key in observations[0]}
+
+
+def make_recall_vec_env(n_envs: int = 1, env_kwargs: dict[str, Any] | None = None, seed: int | None = None,
+                        backend: str = "auto", ray_address: str | None = None) -> VecMonitor:
+    """``DrawerRecallVecEnv`` with ``n_envs`` envs behind a ``VecMonitor`` (episode return/length logs).
+
+    Env ``i`` is seeded with ``seed + i``; ``backend`` and ``ray_address`` place the physics
+    (``sb3_memret.envs.physics.make_physics``).
+    """
     if n_envs < 1:
         raise ValueError(f"n_envs must be >= 1, got {n_envs}")
-    use_workers = n_envs > 1 if subprocess is None else subprocess
-    factories = [_env_factory(env_id or RECALL_ENV_ID, dict(env_kwargs or {}), use_workers) for _ in range(n_envs)]
-    venv = WatchedSubprocVecEnv(factories) if use_workers else DummyVecEnv(factories)
+    venv = DrawerRecallVecEnv(n_envs, backend=backend, ray_address=ray_address, **dict(env_kwargs or {}))
     if seed is not None:
         venv.seed(seed)
     return VecMonitor(venv)
 
 
-__all__ = ["WatchedSubprocVecEnv", "make_recall_vec_env"]
+__all__ = ["DrawerRecallVecEnv", "make_recall_vec_env"]

@@ -1,4 +1,4 @@
-"""Shared fixtures: one real DrawerCubeTakeOut-v1 per test module (building it takes ~1 s), one with
+"""Shared fixtures: the MiniLM encoder, one real DrawerCubeTakeOut-v1 per test module (building it takes ~1 s), one with
 both cameras rendered by the CPU renderer per session, and SB3's default log folder inside
 pytest's temporary directory rather than the system's."""
 
@@ -13,6 +13,14 @@ def sb3_log_folder(tmp_path_factory):
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("SB3_LOGDIR", str(tmp_path_factory.mktemp("sb3_logs")))
         yield
+
+
+@pytest.fixture(scope="session")
+def encoder():
+    """MiniLM, loaded once (it caches encodings by text)."""
+    from sb3_memret.memory.encoder import MiniLMEncoder
+
+    return MiniLMEncoder()
 
 
 @pytest.fixture(scope="module")

@@ -4,11 +4,6 @@ import pytest
 from sb3_memret.memory.encoder import EMBEDDING_DIM, MiniLMEncoder
 
 
-@pytest.fixture(scope="module")
-def encoder():
-    return MiniLMEncoder()
-
-
 def test_unit_norm_384(encoder):
     v = encoder.encode(["the cube is in drawer layer 2.", "pick out the cube."])
     assert v.shape == (2, EMBEDDING_DIM) and v.dtype == np.float32

@@ -6,13 +6,7 @@ import pytest
 from stable_baselines3.common.env_checker import check_env
 
 from sb3_memret.envs import RECALL_ENV_ID
-from sb3_memret.memory.encoder import MiniLMEncoder
 from sb3_memret.policy.networks import RetentionScorer
-
-
-@pytest.fixture(scope="module")
-def encoder():
-    return MiniLMEncoder()
 
 
 @pytest.fixture(scope="module")
@@ -68,7 +62,7 @@ def test_retention_weights_drive_eviction(encoder):
 
 def test_bad_arguments_are_refused(recall_env):
     recall_env.reset(seed=0)
-    with pytest.raises(ValueError, match=r"action must be 1 slot indices in \[0, 6\)"):
+    with pytest.raises(ValueError, match=r"actions must be 1 slot indices in \[0, 6\)"):
         recall_env.step(np.array([6]))
     with pytest.raises(ValueError, match="unknown mode 'guess'"):
         gym.make(RECALL_ENV_ID, mode="guess")

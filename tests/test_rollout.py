@@ -17,6 +17,9 @@ class CameraController(FrozenController):
     def reset(self, seeds):
         pass
 
+    def reset_envs(self, env_ids, seeds):
+        pass
+
     def _act(self, obs, prompts, parsed):
         return np.zeros((len(prompts), 10, 7))
 

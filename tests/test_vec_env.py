@@ -1,73 +1,145 @@
-"""make_recall_vec_env: worker processes for several envs, the retention push reaching each."""
+"""DrawerRecallVecEnv: one controller call per decision round for N envs, per-env seeds and
+auto-reset, the retention push, and physics workers that are named when they die."""
 
 import os
 import signal
 
 import numpy as np
 import pytest
-from stable_baselines3.common.vec_env import DummyVecEnv, SubprocVecEnv
 
-from sb3_memret.envs.vec_env import make_recall_vec_env
+from sb3_memret.controllers.scripted import ScriptedDrawerController
+from sb3_memret.envs.physics import InProcessPhysics, ProcessPhysics, make_physics
+from sb3_memret.envs.vec_env import DrawerRecallVecEnv, make_recall_vec_env
 from sb3_memret.policy.networks import RetentionScorer
 from sb3_memret.workers import WorkerDiedError
 
 SHORT = {"max_control_steps": 16}
 
 
-def test_two_envs_run_in_workers_and_receive_retention_weights():
-    venv = make_recall_vec_env(2, SHORT, seed=7)
+class CountingController(ScriptedDrawerController):
+    """The scripted expert, counting its act calls and the batch size of each."""
+
+    def __init__(self):
+        super().__init__()
+        self.batches: list[int] = []
+        self.resets: list[list[int]] = []
+
+    def reset_envs(self, env_ids, seeds):
+        self.resets.append(list(env_ids))
+        super().reset_envs(env_ids, seeds)
+
+    def _act(self, obs, prompts, parsed):
+        self.batches.append(len(prompts))
+        return super()._act(obs, prompts, parsed)
+
+
+@pytest.mark.parametrize("n_envs", [1, 3])
+def test_one_controller_call_per_decision_round_whatever_n(n_envs, encoder):
+    controller = CountingController()
+    venv = make_recall_vec_env(n_envs, {"controller": controller, "encoder": encoder, "max_control_steps": 24}, seed=0)
     try:
-        assert isinstance(venv.venv, SubprocVecEnv)
+        venv.reset()
+        for _ in range(5):  # 24 steps = 3 decisions: every env ends and restarts in between
+            venv.step(np.zeros((n_envs, 1), dtype=np.int64))
+        assert controller.batches == [n_envs] * 5
+        assert venv.unwrapped.controller_calls == 5
+        assert controller.resets == [list(range(n_envs))]  # the episodes that ended were restarted together
+    finally:
+        venv.close()
+
+
+def test_envs_in_workers_are_seeded_apart_and_receive_retention_weights(encoder):
+    venv = make_recall_vec_env(2, {**SHORT, "encoder": encoder}, seed=7)
+    try:
+        assert isinstance(venv.unwrapped.physics, ProcessPhysics)
         obs = venv.reset()
         assert obs["memories"].shape == (2, 6, 384) and obs["mask"].shape == (2, 6)
         assert not np.array_equal(obs["memories"][0], obs["memories"][1])  # seeds 7 and 8 differ
         weights = RetentionScorer().state_dict()
         venv.env_method("set_retention_weights", weights)
-        assert all(r is not None for r in venv.get_attr("retention"))
+        assert venv.unwrapped.retention is not None
         for _ in range(2):
             obs, rewards, dones, infos = venv.step(np.zeros((2, 1), dtype=np.int64))
         assert dones.all() and all("episode" in info for info in infos)  # VecMonitor saw both episodes end
+        assert all(set(info["terminal_observation"]) == set(obs) for info in infos)
     finally:
         venv.close()
 
 
-def test_one_env_stays_in_process_and_bad_counts_are_refused():
-    venv = make_recall_vec_env(1, SHORT)
+def test_env_i_of_a_batch_plays_as_the_same_env_alone(encoder):
+    """Batching changes nothing an env sees: env 1 of a seed-7 batch of two plays exactly as one env seeded 8."""
+    kwargs = {"encoder": encoder, "max_control_steps": 40}
+    pair, alone = make_recall_vec_env(2, kwargs, seed=7), make_recall_vec_env(1, kwargs, seed=8)
     try:
-        assert isinstance(venv.venv, DummyVecEnv)
+        obs_pair, obs_alone = pair.reset(), alone.reset()
+        np.testing.assert_array_equal(obs_pair["memories"][1], obs_alone["memories"][0])
+        for step in range(6):  # past the end of the first episodes (5 decisions)
+            slots = np.array([[step % 6], [(step + 2) % 6]])
+            obs_pair, r_pair, d_pair, i_pair = pair.step(slots)
+            obs_alone, r_alone, d_alone, i_alone = alone.step(slots[1:])
+            assert r_pair[1] == pytest.approx(r_alone[0], abs=1e-7) and d_pair[1] == d_alone[0]
+            assert i_pair[1]["prompt"] == i_alone[0]["prompt"]
+            assert i_pair[1]["memory_texts"] == i_alone[0]["memory_texts"]
+            np.testing.assert_array_equal(obs_pair["memories"][1], obs_alone["memories"][0])
+    finally:
+        pair.close()
+        alone.close()
+
+
+def test_one_env_stays_in_process_and_bad_arguments_are_refused(encoder):
+    venv = make_recall_vec_env(1, {**SHORT, "encoder": encoder})
+    try:
+        assert isinstance(venv.unwrapped.physics, InProcessPhysics)
+        venv.reset()
+        with pytest.raises(ValueError, match=r"actions must be 1 slot indices in \[0, 6\) per env, got \[\[6\]\]"):
+            venv.step(np.array([[6]]))
     finally:
         venv.close()
     with pytest.raises(ValueError, match="n_envs must be >= 1, got 0"):
         make_recall_vec_env(0)
+    with pytest.raises(ValueError, match=r"unknown physics backend 'threads'; expected one of \['auto', 'inprocess'"):
+        make_physics("threads", 2, {}, 16)
+    with pytest.raises(ValueError, match="a Ray address .* needs the ray backend, not 'process'"):
+        make_physics("process", 2, {}, 16, ray_address="ray://head:10001")
 
 
-def test_a_killed_worker_is_named_and_the_rest_shut_down():
+def test_stepping_before_reset_is_refused(encoder):
+    venv = DrawerRecallVecEnv(1, encoder=encoder, **SHORT)
+    try:
+        with pytest.raises(RuntimeError, match="reset the envs before stepping them"):
+            venv.step(np.zeros((1, 1), dtype=np.int64))
+    finally:
+        venv.close()
+
+
+def test_a_killed_physics_worker_is_named_and_the_rest_shut_down(encoder):
     """SIGKILL one worker (what the out-of-memory killer does): the next step names it, its pid and
     the signal, and close() still ends the live worker."""
-    venv = make_recall_vec_env(2, env_id="CartPole-v1")  # a light env: the workers are what is tested
-    workers = venv.venv.processes
+    venv = make_recall_vec_env(2, {**SHORT, "encoder": encoder})
+    workers = venv.unwrapped.physics.processes
     try:
         venv.reset()
         os.kill(workers[1].pid, signal.SIGKILL)
         workers[1].join(timeout=10)
-        with pytest.raises(WorkerDiedError, match=rf"^env worker 1 \(pid {workers[1].pid}\) killed by SIGKILL"):
-            venv.step(np.zeros(2, dtype=np.int64))
+        with pytest.raises(WorkerDiedError, match=rf"^physics worker 1 \(pid {workers[1].pid}\) killed by SIGKILL"):
+            venv.step(np.zeros((2, 1), dtype=np.int64))
     finally:
         venv.close()
     assert not any(p.is_alive() for p in workers)
 
 
-def test_workers_leave_stop_signals_to_the_trainer():
+def test_physics_workers_leave_stop_signals_to_the_trainer(encoder):
     """Ctrl-C and a scheduler's SIGTERM reach every process of the group; workers ignore both, so the
     trainer can checkpoint and then close them."""
-    venv = make_recall_vec_env(2, env_id="CartPole-v1")
+    venv = make_recall_vec_env(2, {**SHORT, "encoder": encoder})
+    workers = venv.unwrapped.physics.processes
     try:
         venv.reset()
-        for worker in venv.venv.processes:
+        for worker in workers:
             os.kill(worker.pid, signal.SIGTERM)
             os.kill(worker.pid, signal.SIGINT)
-        obs, *_ = venv.step(np.zeros(2, dtype=np.int64))
-        assert obs.shape == (2, 4) and all(p.is_alive() for p in venv.venv.processes)
+        obs, *_ = venv.step(np.zeros((2, 1), dtype=np.int64))
+        assert obs["mask"].shape == (2, 6) and all(p.is_alive() for p in workers)
     finally:
         venv.close()
-    assert not any(p.is_alive() for p in venv.venv.processes)
+    assert not any(p.is_alive() for p in workers)

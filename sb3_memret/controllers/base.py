@@ -50,7 +50,19 @@ class FrozenController(ABC):
 
     @abstractmethod
     def reset(self, seeds: Sequence[int]) -> None:
-        """Start a new episode in each of ``len(seeds)`` envs."""
+        """Start a new episode in each of ``len(seeds)`` envs: the batch ``act`` serves from now on."""
+
+    @abstractmethod
+    def reset_envs(self, env_ids: Sequence[int], seeds: Sequence[int]) -> None:
+        """Start new episodes in envs ``env_ids`` of the current batch only (one env's episode ends while
+        the others' go on); ``seeds[j]`` is env ``env_ids[j]``'s."""
+
+    def _check_env_ids(self, env_ids: Sequence[int], seeds: Sequence[int], batch: int) -> None:
+        if len(env_ids) != len(seeds):
+            raise ValueError(f"reset_envs got {len(env_ids)} env ids but {len(seeds)} seeds")
+        bad = [i for i in env_ids if not 0 <= i < batch]
+        if bad:
+            raise ValueError(f"env ids {bad} are outside the batch of {batch} that reset() set up")
 
     @abstractmethod
     def _act(self, obs: Obs, prompts: Sequence[str], parsed: Sequence[ParsedPrompt]) -> np.ndarray:

@@ -116,6 +116,11 @@ class LeRobotPi05Controller(FrozenController):
         self._generators = [torch.Generator().manual_seed(int(seed)) for seed in seeds]
         self.policy.reset()
 
+    def reset_envs(self, env_ids: Sequence[int], seeds: Sequence[int]) -> None:
+        self._check_env_ids(env_ids, seeds, len(self._generators))
+        for i, seed in zip(env_ids, seeds):
+            self._generators[i] = torch.Generator().manual_seed(int(seed))
+
     @torch.no_grad()
     def _act(self, obs: Obs, prompts: Sequence[str], parsed: Sequence[ParsedPrompt]) -> np.ndarray:
         if len(self._generators) != len(prompts):

@@ -166,13 +166,24 @@ class OpenPIController(FrozenController):
         )
         self._client_id = uuid.uuid4().hex
         self._seeds: list[int] = []
-        self._episode = -1  # bumped by every reset: each env slot then starts a new episode
+        self._episodes: list[int] = []  # per env slot: a number no earlier episode of this client had
+        self._next_episode = 0
 
     def reset(self, seeds: Sequence[int]) -> None:
         """Start new episodes: record each env slot's seed and a new episode number, which the server keys
         its per-slot controller state on (a server started by ``sb3-memret serve`` resets it with the seed)."""
         self._seeds = [int(seed) for seed in seeds]
-        self._episode += 1
+        self._episodes = [self._new_episode() for _ in seeds]
+
+    def reset_envs(self, env_ids: Sequence[int], seeds: Sequence[int]) -> None:
+        """Start new episodes in some slots only: they get new episode numbers, the others keep theirs."""
+        self._check_env_ids(env_ids, seeds, len(self._seeds))
+        for i, seed in zip(env_ids, seeds):
+            self._seeds[i], self._episodes[i] = int(seed), self._new_episode()
+
+    def _new_episode(self) -> int:
+        self._next_episode += 1
+        return self._next_episode - 1
 
     def close(self) -> None:
         self.client.close()
@@ -181,7 +192,7 @@ class OpenPIController(FrozenController):
         if len(self._seeds) != len(prompts):
             raise RuntimeError(f"reset() was called for {len(self._seeds)} envs but act() got {len(prompts)} prompts")
         requests = [pi05_libero_request(obs, i, p, self.spec.needs_images)
-                    | {CLIENT_KEY: self._client_id, ENV_KEY: i, EPISODE_KEY: self._episode, SEED_KEY: self._seeds[i]}
+                    | {CLIENT_KEY: self._client_id, ENV_KEY: i, EPISODE_KEY: self._episodes[i], SEED_KEY: self._seeds[i]}
                     for i, p in enumerate(prompts)]
         return np.stack([self._chunk(self.client.infer(request)) for request in requests])
 

@@ -134,6 +134,11 @@ class ScriptedDrawerController(FrozenController):
     def reset(self, seeds: Sequence[int]) -> None:
         self._plans = [_Plan() for _ in seeds]
 
+    def reset_envs(self, env_ids: Sequence[int], seeds: Sequence[int]) -> None:
+        self._check_env_ids(env_ids, seeds, len(self._plans))
+        for i in env_ids:
+            self._plans[i] = _Plan()
+
     def phases(self) -> list[Phase]:
         """The current phase of every env (for introspection and tests)."""
         return [p.phase for p in self._plans]

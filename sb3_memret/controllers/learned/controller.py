@@ -51,6 +51,9 @@ class LearnedController(FrozenController):
     def reset(self, seeds: Sequence[int]) -> None:
         self._num_envs = len(seeds)
 
+    def reset_envs(self, env_ids: Sequence[int], seeds: Sequence[int]) -> None:
+        self._check_env_ids(env_ids, seeds, self._num_envs)
+
     @torch.no_grad()
     def _act(self, obs: Obs, prompts: Sequence[str], parsed: Sequence[ParsedPrompt]) -> np.ndarray:
         if self._num_envs != len(prompts):

@@ -1,0 +1,365 @@
+"""Where the decision envs' physics runs, apart from the memory and the controller.
+
+The trainer keeps the memory banks, the writers, the encoder and ONE frozen controller; the
+task envs (DrawerCubeTakeOut-v1) live in a physics backend that resets them and executes
+action chunks, and answers with an ``EnvFrame`` per env: what the controller will observe,
+the privileged state the writer reads, the potential and how the chunk ended.
+
+Backends: ``InProcessPhysics`` (task envs in this process: one env, tests), ``ProcessPhysics``
+(one spawned worker process per env on the CPU), ``BatchedSimPhysics`` (one ManiSkill env with
+``num_envs=N``, for ``sim_backend="gpu"``) and ``RayPhysics`` (Ray actors, in
+``sb3_memret.envs.ray_physics``). ``make_physics`` builds one by name.
+"""
+
+from __future__ import annotations
+
+import multiprocessing
+from abc import ABC, abstractmethod
+from contextlib import nullcontext
+from dataclasses import dataclass, field
+from multiprocessing.connection import Connection, wait
+from multiprocessing.process import BaseProcess
+from typing import Any, Mapping, Sequence
+
+import numpy as np
+
+from sb3_memret.envs.drawer_cube import DrawerCubeState
+from sb3_memret.workers import START_METHOD, WorkerDiedError, exit_description, init_worker_process
+
+BACKENDS = ("auto", "inprocess", "process", "gpu", "ray")
+CLOSE_TIMEOUT = 10.0  # seconds a worker gets to finish its chunk and exit
+
+
+@dataclass
+class EnvFrame:
+    """One task env after a reset or an executed chunk.
+
+    ``obs`` is the controller's observation with a batch dimension of one (numpy arrays in
+    the env's nested layout); ``state`` the privileged state of that env (batch of one).
+    """
+
+    obs: dict[str, Any]
+    state: DrawerCubeState
+    potential: float
+    success: bool
+    steps: int = 0  # control steps the chunk executed (0 after a reset)
+    terminated: bool = False
+    truncated: bool = False
+
+
+@dataclass(frozen=True)
+class TaskEnvInfo:
+    """What a controller checks a task env against (``FrozenController.check_env``)."""
+
+    control_mode: str
+    obs_mode: str
+
+
+@dataclass(frozen=True)
+class ResetRequest:
+    """Start env ``env_id``'s next episode from ``seed`` with these reset options (e.g. ``cube_layer``)."""
+
+    env_id: int
+    seed: int
+    options: Mapping[str, Any] = field(default_factory=dict)
+
+
+def to_numpy(tree: Any) -> Any:
+    """A nested observation with every tensor as a numpy array (cheap to pickle, device-free)."""
+    if isinstance(tree, Mapping):
+        return {key: to_numpy(value) for key, value in tree.items()}
+    return tree.detach().cpu().numpy() if hasattr(tree, "detach") else np.asarray(tree)
+
+
+def stack_obs(frames: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
+    """Batch-of-one observations concatenated into one batched observation, in the given order."""
+    first = frames[0]
+    if isinstance(first, Mapping):
+        return {key: stack_obs([frame[key] for frame in frames]) for key in first}
+    return np.concatenate(frames, axis=0)
+
+
+def select_obs(tree: Any, index: int) -> Any:
+    """Env ``index`` of a batched observation, keeping a batch dimension of one."""
+    if isinstance(tree, Mapping):
+        return {key: select_obs(value, index) for key, value in tree.items()}
+    return tree[index:index + 1]
+
+
+class TaskRunner:
+    """One DrawerCubeTakeOut-v1 env that resets and plays chunks: what every CPU physics worker runs."""
+
+    def __init__(self, task_kwargs: Mapping[str, Any], max_control_steps: int):
+        from sb3_memret.rollout import make_task_env
+
+        self.env = make_task_env(max_episode_steps=max_control_steps, **task_kwargs)
+
+    def info(self) -> TaskEnvInfo:
+        base = self.env.unwrapped
+        return TaskEnvInfo(str(base.control_mode), str(base.obs_mode))
+
+    def reset(self, seed: int, options: Mapping[str, Any]) -> EnvFrame:
+        obs, info = self.env.reset(seed=int(seed), options=dict(options))
+        return self._frame(obs, info)
+
+    def execute(self, actions: np.ndarray) -> EnvFrame:
+        from sb3_memret.rollout import execute_chunk
+
+        outcome = execute_chunk(self.env, actions)
+        return self._frame(outcome.obs, outcome.info, outcome.steps, outcome.terminated, outcome.truncated)
+
+    def replay(self, seed: int, options: Mapping[str, Any], chunks: Sequence[np.ndarray]) -> EnvFrame:
+        """Play an episode again from its seed and its executed chunks (a restarted worker catching up)."""
+        frame = self.reset(seed, options)
+        for chunk in chunks:
+            frame = self.execute(chunk)
+        return frame
+
+    def _frame(self, obs: Any, info: dict, steps: int = 0, terminated: bool = False,
+               truncated: bool = False) -> EnvFrame:
+        return EnvFrame(to_numpy(obs), self.env.unwrapped.privileged_state(), float(info["potential"][0]),
+                        bool(info["success"][0]), steps, terminated, truncated)
+
+    def close(self) -> None:
+        self.env.close()
+
+
+class PhysicsBackend(ABC):
+    """``num_envs`` task envs somewhere: reset some, execute a chunk in some, answer with frames."""
+
+    num_envs: int
+    env_info: TaskEnvInfo
+
+    @abstractmethod
+    def reset(self, requests: Sequence[ResetRequest]) -> dict[int, EnvFrame]:
+        """Reset the requested envs; frames keyed by env id."""
+
+    @abstractmethod
+    def execute(self, chunks: Mapping[int, np.ndarray]) -> dict[int, EnvFrame]:
+        """Execute ``chunks[i]`` (steps, action_dim) in env i, all envs at once; frames keyed by env id."""
+
+    @abstractmethod
+    def close(self) -> None:
+        """Release the envs (and any workers)."""
+
+
+class InProcessPhysics(PhysicsBackend):
+    """Task envs in this process, one after another: no start-up cost, no parallelism."""
+
+    def __init__(self, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int):
+        self.num_envs = num_envs
+        self.runners = [TaskRunner(task_kwargs, max_control_steps) for _ in range(num_envs)]
+        self.env_info = self.runners[0].info()
+
+    def reset(self, requests: Sequence[ResetRequest]) -> dict[int, EnvFrame]:
+        return {r.env_id: self.runners[r.env_id].reset(r.seed, r.options) for r in requests}
+
+    def execute(self, chunks: Mapping[int, np.ndarray]) -> dict[int, EnvFrame]:
+        return {i: self.runners[i].execute(chunk) for i, chunk in chunks.items()}
+
+    def close(self) -> None:
+        for runner in self.runners:
+            runner.close()
+
+
+def _process_worker(conn: Connection, task_kwargs: dict[str, Any], max_control_steps: int) -> None:
+    """A physics worker's loop: build the task env, then answer ("reset"|"execute"|"close", args)."""
+    init_worker_process()
+    runner = TaskRunner(task_kwargs, max_control_steps)
+    conn.send(runner.info())
+    try:
+        while True:
+            command, args = conn.recv()
+            if command == "close":
+                break
+            conn.send(getattr(runner, command)(*args))
+    except EOFError:  # the trainer is gone
+        pass
+    finally:
+        runner.close()
+        conn.close()
+
+
+class ProcessPhysics(PhysicsBackend):
+    """One spawned worker process per task env (the CPU simulator runs one env per process).
+
+    Workers ignore Ctrl-C and SIGTERM (``sb3_memret.workers``): the trainer handles them and
+    closes its workers. A worker that dies is named with its pid and how it ended
+    (``WorkerDiedError``).
+    """
+
+    def __init__(self, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int):
+        self.num_envs = num_envs
+        context = multiprocessing.get_context(START_METHOD)
+        self.conns: list[Connection] = []
+        self.processes: list[BaseProcess] = []
+        self.closed = False
+        for _ in range(num_envs):
+            ours, theirs = context.Pipe()
+            process = context.Process(target=_process_worker, args=(theirs, dict(task_kwargs), max_control_steps),
+                                      daemon=True)
+            process.start()
+            theirs.close()
+            self.conns.append(ours)
+            self.processes.append(process)
+        try:
+            infos = [self._recv(i, "while building its env") for i in range(num_envs)]
+        except BaseException:
+            self.close()
+            raise
+        self.env_info = infos[0]
+
+    def _died(self, i: int, doing: str) -> WorkerDiedError:
+        return WorkerDiedError(f"physics worker {i} (pid {self.processes[i].pid}) "
+                               f"{exit_description(self.processes[i])} {doing}")
+
+    def _send(self, i: int, message: Any) -> None:
+        try:
+            self.conns[i].send(message)
+        except (EOFError, OSError) as err:
+            raise self._died(i, "before it could take a command") from err
+
+    def _recv(self, i: int, doing: str = "before it answered") -> Any:
+        try:
+            return self.conns[i].recv()
+        except (EOFError, OSError) as err:
+            raise self._died(i, doing) from err
+
+    def _call(self, calls: Mapping[int, tuple[str, tuple]]) -> dict[int, EnvFrame]:
+        """Send every env its command, then gather the answers as they arrive."""
+        for i, message in calls.items():
+            self._send(i, message)
+        waiting = {self.conns[i]: i for i in calls}
+        frames: dict[int, EnvFrame] = {}
+        while waiting:
+            for conn in wait(list(waiting)):
+                i = waiting.pop(conn)
+                frames[i] = self._recv(i)
+        return {i: frames[i] for i in calls}
+
+    def reset(self, requests: Sequence[ResetRequest]) -> dict[int, EnvFrame]:
+        return self._call({r.env_id: ("reset", (r.seed, dict(r.options))) for r in requests})
+
+    def execute(self, chunks: Mapping[int, np.ndarray]) -> dict[int, EnvFrame]:
+        return self._call({i: ("execute", (np.asarray(chunk),)) for i, chunk in chunks.items()})
+
+    def close(self) -> None:
+        """Tell every live worker to close and wait for it; never waits on a reply (after an interrupt some
+        are read and some are not). A worker that outstays ``CLOSE_TIMEOUT`` is killed."""
+        if self.closed:
+            return
+        self.closed = True
+        for conn, process in zip(self.conns, self.processes):
+            if process.is_alive():
+                try:
+                    conn.send(("close", None))
+                except (EOFError, OSError):
+                    pass
+        for process in self.processes:
+            process.join(timeout=CLOSE_TIMEOUT)
+            if process.is_alive():  # workers ignore SIGTERM
+                process.kill()
+                process.join()
+        for conn in self.conns:
+            conn.close()
+
+
+class BatchedSimPhysics(PhysicsBackend):
+    """One ManiSkill env with ``num_envs=N`` (GPU simulation: ``sim_backend="gpu"``): every env steps together.
+
+    An env whose chunk is shorter, or whose episode ends inside the chunk, is held still by
+    zero actions for the remaining steps; its frame is taken when its own chunk (or episode)
+    ended and it is reset before it acts again. Resets are partial (``options["env_idx"]``),
+    grouped by identical options.
+    """
+
+    def __init__(self, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int,
+                 sim_backend: str = "gpu"):
+        from sb3_memret.rollout import make_task_env
+
+        self.num_envs = num_envs
+        self.env = make_task_env(max_episode_steps=max_control_steps, num_envs=num_envs, sim_backend=sim_backend,
+                                 **task_kwargs)
+        base = self.env.unwrapped
+        self.env_info = TaskEnvInfo(str(base.control_mode), str(base.obs_mode))
+        self.action_dim = int(self.env.action_space.shape[-1])
+        self._obs: Any = None
+
+    def reset(self, requests: Sequence[ResetRequest]) -> dict[int, EnvFrame]:
+        import torch
+
+        groups: dict[tuple, list[ResetRequest]] = {}
+        for request in requests:
+            groups.setdefault(tuple(sorted(request.options.items())), []).append(request)
+        frames: dict[int, EnvFrame] = {}
+        for options, group in groups.items():
+            ids = [r.env_id for r in group]
+            idx = torch.as_tensor(ids, dtype=torch.long)
+            # ManiSkill seeds a partial reset with its first seed; the per-env seeds drive the episode RNG
+            obs, info = self.env.reset(seed=[r.seed for r in group],
+                                       options={**dict(options), "env_idx": idx})
+            state = self.env.unwrapped.privileged_state()
+            obs = to_numpy(obs)
+            for i in ids:
+                frames[i] = EnvFrame(select_obs(obs, i), state.select(i), float(info["potential"][i]),
+                                     bool(info["success"][i]))
+        return frames
+
+    def execute(self, chunks: Mapping[int, np.ndarray]) -> dict[int, EnvFrame]:
+        import torch
+
+        horizon = max(len(chunk) for chunk in chunks.values())
+        actions = np.zeros((horizon, self.num_envs, self.action_dim), dtype=np.float32)
+        running = np.zeros(self.num_envs, dtype=bool)
+        for i, chunk in chunks.items():
+            actions[: len(chunk), i] = chunk
+            running[i] = True
+        ends = {i: len(chunk) for i, chunk in chunks.items()}
+        frames: dict[int, EnvFrame] = {}
+        base = self.env.unwrapped
+        for step in range(horizon):
+            observed = step == horizon - 1 or any(ends[i] == step + 1 for i in chunks)  # a controller reads it
+            with nullcontext() if observed else base.sensors_paused():
+                obs, _, terminated, truncated, info = self.env.step(torch.as_tensor(actions[step]))
+            term, trunc = to_numpy(terminated).reshape(-1), to_numpy(truncated).reshape(-1)
+            finished = [i for i in chunks if running[i] and (term[i] or trunc[i] or ends[i] == step + 1)]
+            if finished:
+                state, obs_np = base.privileged_state(), to_numpy(obs)
+                for i in finished:
+                    running[i] = False
+                    frames[i] = EnvFrame(select_obs(obs_np, i), state.select(i), float(info["potential"][i]),
+                                         bool(info["success"][i]), step + 1, bool(term[i]),
+                                         bool(trunc[i]) and not bool(term[i]))
+            if not running.any():
+                break
+        return {i: frames[i] for i in chunks}
+
+    def close(self) -> None:
+        self.env.close()
+
+
+def make_physics(backend: str, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int,
+                 ray_address: str | None = None) -> PhysicsBackend:
+    """The physics backend ``backend`` names (one of ``BACKENDS``): ``auto`` is in-process for one env and
+    worker processes for several; ``gpu`` one batched GPU simulation; ``ray`` Ray actors at ``ray_address``."""
+    if backend not in BACKENDS:
+        raise ValueError(f"unknown physics backend {backend!r}; expected one of {list(BACKENDS)}")
+    if num_envs < 1:
+        raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+    if ray_address is not None and backend != "ray":
+        raise ValueError(f"a Ray address ({ray_address!r}) needs the ray backend, not {backend!r}")
+    if backend == "auto":
+        backend = "inprocess" if num_envs == 1 else "process"
+    if backend == "inprocess":
+        return InProcessPhysics(num_envs, task_kwargs, max_control_steps)
+    if backend == "process":
+        return ProcessPhysics(num_envs, task_kwargs, max_control_steps)
+    if backend == "gpu":
+        return BatchedSimPhysics(num_envs, task_kwargs, max_control_steps)
+    from sb3_memret.envs.ray_physics import RayPhysics
+
+    return RayPhysics(num_envs, task_kwargs, max_control_steps, address=ray_address)
+
+
+__all__ = ["BACKENDS", "BatchedSimPhysics", "EnvFrame", "InProcessPhysics", "PhysicsBackend", "ProcessPhysics",
+           "ResetRequest", "TaskEnvInfo", "TaskRunner", "make_physics", "select_obs", "stack_obs", "to_numpy"]

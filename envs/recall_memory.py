@@ -1,0 +1,134 @@
+"""The memory side of one recall env: its bank, its writer, the prompt it builds and what it observes.
+
+The decision env keeps one ``EpisodeMemory`` per env in the trainer process, beside the one
+controller; the physics that feeds it frames runs elsewhere (``sb3_memret.envs.physics``).
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, Sequence
+
+import numpy as np
+from gymnasium import spaces
+
+from sb3_memret.envs.cabinet import check_layer
+from sb3_memret.envs.drawer_cube import DrawerCubeState
+from sb3_memret.memory.bank import MemoryBank
+from sb3_memret.memory.encoder import EMBEDDING_DIM, MiniLMEncoder
+from sb3_memret.memory.schema import MemoryEntry, MemoryType
+from sb3_memret.memory.seeding import SeedingConfig, is_true_cube_memory, seed_memories
+from sb3_memret.memory.writer import BoundingBoxPredicateExtractor, EventCompiler
+from sb3_memret.prompts import INSTRUCTION, PromptTemplate, build_prompt, location_text
+
+MODES = ("recall", "oracle", "none")
+# keep-scores of a bank's entries at decision time t (the retention critic, or the fixed prior)
+KeepScorer = Callable[[Sequence[MemoryEntry], int], np.ndarray]
+
+
+def check_mode(mode: str) -> str:
+    if mode not in MODES:
+        raise ValueError(f"unknown mode {mode!r}; expected one of {list(MODES)}")
+    return mode
+
+
+def observation_space(capacity: int) -> spaces.Dict:
+    """The decision observation: instruction and memory embeddings, slot mask, type ids, age, usage."""
+    return spaces.Dict(
+        instruction=spaces.Box(-1.0, 1.0, (EMBEDDING_DIM,), np.float32),
+        memories=spaces.Box(-1.0, 1.0, (capacity, EMBEDDING_DIM), np.float32),
+        mask=spaces.Box(0.0, 1.0, (capacity,), np.float32),
+        type_ids=spaces.Box(0.0, len(MemoryType) - 1, (capacity,), np.float32),
+        age=spaces.Box(0.0, np.inf, (capacity,), np.float32),
+        usage=spaces.Box(0.0, np.inf, (capacity,), np.float32),
+    )
+
+
+class EpisodeMemory:
+    """One env's bounded bank and rule-based writer across its episodes.
+
+    ``start`` seeds the bank for a new episode from the simulator's t=0 state; ``choose`` and
+    ``prompt`` turn the retriever's slots into the controller's prompt; ``observe`` writes what
+    the simulator says after a chunk. Eviction asks ``keep_scorer`` (the retention critic).
+    """
+
+    def __init__(self, capacity: int, mode: str, encoder: MiniLMEncoder, keep_scorer: KeepScorer,
+                 template: PromptTemplate, seeding: SeedingConfig | None = None):
+        self.mode = check_mode(mode)
+        self.encoder, self.keep_scorer, self.template = encoder, keep_scorer, template
+        self.seeding = seeding or SeedingConfig()
+        self.bank = MemoryBank(capacity)
+        self.extractor = BoundingBoxPredicateExtractor()
+        self.compiler = EventCompiler(encoder)
+        self.t = 0
+        self.layer = 1
+        self.true_evicted = False
+
+    def start(self, state: DrawerCubeState, rng: np.random.Generator) -> None:
+        """A new episode: the seeded memories (true fact and decoys) are the bank at t = 0."""
+        self.layer = check_layer(int(state.cube_layer[0]))
+        self.t, self.true_evicted = 0, False
+        self.bank.clear()
+        seeds = seed_memories(self.layer, rng, self.seeding)
+        vectors = self.encoder.encode([e.text for e in seeds])
+        self._write([e.with_embedding(v) for e, v in zip(seeds, vectors)])
+        self.compiler.reset()
+        self.compiler.update(self.extractor.extract(state), 0)
+
+    def choose(self, slots: np.ndarray) -> list[MemoryEntry]:
+        """The entries in ``slots`` (empty slots add nothing), each marked as used."""
+        entries = self.bank.entries
+        for s in slots[slots < len(entries)]:
+            self.bank.mark_used(int(s))
+        return [entries[s] for s in slots if s < len(entries)]
+
+    def prompt(self, chosen: list[MemoryEntry]) -> str:
+        """The controller's prompt: the instruction plus the chosen facts (or the mode's fixed text)."""
+        if self.mode == "oracle":
+            return build_prompt(INSTRUCTION, [location_text("cube", self.layer)], self.template)
+        if self.mode == "none":
+            return build_prompt(INSTRUCTION, [], self.template)
+        return build_prompt(INSTRUCTION, [e.text for e in chosen], self.template)
+
+    def observe(self, state: DrawerCubeState, steps: int) -> None:
+        """After a chunk of ``steps`` control steps: write the facts that changed, age the bank."""
+        self.t += steps
+        self._write(self.compiler.update(self.extractor.extract(state), self.t))
+        self.bank.age(self.t)
+
+    def _write(self, entries: list[MemoryEntry]) -> None:
+        for entry in entries:
+            outcome = self.bank.write(entry, lambda stored: self.keep_scorer(stored, self.t))
+            if outcome.evicted is not None and is_true_cube_memory(outcome.evicted, self.layer):
+                self.true_evicted = True
+
+    def instruction(self) -> str:
+        return build_prompt(INSTRUCTION, [location_text("cube", self.layer)]) if self.mode == "oracle" else INSTRUCTION
+
+    def true_slot(self) -> int:
+        return next((i for i, e in enumerate(self.bank.entries) if is_true_cube_memory(e, self.layer)), -1)
+
+    def retrieved_true(self, chosen: list[MemoryEntry]) -> bool:
+        return any(is_true_cube_memory(e, self.layer) for e in chosen)
+
+    def observation(self) -> dict[str, np.ndarray]:
+        view = self.bank.view()
+        return {
+            "instruction": self.encoder.encode_one(self.instruction()).astype(np.float32),
+            "memories": view.embeddings,
+            "mask": view.mask.astype(np.float32),
+            "type_ids": view.type_ids.astype(np.float32),
+            "age": view.age,
+            "usage": view.usage,
+        }
+
+    def info(self, success: bool) -> dict[str, Any]:
+        return {
+            "true_slot": self.true_slot(),
+            "true_evicted": self.true_evicted,
+            "success": success,
+            "cube_layer": self.layer,
+            "memory_texts": [e.text for e in self.bank.entries],
+        }
+
+
+__all__ = ["EpisodeMemory", "KeepScorer", "MODES", "check_mode", "observation_space"]
