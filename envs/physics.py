@@ -341,11 +341,14 @@ class BatchedSimPhysics(PhysicsBackend):
 def make_physics(backend: str, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int,
                  ray_address: str | None = None) -> PhysicsBackend:
     """The physics backend ``backend`` names (one of ``BACKENDS``): ``auto`` is in-process for one env and
-    worker processes for several; ``gpu`` one batched GPU simulation; ``ray`` Ray actors at ``ray_address``."""
+    worker processes for several (Ray when a ``ray_address`` is given); ``gpu`` one batched GPU simulation;
+    ``ray`` Ray actors at ``ray_address`` (None: ``$RAY_ADDRESS`` or a local Ray instance)."""
     if backend not in BACKENDS:
         raise ValueError(f"unknown physics backend {backend!r}; expected one of {list(BACKENDS)}")
     if num_envs < 1:
         raise ValueError(f"num_envs must be >= 1, got {num_envs}")
+    if ray_address is not None and backend == "auto":
+        backend = "ray"
     if ray_address is not None and backend != "ray":
         raise ValueError(f"a Ray address ({ray_address!r}) needs the ray backend, not {backend!r}")
     if backend == "auto":

@@ -23,6 +23,7 @@ from typing import Any, Callable, Sequence
 
 import numpy as np
 
+from sb3_memret.controllers.base import FrozenController
 from sb3_memret.envs.cabinet import LAYERS, check_layer
 from sb3_memret.parallel_rollout import EpisodeJob, run_jobs
 from sb3_memret.prompts import HOLDING_NOTHING_TEXT, INSTRUCTION, build_prompt, location_text
@@ -243,12 +244,17 @@ def run_ablation(
     n_envs: int = 1,
     render_backend: str = "none",
     on_episode: Callable[[EpisodeJob, EpisodeResult], None] | None = None,
+    backend: str = "auto",
+    ray_address: str | None = None,
+    built: FrozenController | None = None,
 ) -> AblationResult:
-    """Play every cell for ``episodes`` placements (seeds seed..seed+episodes-1) over ``n_envs`` envs."""
+    """Play every cell for ``episodes`` placements (seeds seed..seed+episodes-1) over ``n_envs`` envs served
+    by one controller (``run_jobs``; ``backend`` and ``ray_address`` place the physics). ``built`` is the
+    controller ``controller`` names when the caller has already built it."""
     if episodes < 1:
         raise ValueError(f"episodes per cell must be >= 1, got {episodes}")
     jobs = [EpisodeJob(cell.prompt, cell.layer, seed + k, cell.replan_every, cell.check_prompt) for cell in spec.cells for k in range(episodes)]
-    results = run_jobs(controller, jobs, n_envs, render_backend, on_episode)
+    results = run_jobs(built or controller, jobs, n_envs, render_backend, on_episode, backend, ray_address)
     cells = []
     for i, cell in enumerate(spec.cells):
         outcome = results[i * episodes:(i + 1) * episodes]

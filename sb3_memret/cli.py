@@ -46,6 +46,19 @@ def _render_backend_option(command):
                              "renderer of `make renderer`) or gpu.")(command)
 
 
+def _physics_options(command):
+    """``--backend`` and ``--ray-address``: where the task physics runs, apart from the one controller."""
+    command = click.option("--ray-address", default=None, metavar="ADDR",
+                           help="Run the physics workers as Ray actors on this Ray cluster (e.g. ray://head:10001 "
+                                "or auto); implies --backend ray.")(command)
+    return click.option("--backend", type=click.Choice(["auto", "process", "gpu", "ray"]), default="auto",
+                        show_default=True,
+                        help="Where the task physics runs: auto (in-process for one env, else worker processes), "
+                             "process (one CPU worker per env), gpu (one batched ManiSkill GPU simulation), ray "
+                             "(Ray actors; a local Ray instance unless --ray-address). One controller call serves "
+                             "every env whatever the backend.")(command)
+
+
 def _load_models(paths: list[Path], param_hint: str) -> list:
     from sb3_memret.policy.ppo import load_model
 
@@ -273,7 +286,7 @@ def serve(controller: str, host: str, port: int) -> None:
               help=f"rl-zoo-style YAML keyed by env id  [default: {DEFAULT_CONFIG.name} of the source tree]")
 @click.option("--controller", default=DEFAULT_CONTROLLER, show_default=True, callback=_controller_spec,
               help="Frozen controller the memory serves.")
-@click.option("--n-envs", type=click.IntRange(min=1), default=None, help="Parallel envs (workers)  [default: config]")
+@click.option("--n-envs", type=click.IntRange(min=1), default=None, help="Parallel envs  [default: config]")
 @click.option("--timesteps", type=click.IntRange(min=1), default=None, help="Decisions in all  [default: config]")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
@@ -286,9 +299,10 @@ def serve(controller: str, host: str, port: int) -> None:
 @click.option("--progress/--no-progress", default=True, show_default=True,
               help="Show a progress bar (without it, SB3 prints every round's statistics).")
 @_render_backend_option
+@_physics_options
 def train(experiment: str, config_path: Path | None, controller: str, n_envs: int | None, timesteps: int | None,
           seed: int, out: Path | None, resume: bool, eval_episodes: int, eval_every: int, progress: bool,
-          render_backend: str) -> None:
+          render_backend: str, backend: str, ray_address: str | None) -> None:
     """Train the retriever and retention networks with PPO on EXPERIMENT (recall: the drawer layer
     reaches the controller only through a retrieved memory)."""
     from sb3_memret.config import load_config
@@ -308,7 +322,7 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
             config.ppo["n_timesteps"] = timesteps
     options = RunOptions(out=out, controller=controller, seed=seed, resume=resume, eval_episodes=eval_episodes,
                          eval_every=eval_every, eval_seed=HELD_OUT_SEED, progress_bar=progress,
-                         render_backend=render_backend,
+                         render_backend=render_backend, backend=backend, ray_address=ray_address,
                          # the bar and the closing table say enough; without the bar, SB3's per-round dumps
                          log_formats=("csv", "tensorboard") if progress else ("stdout", "csv", "tensorboard"))
     try:
@@ -339,15 +353,18 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
 @click.option("--stochastic", is_flag=True, help="Sample retrievals instead of acting greedily.")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON on stdout.")
 @_render_backend_option
+@_physics_options
 def evaluate(model_path: Path, condition: str, episodes: int, controller: str, n_envs: int, seed: int,
-             stochastic: bool, as_json: bool, render_backend: str) -> None:
+             stochastic: bool, as_json: bool, render_backend: str, backend: str, ray_address: str | None) -> None:
     """Evaluate a trained model: success per layer and retrieval accuracy."""
     from sb3_memret.evaluation import evaluate_retrieval
     from sb3_memret.envs.vec_env import make_recall_vec_env
     from sb3_memret.training import eval_env_kwargs
 
     model, = _load_models([model_path], "MODEL_PATH")
-    venv = make_recall_vec_env(n_envs, eval_env_kwargs(model, model_path, condition, controller, render_backend))
+    kwargs = eval_env_kwargs(model, model_path, condition, controller, render_backend)
+    kwargs["controller"] = click.get_current_context().meta["controller"]  # the one already built
+    venv = make_recall_vec_env(n_envs, kwargs, backend=backend, ray_address=ray_address)
     try:
         with click.progressbar(length=episodes, label=f"{condition} evaluation", file=sys.stderr) as bar:
             report = evaluate_retrieval(model, venv, episodes, seed=seed, deterministic=not stochastic,
@@ -377,7 +394,7 @@ def evaluate(model_path: Path, condition: str, episodes: int, controller: str, n
 @click.option("--seed", type=click.IntRange(min=0), default=HELD_OUT_SEED, show_default=True,
               help="First placement seed; every cell plays the same placements.")
 @click.option("--n-envs", type=click.IntRange(min=1), default=os.cpu_count() or 1, show_default=True,
-              help="Envs played in parallel (one worker process each).")
+              help="Envs played in parallel (all served by one controller).")
 @click.option("--layer", type=click.IntRange(min=min(LAYERS), max=max(LAYERS)), default=2, show_default=True,
               help="prompt: the cube's drawer layer.")
 @click.option("--intervals", default=",".join(map(str, (5, 8, 10, 12, 16, 20, 24, 28, 32))), show_default=True,
@@ -389,10 +406,11 @@ def evaluate(model_path: Path, condition: str, episodes: int, controller: str, n
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout instead of the table.")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
 @_render_backend_option
+@_physics_options
 @click.pass_context
 def ablate(ctx: click.Context, ablation: str, controller: str, episodes: int, seed: int, n_envs: int, layer: int,
            intervals: str, replan_every: int, out: Path | None, as_json: bool, progress: bool,
-           render_backend: str) -> None:
+           render_backend: str, backend: str, ray_address: str | None) -> None:
     """Characterise how a frozen controller consumes memory: ABLATION is replan (success per layer
     per replan interval, oracle memory), prompt (object word x layer number) or memcount (zero, one
     or two memories) or wording (the oracle memory reworded as no training prompt was; these
@@ -422,7 +440,8 @@ def ablate(ctx: click.Context, ablation: str, controller: str, episodes: int, se
     with click.progressbar(length=total, label=f"{ablation} ablation ({len(spec.cells)} cells)", file=sys.stderr,
                            hidden=not progress) as bar:
         result = run_ablation(spec, controller, episodes, seed, n_envs, render_backend,
-                              on_episode=lambda *_: bar.update(1))
+                              on_episode=lambda *_: bar.update(1), backend=backend, ray_address=ray_address,
+                              built=ctx.meta["controller"])
     if out is not None:
         out.mkdir(parents=True, exist_ok=True)
         (out / f"{ablation}.md").write_text(result.to_markdown() + "\n")
@@ -508,13 +527,14 @@ def plot(run: Path, out: Path | None) -> None:
 @click.option("--trace-seed", type=click.IntRange(min=0), default=None,
               help="Episode of the introspection trace  [default: the run's held-out seed]")
 @_render_backend_option
+@_physics_options
 def report(run: Path, controller: str, baseline_episodes: int | None, n_envs: int, trace_seed: int | None,
-           render_backend: str) -> None:
+           render_backend: str, backend: str, ray_address: str | None) -> None:
     """Write RUN/report.md: what was learned, the learning curves, the evaluation tables, the
     baselines, the before/after trace, any saved ablations and the configuration."""
     from sb3_memret.report import ReportOptions, write_report
 
-    options = ReportOptions(controller, baseline_episodes, n_envs, trace_seed, render_backend)
+    options = ReportOptions(controller, baseline_episodes, n_envs, trace_seed, render_backend, backend, ray_address)
     try:
         path = write_report(run, options, on_progress=lambda step: click.echo(step + " ...", err=True))
     except (FileNotFoundError, ValueError) as err:

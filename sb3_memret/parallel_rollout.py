@@ -1,28 +1,32 @@
-"""Controller episodes spread over worker processes, each with its own task env and controller.
+"""Controller episodes over many task envs and ONE controller, and a plain worker-process map.
 
-The CPU simulator runs one env per process, so parallel evaluation means processes: every
-worker builds DrawerCubeTakeOut-v1 and the controller from its spec string once, then plays
-the episodes it is handed. Results come back in job order whatever order they finish in.
+``run_jobs`` plays episode jobs (a prompt, a placement, a replan interval) in ``n_envs`` task
+envs placed by a physics backend (``sb3_memret.envs.physics``: worker processes, a batched GPU
+simulation or Ray actors) while one controller in this process serves them all: one ``act``
+call per round for every env. Results come back in job order whatever order they finish in.
+``map_in_workers`` runs any work in spawned worker processes (the demonstrations use it).
 """
 
 from __future__ import annotations
 
 import multiprocessing
 import signal
+from collections import deque
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Callable, Sequence, TypeVar
 
-import gymnasium as gym
-
 from sb3_memret.controllers import make_controller
 from sb3_memret.controllers.base import FrozenController
-from sb3_memret.rollout import DEFAULT_REPLAN_EVERY, EpisodeResult, make_task_env, run_episode, task_env_kwargs
+from sb3_memret.envs.physics import EnvFrame, ResetRequest, make_physics, stack_obs
+from sb3_memret.prompts import parse_prompt
+from sb3_memret.rollout import DEFAULT_REPLAN_EVERY, EpisodeResult, task_env_kwargs
 from sb3_memret.workers import START_METHOD, WorkerDiedError, init_worker_process
 
 J = TypeVar("J")
 R = TypeVar("R")
+MAX_CONTROL_STEPS = 400  # DrawerCubeTakeOut-v1's episode limit
 
 
 @dataclass(frozen=True)
@@ -36,60 +40,88 @@ class EpisodeJob:
     check_prompt: bool = True  # False only where an ablation measures untrained wording
 
 
-class _Player:
-    """A task env and a controller that play jobs one after another."""
+def run_jobs(
+    controller: str | FrozenController,
+    jobs: Sequence[EpisodeJob],
+    n_envs: int = 1,
+    render_backend: str = "none",
+    on_result: Callable[[EpisodeJob, EpisodeResult], None] | None = None,
+    backend: str = "auto",
+    ray_address: str | None = None,
+) -> list[EpisodeResult]:
+    """Play ``jobs`` in ``n_envs`` task envs with one controller; results in job order.
 
-    def __init__(self, controller: str, render_backend: str):
-        self.controller: FrozenController = make_controller(controller)
-        self.env: gym.Env = make_task_env(**task_env_kwargs(self.controller, render_backend))
-        self.controller.check_env(self.env)
+    Every round the controller acts once for all envs (an env with no job left repeats its last
+    observation and its chunk is dropped); each env executes the first ``replan_every`` actions
+    of its job's chunk. Each episode starts as ``run_episode`` starts it (reset with the job's
+    seed and layer, the controller's env reset with the seed), so it plays the same whatever
+    ``n_envs`` and the backend. Prompts are checked against the controller's template before
+    anything starts, except those of jobs that waive the check.
+    """
+    if n_envs < 1:
+        raise ValueError(f"n_envs must be >= 1, got {n_envs}")
+    if not jobs:
+        return []
+    controller = make_controller(controller) if isinstance(controller, str) else controller
+    chunk_len = controller.spec.chunk_len
+    for job in jobs:
+        if not 1 <= job.replan_every <= chunk_len:
+            raise ValueError(f"replan_every must be in [1, {chunk_len}] (the chunk length), got {job.replan_every}")
+        if job.check_prompt:
+            parse_prompt(job.prompt, controller.spec.prompt_template)
+    n = min(n_envs, len(jobs))
+    physics = make_physics(backend, n, task_env_kwargs(controller, render_backend), MAX_CONTROL_STEPS, ray_address)
+    results: list[EpisodeResult | None] = [None] * len(jobs)
+    try:
+        controller.check_env(physics.env_info)
+        queue = deque(range(len(jobs)))
+        playing: dict[int, int] = {}  # env -> index of the job it plays
+        steps = [0] * n
+        frames: dict[int, EnvFrame] = {}
 
-    def play(self, job: EpisodeJob) -> EpisodeResult:
-        return run_episode(self.env, self.controller, job.prompt, job.seed, job.layer, job.replan_every,
-                           job.check_prompt)
+        def start(envs: list[int]) -> None:
+            starting = {i: queue.popleft() for i in envs if queue}
+            if not starting:
+                return
+            requests = [ResetRequest(i, jobs[j].seed, {"cube_layer": jobs[j].layer}) for i, j in starting.items()]
+            first = not frames
+            frames.update(physics.reset(requests))
+            seeds = [jobs[j].seed for j in starting.values()]
+            if first:  # the first start fills every env: the controller's batch
+                controller.reset(seeds)
+            else:
+                controller.reset_envs(list(starting), seeds)
+            playing.update(starting)
+            for i in starting:
+                steps[i] = 0
 
-    def close(self) -> None:
-        self.env.close()
-
-
-_worker_player: _Player | None = None
-
-
-def _init_worker(controller: str, render_backend: str, in_worker: bool = True) -> None:
-    global _worker_player
-    if in_worker:
-        init_pool_worker()
-    _worker_player = _Player(controller, render_backend)
-
-
-def _play_in_worker(job: EpisodeJob) -> EpisodeResult:
-    assert _worker_player is not None, "worker used before its initializer ran"
-    return _worker_player.play(job)
+        start(list(range(n)))
+        while playing:
+            last = {i: jobs[j] for i, j in playing.items()}
+            prompts = [(last.get(i) or jobs[0]).prompt for i in range(n)]
+            check = all(job.check_prompt for job in last.values())
+            chunks = controller.act(stack_obs([frames[i].obs for i in range(n)]), prompts, check)
+            executed = physics.execute({i: chunks[i, : job.replan_every] for i, job in last.items()})
+            ended = []
+            for i, frame in executed.items():
+                frames[i] = frame
+                steps[i] += frame.steps
+                if frame.terminated or frame.truncated:
+                    j = playing.pop(i)
+                    results[j] = EpisodeResult(jobs[j].layer, jobs[j].seed, frame.success, steps[i])
+                    if on_result is not None:
+                        on_result(jobs[j], results[j])
+                    ended.append(i)
+            start(ended)
+    finally:
+        physics.close()
+    return results  # type: ignore[return-value]
 
 
 def init_pool_worker() -> None:
     """Set up a pool worker process: SIGINT ignored (the parent handles it), SIGTERM left fatal, since a
     broken ProcessPoolExecutor ends its remaining workers with it."""
     init_worker_process(ignored=(signal.SIGINT,))
-
-
-def run_jobs(
-    controller: str,
-    jobs: Sequence[EpisodeJob],
-    n_envs: int = 1,
-    render_backend: str = "none",
-    on_result: Callable[[EpisodeJob, EpisodeResult], None] | None = None,
-) -> list[EpisodeResult]:
-    """Play ``jobs`` with ``n_envs`` envs (worker processes when > 1); results in job order."""
-    global _worker_player
-    if n_envs < 1:
-        raise ValueError(f"n_envs must be >= 1, got {n_envs}")
-    try:
-        return map_in_workers(_init_worker, (controller, render_backend), _play_in_worker, jobs, n_envs, on_result)
-    finally:
-        if _worker_player is not None:  # the in-process player of n_envs == 1
-            _worker_player.close()
-            _worker_player = None
 
 
 def map_in_workers(
@@ -135,4 +167,4 @@ def map_in_workers(
     return results  # type: ignore[return-value]
 
 
-__all__ = ["EpisodeJob", "init_pool_worker", "map_in_workers", "run_jobs"]
+__all__ = ["EpisodeJob", "MAX_CONTROL_STEPS", "init_pool_worker", "map_in_workers", "run_jobs"]

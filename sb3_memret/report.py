@@ -42,6 +42,8 @@ class ReportOptions:
     n_envs: int = 2
     trace_seed: int | None = None  # None: the run's held-out evaluation seed
     render_backend: str = "none"
+    backend: str = "auto"  # where the baselines' physics runs (sb3_memret.envs.physics.BACKENDS)
+    ray_address: str | None = None
 
 
 def write_report(run: Path, options: ReportOptions | None = None,
@@ -150,7 +152,8 @@ def _baselines(model: MemRetPPO, model_path: Path, final: RetrievalReport | None
     for condition in ("oracle", "none") if episodes > 0 else ():
         say(f"evaluating the {condition} baseline ({episodes} episodes)")
         venv = make_recall_vec_env(options.n_envs, eval_env_kwargs(model, model_path, condition, options.controller,
-                                                                   options.render_backend))
+                                                                   options.render_backend),
+                                   backend=options.backend, ray_address=options.ray_address)
         try:
             reports[condition] = evaluate_retrieval(model, venv, episodes, seed=eval_seed)
         finally:

@@ -15,6 +15,7 @@ A run lives in one folder::
 
 from __future__ import annotations
 
+import copy
 import json
 import time
 from dataclasses import dataclass, field
@@ -27,6 +28,7 @@ from stable_baselines3.common.save_util import load_from_zip_file
 from sb3_memret.callbacks import RetrievalEvalCallback, RolloutRetrievalCallback, RoundCheckpointCallback, latest_checkpoint
 from sb3_memret.callbacks.checkpoint import checkpoints as list_checkpoints
 from sb3_memret.config import TrainConfig, parse_section
+from sb3_memret.controllers import make_controller
 from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.evaluation import RetrievalReport
@@ -54,6 +56,8 @@ class RunOptions:
     progress_bar: bool = False
     log_formats: tuple[str, ...] = ("stdout", "csv", "tensorboard")
     render_backend: str = "none"  # image controllers need "cpu" or "gpu"
+    backend: str = "auto"  # where the physics runs (sb3_memret.envs.physics.BACKENDS)
+    ray_address: str | None = None  # a Ray cluster for backend "ray"
     verbose: int = 0
 
 
@@ -138,9 +142,17 @@ def train(config: TrainConfig | None, options: RunOptions) -> RunResult:
         save_run_config(config, out / CONFIG_FILE)
 
     env_kwargs = env_kwargs_for(config, options.controller, options.render_backend)
+    controller = make_controller(options.controller)  # one model, whatever the number of envs
+    env_kwargs["controller"] = controller
     done_steps = list_checkpoints(checkpoints)[-1][0] if options.resume else 0
-    venv = make_recall_vec_env(config.n_envs, env_kwargs, seed=options.seed + done_steps)  # fresh episodes on resume
-    eval_env = make_recall_vec_env(config.n_envs, env_kwargs)
+    placement = {"backend": options.backend, "ray_address": options.ray_address}
+    venv = make_recall_vec_env(config.n_envs, env_kwargs, seed=options.seed + done_steps, **placement)  # fresh on resume
+    try:
+        # the held-out envs share the controller's weights; a shallow copy keeps their episodes' state apart
+        eval_env = make_recall_vec_env(config.n_envs, {**env_kwargs, "controller": copy.copy(controller)}, **placement)
+    except BaseException:
+        venv.close()
+        raise
     checkpointer = RoundCheckpointCallback(checkpoints, verbose=options.verbose)
     evaluator = RetrievalEvalCallback(eval_env, options.eval_episodes, options.eval_seed, options.eval_every,
                                       best_model_save_path=out, history_path=out / HISTORY_FILE,

@@ -1,4 +1,4 @@
-"""run_jobs: controller episodes in-process or over worker processes, results in job order."""
+"""run_jobs: controller episodes in one env or over physics workers with one controller, results in job order."""
 
 from collections import Counter
 
@@ -62,8 +62,8 @@ def test_no_jobs_start_nothing(n_envs, monkeypatch):
     def refuse(*args, **kwargs):
         raise AssertionError("run_jobs started an env or a worker for no jobs")
 
-    monkeypatch.setattr(parallel_rollout, "_Player", refuse)
-    monkeypatch.setattr(parallel_rollout, "ProcessPoolExecutor", refuse)
+    monkeypatch.setattr(parallel_rollout, "make_physics", refuse)
+    monkeypatch.setattr(parallel_rollout, "make_controller", refuse)
     assert run_jobs("scripted", [], n_envs=n_envs, on_result=refuse) == []
 
 
@@ -81,8 +81,30 @@ def test_replan_interval_longer_than_a_chunk_is_refused(n_envs):
     assert received == []
 
 
-def test_a_killed_episode_worker_is_reported():
-    """A worker killed mid-run (out of memory, a signal) ends the run with WorkerDiedError."""
+def test_one_controller_call_per_round_serves_every_env(monkeypatch):
+    """Two envs, one controller: every act call carries both envs, and there are as many calls as the
+    longest env's rounds (not one per env per round)."""
+    from sb3_memret.controllers.scripted import ScriptedDrawerController
+
+    controller = ScriptedDrawerController()
+    batches = []
+    original = controller._act
+    monkeypatch.setattr(controller, "_act", lambda obs, prompts, parsed: batches.append(len(prompts))
+                        or original(obs, prompts, parsed))
+    results = run_jobs(controller, JOBS[1:], n_envs=2)
+    assert set(batches) == {2}
+    rounds = [-(-r.steps // job.replan_every) for r, job in zip(results, JOBS[1:])]
+    assert max(rounds) <= len(batches) < sum(rounds)
+
+
+def test_a_prompt_off_the_template_is_refused_before_anything_starts(monkeypatch):
+    monkeypatch.setattr(parallel_rollout, "make_physics", lambda *a, **k: pytest.fail("started physics"))
+    with pytest.raises(ValueError, match="drawer number 2"):
+        run_jobs("scripted", [EpisodeJob("pick out the cube. the cube is in drawer number 2.", 2, 0)])
+
+
+def test_a_killed_physics_worker_is_reported():
+    """A worker killed mid-run (out of memory, a signal) ends the run with WorkerDiedError naming it."""
     killed = []
 
     def kill_a_worker(job, result):
@@ -92,6 +114,6 @@ def test_a_killed_episode_worker_is_reported():
             killed.append(workers[0].pid)
 
     jobs = [EpisodeJob(condition_prompt("oracle", 1), 1, seed) for seed in range(8)]
-    with pytest.raises(WorkerDiedError, match="a worker process died while playing"):
+    with pytest.raises(WorkerDiedError, match=r"physics worker \d \(pid \d+\) killed by SIGKILL"):
         run_jobs("scripted", jobs, n_envs=2, on_result=kill_a_worker)
     assert killed

@@ -181,6 +181,12 @@ class OpenPIController(FrozenController):
         for i, seed in zip(env_ids, seeds):
             self._seeds[i], self._episodes[i] = int(seed), self._new_episode()
 
+    def __copy__(self) -> "OpenPIController":
+        """A copy on the same connection that the server tells apart (its own client id, hence its own slots)."""
+        twin = object.__new__(type(self))
+        twin.__dict__.update(self.__dict__, _client_id=uuid.uuid4().hex, _seeds=[], _episodes=[])
+        return twin
+
     def _new_episode(self) -> int:
         self._next_episode += 1
         return self._next_episode - 1
