@@ -295,9 +295,8 @@ class BatchedSimPhysics(PhysicsBackend):
         for options, group in groups.items():
             ids = [r.env_id for r in group]
             idx = torch.as_tensor(ids, dtype=torch.long)
-            # ManiSkill seeds a partial reset with its first seed; the per-env seeds drive the episode RNG
-            obs, info = self.env.reset(seed=[r.seed for r in group],
-                                       options={**dict(options), "env_idx": idx})
+            # ManiSkill draws a partial reset's placements from the torch RNG seeded with the group's first seed
+            obs, info = self.env.reset(seed=group[0].seed, options={**dict(options), "env_idx": idx})
             state = self.env.unwrapped.privileged_state()
             obs = to_numpy(obs)
             for i in ids:
@@ -306,8 +305,6 @@ class BatchedSimPhysics(PhysicsBackend):
         return frames
 
     def execute(self, chunks: Mapping[int, np.ndarray]) -> dict[int, EnvFrame]:
-        import torch
-
         horizon = max(len(chunk) for chunk in chunks.values())
         actions = np.zeros((horizon, self.num_envs, self.action_dim), dtype=np.float32)
         running = np.zeros(self.num_envs, dtype=bool)
@@ -320,7 +317,7 @@ class BatchedSimPhysics(PhysicsBackend):
         for step in range(horizon):
             observed = step == horizon - 1 or any(ends[i] == step + 1 for i in chunks)  # a controller reads it
             with nullcontext() if observed else base.sensors_paused():
-                obs, _, terminated, truncated, info = self.env.step(torch.as_tensor(actions[step]))
+                obs, _, terminated, truncated, info = self.env.step(actions[step])  # ManiSkill moves it to the sim device
             term, trunc = to_numpy(terminated).reshape(-1), to_numpy(truncated).reshape(-1)
             finished = [i for i in chunks if running[i] and (term[i] or trunc[i] or ends[i] == step + 1)]
             if finished:

@@ -130,6 +130,7 @@ class RayPhysics(PhysicsBackend):
         refs = {i: make(i) for i, make in submit.items()}
         results = {}
         for i, ref in refs.items():
+            last_error = ""
             for attempt in range(self.max_restarts + 1):
                 try:
                     if attempt:

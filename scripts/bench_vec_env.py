@@ -1,0 +1,187 @@
+"""Decision throughput of DrawerRecallVecEnv (one controller in the trainer, physics in workers) against
+SB3's SubprocVecEnv over DrawerRecall-v0 (a controller in every worker), measured in the same run.
+
+Every configuration is built and warmed up first (``--warmup`` rounds, so start-up is left out),
+then they take turns: ``--windows`` windows of ``--rounds`` decision rounds each, interleaved so
+that a shared machine's slow drifts hit every path alike (episode resets inside windows count;
+slot picks are uniformly random). It reports the median window, and the range:
+
+- decisions/s of the one-controller VecEnv on N worker processes, and the ratio to N = 1;
+- decisions/s of the per-worker-controller SubprocVecEnv at the same N (the path it replaces);
+- the controller's time per call and its share of the trainer's wall time;
+- with ``--ray``, the same VecEnv on N local Ray actors.
+
+Usage: ``python scripts/bench_vec_env.py [--controller learned] [--n-envs 1 2 4] [--rounds 40] [--ray]``.
+It also times the controller alone at batch 1 and batch N on recorded observations.
+"""
+
+from __future__ import annotations
+
+import argparse
+import os
+import time
+from dataclasses import dataclass, field
+from typing import Any, Callable
+
+import gymnasium as gym
+import numpy as np
+from stable_baselines3.common.vec_env import SubprocVecEnv, VecEnv
+
+from sb3_memret.controllers import make_controller
+from sb3_memret.envs import RECALL_ENV_ID
+from sb3_memret.envs.physics import stack_obs, to_numpy
+from sb3_memret.envs.vec_env import DrawerRecallVecEnv
+from sb3_memret.prompts import condition_prompt
+from sb3_memret.rollout import make_task_env, task_env_kwargs
+from sb3_memret.workers import init_worker_process
+
+SEED = 1_000_000
+
+
+def _recall_env(controller: str) -> Callable[[], gym.Env]:
+    def make() -> gym.Env:
+        import sb3_memret.envs  # noqa: F401
+
+        init_worker_process()
+        return gym.make(RECALL_ENV_ID, controller=controller)
+
+    return make
+
+
+@dataclass
+class Config:
+    """A configuration under test: its VecEnv, its timed controller (one-controller paths), its windows."""
+
+    venv: VecEnv
+    timed: "TimedController | None" = None
+    rates: list[float] = field(default_factory=list)
+    seconds: float = 0.0
+    rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
+
+    def step(self) -> None:
+        n, capacity = self.venv.num_envs, int(self.venv.action_space.nvec[0])
+        self.venv.step(self.rng.integers(capacity, size=(n, 1)))
+
+    def start(self, warmup: int) -> None:
+        self.venv.seed(SEED)
+        self.venv.reset()
+        for _ in range(warmup):
+            self.step()
+        if self.timed is not None:
+            self.timed.reset_counts()
+
+    def window(self, rounds: int) -> None:
+        start = time.perf_counter()
+        for _ in range(rounds):
+            self.step()
+        seconds = time.perf_counter() - start
+        self.rates.append(self.venv.num_envs * rounds / seconds)
+        self.seconds += seconds
+
+
+class TimedController:
+    """Wraps a controller's ``act`` to add up the time spent in it."""
+
+    def __init__(self, controller: Any):
+        self.controller, self.seconds, self.calls = controller, 0.0, 0
+        self._act = controller.act
+        controller.act = self.act
+
+    def act(self, *args: Any, **kwargs: Any) -> np.ndarray:
+        start = time.perf_counter()
+        try:
+            return self._act(*args, **kwargs)
+        finally:
+            self.seconds += time.perf_counter() - start
+            self.calls += 1
+
+    def reset_counts(self) -> None:
+        self.seconds, self.calls = 0.0, 0
+
+
+def one_controller(controller: str, n: int, backend: str) -> Config:
+    timed = TimedController(make_controller(controller))
+    return Config(DrawerRecallVecEnv(n, controller=timed.controller, backend=backend), timed)
+
+
+def per_worker_controllers(controller: str, n: int) -> Config:
+    return Config(SubprocVecEnv([_recall_env(controller) for _ in range(n)], start_method="spawn"))
+
+
+def controller_alone(controller: str, batch: int, calls: int = 30) -> float:
+    """Milliseconds per ``act`` call at ``batch`` envs, on observations of real episodes."""
+    ctrl = make_controller(controller)
+    env = make_task_env(**task_env_kwargs(ctrl))
+    obs, _ = env.reset(seed=SEED)
+    frame = to_numpy(obs)
+    env.close()
+    batched = stack_obs([frame] * batch)
+    prompts = [condition_prompt("oracle", 1 + i % 3) for i in range(batch)]
+    ctrl.reset(list(range(batch)))
+    ctrl.act(batched, prompts)
+    start = time.perf_counter()
+    for _ in range(calls):
+        ctrl.act(batched, prompts)
+    return 1e3 * (time.perf_counter() - start) / calls
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--controller", default="learned")
+    parser.add_argument("--n-envs", type=int, nargs="+", default=[1, 2, 4])
+    parser.add_argument("--rounds", type=int, default=25, help="decision rounds per measured window")
+    parser.add_argument("--windows", type=int, default=5, help="measured windows per configuration")
+    parser.add_argument("--warmup", type=int, default=5)
+    parser.add_argument("--ray", action="store_true", help="also run the physics as local Ray actors")
+    parser.add_argument("--skip-baseline", action="store_true", help="leave out the SubprocVecEnv baseline")
+    args = parser.parse_args()
+    print(f"{os.cpu_count()} CPU cores, controller {args.controller}, {args.rounds} rounds after {args.warmup}\n")
+
+    print("| envs | batch-1 act ms | batch-N act ms |")
+    print("|---|---|---|")
+    one = controller_alone(args.controller, 1)
+    for n in args.n_envs:
+        print(f"| {n} | {one:.2f} | {controller_alone(args.controller, n):.2f} |")
+
+    if args.ray:
+        import logging
+
+        import ray
+
+        ray.init(include_dashboard=False, logging_level=logging.WARNING)
+    configs: dict[tuple[str, int], Config] = {}
+    try:
+        for n in args.n_envs:
+            configs[("process", n)] = one_controller(args.controller, n, "process")
+            if not args.skip_baseline:
+                configs[("subproc", n)] = per_worker_controllers(args.controller, n)
+            if args.ray and n > 1:
+                configs[("ray", n)] = one_controller(args.controller, n, "ray")
+        for config in configs.values():
+            config.start(args.warmup)
+        for _ in range(args.windows):  # interleaved, so slow drifts of a shared machine hit every path alike
+            for config in configs.values():
+                config.window(args.rounds)
+    finally:
+        for config in configs.values():
+            config.venv.close()
+    rate = {key: float(np.median(c.rates)) for key, c in configs.items()}
+    base = rate[("process", min(args.n_envs))]
+    print(f"\n| path | envs | decisions/s (median of {args.windows}) | range | vs {min(args.n_envs)} worker (one "
+          "controller) | vs SubprocVecEnv, same N | controller ms/call | controller share |")
+    print("|---|---|---|---|---|---|---|---|")
+    names = {"process": "one controller, worker processes", "subproc": "SubprocVecEnv, controller per worker",
+             "ray": "one controller, Ray actors"}
+    for (path, n), config in configs.items():
+        subproc = rate.get(("subproc", n))
+        versus = f"{rate[path, n] / subproc:.2f}x" if subproc and path != "subproc" else "-"
+        timed = config.timed
+        timing = (f"{1e3 * timed.seconds / timed.calls:.1f} | {timed.seconds / config.seconds:.0%}" if timed
+                  else "- | -")
+        spread = f"{min(config.rates):.1f}-{max(config.rates):.1f}"
+        print(f"| {names[path]} | {n} | {rate[path, n]:.1f} | {spread} | {rate[path, n] / base:.2f}x | {versus} | "
+              f"{timing} |")
+
+
+if __name__ == "__main__":
+    main()
