@@ -4,7 +4,8 @@ SB3's SubprocVecEnv over DrawerRecall-v0 (a controller in every worker), measure
 Every configuration is built and warmed up first (``--warmup`` rounds, so start-up is left out),
 then they take turns: ``--windows`` windows of ``--rounds`` decision rounds each, interleaved so
 that a shared machine's slow drifts hit every path alike (episode resets inside windows count;
-slot picks are uniformly random). It reports the median window, and the range:
+slot picks are uniformly random). It reports the median window, the range, and the CPU time
+(trainer and its workers) per decision, which the time a shared host steals does not inflate:
 
 - decisions/s of the one-controller VecEnv on N worker processes, and the ratio to N = 1;
 - decisions/s of the per-worker-controller SubprocVecEnv at the same N (the path it replaces);
@@ -25,6 +26,7 @@ from typing import Any, Callable
 
 import gymnasium as gym
 import numpy as np
+import psutil
 from stable_baselines3.common.vec_env import SubprocVecEnv, VecEnv
 
 from sb3_memret.controllers import make_controller
@@ -53,9 +55,12 @@ class Config:
     """A configuration under test: its VecEnv, its timed controller (one-controller paths), its windows."""
 
     venv: VecEnv
+    workers: list[int]  # pids of the processes that run its physics
     timed: "TimedController | None" = None
     rates: list[float] = field(default_factory=list)
     seconds: float = 0.0
+    cpu_seconds: float = 0.0  # trainer + workers: immune to the time a shared host steals
+    decisions: int = 0
     rng: np.random.Generator = field(default_factory=lambda: np.random.default_rng(0))
 
     def step(self) -> None:
@@ -70,11 +75,17 @@ class Config:
         if self.timed is not None:
             self.timed.reset_counts()
 
+    def cpu_time(self) -> float:
+        processes = [psutil.Process(), *map(psutil.Process, self.workers)]
+        return sum(p.cpu_times().user + p.cpu_times().system for p in processes)
+
     def window(self, rounds: int) -> None:
-        start = time.perf_counter()
+        cpu, start = self.cpu_time(), time.perf_counter()
         for _ in range(rounds):
             self.step()
         seconds = time.perf_counter() - start
+        self.cpu_seconds += self.cpu_time() - cpu
+        self.decisions += self.venv.num_envs * rounds
         self.rates.append(self.venv.num_envs * rounds / seconds)
         self.seconds += seconds
 
@@ -101,11 +112,15 @@ class TimedController:
 
 def one_controller(controller: str, n: int, backend: str) -> Config:
     timed = TimedController(make_controller(controller))
-    return Config(DrawerRecallVecEnv(n, controller=timed.controller, backend=backend), timed)
+    venv = DrawerRecallVecEnv(n, controller=timed.controller, backend=backend)
+    physics = venv.physics
+    pids = physics.pids() if backend == "ray" else [p.pid for p in physics.processes]
+    return Config(venv, pids, timed)
 
 
 def per_worker_controllers(controller: str, n: int) -> Config:
-    return Config(SubprocVecEnv([_recall_env(controller) for _ in range(n)], start_method="spawn"))
+    venv = SubprocVecEnv([_recall_env(controller) for _ in range(n)], start_method="spawn")
+    return Config(venv, [p.pid for p in venv.processes])
 
 
 def controller_alone(controller: str, batch: int, calls: int = 30) -> float:
@@ -168,8 +183,8 @@ def main() -> None:
     rate = {key: float(np.median(c.rates)) for key, c in configs.items()}
     base = rate[("process", min(args.n_envs))]
     print(f"\n| path | envs | decisions/s (median of {args.windows}) | range | vs {min(args.n_envs)} worker (one "
-          "controller) | vs SubprocVecEnv, same N | controller ms/call | controller share |")
-    print("|---|---|---|---|---|---|---|---|")
+          "controller) | vs SubprocVecEnv, same N | CPU ms/decision | controller ms/call | controller share |")
+    print("|---|---|---|---|---|---|---|---|---|")
     names = {"process": "one controller, worker processes", "subproc": "SubprocVecEnv, controller per worker",
              "ray": "one controller, Ray actors"}
     for (path, n), config in configs.items():
@@ -179,8 +194,9 @@ def main() -> None:
         timing = (f"{1e3 * timed.seconds / timed.calls:.1f} | {timed.seconds / config.seconds:.0%}" if timed
                   else "- | -")
         spread = f"{min(config.rates):.1f}-{max(config.rates):.1f}"
+        cpu = 1e3 * config.cpu_seconds / config.decisions
         print(f"| {names[path]} | {n} | {rate[path, n]:.1f} | {spread} | {rate[path, n] / base:.2f}x | {versus} | "
-              f"{timing} |")
+              f"{cpu:.0f} | {timing} |")
 
 
 if __name__ == "__main__":

@@ -120,7 +120,7 @@ def test_run_ablation_plays_each_cell_on_the_same_seeds(monkeypatch):
     """The job grid and how results are cut back into cells, with the simulator replaced."""
     calls = []
 
-    def fake_run_jobs(controller, jobs, n_envs, render_backend, on_result):
+    def fake_run_jobs(controller, jobs, n_envs, render_backend, on_result, backend, ray_address):
         calls.append((controller, list(jobs), n_envs, render_backend))
         # succeed when the prompt names the cube's layer, on odd seeds only
         return [EpisodeResult(j.layer, j.seed, parse_prompt(j.prompt).layer == j.layer and j.seed % 2 == 1, 10)

@@ -112,7 +112,7 @@ def test_full_request_response_cycle(serve):
         assert set(request) == PI05_KEYS | {"sb3_memret/client", "sb3_memret/env", "sb3_memret/episode",
                                             "sb3_memret/seed"}
         assert request["sb3_memret/env"] == request["sb3_memret/seed"] == i  # reset(range(2))
-        assert request["sb3_memret/episode"] == 0  # the first reset
+        assert request["sb3_memret/episode"] == i  # the first reset numbers each slot's episode apart
         for key, camera in (("observation/image", "base_camera"), ("observation/wrist_image", "hand_camera")):
             assert request[key].dtype == np.uint8 and request[key].shape == (224, 224, 3)
             np.testing.assert_array_equal(request[key], obs["sensor_data"][camera]["rgb"][i])
@@ -120,6 +120,29 @@ def test_full_request_response_cycle(serve):
         np.testing.assert_array_equal(request["observation/state"], obs["agent"]["eef_state"][i])
         np.testing.assert_array_equal(chunks[i], chunk_for(request)["actions"])  # no transform on the way back
     assert controller.spec.action_convention == "pd_ee_delta_pose" and controller.spec.needs_images
+
+
+def test_one_slot_restarts_alone_and_a_copy_is_a_new_client(serve):
+    """``reset_envs`` gives only the named slots new episode numbers (and seeds), so the server restarts only
+    their controllers; a copy (a second VecEnv sharing the connection) is a client of its own."""
+    import copy
+
+    server = serve(chunk_for)
+    controller = controller_for(server)
+    prompts = [condition_prompt("oracle", 2), condition_prompt("none", 1)]
+    controller.act(fake_obs(2), prompts)
+    controller.reset_envs([1], [7])
+    controller.act(fake_obs(2), prompts)
+    before, after = server.requests[:2], server.requests[2:]
+    assert after[0]["sb3_memret/episode"] == before[0]["sb3_memret/episode"] and after[0]["sb3_memret/seed"] == 0
+    assert after[1]["sb3_memret/episode"] not in {r["sb3_memret/episode"] for r in before}
+    assert after[1]["sb3_memret/seed"] == 7
+    with pytest.raises(ValueError, match=r"env ids \[2\] are outside the batch of 2"):
+        controller.reset_envs([2], [0])
+    twin = copy.copy(controller)
+    twin.reset(range(2))
+    twin.act(fake_obs(2), prompts)
+    assert server.requests[-1]["sb3_memret/client"] != before[0]["sb3_memret/client"]
 
 
 def test_a_few_decisions_on_rendered_camera_images(serve, rgb_task_env):

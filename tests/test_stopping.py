@@ -1,5 +1,5 @@
 """`sb3-memret train` stopped from outside, as a cluster would: SIGTERM to the whole process group, and an
-env worker killed (what the out-of-memory killer does). Both keep a checkpoint, say how to resume, and
+physics worker killed (what the out-of-memory killer does). Both keep a checkpoint, say how to resume, and
 print no traceback."""
 
 from __future__ import annotations
@@ -46,7 +46,7 @@ def start_training(tmp_path: Path) -> tuple[subprocess.Popen, Path]:
 
 
 def env_workers(pid: int) -> list[psutil.Process]:
-    """The spawned env worker processes of the trainer ``pid`` (not its resource tracker)."""
+    """The spawned physics worker processes of the trainer ``pid`` (not its resource tracker)."""
     return [p for p in psutil.Process(pid).children() if "spawn_main" in " ".join(p.cmdline())]
 
 
@@ -77,12 +77,12 @@ def test_sigterm_to_the_job_checkpoints_and_shuts_down_cleanly(tmp_path):
     assert len(workers) == 4 and not psutil.wait_procs(workers, timeout=10)[1]  # every worker has exited
 
 
-def test_a_killed_env_worker_is_named_and_the_run_can_resume(tmp_path):
+def test_a_killed_physics_worker_is_named_and_the_run_can_resume(tmp_path):
     process, out = start_training(tmp_path)
     workers = env_workers(process.pid)
     assert len(workers) == 4  # training and held-out envs, two each
     workers[0].kill()
     code, stderr = finish(process)
     assert code == 1, stderr
-    assert f"(pid {workers[0].pid}) killed by SIGKILL" in stderr and "stopped by env worker" in stderr, stderr
+    assert f"(pid {workers[0].pid}) killed by SIGKILL" in stderr and "stopped by physics worker" in stderr, stderr
     assert_resumable(out, stderr)
