@@ -129,6 +129,7 @@ class PhysicsBackend(ABC):
 
     num_envs: int
     env_info: TaskEnvInfo
+    shares_cores: bool = False  # whether its workers compute on this machine's cores beside the trainer
 
     @abstractmethod
     def reset(self, requests: Sequence[ResetRequest]) -> dict[int, EnvFrame]:
@@ -187,6 +188,8 @@ class ProcessPhysics(PhysicsBackend):
     closes its workers. A worker that dies is named with its pid and how it ended
     (``WorkerDiedError``).
     """
+
+    shares_cores = True
 
     def __init__(self, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int):
         self.num_envs = num_envs

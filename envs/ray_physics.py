@@ -86,6 +86,8 @@ class RayPhysics(PhysicsBackend):
 
         if not ray.is_initialized():
             ray.init(address=address, include_dashboard=False, logging_level=logging.WARNING)
+        # a one-machine Ray instance runs its actors on the trainer's cores
+        self.shares_cores = len(ray.nodes()) == 1
         self.num_envs, self.max_restarts = num_envs, max_restarts
         actor_class = ray.remote(max_restarts=max_restarts, max_task_retries=0,
                                  scheduling_strategy="SPREAD")(PhysicsActor)

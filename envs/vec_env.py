@@ -33,6 +33,7 @@ from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.policy.networks import RetentionScorer
 from sb3_memret.rewards import shaped_reward
 from sb3_memret.rollout import task_env_kwargs
+from sb3_memret.workers import torch_threads
 
 
 class DrawerRecallVecEnv(VecEnv):
@@ -162,7 +163,8 @@ class DrawerRecallVecEnv(VecEnv):
             true_slots.append(memory.true_slot())
             chosen.append(memory.choose(slots))
             prompts.append(memory.prompt(chosen[-1]))
-        chunks = self.controller.act(stack_obs([frame.obs for frame in self.frames]), prompts)
+        with torch_threads(1 if self.physics.shares_cores else None):
+            chunks = self.controller.act(stack_obs([frame.obs for frame in self.frames]), prompts)
         self.controller_calls += 1
         frames = self.physics.execute({i: chunks[i, : self.replan_every] for i in range(self.num_envs)})
         rewards = np.zeros(self.num_envs, dtype=np.float32)

@@ -22,7 +22,7 @@ from sb3_memret.controllers.base import FrozenController
 from sb3_memret.envs.physics import EnvFrame, ResetRequest, make_physics, stack_obs
 from sb3_memret.prompts import parse_prompt
 from sb3_memret.rollout import DEFAULT_REPLAN_EVERY, EpisodeResult, task_env_kwargs
-from sb3_memret.workers import START_METHOD, WorkerDiedError, init_worker_process
+from sb3_memret.workers import START_METHOD, WorkerDiedError, init_worker_process, torch_threads
 
 J = TypeVar("J")
 R = TypeVar("R")
@@ -100,7 +100,8 @@ def run_jobs(
             last = {i: jobs[j] for i, j in playing.items()}
             prompts = [(last.get(i) or jobs[0]).prompt for i in range(n)]
             check = all(job.check_prompt for job in last.values())
-            chunks = controller.act(stack_obs([frames[i].obs for i in range(n)]), prompts, check)
+            with torch_threads(1 if physics.shares_cores else None):
+                chunks = controller.act(stack_obs([frames[i].obs for i in range(n)]), prompts, check)
             executed = physics.execute({i: chunks[i, : job.replan_every] for i, job in last.items()})
             ended = []
             for i, frame in executed.items():

@@ -61,6 +61,25 @@ def stop_signals_interrupt() -> Iterator[None]:
         signal.signal(signal.SIGTERM, previous)
 
 
+@contextmanager
+def torch_threads(n: int | None) -> Iterator[None]:
+    """Within, torch computes with ``n`` intra-op threads (None: unchanged).
+
+    A controller acting in the trainer while physics workers share the machine's cores should use
+    one: idle intra-op threads spin-wait after every op and take those cores from the workers
+    (measured here: 21 ms of trainer CPU per decision with two threads, 6 ms with one).
+    """
+    import torch
+
+    previous = torch.get_num_threads()
+    if n is not None:
+        torch.set_num_threads(n)
+    try:
+        yield
+    finally:
+        torch.set_num_threads(previous)
+
+
 def exit_status(stopped_by: str) -> int:
     """The shell's convention for a run stopped early: 128 + the signal's number for Ctrl-C and
     SIGTERM, 1 for anything else (a dead worker)."""
@@ -84,4 +103,4 @@ def exit_description(process: BaseProcess) -> str:
 
 __all__ = ["START_METHOD", "STOP_SIGNALS", "StopRequested", "WorkerDiedError", "exit_description", "exit_status",
            "init_worker_process",
-           "stop_signals_interrupt"]
+           "stop_signals_interrupt", "torch_threads"]
