@@ -32,7 +32,6 @@ class DrawerRecallEnv(gym.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, **kwargs: Any):
-        kwargs.pop("backend", None)
         self.venv = DrawerRecallVecEnv(1, backend="inprocess", **kwargs)
         self.observation_space, self.action_space = self.venv.observation_space, self.venv.action_space
 

@@ -76,6 +76,7 @@ def run_jobs(
         controller.check_env(physics.env_info)
         queue = deque(range(len(jobs)))
         playing: dict[int, int] = {}  # env -> index of the job it plays
+        latest = [0] * n  # env -> index of the job it last started (an idle env repeats its prompt)
         steps = [0] * n
         frames: dict[int, EnvFrame] = {}
 
@@ -92,14 +93,14 @@ def run_jobs(
             else:
                 controller.reset_envs(list(starting), seeds)
             playing.update(starting)
-            for i in starting:
-                steps[i] = 0
+            for i, j in starting.items():
+                steps[i], latest[i] = 0, j
 
         start(list(range(n)))
         while playing:
             last = {i: jobs[j] for i, j in playing.items()}
-            prompts = [(last.get(i) or jobs[0]).prompt for i in range(n)]
-            check = all(job.check_prompt for job in last.values())
+            prompts = [jobs[j].prompt for j in latest]
+            check = all(jobs[j].check_prompt for j in latest)
             with torch_threads(1 if physics.shares_cores else None):
                 chunks = controller.act(stack_obs([frames[i].obs for i in range(n)]), prompts, check)
             executed = physics.execute({i: chunks[i, : job.replan_every] for i, job in last.items()})
