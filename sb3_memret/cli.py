@@ -46,13 +46,23 @@ def _render_backend_option(command):
                              "renderer of `make renderer`) or gpu.")(command)
 
 
+def _check_physics(ctx: click.Context, param: click.Parameter, value):
+    """Refuse a Ray address beside a backend other than ray (checked once both values are known)."""
+    backend = value if param.name == "backend" else ctx.params.get("backend")
+    address = value if param.name == "ray_address" else ctx.params.get("ray_address")
+    if address is not None and backend not in (None, "auto", "ray"):
+        raise click.BadParameter(f"--ray-address {address!r} runs the physics on Ray, so --backend must be ray "
+                                 f"(or left out), not {backend!r}", ctx=ctx, param=param)
+    return value
+
+
 def _physics_options(command):
     """``--backend`` and ``--ray-address``: where the task physics runs, apart from the one controller."""
-    command = click.option("--ray-address", default=None, metavar="ADDR",
+    command = click.option("--ray-address", default=None, metavar="ADDR", callback=_check_physics,
                            help="Run the physics workers as Ray actors on this Ray cluster (e.g. ray://head:10001 "
                                 "or auto); implies --backend ray.")(command)
     return click.option("--backend", type=click.Choice(["auto", "process", "gpu", "ray"]), default="auto",
-                        show_default=True,
+                        show_default=True, callback=_check_physics,
                         help="Where the task physics runs: auto (in-process for one env, else worker processes), "
                              "process (one CPU worker per env), gpu (one batched ManiSkill GPU simulation), ray "
                              "(Ray actors; a local Ray instance unless --ray-address). One controller call serves "

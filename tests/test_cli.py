@@ -76,6 +76,9 @@ def test_mistakes_are_one_line_without_a_traceback(tmp_path, monkeypatch):
         ("train", "recall", "--config", str(broken), "--out", str(tmp_path / "r")):
             f"{broken} is not valid YAML at line 3, column 9",
         ("rollout", "--render-backend", "cpu"): "install it with: make renderer",
+        ("ablate", "replan", "--backend", "gpu", "--ray-address", "auto"):
+            "--ray-address 'auto' runs the physics on Ray, so --backend must be ray (or left out), not 'gpu'",
+        ("train", "recall", "--backend", "threads"): "'threads' is not one of 'auto', 'process', 'gpu', 'ray'",
     }
     for args, expected in cases.items():
         result = CliRunner().invoke(main, list(args), prog_name="sb3-memret")
