@@ -11,6 +11,8 @@ import ray
 
 from sb3_memret.envs.ray_physics import RayPhysics
 from sb3_memret.envs.vec_env import make_recall_vec_env
+from sb3_memret.parallel_rollout import EpisodeJob, run_jobs
+from sb3_memret.prompts import condition_prompt
 
 
 @pytest.fixture(scope="module")
@@ -45,3 +47,9 @@ def test_a_killed_actor_is_restarted_and_replays_its_episode(local_ray, encoder,
     finally:
         on_ray.close()
         in_processes.close()
+
+
+def test_ablation_episodes_on_ray_actors_play_as_in_one_env(local_ray):
+    """run_jobs (ablate) with its physics on Ray actors: the same episodes as one in-process env."""
+    jobs = [EpisodeJob(condition_prompt("oracle", layer), layer, 1_000_000 + layer) for layer in (1, 2, 3)]
+    assert run_jobs("scripted", jobs, n_envs=2, backend="ray") == run_jobs("scripted", jobs, n_envs=1)
