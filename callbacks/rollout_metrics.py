@@ -9,7 +9,8 @@ from stable_baselines3.common.callbacks import BaseCallback
 class RolloutRetrievalCallback(BaseCallback):
     """Logs, for the decisions PPO collected this round, how often the sampled selection held
     the true memory (``rollout/sampled_fraction``), plus success, true-memory evictions and the
-    mean shaped reward of the episodes that ended in the round."""
+    mean shaped reward of the episodes that ended in the round, and how many physics workers have
+    died and been restarted so far (``DrawerRecallVecEnv.physics_restarts``)."""
 
     def __init__(self, verbose: int = 0):
         super().__init__(verbose)
@@ -41,6 +42,9 @@ class RolloutRetrievalCallback(BaseCallback):
         record("rollout/sampled_fraction", self.hits / max(self.decisions, 1))
         record("rollout/mean_reward", self.reward / max(self.steps, 1))
         record("rollout/episodes", len(self.successes))
+        restarts = getattr(self.training_env.unwrapped, "physics_restarts", None)
+        if restarts is not None:
+            record("rollout/physics_restarts", restarts)
         if self.successes:
             record("rollout/success", float(np.mean(self.successes)))
             record("rollout/true_evicted_rate", float(np.mean(self.evicted)))

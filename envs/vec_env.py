@@ -119,6 +119,11 @@ class DrawerRecallVecEnv(VecEnv):
             usage = torch.tensor([[float(e.usage_count) for e in entries]])
             return self.retention(mem, types, age, usage)[0].numpy()
 
+    @property
+    def physics_restarts(self) -> int:
+        """Physics workers that died and were restarted with their episode replayed (Ray), so far."""
+        return len(getattr(self.physics, "restarts", ()))
+
     # ------------------------------------------------------------ episodes
     def reset_envs(self, env_ids: Sequence[int], seeds: Sequence[int | None] | None = None,
                    options: Sequence[dict[str, Any]] | None = None) -> dict[int, dict[str, Any]]:

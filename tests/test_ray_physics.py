@@ -42,6 +42,7 @@ def test_a_killed_actor_is_restarted_and_replays_its_episode(local_ray, encoder,
                 np.testing.assert_array_equal(obs_ray["memories"], obs_proc["memories"])
                 assert [i["memory_texts"] for i in infos_ray] == [i["memory_texts"] for i in infos_proc]
         assert [(r.env_id, r.replayed_chunks) for r in physics.restarts] == [(1, 3)]
+        assert on_ray.unwrapped.physics_restarts == 1
         assert "physics worker 1 died" in caplog.text and "replayed 3 chunks" in caplog.text
         assert on_ray.unwrapped.controller_calls == 6  # the replay called no controller
     finally:
