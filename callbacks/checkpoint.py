@@ -2,12 +2,25 @@
 
 from __future__ import annotations
 
+import os
 import re
 from pathlib import Path
 
+from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
+from sb3_memret.workers import stop_signals_deferred
+
 CHECKPOINT_PATTERN = re.compile(r"^memret_(\d+)_steps\.zip$")
+
+
+def save_whole(model: BaseAlgorithm, path: Path) -> None:
+    """``model.save(path)`` that a stop signal cannot cut short (it waits until the file is written) and
+    that a kill cannot leave half-written (the file is written beside and renamed into place)."""
+    partial = path.with_name(path.stem + ".partial.zip")
+    with stop_signals_deferred():
+        model.save(partial)
+        os.replace(partial, path)
 
 
 def checkpoint_path(folder: str | Path, num_timesteps: int) -> Path:
@@ -54,7 +67,7 @@ class RoundCheckpointCallback(BaseCallback):
     def save(self) -> Path:
         """Save now (also used when a run is interrupted) and prune old checkpoints."""
         path = checkpoint_path(self.save_path, self.model.num_timesteps)
-        self.model.save(path)
+        save_whole(self.model, path)
         if self.verbose:
             print(f"checkpoint: {path}")
         for _, old in checkpoints(self.save_path)[: -self.keep]:

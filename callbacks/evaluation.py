@@ -9,7 +9,8 @@ from pathlib import Path
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_memret.evaluation import RetrievalReport, evaluate_retrieval
+from sb3_memret.analysis.evaluation import RetrievalReport, evaluate_retrieval
+from sb3_memret.callbacks.checkpoint import save_whole
 
 
 class RetrievalEvalCallback(BaseCallback):
@@ -79,7 +80,7 @@ class RetrievalEvalCallback(BaseCallback):
         if self.best_key is None or _key(row) > self.best_key:
             self.best_key = _key(row)
             if self.best_model_save_path:
-                self.model.save(self.best_model_save_path / "best_model.zip")
+                save_whole(self.model, self.best_model_save_path / "best_model.zip")
         if self.verbose:
             print(f"round {self.round}: greedy {report.greedy_accuracy:.0%}, sampled {report.sampled_fraction:.0%}, "
                   f"entropy {report.entropy:.2f}, success {report.success['overall']:.0%}")

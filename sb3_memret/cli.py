@@ -367,7 +367,7 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
 def evaluate(model_path: Path, condition: str, episodes: int, controller: str, n_envs: int, seed: int,
              stochastic: bool, as_json: bool, render_backend: str, backend: str, ray_address: str | None) -> None:
     """Evaluate a trained model: success per layer and retrieval accuracy."""
-    from sb3_memret.evaluation import evaluate_retrieval
+    from sb3_memret.analysis.evaluation import evaluate_retrieval
     from sb3_memret.envs.vec_env import make_recall_vec_env
     from sb3_memret.training import eval_env_kwargs
 
@@ -425,7 +425,7 @@ def ablate(ctx: click.Context, ablation: str, controller: str, episodes: int, se
     per replan interval, oracle memory), prompt (object word x layer number) or memcount (zero, one
     or two memories) or wording (the oracle memory reworded as no training prompt was; these
     cells alone waive the prompt contract)."""
-    from sb3_memret.ablations import (memcount_ablation, prompt_ablation, replan_ablation, run_ablation,
+    from sb3_memret.analysis.ablations import (memcount_ablation, prompt_ablation, replan_ablation, run_ablation,
                                       wording_ablation)
 
     chunk_len = ctx.meta["controller"].spec.chunk_len
@@ -493,7 +493,7 @@ def trace(models: tuple[Path, ...], seed: int, sample_seed: int, controller: str
     """Show every memory in the bank at the first retrieval step with each model's retriever score
     ('*' = sampled, 'C' = the true cube memory). MODELS are model files or run folders (a run
     folder traces its untrained and final policies: before and after training)."""
-    from sb3_memret.trace import model_label, trace_models
+    from sb3_memret.analysis.trace import model_label, trace_models
     from sb3_memret.training import eval_env_kwargs
 
     paths = _trace_targets(models)
@@ -516,7 +516,7 @@ def trace(models: tuple[Path, ...], seed: int, sample_seed: int, controller: str
 def plot(run: Path, out: Path | None) -> None:
     """Plot the learning curves of a training run: held-out greedy accuracy and success, training
     sampled fraction, and policy entropy on a second axis."""
-    from sb3_memret.plotting import plot_learning_curves
+    from sb3_memret.analysis.plotting import plot_learning_curves
     from sb3_memret.training import retrieval_chance
 
     try:
@@ -542,7 +542,7 @@ def report(run: Path, controller: str, baseline_episodes: int | None, n_envs: in
            render_backend: str, backend: str, ray_address: str | None) -> None:
     """Write RUN/report.md: what was learned, the learning curves, the evaluation tables, the
     baselines, the before/after trace, any saved ablations and the configuration."""
-    from sb3_memret.report import ReportOptions, write_report
+    from sb3_memret.analysis.report import ReportOptions, write_report
 
     options = ReportOptions(controller, baseline_episodes, n_envs, trace_seed, render_backend, backend, ray_address)
     try:

@@ -31,7 +31,7 @@ from sb3_memret.config import TrainConfig, parse_section
 from sb3_memret.controllers import make_controller
 from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.vec_env import make_recall_vec_env
-from sb3_memret.evaluation import RetrievalReport
+from sb3_memret.analysis.evaluation import RetrievalReport
 from sb3_memret.policy.policy import MemoryRetrievalPolicy
 from sb3_memret.policy.ppo import MemRetPPO
 from sb3_memret.run_logger import make_run_logger

@@ -80,6 +80,29 @@ def torch_threads(n: int | None) -> Iterator[None]:
         torch.set_num_threads(previous)
 
 
+@contextmanager
+def stop_signals_deferred() -> Iterator[None]:
+    """Within, Ctrl-C and SIGTERM wait: they are raised (KeyboardInterrupt, ``StopRequested``) when the
+    block ends, so a file being written (a checkpoint) is never cut off half-way by the stop it serves.
+
+    Outside the main thread (where Python cannot install handlers) it changes nothing.
+    """
+    if threading.current_thread() is not threading.main_thread():
+        yield
+        return
+    pending: list[int] = []
+    previous = {signum: signal.signal(signum, lambda signum, frame: pending.append(signum)) for signum in STOP_SIGNALS}
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            signal.signal(signum, handler)
+    if pending:
+        if pending[0] == signal.SIGINT:
+            raise KeyboardInterrupt
+        raise StopRequested(pending[0])
+
+
 def exit_status(stopped_by: str) -> int:
     """The shell's convention for a run stopped early: 128 + the signal's number for Ctrl-C and
     SIGTERM, 1 for anything else (a dead worker)."""
@@ -103,4 +126,4 @@ def exit_description(process: BaseProcess) -> str:
 
 __all__ = ["START_METHOD", "STOP_SIGNALS", "StopRequested", "WorkerDiedError", "exit_description", "exit_status",
            "init_worker_process",
-           "stop_signals_interrupt", "torch_threads"]
+           "stop_signals_deferred", "stop_signals_interrupt", "torch_threads"]

@@ -21,7 +21,7 @@ from pathlib import Path
 from sb3_memret.cli import DEFAULT_CONFIG, EXPERIMENTS, HELD_OUT_SEED
 from sb3_memret.config import load_config
 from sb3_memret.envs.vec_env import make_recall_vec_env
-from sb3_memret.evaluation import evaluate_retrieval
+from sb3_memret.analysis.evaluation import evaluate_retrieval
 from sb3_memret.policy.ppo import MemRetPPO
 from sb3_memret.training import RunOptions, eval_env_kwargs, format_history, train
 

@@ -13,7 +13,7 @@ from pathlib import Path
 
 import numpy as np
 
-from sb3_memret.report import MASTERY, first_mastered
+from sb3_memret.analysis.report import MASTERY, first_mastered
 from sb3_memret.training import read_history
 
 

@@ -8,8 +8,8 @@ from collections import Counter
 
 import pytest
 
-from sb3_memret import ablations
-from sb3_memret.ablations import (
+from sb3_memret.analysis import ablations
+from sb3_memret.analysis.ablations import (
     AblationResult,
     AblationSpec,
     Cell,

@@ -54,7 +54,7 @@ def test_run_commands_refuse_folders_that_are_not_runs(tmp_path):
 
 
 def test_ablate_default_intervals_are_the_library_default():
-    from sb3_memret.ablations import REPLAN_INTERVALS
+    from sb3_memret.analysis.ablations import REPLAN_INTERVALS
 
     option = next(p for p in main.commands["ablate"].params if p.name == "intervals")
     assert tuple(int(i) for i in option.default.split(",")) == REPLAN_INTERVALS

@@ -7,7 +7,7 @@ import pytest
 import torch
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-from sb3_memret.evaluation import evaluate_retrieval
+from sb3_memret.analysis.evaluation import evaluate_retrieval
 from sb3_memret.policy.policy import MemoryRetrievalPolicy
 from sb3_memret.policy.ppo import MemRetPPO
 from toy_bank import CAP, ToyBankEnv

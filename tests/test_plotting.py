@@ -8,7 +8,7 @@ import matplotlib.pyplot as plt
 import numpy as np
 import pytest
 
-from sb3_memret.plotting import learning_curves, plot_learning_curves
+from sb3_memret.analysis.plotting import learning_curves, plot_learning_curves
 from test_callbacks import train_toy
 
 PNG_MAGIC = b"\x89PNG\r\n\x1a\n"

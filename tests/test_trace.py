@@ -10,7 +10,7 @@ from stable_baselines3.common.vec_env import DummyVecEnv
 from sb3_memret.envs import RECALL_ENV_ID
 from sb3_memret.policy.policy import MemoryRetrievalPolicy
 from sb3_memret.policy.ppo import MemRetPPO
-from sb3_memret.trace import RetrievalTrace, TraceRow, trace_first_retrieval, trace_models
+from sb3_memret.analysis.trace import RetrievalTrace, TraceRow, trace_first_retrieval, trace_models
 
 
 @pytest.fixture(scope="module")

@@ -14,13 +14,13 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
-from sb3_memret.ablations import ABLATIONS
+from sb3_memret.analysis.ablations import ABLATIONS
 from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.vec_env import make_recall_vec_env
-from sb3_memret.evaluation import RetrievalReport, evaluate_retrieval
-from sb3_memret.plotting import PLOT_FILE, plot_learning_curves
+from sb3_memret.analysis.evaluation import RetrievalReport, evaluate_retrieval
+from sb3_memret.analysis.plotting import PLOT_FILE, plot_learning_curves
 from sb3_memret.policy.ppo import MemRetPPO, load_model
-from sb3_memret.trace import model_label, trace_models
+from sb3_memret.analysis.trace import model_label, trace_models
 from sb3_memret.training import (CONFIG_FILE, INITIAL_MODEL, eval_env_kwargs, format_history, read_history,
                                  retrieval_chance)
 
