@@ -336,7 +336,7 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
                          # the bar and the closing table say enough; without the bar, SB3's per-round dumps
                          log_formats=("csv", "tensorboard") if progress else ("stdout", "csv", "tensorboard"))
     try:
-        result = run_training(config, options)
+        result = run_training(config, options, click.get_current_context().meta["controller"])
     except (FileExistsError, FileNotFoundError) as err:
         raise click.UsageError(str(err)) from err
     click.echo(format_history(result.history))

@@ -28,7 +28,7 @@ from stable_baselines3.common.save_util import load_from_zip_file
 from sb3_memret.callbacks import RetrievalEvalCallback, RolloutRetrievalCallback, RoundCheckpointCallback, latest_checkpoint
 from sb3_memret.callbacks.checkpoint import checkpoints as list_checkpoints
 from sb3_memret.config import TrainConfig, parse_section
-from sb3_memret.controllers import make_controller
+from sb3_memret.controllers import FrozenController, make_controller
 from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.analysis.evaluation import RetrievalReport
@@ -116,11 +116,13 @@ def eval_env_kwargs(model: MemRetPPO, model_path: Path, mode: str, controller: s
     return kwargs
 
 
-def train(config: TrainConfig | None, options: RunOptions) -> RunResult:
+def train(config: TrainConfig | None, options: RunOptions, controller: FrozenController | None = None) -> RunResult:
     """Train (or, with ``options.resume``, continue) a run in ``options.out``.
 
-    Ctrl-C, SIGTERM, a dead env worker or an exception saves a checkpoint before leaving, so
+    Ctrl-C, SIGTERM, a dead physics worker or an exception saves a checkpoint before leaving, so
     ``resume`` continues from it; the first three return a result whose ``stopped_by`` says why.
+    ``controller`` is the one ``options.controller`` names when the caller has built it already
+    (one model in memory, whatever the number of envs).
     """
     out = Path(options.out)
     checkpoints = out / "checkpoints"
@@ -142,7 +144,7 @@ def train(config: TrainConfig | None, options: RunOptions) -> RunResult:
         save_run_config(config, out / CONFIG_FILE)
 
     env_kwargs = env_kwargs_for(config, options.controller, options.render_backend)
-    controller = make_controller(options.controller)  # one model, whatever the number of envs
+    controller = controller or make_controller(options.controller)
     env_kwargs["controller"] = controller
     done_steps = list_checkpoints(checkpoints)[-1][0] if options.resume else 0
     placement = {"backend": options.backend, "ray_address": options.ray_address}
