@@ -35,6 +35,7 @@ PPO_KEYS: dict[str, Check] = {
 POLICY_KEYS: dict[str, Check] = {
     "temperature": ((int, float), lambda v: v > 0, "a number > 0"),
     "hidden": _positive_int(),
+    "retriever": (str, lambda v: v in ("mlp", "set"), "one of 'mlp' (per memory), 'set' (attention over the bank)"),
 }
 ENV_KEYS: dict[str, Check] = {
     "mode": (str, lambda v: v in ("recall", "oracle", "none"), "one of 'recall', 'oracle', 'none'"),

@@ -19,6 +19,12 @@ def test_shipped_config_has_the_paper_hyperparameters():
     assert "n_timesteps" not in kwargs and "n_envs" not in kwargs and kwargs["policy_kwargs"] == {"temperature": 0.5}
 
 
+def test_set_retriever_config_differs_from_the_default_only_in_its_retriever():
+    default, variant = load_config(ZOO, ENV_ID), load_config(ZOO.with_name("memret_ppo_set.yml"), ENV_ID)
+    assert variant.policy_kwargs == {**default.policy_kwargs, "retriever": "set"}
+    assert (variant.ppo, variant.env_kwargs) == (default.ppo, default.env_kwargs)
+
+
 @pytest.mark.parametrize(
     "section,message",
     [
@@ -30,6 +36,7 @@ def test_shipped_config_has_the_paper_hyperparameters():
         ({"n_timesteps": 10, "env_kwargs": {"mode": "guess"}}, "mode='guess' is invalid; expected one of 'recall'"),
         ({"n_timesteps": 10, "env_kwargs": {"k": 3, "capacity": 2}}, "k=3 exceeds capacity=2"),
         ({"n_timesteps": 10, "policy_kwargs": {"tau": 0.5}}, "unknown key 'tau'"),
+        ({"n_timesteps": 10, "policy_kwargs": {"retriever": "gnn"}}, "retriever='gnn' is invalid; expected one of 'mlp'"),
     ],
 )
 def test_bad_configs_are_rejected_with_the_key_and_the_accepted_values(section, message):

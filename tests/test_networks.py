@@ -1,6 +1,6 @@
 import torch
 
-from sb3_memret.policy.networks import RelevanceMLP, RetentionScorer
+from sb3_memret.policy.networks import RelevanceMLP, RetentionScorer, SetRetriever
 
 
 def test_retriever_shapes_and_layer_sizes():
@@ -30,3 +30,31 @@ def test_retention_shapes_sizes_and_masked_value():
     mask = torch.tensor([[1, 1, 1, 1, 1, 1], [1, 1, 0, 0, 0, 0], [1, 0, 0, 0, 0, 0]], dtype=torch.bool)
     value = net.value(mem, types, age, usage, mask)
     torch.testing.assert_close(value, torch.stack([scores[0].mean(), scores[1, :2].mean(), scores[2, 0]]))
+
+
+def test_set_retriever_is_permutation_equivariant_over_any_bank_size():
+    torch.manual_seed(0)
+    retriever = SetRetriever()
+    g, memories = torch.randn(2, 384), torch.randn(2, 6, 384)
+    mask = torch.ones(2, 6, dtype=torch.bool)
+    scores = retriever(g, memories, mask)
+    order = torch.tensor([3, 0, 5, 1, 4, 2])
+    torch.testing.assert_close(retriever(g, memories[:, order], mask[:, order]), scores[:, order])
+    assert retriever(g, torch.randn(2, 11, 384), torch.ones(2, 11, dtype=torch.bool)).shape == (2, 11)
+
+
+def test_set_retriever_scores_depend_on_the_other_valid_memories_only():
+    """Unlike the per-memory MLP, a memory's score changes with its rivals; empty slots change nothing."""
+    torch.manual_seed(1)
+    retriever = SetRetriever()
+    g, memories = torch.randn(1, 384), torch.randn(1, 6, 384)
+    mask = torch.tensor([[True, True, True, True, False, False]])
+    scores = retriever(g, memories, mask)
+    garbage = memories.clone()
+    garbage[0, 4:] = 50.0
+    torch.testing.assert_close(retriever(g, garbage, mask)[0, :4], scores[0, :4])
+    rival = memories.clone()
+    rival[0, 3] = torch.randn(384)
+    assert not torch.allclose(retriever(g, rival, mask)[0, :3], scores[0, :3])
+    empty = retriever(g, memories, torch.zeros(1, 6, dtype=torch.bool))
+    assert torch.isfinite(empty).all()

@@ -47,13 +47,14 @@ def test_value_is_mean_keep_score_over_valid_slots():
     assert model.policy.predict_values(obs_t).item() == pytest.approx(keep[0, :3].mean().item(), rel=1e-5)
 
 
-def test_save_and_plain_ppo_load_give_identical_greedy_actions(tmp_path):
-    model = make_model()
+@pytest.mark.parametrize("retriever", ["mlp", "set"])
+def test_save_and_plain_ppo_load_give_identical_greedy_actions(tmp_path, retriever):
+    model = make_model(policy_kwargs={"retriever": retriever})
     model.learn(128)
     path = tmp_path / "model.zip"
     model.save(path)
     loaded = PPO.load(path)
-    assert isinstance(loaded.policy, MemoryRetrievalPolicy)
+    assert isinstance(loaded.policy, MemoryRetrievalPolicy) and loaded.policy.retriever_kind == retriever
     env = ToyBankEnv()
     for seed in range(20):
         obs, _ = env.reset(seed=seed)
@@ -69,11 +70,17 @@ def test_retention_weights_are_pushed_each_rollout():
         assert env.received_weights[0][key].shape == value.shape
 
 
-def test_retrieval_is_learned_from_reward_alone():
+@pytest.mark.parametrize("retriever", ["mlp", "set"])
+def test_retrieval_is_learned_from_reward_alone(retriever):
     torch.manual_seed(0)
-    model = make_model(seed=0)
+    model = make_model(seed=0, policy_kwargs={"retriever": retriever})
     before = greedy_accuracy(model)
     model.learn(64 * 30)
     after = greedy_accuracy(model)
     assert before < 0.5
     assert after >= 0.9, (before, after)
+
+
+def test_an_unknown_retriever_is_refused():
+    with pytest.raises(ValueError, match=r"unknown retriever 'gnn'; expected one of \['mlp', 'set'\]"):
+        make_model(policy_kwargs={"retriever": "gnn"})

@@ -32,6 +32,38 @@ class RelevanceMLP(nn.Module):
         return self.net(x).squeeze(-1)
 
 
+class SetRetriever(nn.Module):
+    """Set-structured retriever: each memory's score also depends on the rest of the bank.
+
+    Every slot starts from the seed's pair features [h_g, h_m, |h_g-h_m|, h_g*h_m] (the
+    instruction g is in every token), then ``layers`` rounds of self-attention over the valid
+    slots only (no positions: permuting the slots permutes the scores, and any bank size
+    works), then a score head. So a memory can be scored against its rivals, e.g. the one
+    fact among several that names the instructed object, or a newer fact over a stale one.
+    """
+
+    def __init__(self, embedding_dim: int = EMBEDDING_DIM, hidden: int = HIDDEN, layers: int = 2, heads: int = 4):
+        super().__init__()
+        self.pair = nn.Sequential(nn.Linear(4 * embedding_dim, hidden), nn.ReLU())
+        layer = nn.TransformerEncoderLayer(hidden, heads, dim_feedforward=2 * hidden, dropout=0.0, batch_first=True)
+        self.attention = nn.TransformerEncoder(layer, layers, enable_nested_tensor=False)
+        self.head = nn.Linear(hidden, 1)
+
+    def forward(self, instruction: torch.Tensor, memories: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+        """instruction (B, D), memories (B, N, D), mask (B, N) of valid slots -> scores (B, N).
+
+        Empty slots neither attend nor are attended to; a bank with no valid slot attends over
+        all (its scores are masked by the distribution anyway).
+        """
+        g = instruction.unsqueeze(1).expand_as(memories)
+        x = self.pair(torch.cat([g, memories, (g - memories).abs(), g * memories], dim=-1))
+        valid = mask.bool() | ~mask.bool().any(-1, keepdim=True)
+        return self.head(self.attention(x, src_key_padding_mask=~valid)).squeeze(-1)
+
+
+RETRIEVERS = ("mlp", "set")
+
+
 class RetentionScorer(nn.Module):
     """Task-agnostic keep-score of each memory from [h_m, type embedding, age/100, usage/10].
 

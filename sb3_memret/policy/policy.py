@@ -12,7 +12,7 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
 from sb3_memret.memory.encoder import EMBEDDING_DIM
 from sb3_memret.policy.distributions import PlackettLuceDistribution
-from sb3_memret.policy.networks import HIDDEN, RelevanceMLP, RetentionScorer
+from sb3_memret.policy.networks import HIDDEN, RETRIEVERS, RelevanceMLP, RetentionScorer, SetRetriever
 
 BANK_KEYS = ("instruction", "memories", "mask", "type_ids", "age", "usage")
 
@@ -31,18 +31,23 @@ class BankExtractor(BaseFeaturesExtractor):
 
 
 class MemoryRetrievalPolicy(ActorCriticPolicy):
-    """Actor: RelevanceMLP scores -> Plackett-Luce top-K at ``temperature``.
+    """Actor: retriever scores -> Plackett-Luce top-K at ``temperature``. The retriever is the seed's
+    per-memory ``RelevanceMLP`` (``retriever="mlp"``) or the set-structured ``SetRetriever``
+    (``"set"``: attention over the whole bank).
     Critic: the mean RetentionScorer keep-score over valid slots.
 
     ``predict(obs, deterministic=True)`` is greedy retrieval (top-K by score).
     """
 
     def __init__(self, observation_space: spaces.Dict, action_space: spaces.MultiDiscrete, lr_schedule,
-                 temperature: float = 0.5, hidden: int = HIDDEN, **kwargs: Any):
+                 temperature: float = 0.5, hidden: int = HIDDEN, retriever: str = "mlp", **kwargs: Any):
         if not isinstance(action_space, spaces.MultiDiscrete):
             raise ValueError(f"MemoryRetrievalPolicy needs a MultiDiscrete action space of slot indices, got {action_space}")
+        if retriever not in RETRIEVERS:
+            raise ValueError(f"unknown retriever {retriever!r}; expected one of {list(RETRIEVERS)}")
         self.temperature = temperature
         self.hidden = hidden
+        self.retriever_kind = retriever
         kwargs.setdefault("features_extractor_class", BankExtractor)
         kwargs.setdefault("optimizer_class", torch.optim.AdamW)
         kwargs["ortho_init"] = False
@@ -50,12 +55,14 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
 
     def _build(self, lr_schedule) -> None:
         self.action_dist = PlackettLuceDistribution(len(self.action_space.nvec), self.temperature)
-        self.retriever = RelevanceMLP(hidden=self.hidden)
+        self.retriever = SetRetriever(hidden=self.hidden) if self.retriever_kind == "set" else RelevanceMLP(hidden=self.hidden)
         self.retention = RetentionScorer(hidden=self.hidden)
         self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
 
     def scores(self, features: dict[str, torch.Tensor]) -> torch.Tensor:
         """(B, N) retriever scores of every slot (empty slots included, they are masked later)."""
+        if self.retriever_kind == "set":
+            return self.retriever(features["instruction"], features["memories"], features["mask"] > 0.5)
         return self.retriever(features["instruction"], features["memories"])
 
     def _distribution(self, f: dict[str, torch.Tensor]) -> PlackettLuceDistribution:
@@ -87,5 +94,5 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
-        data.update(temperature=self.temperature, hidden=self.hidden)
+        data.update(temperature=self.temperature, hidden=self.hidden, retriever=self.retriever_kind)
         return data
