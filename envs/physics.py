@@ -54,6 +54,11 @@ class TaskEnvInfo:
     control_mode: str
     obs_mode: str
 
+    @classmethod
+    def of(cls, env: Any) -> "TaskEnvInfo":
+        base = env.unwrapped
+        return cls(str(base.control_mode), str(base.obs_mode))
+
 
 @dataclass(frozen=True)
 class ResetRequest:
@@ -95,8 +100,7 @@ class TaskRunner:
         self.env = make_task_env(max_episode_steps=max_control_steps, **task_kwargs)
 
     def info(self) -> TaskEnvInfo:
-        base = self.env.unwrapped
-        return TaskEnvInfo(str(base.control_mode), str(base.obs_mode))
+        return TaskEnvInfo.of(self.env)
 
     def reset(self, seed: int, options: Mapping[str, Any]) -> EnvFrame:
         obs, info = self.env.reset(seed=int(seed), options=dict(options))
@@ -283,8 +287,7 @@ class BatchedSimPhysics(PhysicsBackend):
         self.num_envs = num_envs
         self.env = make_task_env(max_episode_steps=max_control_steps, num_envs=num_envs, sim_backend=sim_backend,
                                  **task_kwargs)
-        base = self.env.unwrapped
-        self.env_info = TaskEnvInfo(str(base.control_mode), str(base.obs_mode))
+        self.env_info = TaskEnvInfo.of(self.env)
         self.action_dim = int(self.env.action_space.shape[-1])
         self._obs: Any = None
 
