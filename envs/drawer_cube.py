@@ -1,4 +1,5 @@
-"""DrawerCubeTakeOut-v1: take a cube out of one of three stacked drawers with a Franka Panda."""
+"""DrawerCubeTakeOut-v1: take the named object (by default a cube) out of one of three stacked drawers
+with a Franka Panda."""
 
 from __future__ import annotations
 
@@ -18,10 +19,11 @@ from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs.pose import Pose
 
 from sb3_memret.envs.cabinet import LAYERS, CabinetLayout, build_cabinet, check_layer
+from sb3_memret.envs.objects import ObjectSpec, object_specs
 from sb3_memret.rewards import staged_potential
 
-CUBE_HALF_SIZE = 0.02
-GRASP_QUERY_RADIUS = 0.1  # m between TCP and cube centre beyond which no grasp is possible
+PARK_X = -1.0  # objects an episode does not use wait on the floor behind the robot, out of its reach
+GRASP_QUERY_RADIUS = 0.1  # m between TCP and target centre beyond which no grasp is possible
 IMAGE_SIZE = 224
 
 
@@ -32,12 +34,16 @@ class DrawerCubeState:
     Only the writer and the reward may read this; controllers see observations only.
     """
 
-    cube_pos: np.ndarray  # (B, 3)
-    cube_quat: np.ndarray  # (B, 4) wxyz
-    cube_layer: np.ndarray  # (B,) layer the episode placed the cube in (1 = top)
+    target_pos: np.ndarray  # (B, 3) the object the instruction names
+    target_quat: np.ndarray  # (B, 4) wxyz
+    target_layer: np.ndarray  # (B,) layer the episode placed the target in (1 = top)
+    object_names: np.ndarray  # (B, M) str: the task's objects, in its order
+    object_layer: np.ndarray  # (B, M) layer each object was placed in, 0 if this episode leaves it out
+    object_pos: np.ndarray  # (B, M, 3)
+    target_index: np.ndarray  # (B,) the target's index into the objects
     layer_boxes: np.ndarray  # (B, 3, 2, 3) per layer: (low, high) corners of the interior
     drawer_qpos: np.ndarray  # (B, 3) opening of drawers 1..3 in metres
-    grasped: np.ndarray  # (B,) bool: both fingers press on the cube
+    grasped: np.ndarray  # (B,) bool: both fingers press on the target
     eef_pos: np.ndarray  # (B, 3) tool centre point
     eef_quat: np.ndarray  # (B, 4) wxyz
 
@@ -46,9 +52,17 @@ class DrawerCubeState:
         return DrawerCubeState(**{name: value[index:index + 1] for name, value in vars(self).items()})
 
     @property
-    def cube_in_layer(self) -> np.ndarray:
-        """(B,) the layer whose interior box holds the cube's centre, 0 if none."""
-        return layer_containing(self.cube_pos, self.layer_boxes)
+    def target_in_layer(self) -> np.ndarray:
+        """(B,) the layer whose interior box holds the target's centre, 0 if none."""
+        return layer_containing(self.target_pos, self.layer_boxes)
+
+    def target_name(self, index: int = 0) -> str:
+        return str(self.object_names[index, self.target_index[index]])
+
+    def placed(self, index: int = 0) -> dict[str, int]:
+        """Env ``index``'s objects in this episode by name, with the layer each was placed in."""
+        return {str(name): int(layer) for name, layer in zip(self.object_names[index], self.object_layer[index])
+                if layer > 0}
 
 
 def layer_containing(points: np.ndarray, boxes: np.ndarray) -> np.ndarray:
@@ -65,29 +79,34 @@ class DrawerCubeTakeOutEnv(BaseEnv):
     """
     **Task Description:**
     A Franka Panda faces a cabinet of three stacked drawers (layer 1 top, 2 middle, 3 bottom),
-    each with a vertical bar handle graspable from the front. A cube lies inside one drawer;
-    the robot must open that drawer and take the cube out. Which drawer is not observable
-    until it is open, so a policy has to be told (or remember) the layer.
+    each with a vertical bar handle graspable from the front. Objects lie inside the drawers, at
+    most one per drawer; the instruction names one of them, the target, which the robot must
+    open its drawer for and take out. Which drawer is not observable until it is open, so a
+    policy has to be told (or remember) the layer. By default the only object is a cube (the
+    seed's task); ``objects`` and ``n_objects`` hide several (``sb3_memret.envs.objects``).
 
     **Randomizations:**
-    - the cube's layer is uniform over {1, 2, 3} (fix it with ``options={"cube_layer": L}``)
-    - the cube's position in the drawer: 4-9 cm behind the inner front, |y| <= 8 cm
-    - the cube's yaw is uniform in [-pi/6, pi/6]
+    - the target's layer is uniform over {1, 2, 3} (fix it with ``options={"target_layer": L}``)
+    - which ``n_objects`` of ``objects`` the episode uses is uniform, and so is which of them is
+      the target (fix it with ``options={"target": name}``); the others go to distinct other layers
+    - each object's position in its drawer: 4-9 cm behind the inner front, |y| <= 8 cm
+    - each object's yaw is uniform in [-pi/6, pi/6]
     - the arm's joint positions get N(0, ``robot_init_qpos_noise``) noise around the rest pose
     - all drawers start closed; the cabinet itself never moves
 
     **Success Conditions:**
-    - the cube's centre is outside every drawer's interior box, and
+    - the target's centre is outside every drawer's interior box, and
     - it is raised above the cabinet top (``lift_height``) or pulled past the cabinet front
       (``front_margin`` in front of its face).
 
     **Observations:** ``agent/eef_state`` is the 8-D end-effector state (TCP position and
     axis-angle in the robot base frame, two gripper joints). ``extra/drawer_opening`` (3) is
-    what a camera sees of the drawers; ``extra/cube_detection`` (8: visible flag, position,
-    wxyz quaternion) is the cube as a camera would see it: zeros while its drawer is closed.
-    With a render backend, ``base_camera`` and ``hand_camera`` give 224x224 RGB images; inside
-    ``sensors_paused()`` steps return the state part only, so a controller that reads images
-    once per action chunk pays for one render per chunk, not one per control step.
+    what a camera sees of the drawers; ``extra/target_detection`` (8: visible flag, position,
+    wxyz quaternion) is the target as a camera with a detector prompted by the instruction's
+    object word would see it: zeros while its drawer is closed. With a render backend,
+    ``base_camera`` and ``hand_camera`` give 224x224 RGB images; inside ``sensors_paused()``
+    steps return the state part only, so a controller that reads images once per action chunk
+    pays for one render per chunk, not one per control step.
 
     **Action:** 7-D ``pd_ee_delta_pose`` (3 translation, 3 rotation, gripper), sent unmodified.
     """
@@ -104,15 +123,23 @@ class DrawerCubeTakeOutEnv(BaseEnv):
         visible_opening: float = 0.15,
         lift_height: float | None = None,
         front_margin: float = 0.05,
+        objects: tuple[str, ...] = ("cube",),
+        n_objects: int = 1,
         **kwargs: Any,
     ):
         kwargs.setdefault("control_mode", "pd_ee_delta_pose")
         self.layout = layout or CabinetLayout()
+        self.object_specs: tuple[ObjectSpec, ...] = object_specs(objects)
+        if not 1 <= n_objects <= min(len(self.object_specs), len(LAYERS)):
+            raise ValueError(f"n_objects must be in [1, {min(len(self.object_specs), len(LAYERS))}] for objects "
+                             f"{list(objects)!r} and {len(LAYERS)} drawers, got {n_objects}")
+        self.n_objects = n_objects
         self.robot_init_qpos_noise = robot_init_qpos_noise
         self.visible_opening = visible_opening
         self.lift_height = self.layout.top_z + 0.02 if lift_height is None else lift_height
         self.front_margin = front_margin
-        self._cube_layer_np: np.ndarray | None = None
+        self._object_layer_np: np.ndarray | None = None  # (B, M) placed layer per object, 0 = unused
+        self._target_index_np: np.ndarray | None = None  # (B,)
         self._sensors_paused = False
         # (3, 2, 3): each layer's interior (low, high) with every drawer closed
         self._closed_boxes = np.stack([np.stack(self.layout.inner_box(layer)) for layer in LAYERS])
@@ -149,13 +176,20 @@ class DrawerCubeTakeOutEnv(BaseEnv):
         self.cabinet = build_cabinet(self.scene, self.layout)
         self.drawer_links = [self.cabinet.links_map[f"drawer_{layer}"] for layer in LAYERS]
 
-        cube = self.scene.create_actor_builder()
-        cube.add_box_collision(half_size=[CUBE_HALF_SIZE] * 3)
+        self.objects = [self._build_object(spec, render) for spec in self.object_specs]
+
+    def _build_object(self, spec: ObjectSpec, render: bool):
+        builder = self.scene.create_actor_builder()
+        builder.add_box_collision(half_size=list(spec.half_size))
         if render:
-            cube.add_box_visual(half_size=[CUBE_HALF_SIZE] * 3,
-                                material=sapien.render.RenderMaterial(base_color=[0.9, 0.1, 0.1, 1]))
-        cube.initial_pose = sapien.Pose(p=[0.0, 0.0, 2.0])
-        self.cube = cube.build(name="cube")
+            builder.add_box_visual(half_size=list(spec.half_size),
+                                   material=sapien.render.RenderMaterial(base_color=[*spec.color, 1]))
+        builder.initial_pose = sapien.Pose(p=[0.0, 0.0, 2.0])
+        return builder.build(name=spec.name)
+
+    @property
+    def object_names(self) -> tuple[str, ...]:
+        return tuple(spec.name for spec in self.object_specs)
 
     # ---------------------------------------------------------- episode init
     def _initialize_episode(self, env_idx: torch.Tensor, options: dict) -> None:
@@ -169,23 +203,64 @@ class DrawerCubeTakeOutEnv(BaseEnv):
             self.cabinet.set_qpos(torch.zeros(b, len(LAYERS)))
             self.cabinet.set_qvel(torch.zeros(b, len(LAYERS)))
 
-            layer = options.get("cube_layer")
-            if layer is None:
-                layers = torch.randint(1, len(LAYERS) + 1, (b,))
+            target_layer = options.get("target_layer")
+            if target_layer is None:
+                target_layers = torch.randint(1, len(LAYERS) + 1, (b,))
             else:
-                layers = torch.full((b,), check_layer(layer), dtype=torch.long)
-            if self._cube_layer_np is None:
-                self._cube_layer_np = np.zeros(self.num_envs, dtype=np.int64)
-            self._cube_layer_np[env_idx.cpu().numpy()] = layers.cpu().numpy()
+                target_layers = torch.full((b,), check_layer(target_layer), dtype=torch.long)
+            chosen = self._draw_objects(b, options.get("target"))
+            layers = self._draw_other_layers(target_layers)
+            ids = env_idx.cpu().numpy()
+            if self._object_layer_np is None:
+                self._object_layer_np = np.zeros((self.num_envs, len(self.object_specs)), dtype=np.int64)
+                self._target_index_np = np.zeros(self.num_envs, dtype=np.int64)
+            self._object_layer_np[ids] = 0
+            rows = np.arange(b)
+            for column in range(self.n_objects):
+                self._object_layer_np[ids, chosen[:, column].cpu().numpy()] = layers[:, column].cpu().numpy()
+            self._target_index_np[ids] = chosen[:, 0].cpu().numpy()
 
-            lows = torch.as_tensor(np.stack([self.layout.inner_box(int(l))[0] for l in layers]), dtype=torch.float32)
-            pos = lows.clone()
-            pos[:, 0] += CUBE_HALF_SIZE + 0.04 + 0.05 * torch.rand(b)
-            pos[:, 1] = (torch.rand(b) * 2 - 1) * 0.08
-            pos[:, 2] += CUBE_HALF_SIZE + 1e-3
-            yaw = (torch.rand(b) * 2 - 1) * (np.pi / 6)
-            quat = torch.stack([torch.cos(yaw / 2), torch.zeros(b), torch.zeros(b), torch.sin(yaw / 2)], dim=1)
-            self.cube.set_pose(Pose.create_from_pq(pos, quat))
+            half = torch.as_tensor([spec.half_size for spec in self.object_specs], dtype=torch.float32)
+            poses = [self._parked(j, b) for j in range(len(self.object_specs))]
+            for column in range(self.n_objects):
+                lows = torch.as_tensor(np.stack([self.layout.inner_box(int(l))[0] for l in layers[:, column]]),
+                                       dtype=torch.float32)
+                size = half[chosen[:, column]]
+                pos = lows.clone()
+                pos[:, 0] += size[:, 0] + 0.04 + 0.05 * torch.rand(b)
+                pos[:, 1] = (torch.rand(b) * 2 - 1) * 0.08
+                pos[:, 2] += size[:, 2] + 1e-3
+                yaw = (torch.rand(b) * 2 - 1) * (np.pi / 6)
+                quat = torch.stack([torch.cos(yaw / 2), torch.zeros(b), torch.zeros(b), torch.sin(yaw / 2)], dim=1)
+                for i, j in zip(rows, chosen[:, column].tolist()):
+                    poses[j][0][i], poses[j][1][i] = pos[i], quat[i]
+            for actor, (pos, quat) in zip(self.objects, poses):
+                actor.set_pose(Pose.create_from_pq(pos, quat))
+
+    def _draw_objects(self, b: int, target: str | None) -> torch.Tensor:
+        """(b, n_objects) indices of the episode's objects, the target first."""
+        m = len(self.object_specs)
+        if target is not None and target not in self.object_names:
+            raise ValueError(f"target {target!r} is not one of this task's objects {list(self.object_names)}")
+        if m == 1:
+            return torch.zeros((b, 1), dtype=torch.long)
+        keys = torch.rand(b, m)
+        if target is not None:
+            keys[:, self.object_names.index(target)] = -1.0
+        return keys.argsort(dim=1)[:, : self.n_objects]
+
+    def _draw_other_layers(self, target_layers: torch.Tensor) -> torch.Tensor:
+        """(b, n_objects) layers: the target's first, then distinct other layers in random order."""
+        if self.n_objects == 1:
+            return target_layers[:, None]
+        keys = torch.rand(len(target_layers), len(LAYERS))
+        keys[torch.arange(len(target_layers)), target_layers - 1] = -1.0
+        return keys.argsort(dim=1)[:, : self.n_objects] + 1
+
+    def _parked(self, j: int, b: int) -> tuple[torch.Tensor, torch.Tensor]:
+        """Object ``j`` resting on the floor behind the robot, where an episode that leaves it out keeps it."""
+        pos = torch.tensor([PARK_X, -0.3 + 0.12 * j, self.object_specs[j].half_size[2] + 1e-3]).repeat(b, 1)
+        return pos, torch.tensor([1.0, 0.0, 0.0, 0.0]).repeat(b, 1)
 
     # ------------------------------------------------------------ evaluation
     def privileged_state(self) -> DrawerCubeState:
@@ -195,14 +270,22 @@ class DrawerCubeTakeOutEnv(BaseEnv):
         shift[..., 0, 0] = -qpos  # drawers slide towards the robot along -x
         boxes = self._closed_boxes + shift
         tcp = self.agent.tcp.pose.raw_pose.cpu().numpy().astype(np.float64)
-        cube = self.cube.pose.raw_pose.cpu().numpy().astype(np.float64)
-        # Contact queries are the slow part of a CPU step: only ask when the cube is in reach.
-        near = np.linalg.norm(cube[:, :3] - tcp[:, :3], axis=1) < GRASP_QUERY_RADIUS
-        grasped = self.agent.is_grasping(self.cube).cpu().numpy() if near.any() else np.zeros(len(near), bool)
+        poses = np.stack([actor.pose.raw_pose.cpu().numpy().astype(np.float64) for actor in self.objects], axis=1)
+        envs = np.arange(len(tcp))
+        target = poses[envs, self._target_index_np]
+        # Contact queries are the slow part of a CPU step: only ask when the target is in reach.
+        near = np.linalg.norm(target[:, :3] - tcp[:, :3], axis=1) < GRASP_QUERY_RADIUS
+        grasped = np.zeros(len(near), bool)
+        for j in np.unique(self._target_index_np[near]):
+            grasped |= (self._target_index_np == j) & self.agent.is_grasping(self.objects[j]).cpu().numpy()
         return DrawerCubeState(
-            cube_pos=cube[:, :3],
-            cube_quat=cube[:, 3:],
-            cube_layer=self._cube_layer_np.copy(),
+            target_pos=target[:, :3],
+            target_quat=target[:, 3:],
+            target_layer=self._object_layer_np[envs, self._target_index_np],
+            object_names=np.tile(np.array(self.object_names), (len(tcp), 1)),
+            object_layer=self._object_layer_np.copy(),
+            object_pos=poses[..., :3],
+            target_index=self._target_index_np.copy(),
             layer_boxes=boxes,
             drawer_qpos=qpos,
             grasped=grasped & near,
@@ -212,18 +295,18 @@ class DrawerCubeTakeOutEnv(BaseEnv):
 
     def evaluate(self) -> dict[str, torch.Tensor]:
         state = self.privileged_state()
-        in_layer = state.cube_in_layer
+        in_layer = state.target_in_layer
         clear = in_layer == 0
-        raised = state.cube_pos[:, 2] > self.lift_height
-        pulled = state.cube_pos[:, 0] < self.layout.front_x - self.front_margin
+        raised = state.target_pos[:, 2] > self.lift_height
+        pulled = state.target_pos[:, 0] < self.layout.front_x - self.front_margin
         success = clear & (raised | pulled)
-        phi = staged_potential(state.eef_pos, state.cube_pos, state.grasped, clear, success)
+        phi = staged_potential(state.eef_pos, state.target_pos, state.grasped, clear, success)
         as_tensor = lambda a, dtype: torch.as_tensor(a, dtype=dtype, device=self.device)  # noqa: E731
         return {
             "success": as_tensor(success, torch.bool),
-            "cube_clear": as_tensor(clear, torch.bool),
-            "cube_in_layer": as_tensor(in_layer, torch.long),
-            "cube_layer": as_tensor(state.cube_layer, torch.long),
+            "target_clear": as_tensor(clear, torch.bool),
+            "target_in_layer": as_tensor(in_layer, torch.long),
+            "target_layer": as_tensor(state.target_layer, torch.long),
             "grasped": as_tensor(state.grasped, torch.bool),
             "potential": as_tensor(phi, torch.float32),
         }
@@ -266,10 +349,12 @@ class DrawerCubeTakeOutEnv(BaseEnv):
 
     def _get_obs_extra(self, info: dict) -> dict[str, torch.Tensor]:
         opening = self.cabinet.get_qpos()
-        in_layer = info["cube_in_layer"]
+        in_layer = info["target_in_layer"]
         idx = (in_layer - 1).clamp(min=0)
         drawer_open = opening.gather(1, idx[:, None])[:, 0] >= self.visible_opening
         visible = (in_layer == 0) | drawer_open
-        pose = torch.cat([self.cube.pose.p, self.cube.pose.q], dim=1)
+        poses = torch.stack([actor.pose.raw_pose for actor in self.objects], dim=1)
+        target = torch.as_tensor(self._target_index_np, device=poses.device)
+        pose = poses[torch.arange(len(poses), device=poses.device), target]
         detection = torch.cat([visible[:, None].float(), pose * visible[:, None]], dim=1)
-        return {"drawer_opening": opening, "cube_detection": detection}
+        return {"drawer_opening": opening, "target_detection": detection}

@@ -62,7 +62,7 @@ class TaskEnvInfo:
 
 @dataclass(frozen=True)
 class ResetRequest:
-    """Start env ``env_id``'s next episode from ``seed`` with these reset options (e.g. ``cube_layer``)."""
+    """Start env ``env_id``'s next episode from ``seed`` with these reset options (e.g. ``target_layer``)."""
 
     env_id: int
     seed: int

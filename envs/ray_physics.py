@@ -174,7 +174,7 @@ class RayPhysics(PhysicsBackend):
             return 0
         frame = ray.get(self.actors[i].replay.remote(log.seed, log.options, log.chunks))
         expected = log.last
-        for name in ("eef_pos", "cube_pos", "drawer_qpos"):
+        for name in ("eef_pos", "target_pos", "drawer_qpos"):
             if not np.allclose(getattr(frame.state, name), getattr(expected.state, name), atol=REPLAY_ATOL):
                 raise RuntimeError(f"physics worker {i}: replaying episode seed {log.seed} ({len(log.chunks)} chunks) "
                                    f"on the restarted actor reached {name}={getattr(frame.state, name).tolist()}, not "

@@ -25,7 +25,7 @@ class DrawerRecallEnv(gym.Env):
 
     Takes ``DrawerRecallVecEnv``'s arguments (mode, controller, capacity, k, replan_every,
     gamma, success_bonus, max_control_steps, render_backend, seeding, encoder, task_kwargs);
-    see it for the modes, the action and the reward. ``reset(options={"cube_layer": L})``
+    see it for the modes, the action and the reward. ``reset(options={"target_layer": L})``
     fixes the cube's drawer.
     """
 

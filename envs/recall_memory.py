@@ -16,9 +16,9 @@ from sb3_memret.envs.drawer_cube import DrawerCubeState
 from sb3_memret.memory.bank import MemoryBank
 from sb3_memret.memory.encoder import EMBEDDING_DIM, MiniLMEncoder
 from sb3_memret.memory.schema import MemoryEntry, MemoryType
-from sb3_memret.memory.seeding import SeedingConfig, is_true_cube_memory, seed_memories
+from sb3_memret.memory.seeding import SeedingConfig, is_true_memory, seed_memories
 from sb3_memret.memory.writer import BoundingBoxPredicateExtractor, EventCompiler
-from sb3_memret.prompts import INSTRUCTION, PromptTemplate, build_prompt, location_text
+from sb3_memret.prompts import PromptTemplate, build_prompt, instruction_text, location_text
 
 MODES = ("recall", "oracle", "none")
 # keep-scores of a bank's entries at decision time t (the retention critic, or the fixed prior)
@@ -61,14 +61,16 @@ class EpisodeMemory:
         self.compiler = EventCompiler(encoder)
         self.t = 0
         self.layer = 1
+        self.target = "cube"
         self.true_evicted = False
 
     def start(self, state: DrawerCubeState, rng: np.random.Generator) -> None:
-        """A new episode: the seeded memories (true fact and decoys) are the bank at t = 0."""
-        self.layer = check_layer(int(state.cube_layer[0]))
+        """A new episode: the seeded memories (true facts and decoys) are the bank at t = 0."""
+        self.layer = check_layer(int(state.target_layer[0]))
+        self.target = state.target_name()
         self.t, self.true_evicted = 0, False
         self.bank.clear()
-        seeds = seed_memories(self.layer, rng, self.seeding)
+        seeds = seed_memories(state.placed(), self.target, rng, self.seeding)
         vectors = self.encoder.encode([e.text for e in seeds])
         self._write([e.with_embedding(v) for e, v in zip(seeds, vectors)])
         self.compiler.reset()
@@ -83,11 +85,12 @@ class EpisodeMemory:
 
     def prompt(self, chosen: list[MemoryEntry]) -> str:
         """The controller's prompt: the instruction plus the chosen facts (or the mode's fixed text)."""
+        instruction = instruction_text(self.target)
         if self.mode == "oracle":
-            return build_prompt(INSTRUCTION, [location_text("cube", self.layer)], self.template)
+            return build_prompt(instruction, [location_text(self.target, self.layer)], self.template)
         if self.mode == "none":
-            return build_prompt(INSTRUCTION, [], self.template)
-        return build_prompt(INSTRUCTION, [e.text for e in chosen], self.template)
+            return build_prompt(instruction, [], self.template)
+        return build_prompt(instruction, [e.text for e in chosen], self.template)
 
     def observe(self, state: DrawerCubeState, steps: int) -> None:
         """After a chunk of ``steps`` control steps: write the facts that changed, age the bank."""
@@ -98,17 +101,24 @@ class EpisodeMemory:
     def _write(self, entries: list[MemoryEntry]) -> None:
         for entry in entries:
             outcome = self.bank.write(entry, lambda stored: self.keep_scorer(stored, self.t))
-            if outcome.evicted is not None and is_true_cube_memory(outcome.evicted, self.layer):
+            if outcome.evicted is not None and self.is_true(outcome.evicted):
                 self.true_evicted = True
 
     def instruction(self) -> str:
-        return build_prompt(INSTRUCTION, [location_text("cube", self.layer)]) if self.mode == "oracle" else INSTRUCTION
+        """The text the retriever conditions on: the instruction (with the target's layer in oracle mode)."""
+        instruction = instruction_text(self.target)
+        if self.mode == "oracle":
+            return build_prompt(instruction, [location_text(self.target, self.layer)], PromptTemplate((instruction,)))
+        return instruction
+
+    def is_true(self, entry: MemoryEntry) -> bool:
+        return is_true_memory(entry, self.target, self.layer)
 
     def true_slot(self) -> int:
-        return next((i for i, e in enumerate(self.bank.entries) if is_true_cube_memory(e, self.layer)), -1)
+        return next((i for i, e in enumerate(self.bank.entries) if self.is_true(e)), -1)
 
     def retrieved_true(self, chosen: list[MemoryEntry]) -> bool:
-        return any(is_true_cube_memory(e, self.layer) for e in chosen)
+        return any(self.is_true(e) for e in chosen)
 
     def observation(self) -> dict[str, np.ndarray]:
         view = self.bank.view()
@@ -126,7 +136,8 @@ class EpisodeMemory:
             "true_slot": self.true_slot(),
             "true_evicted": self.true_evicted,
             "success": success,
-            "cube_layer": self.layer,
+            "target_layer": self.layer,
+            "target": self.target,
             "memory_texts": [e.text for e in self.bank.entries],
         }
 

@@ -13,6 +13,7 @@ env drawing its next episode from its own generator, seeded by ``seed(s)`` as ``
 
 from __future__ import annotations
 
+import dataclasses
 from typing import Any, Sequence
 
 import gymnasium as gym
@@ -24,6 +25,7 @@ from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvStepReturn
 
 from sb3_memret.controllers import FrozenController, make_controller
+from sb3_memret.envs.objects import object_set
 from sb3_memret.envs.physics import EnvFrame, PhysicsBackend, ResetRequest, make_physics, stack_obs
 from sb3_memret.envs.recall_memory import EpisodeMemory, check_mode, observation_space
 from sb3_memret.memory.bank import importance_scorer
@@ -52,6 +54,11 @@ class DrawerRecallVecEnv(VecEnv):
     ``backend`` picks where the physics runs (``sb3_memret.envs.physics.BACKENDS``; ``auto``:
     in-process for one env, worker processes for several); ``ray_address`` a Ray cluster.
     ``controller_calls`` counts ``controller.act`` calls: one per decision round.
+
+    ``objects`` (a named set of ``sb3_memret.envs.objects.OBJECT_SETS`` or a list of objects) and
+    ``n_objects`` hide several objects in the drawers; the instruction names one, the target, and
+    the bank holds where each of them is, so the retriever must read the instruction.
+    ``location_decoys`` and ``holding_decoys`` set how many decoy facts seed each bank.
     """
 
     def __init__(
@@ -69,6 +76,10 @@ class DrawerRecallVecEnv(VecEnv):
         seeding: SeedingConfig | None = None,
         encoder: MiniLMEncoder | None = None,
         task_kwargs: dict[str, Any] | None = None,
+        objects: str | Sequence[str] = "cube",
+        n_objects: int = 1,
+        location_decoys: int | None = None,
+        holding_decoys: int | None = None,
         backend: str = "auto",
         ray_address: str | None = None,
     ):
@@ -80,7 +91,12 @@ class DrawerRecallVecEnv(VecEnv):
         self.controller = make_controller(controller) if isinstance(controller, str) else controller
         if not 1 <= replan_every <= self.controller.spec.chunk_len:
             raise ValueError(f"replan_every must be in [1, {self.controller.spec.chunk_len}], got {replan_every}")
-        task_kwargs = {**task_env_kwargs(self.controller, render_backend), **(task_kwargs or {})}
+        task_kwargs = {**task_env_kwargs(self.controller, render_backend), "objects": object_set(objects),
+                       "n_objects": n_objects, **(task_kwargs or {})}
+        seeding = seeding or SeedingConfig()
+        decoys = {k: v for k, v in (("location_decoys", location_decoys), ("holding_decoys", holding_decoys))
+                  if v is not None}
+        seeding = dataclasses.replace(seeding, **decoys) if decoys else seeding
         self.encoder = encoder or MiniLMEncoder()
         self.retention: RetentionScorer | None = None
         super().__init__(num_envs, observation_space(capacity), spaces.MultiDiscrete([capacity] * k))
@@ -128,7 +144,7 @@ class DrawerRecallVecEnv(VecEnv):
     def reset_envs(self, env_ids: Sequence[int], seeds: Sequence[int | None] | None = None,
                    options: Sequence[dict[str, Any]] | None = None) -> dict[int, dict[str, Any]]:
         """Start new episodes in ``env_ids``: a ``seeds`` entry reseeds that env's generator (None
-        continues it); ``options`` go to the task's reset (e.g. ``{"cube_layer": 2}``). Returns the
+        continues it); ``options`` go to the task's reset (e.g. ``{"target_layer": 2}``). Returns the
         reset infos by env id."""
         seeds = list(seeds) if seeds is not None else [None] * len(env_ids)
         options = list(options) if options is not None else [{}] * len(env_ids)

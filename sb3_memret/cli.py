@@ -503,7 +503,7 @@ def trace(models: tuple[Path, ...], seed: int, sample_seed: int, controller: str
     if as_json:
         click.echo(json.dumps([t.to_dict() for t in traces]))
         return
-    click.echo(f'instruction: "{traces[0].instruction}"   episode seed {seed}, cube in layer {traces[0].cube_layer}   '
+    click.echo(f'instruction: "{traces[0].instruction}"   episode seed {seed}, cube in layer {traces[0].target_layer}   '
                f"( * = sampled, C = true cube memory )")
     for t in traces:
         click.echo("\n" + t.format())

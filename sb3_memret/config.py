@@ -8,6 +8,9 @@ from typing import Any, Callable
 
 import yaml
 
+from sb3_memret.envs.cabinet import LAYERS
+from sb3_memret.envs.objects import OBJECT_SETS
+
 Check = tuple[type | tuple[type, ...], Callable[[Any], bool], str]
 
 
@@ -44,6 +47,10 @@ ENV_KEYS: dict[str, Check] = {
     "replan_every": _positive_int(),
     "max_control_steps": _positive_int(),
     "success_bonus": ((int, float), lambda v: v >= 0, "a number >= 0"),
+    "objects": (str, lambda v: v in OBJECT_SETS, f"one of the object sets {sorted(OBJECT_SETS)}"),
+    "n_objects": (int, lambda v: 1 <= v <= len(LAYERS), f"an integer in [1, {len(LAYERS)}] (one object per drawer)"),
+    "location_decoys": (int, lambda v: v >= 0, "an integer >= 0"),
+    "holding_decoys": (int, lambda v: v >= 0, "an integer >= 0"),
 }
 
 

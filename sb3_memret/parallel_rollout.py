@@ -84,7 +84,7 @@ def run_jobs(
             starting = {i: queue.popleft() for i in envs if queue}
             if not starting:
                 return
-            requests = [ResetRequest(i, jobs[j].seed, {"cube_layer": jobs[j].layer}) for i, j in starting.items()]
+            requests = [ResetRequest(i, jobs[j].seed, {"target_layer": jobs[j].layer}) for i, j in starting.items()]
             first = not frames
             frames.update(physics.reset(requests))
             seeds = [jobs[j].seed for j in starting.values()]

@@ -16,7 +16,8 @@ from typing import Sequence
 from sb3_memret.envs.cabinet import LAYERS, check_layer
 from sb3_memret.memory.schema import NOTHING, OUTSIDE, SPECIAL_TEXTS, TEMPLATES, MemoryType
 
-INSTRUCTION = "pick out the cube."
+INSTRUCTION_TEMPLATE = "pick out the {entity}."
+INSTRUCTION = INSTRUCTION_TEMPLATE.format(entity="cube")  # the seed's task: the only object is a cube
 LAYER_LOCATION_TEMPLATE = TEMPLATES[MemoryType.OBJECT_LOCATION].replace("{value}", "drawer layer {layer}")
 OUTSIDE_TEMPLATE = SPECIAL_TEXTS[(MemoryType.OBJECT_LOCATION, OUTSIDE)]
 HOLDING_TEMPLATE = TEMPLATES[MemoryType.HOLDING]
@@ -30,7 +31,11 @@ _SENTENCE_RE = re.compile(r"[^ .][^.]*\.")
 
 @dataclass(frozen=True)
 class PromptTemplate:
-    """The sentences a controller was trained on: its instructions and fact templates."""
+    """The sentences a controller was trained on: its instructions and fact templates.
+
+    Either may hold fields (``pick out the {entity}.``): a controller trained on several objects
+    takes any object word there, while one trained on ``pick out the cube.`` alone takes nothing else.
+    """
 
     instructions: tuple[str, ...] = (INSTRUCTION,)
     fact_templates: tuple[str, ...] = (LAYER_LOCATION_TEMPLATE, OUTSIDE_TEMPLATE, HOLDING_TEMPLATE, HOLDING_NOTHING_TEXT)
@@ -59,9 +64,20 @@ class ParsedPrompt:
     facts: tuple[Fact, ...] = ()
 
     @property
+    def target(self) -> str | None:
+        """The object the instruction names (``pick out the {entity}.``), or None for another wording."""
+        m = _template_regex(INSTRUCTION_TEMPLATE).fullmatch(self.instruction)
+        return m["entity"] if m else None
+
+    @property
     def layer(self) -> int | None:
         """The drawer layer of the first fact that names one, or None."""
         return next((f.layer for f in self.facts if f.layer is not None), None)
+
+
+def instruction_text(target: str) -> str:
+    """The instruction that names ``target``: ``pick out the {target}.``"""
+    return build_prompt(INSTRUCTION_TEMPLATE.format(entity=target), [], PromptTemplate((INSTRUCTION_TEMPLATE,)))
 
 
 def location_text(entity: str, layer: int) -> str:
@@ -92,24 +108,26 @@ def parse_prompt(prompt: str, template: PromptTemplate | None = None) -> ParsedP
             f"spaces, lowercase, with no leading or trailing whitespace; accepted {template.describe()}"
         )
     instruction, *rest = sentences
-    if instruction not in template.instructions:
+    if not any(_template_regex(t).fullmatch(instruction) for t in template.instructions):
         raise ValueError(f"prompt {prompt!r} starts with {instruction!r}; expected one of {template.describe()}")
     return ParsedPrompt(instruction, tuple(_parse_fact(s, prompt, template) for s in rest))
 
 
-def condition_prompt(condition: str, layer: int) -> str:
-    """The prompt of a controller-evaluation condition for a cube in ``layer``.
+def condition_prompt(condition: str, layer: int, target: str = "cube") -> str:
+    """The prompt of a controller-evaluation condition for ``target`` in ``layer``.
 
     oracle names the right layer, wrong names another one (the next layer, cyclically),
     none is the bare instruction.
     """
     check_layer(layer)
+    instruction = instruction_text(target)
+    template = PromptTemplate((instruction,))
     if condition == "oracle":
-        return build_prompt(INSTRUCTION, [location_text("cube", layer)])
+        return build_prompt(instruction, [location_text(target, layer)], template)
     if condition == "wrong":
-        return build_prompt(INSTRUCTION, [location_text("cube", layer % len(LAYERS) + 1)])
+        return build_prompt(instruction, [location_text(target, layer % len(LAYERS) + 1)], template)
     if condition == "none":
-        return INSTRUCTION
+        return instruction
     raise ValueError(f"unknown condition {condition!r}; expected one of {list(CONDITIONS)}")
 
 

@@ -15,13 +15,13 @@ REACH_SCALE = 0.2
 
 def staged_potential(
     eef_pos: np.ndarray,
-    cube_pos: np.ndarray,
+    target_pos: np.ndarray,
     grasped: np.ndarray,
     clear: np.ndarray,
     success: np.ndarray,
 ) -> np.ndarray:
     """Φ(s) for a batch: positions (B, 3), flags (B,). Monotone in task progress."""
-    reach = 1.0 - np.tanh(np.linalg.norm(np.asarray(eef_pos) - np.asarray(cube_pos), axis=-1) / REACH_SCALE)
+    reach = 1.0 - np.tanh(np.linalg.norm(np.asarray(eef_pos) - np.asarray(target_pos), axis=-1) / REACH_SCALE)
     phi = reach + 2.0 * np.asarray(grasped, dtype=bool)
     phi = np.where(np.asarray(clear, dtype=bool), reach + 4.0, phi)
     return np.where(np.asarray(success, dtype=bool), PHI_MAX, phi)

@@ -93,7 +93,7 @@ def run_episode(
     ``check_prompt=False`` waives the prompt contract (``FrozenController.act``)."""
     if not 1 <= replan_every <= controller.spec.chunk_len:
         raise ValueError(f"replan_every must be in [1, {controller.spec.chunk_len}] (the chunk length), got {replan_every}")
-    obs, _ = env.reset(seed=seed, options={"cube_layer": check_layer(layer)})
+    obs, _ = env.reset(seed=seed, options={"target_layer": check_layer(layer)})
     controller.reset([seed])
     steps = 0
     while True:

@@ -33,12 +33,12 @@ def run(episodes: int) -> list[tuple[float, float]]:
     timings = []
     for episode in range(episodes):
         layer = episode % 3 + 1
-        obs, _ = env.reset(seed=episode, options={"cube_layer": layer})
+        obs, _ = env.reset(seed=episode, options={"target_layer": layer})
         controller.reset([episode])
         compiler.reset()
         bank.clear()
         rng = np.random.default_rng(episode)
-        seeds = seed_memories(layer, rng)
+        seeds = seed_memories({"cube": layer}, "cube", rng)
         for entry, vector in zip(seeds, encoder.encode([e.text for e in seeds])):
             bank.write(entry.with_embedding(vector))
         prompt, t, done = condition_prompt("oracle", layer), 0, False

@@ -40,7 +40,7 @@ def decisions_per_second(env, controller, step_chunk, decisions: int, replan_eve
     prompt = condition_prompt("oracle", 2)
     done, seconds = 0, 0.0
     while done < decisions:
-        obs, _ = env.reset(seed=seed + done, options={"cube_layer": 2})
+        obs, _ = env.reset(seed=seed + done, options={"target_layer": 2})
         controller.reset([seed + done])
         start = time.perf_counter()
         ended = False
@@ -59,7 +59,7 @@ def save_images(env, folder: Path) -> None:
     folder.mkdir(parents=True, exist_ok=True)
     task = env.unwrapped
     for state, opening in (("closed", 0.0), ("open", 0.25)):
-        env.reset(seed=0, options={"cube_layer": 2})
+        env.reset(seed=0, options={"target_layer": 2})
         task.cabinet.set_qpos(torch.tensor([[0.0, opening, 0.0]]))
         obs = task.get_obs()
         for camera in ("base_camera", "hand_camera"):

@@ -11,7 +11,7 @@ from sb3_memret.controllers.scripted import ScriptedDrawerController
 from sb3_memret.prompts import INSTRUCTION, condition_prompt, parse_prompt
 from sb3_memret.stage1.demos import DemoEpisode, PromptMix, plan_episodes, read_episode_log, record_demos, record_episode
 
-DETECTION = slice(STATE_NAMES.index("cube_visible"), STATE_NAMES.index("cube_qz") + 1)
+DETECTION = slice(STATE_NAMES.index("target_visible"), STATE_NAMES.index("target_qz") + 1)
 
 
 def read_dataset(root):
@@ -23,12 +23,12 @@ def read_dataset(root):
 def test_planned_prompts_are_bare_or_single_cube_facts():
     episodes = plan_episodes(300, seed=7, noise=0.05, noisy_fraction=0.5)
     assert [e.seed for e in episodes] == list(range(7, 307))
-    assert [e.cube_layer for e in episodes[:6]] == [1, 2, 3, 1, 2, 3]
+    assert [e.target_layer for e in episodes[:6]] == [1, 2, 3, 1, 2, 3]
     kinds = {"bare": 0, "matching": 0, "mismatched": 0}
     for e in episodes:
         parsed = parse_prompt(e.prompt)
         assert len(parsed.facts) <= 1 and all("cube" in dict(f.fields).values() for f in parsed.facts)
-        kinds["bare" if parsed.layer is None else "matching" if parsed.layer == e.cube_layer else "mismatched"] += 1
+        kinds["bare" if parsed.layer is None else "matching" if parsed.layer == e.target_layer else "mismatched"] += 1
     assert kinds["bare"] == pytest.approx(60, abs=20) and kinds["mismatched"] == pytest.approx(60, abs=20)
     assert {e.noise for e in episodes} == {0.0, 0.05}
     assert sum(e.noise > 0 for e in episodes) == pytest.approx(150, abs=30)

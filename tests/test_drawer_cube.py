@@ -13,7 +13,7 @@ from sb3_memret.rewards import PHI_MAX
 
 def place_cube(env, xyz):
     base = env.unwrapped
-    base.cube.set_pose(Pose.create_from_pq(torch.tensor([xyz], dtype=torch.float32)))
+    base.objects[0].set_pose(Pose.create_from_pq(torch.tensor([xyz], dtype=torch.float32)))
     return base.evaluate()
 
 
@@ -28,13 +28,13 @@ def test_make_with_state_obs_and_no_renderer():
 
 
 def test_observation_layout(task_env):
-    obs, _ = task_env.reset(seed=1, options={"cube_layer": 2})
+    obs, _ = task_env.reset(seed=1, options={"target_layer": 2})
     state = task_env.unwrapped.privileged_state()
     eef = obs["agent"]["eef_state"][0].numpy()
     np.testing.assert_allclose(eef[:3], state.eef_pos[0], atol=1e-5)
     np.testing.assert_allclose(eef[6:], [0.04, 0.04], atol=1e-3)  # gripper open at rest
     np.testing.assert_allclose(obs["extra"]["drawer_opening"][0].numpy(), 0.0, atol=1e-6)
-    assert torch.all(obs["extra"]["cube_detection"] == 0)  # hidden while its drawer is closed
+    assert torch.all(obs["extra"]["target_detection"] == 0)  # hidden while its drawer is closed
 
 
 def test_seeded_reset_is_reproducible(task_env):
@@ -42,7 +42,7 @@ def test_seeded_reset_is_reproducible(task_env):
     for seed in (7, 7, 8):
         task_env.reset(seed=seed)
         state = task_env.unwrapped.privileged_state()
-        poses.append((state.cube_layer[0], state.cube_pos[0].copy(), state.cube_quat[0].copy()))
+        poses.append((state.target_layer[0], state.target_pos[0].copy(), state.target_quat[0].copy()))
     assert poses[0][0] == poses[1][0]
     np.testing.assert_array_equal(poses[0][1], poses[1][1])
     np.testing.assert_array_equal(poses[0][2], poses[1][2])
@@ -53,28 +53,28 @@ def test_layer_is_uniformly_randomised_over_seeds(task_env):
     layers = []
     for seed in range(30):
         task_env.reset(seed=seed)
-        layers.append(int(task_env.unwrapped.privileged_state().cube_layer[0]))
+        layers.append(int(task_env.unwrapped.privileged_state().target_layer[0]))
     assert set(layers) == set(LAYERS)
 
 
 @pytest.mark.parametrize("layer", LAYERS)
 def test_cube_starts_in_its_layer_and_that_is_not_success(task_env, layer):
-    task_env.reset(seed=3, options={"cube_layer": layer})
+    task_env.reset(seed=3, options={"target_layer": layer})
     for _ in range(5):
         _, reward, terminated, _, info = task_env.step(np.zeros(7))
-    assert info["cube_in_layer"].item() == layer
-    assert info["cube_layer"].item() == layer
+    assert info["target_in_layer"].item() == layer
+    assert info["target_layer"].item() == layer
     assert not info["success"].item() and not terminated.item()
     # the default reward mode, normalized_dense, is the staged potential over its maximum
     assert reward.item() == pytest.approx(info["potential"].item() / PHI_MAX)
 
 
 def test_success_geometry(task_env):
-    task_env.reset(seed=0, options={"cube_layer": 1})
+    task_env.reset(seed=0, options={"target_layer": 1})
     lay = task_env.unwrapped.layout
     # lifted clear above the cabinet
     info = place_cube(task_env, [lay.front_x + 0.1, 0.0, lay.top_z + 0.1])
-    assert info["success"].item() and info["cube_clear"].item()
+    assert info["success"].item() and info["target_clear"].item()
     assert info["potential"].item() == pytest.approx(PHI_MAX)
     # pulled past the front, outside every drawer
     info = place_cube(task_env, [lay.front_x - 0.2, 0.0, 0.3])
@@ -85,27 +85,27 @@ def test_success_geometry(task_env):
 
 
 def test_cube_inside_an_open_drawer_is_not_success(task_env):
-    task_env.reset(seed=0, options={"cube_layer": 2})
+    task_env.reset(seed=0, options={"target_layer": 2})
     base = task_env.unwrapped
     opening = torch.tensor([[0.0, 0.28, 0.0]])
     base.cabinet.set_qpos(opening)
     low, high = base.layout.inner_box(2, 0.28)
     info = place_cube(task_env, ((low + high) / 2).tolist())
-    assert info["cube_in_layer"].item() == 2
+    assert info["target_in_layer"].item() == 2
     assert not info["success"].item()
     obs = base.get_obs(info)
-    assert obs["extra"]["cube_detection"][0, 0] == 1.0  # its drawer is open: a camera sees it
-    np.testing.assert_allclose(obs["extra"]["cube_detection"][0, 1:4].numpy(), (low + high) / 2, atol=1e-5)
+    assert obs["extra"]["target_detection"][0, 0] == 1.0  # its drawer is open: a camera sees it
+    np.testing.assert_allclose(obs["extra"]["target_detection"][0, 1:4].numpy(), (low + high) / 2, atol=1e-5)
 
 
 def test_cube_stays_hidden_when_another_drawer_opens(task_env):
-    task_env.reset(seed=0, options={"cube_layer": 3})
+    task_env.reset(seed=0, options={"target_layer": 3})
     base = task_env.unwrapped
     base.cabinet.set_qpos(torch.tensor([[0.28, 0.28, 0.0]]))
     obs = base.get_obs(base.evaluate())
-    assert torch.all(obs["extra"]["cube_detection"] == 0)
+    assert torch.all(obs["extra"]["target_detection"] == 0)
 
 
 def test_unknown_cube_layer_option_is_refused(task_env):
     with pytest.raises(ValueError, match=r"drawer layer must be one of \[1, 2, 3\]"):
-        task_env.reset(seed=0, options={"cube_layer": 4})
+        task_env.reset(seed=0, options={"target_layer": 4})

@@ -51,7 +51,7 @@ def test_policy_learns_the_experts_labels(demos, tmp_path):
     first = np.flatnonzero(np.r_[True, np.diff(data.episodes) != 0])
     controller.reset(list(range(len(first))))
     obs = {"agent": {"eef_state": data.states[first, :8]},
-           "extra": {"drawer_opening": data.states[first, 8:11], "cube_detection": data.states[first, 11:]}}
+           "extra": {"drawer_opening": data.states[first, 8:11], "target_detection": data.states[first, 11:]}}
     chunks = controller.act(obs, [data.tasks[t] for t in data.task_ids[first]])
     target = np.stack([data.actions[i: i + 8] for i in first])
     assert np.abs(chunks - target).mean() < 0.5 * np.abs(target).mean()

@@ -87,7 +87,7 @@ def fake_obs(batch: int = 2, opening: float = 0.0) -> dict:
     return {
         "agent": {"eef_state": rng.uniform(-1, 1, (batch, 8)).astype(np.float32)},
         "extra": {"drawer_opening": np.full((batch, 3), opening, dtype=np.float32),
-                  "cube_detection": rng.uniform(-1, 1, (batch, 8)).astype(np.float32)},
+                  "target_detection": rng.uniform(-1, 1, (batch, 8)).astype(np.float32)},
         "sensor_data": {cam: {"rgb": rng.integers(0, 256, (batch, 224, 224, 3), dtype=np.uint8)}
                         for cam in ("base_camera", "hand_camera")},
     }

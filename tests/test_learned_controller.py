@@ -32,7 +32,7 @@ def state_obs(batch: int = 2, rng: np.random.Generator | None = None) -> dict:
     rng = rng or np.random.default_rng(0)
     return {"agent": {"eef_state": rng.normal(size=(batch, 8)).astype(np.float32)},
             "extra": {"drawer_opening": rng.uniform(0, 0.3, (batch, 3)).astype(np.float32),
-                      "cube_detection": np.zeros((batch, 8), np.float32)}}
+                      "target_detection": np.zeros((batch, 8), np.float32)}}
 
 
 def test_checkpoint_round_trips_exactly(tmp_path):
@@ -117,7 +117,7 @@ def test_shipped_checkpoint_is_the_default(shipped):
 
 
 def test_the_layer_digit_steers_the_shipped_policy(shipped, task_env):
-    obs, _ = task_env.reset(seed=5, options={"cube_layer": 2})
+    obs, _ = task_env.reset(seed=5, options={"target_layer": 2})
     shipped.reset([0, 1, 2])
     chunks = shipped.act({k: {kk: np.repeat(np.asarray(vv), 3, axis=0) for kk, vv in v.items()} for k, v in obs.items()},
                          [condition_prompt("oracle", layer) for layer in (1, 2, 3)])

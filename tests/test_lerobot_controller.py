@@ -157,7 +157,7 @@ def test_tiny_pi05_acts_on_rendered_camera_images(load, rgb_task_env):
     from sb3_memret.rollout import execute_chunk
 
     controller = load()
-    obs, _ = rgb_task_env.reset(seed=3, options={"cube_layer": 2})
+    obs, _ = rgb_task_env.reset(seed=3, options={"target_layer": 2})
     controller.reset([3])
     for _ in range(3):
         chunk = controller.act(obs, [PROMPTS[0]])[0]

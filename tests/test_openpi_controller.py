@@ -153,7 +153,7 @@ def test_a_few_decisions_on_rendered_camera_images(serve, rgb_task_env):
     server = serve(lambda request, n: {"actions": np.tile([0.5, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], (10, 1))})
     controller = OpenPIController("127.0.0.1", server.port, limits=FAST)
     controller.check_env(rgb_task_env)
-    obs, _ = rgb_task_env.reset(seed=5, options={"cube_layer": 3})
+    obs, _ = rgb_task_env.reset(seed=5, options={"target_layer": 3})
     controller.reset([5])
     start = obs["agent"]["eef_state"][0, :3].clone()
     sent = []

@@ -22,11 +22,11 @@ def test_sb3_check_env_passes(recall_env):
 
 
 def test_seeded_bank_and_observation(recall_env):
-    obs, info = recall_env.reset(seed=3, options={"cube_layer": 2})
+    obs, info = recall_env.reset(seed=3, options={"target_layer": 2})
     assert obs["memories"].shape == (6, 384) and obs["mask"].sum() == 6
     np.testing.assert_allclose(np.linalg.norm(obs["memories"], axis=1), 1.0, atol=1e-5)
     texts = info["memory_texts"]
-    assert len(texts) == 6 and info["cube_layer"] == 2
+    assert len(texts) == 6 and info["target_layer"] == 2
     if info["true_slot"] >= 0:
         assert texts[info["true_slot"]] == "the cube is in drawer layer 2."
     else:
@@ -36,7 +36,7 @@ def test_seeded_bank_and_observation(recall_env):
 def test_retrieving_the_true_memory_earns_more_than_a_decoy(recall_env):
     returns = {}
     for pick in ("true", "decoy"):
-        obs, info = recall_env.reset(seed=4, options={"cube_layer": 3})
+        obs, info = recall_env.reset(seed=4, options={"target_layer": 3})
         assert info["true_slot"] >= 0
         texts = info["memory_texts"]
         decoy = next(i for i, t in enumerate(texts) if "drawer layer" in t and i != info["true_slot"])

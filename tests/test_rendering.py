@@ -27,7 +27,7 @@ def test_a_missing_renderer_names_the_command_that_installs_it(tmp_path, monkeyp
 
 
 def test_both_cameras_render_real_images(rgb_task_env):
-    obs, _ = rgb_task_env.reset(seed=0, options={"cube_layer": 1})
+    obs, _ = rgb_task_env.reset(seed=0, options={"target_layer": 1})
     for cam, image in images(obs).items():
         assert image.shape == (224, 224, 3) and image.dtype == np.uint8, cam
         assert image.std() > 10 and len(np.unique(image.reshape(-1, 3), axis=0)) > 10, f"{cam} looks blank"
@@ -35,7 +35,7 @@ def test_both_cameras_render_real_images(rgb_task_env):
 
 
 def test_opening_a_drawer_changes_what_the_base_camera_sees(rgb_task_env):
-    obs, _ = rgb_task_env.reset(seed=0, options={"cube_layer": 1})
+    obs, _ = rgb_task_env.reset(seed=0, options={"target_layer": 1})
     closed = images(obs)["base_camera"].astype(np.int16)
     task = rgb_task_env.unwrapped
     task.cabinet.set_qpos(torch.tensor([[0.25, 0.0, 0.0]]))

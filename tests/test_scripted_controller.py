@@ -38,7 +38,7 @@ def test_no_memory_prompt_opens_top_drawer(task_env, controller):
 
 def test_prompt_changed_mid_episode_changes_behaviour(controller):
     env = make_task_env(max_episode_steps=700)
-    obs, _ = env.reset(seed=5, options={"cube_layer": 2})
+    obs, _ = env.reset(seed=5, options={"target_layer": 2})
     controller.reset([5])
     info = {}
     for step in range(0, 700, 8):
@@ -60,7 +60,7 @@ def test_controller_cannot_see_the_cube_layer():
     chunks = []
     for layer in (2, 3):
         env = make_task_env(robot_init_qpos_noise=0.0)
-        obs, _ = env.reset(seed=21, options={"cube_layer": layer})
+        obs, _ = env.reset(seed=21, options={"target_layer": layer})
         ctrl = ScriptedDrawerController()
         ctrl.reset([21])
         chunks.append(ctrl.act(obs, ["pick out the cube."]))
@@ -69,7 +69,7 @@ def test_controller_cannot_see_the_cube_layer():
 
 
 def test_chunks_are_batched_and_bounded(task_env, controller):
-    obs, _ = task_env.reset(seed=0, options={"cube_layer": 1})
+    obs, _ = task_env.reset(seed=0, options={"target_layer": 1})
     batch = {k: {kk: vv.repeat(3, *[1] * (vv.ndim - 1)) for kk, vv in v.items()} for k, v in obs.items()}
     controller.reset([0, 1, 2])
     prompts = [condition_prompt("oracle", layer) for layer in LAYERS]
@@ -109,7 +109,7 @@ def test_unknown_controller_spec_is_refused():
 
 def test_action_convention_matches_the_simulator(task_env):
     """The controller's model of pd_ee_delta_pose: base-frame deltas, rotation sign, tracking gain."""
-    obs, _ = task_env.reset(seed=0, options={"cube_layer": 1})
+    obs, _ = task_env.reset(seed=0, options={"target_layer": 1})
     before = Perception.from_obs(obs, 0)
     turn, move = 0.02, 0.005  # per step: +z rotation (rad) and +x translation (m)
     action = np.zeros(7, dtype=np.float32)

@@ -69,7 +69,7 @@ def state_request(obs: dict, prompt: str, i: int = 0) -> dict:
     """What a plain openpi client would send for env ``i``: pi05_libero's state and prompt plus the task state."""
     return {"observation/state": as_numpy(obs["agent"]["eef_state"])[i], "prompt": prompt,
             "observation/drawer_opening": as_numpy(obs["extra"]["drawer_opening"])[i],
-            "observation/cube_detection": as_numpy(obs["extra"]["cube_detection"])[i]}
+            "observation/target_detection": as_numpy(obs["extra"]["target_detection"])[i]}
 
 
 def test_metadata_describes_the_served_controller(scripted_server):
@@ -83,7 +83,7 @@ def test_metadata_describes_the_served_controller(scripted_server):
 def record(env, prompt: str, seed: int, layer: int, decisions: int = DECISIONS) -> list[tuple[dict, np.ndarray]]:
     """(observation, chunk) at each decision of the in-process scripted expert driving the real task."""
     controller = ScriptedDrawerController()
-    obs, _ = env.reset(seed=seed, options={"cube_layer": layer})
+    obs, _ = env.reset(seed=seed, options={"target_layer": layer})
     controller.reset([seed])
     trajectory = []
     for _ in range(decisions):
@@ -143,8 +143,8 @@ def test_the_server_refuses_drift_and_missing_keys(scripted_server, task_env):
     with pytest.raises(PolicyServerError, match="matches no trained template"):
         client.infer(state_request(obs, drifted))
     request = state_request(obs, condition_prompt("oracle", 1))
-    del request["observation/cube_detection"]
-    with pytest.raises(PolicyServerError, match="the request lacks 'observation/cube_detection'"):
+    del request["observation/target_detection"]
+    with pytest.raises(PolicyServerError, match="the request lacks 'observation/target_detection'"):
         client.infer(request)
     with pytest.raises(PolicyServerError, match=r"'observation/state' is float32\(3,\); expected float32\(8,\)"):
         client.infer(state_request(obs, condition_prompt("oracle", 1)) | {"observation/state": np.zeros(3, np.float32)})
@@ -155,7 +155,7 @@ def test_a_stateless_learned_controller_over_the_wire(task_env):
     port = serve_in_thread("learned")
     remote, local = make_controller(f"openpi://127.0.0.1:{port}"), make_controller("learned")
     assert remote.spec == local.spec
-    obs, _ = task_env.reset(seed=3, options={"cube_layer": 1})
+    obs, _ = task_env.reset(seed=3, options={"target_layer": 1})
     batch = {k: {kk: np.repeat(np.asarray(vv), 2, axis=0) for kk, vv in v.items()} for k, v in obs.items()}
     prompts = [condition_prompt("oracle", 1), condition_prompt("none", 1)]
     for controller in (remote, local):

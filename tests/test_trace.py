@@ -58,8 +58,8 @@ def assert_consistent(trace, info):
         assert row.text == info["memory_texts"][row.slot]
     (true_row,) = [row for row in trace.rows if row.true]
     assert true_row.slot == info["true_slot"]
-    assert true_row.text == f"the cube is in drawer layer {trace.cube_layer}."
-    assert trace.cube_layer == info["cube_layer"]
+    assert true_row.text == f"the cube is in drawer layer {trace.target_layer}."
+    assert trace.target_layer == info["target_layer"]
     assert sum(row.sampled for row in trace.rows) == 1  # K = 1
     scores = [row.score for row in trace.rows]
     assert scores == sorted(scores, reverse=True)
@@ -111,7 +111,7 @@ def test_to_dict_is_json(model, env, episode):
     data = json.loads(json.dumps(trace.to_dict()))
     assert data["greedy_correct"] == trace.greedy_correct
     assert [row["text"] for row in data["rows"]] == [row.text for row in trace.rows]
-    assert data["cube_layer"] == trace.cube_layer
+    assert data["target_layer"] == trace.target_layer
 
 
 def test_a_retriever_that_prefers_the_true_memory_is_correct(env, episode, monkeypatch):

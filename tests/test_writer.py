@@ -44,17 +44,17 @@ def test_unknown_values_are_not_written_and_bad_relations_refused():
 
 @pytest.mark.parametrize("layer", [1, 2, 3])
 def test_extractor_names_the_right_layer_in_the_real_sim(task_env, layer):
-    task_env.reset(seed=layer, options={"cube_layer": layer})
+    task_env.reset(seed=layer, options={"target_layer": layer})
     task_env.step(np.zeros(7, dtype=np.float32))
     preds = BoundingBoxPredicateExtractor().extract(task_env.unwrapped.privileged_state())
     assert preds == {("location", "cube"): f"drawer layer {layer}", ("holding", "robot"): "nothing"}
 
 
 def test_extractor_changes_when_cube_is_lifted_out(task_env):
-    task_env.reset(seed=0, options={"cube_layer": 2})
+    task_env.reset(seed=0, options={"target_layer": 2})
     base = task_env.unwrapped
     extractor, compiler = BoundingBoxPredicateExtractor(), EventCompiler()
     compiler.update(extractor.extract(base.privileged_state()), 0)
-    base.cube.set_pose(Pose.create_from_pq(torch.tensor([[base.layout.front_x - 0.2, 0.0, 0.5]])))
+    base.objects[0].set_pose(Pose.create_from_pq(torch.tensor([[base.layout.front_x - 0.2, 0.0, 0.5]])))
     entries = compiler.update(extractor.extract(base.privileged_state()), 8)
     assert [e.text for e in entries] == ["the cube is out of the drawers."]

@@ -43,5 +43,5 @@ class ToyBankEnv(gym.Env):
     def step(self, action):
         hit = int(action[0]) == self.true
         info = {"true_slot": self.true, "decision_true_slot": self.true, "retrieved_true": hit, "success": hit,
-                "cube_layer": self.layer, "true_evicted": False}
+                "target_layer": self.layer, "true_evicted": False}
         return self.obs, float(hit), True, False, info

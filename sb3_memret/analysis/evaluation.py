@@ -102,7 +102,7 @@ def evaluate_retrieval(
                     sampled += float((draws[i] == true).any(-1).float().mean())
                     entropy += float(ent[i])
                 if dones[i]:
-                    episode = dict(layer=int(info["cube_layer"]), success=bool(info["success"]),
+                    episode = dict(layer=int(info["target_layer"]), success=bool(info["success"]),
                                    shaped_return=float(returns[i]), true_evicted=bool(evicted[i]),
                                    decisions=int(lengths[i]))
                     episodes.append(episode)

@@ -187,7 +187,7 @@ def _traces(run: Path, model: MemRetPPO, final_path: Path, options: ReportOption
 def _trace_section(traces: list) -> list[str]:
     head = (f'Instruction "{traces[0].instruction}". '
             f"Every memory in the bank at the first decision of held-out episode {traces[0].seed} (cube in layer "
-            f"{traces[0].cube_layer}), with the retriever's score and first-pick probability; `*` marks a sampled "
+            f"{traces[0].target_layer}), with the retriever's score and first-pick probability; `*` marks a sampled "
             "pick, `C` the true cube memory.")
     note = "" if len(traces) > 1 else "\n\n(The run has no initial_model.zip, so only the final policy is traced.)"
     return [head + note, "```text\n" + "\n\n".join(t.format() for t in traces) + "\n```"]

@@ -37,7 +37,7 @@ class RetrievalTrace:
     label: str
     instruction: str
     seed: int
-    cube_layer: int
+    target_layer: int
     temperature: float
     rows: tuple[TraceRow, ...]
 
@@ -86,7 +86,7 @@ def trace_first_retrieval(model: BaseAlgorithm, env: gym.Env, seed: int, label: 
                      int(slot) == int(info["true_slot"])) for slot, p in zip(valid, probs)]
     rows.sort(key=lambda row: -row.score)
     instruction = env.unwrapped.instruction()
-    return RetrievalTrace(label, instruction, seed, int(info["cube_layer"]), float(policy.temperature), tuple(rows))
+    return RetrievalTrace(label, instruction, seed, int(info["target_layer"]), float(policy.temperature), tuple(rows))
 
 
 def trace_models(models: list[tuple[str, BaseAlgorithm]], env_kwargs: dict[str, Any], seed: int,

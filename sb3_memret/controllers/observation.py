@@ -24,8 +24,8 @@ IMAGE_SHAPE = (224, 224, 3)
 STATE_PARTS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
     ("agent", "eef_state", ("tcp_x", "tcp_y", "tcp_z", "tcp_rx", "tcp_ry", "tcp_rz", "finger_left", "finger_right")),
     ("extra", "drawer_opening", ("opening_1", "opening_2", "opening_3")),
-    ("extra", "cube_detection", ("cube_visible", "cube_x", "cube_y", "cube_z", "cube_qw", "cube_qx", "cube_qy",
-                                 "cube_qz")),
+    ("extra", "target_detection", ("target_visible", "target_x", "target_y", "target_z", "target_qw", "target_qx", "target_qy",
+                                 "target_qz")),
 )
 STATE_NAMES: tuple[str, ...] = tuple(name for _, _, names in STATE_PARTS for name in names)
 STATE_DIM = len(STATE_NAMES)

@@ -45,7 +45,7 @@ STATE_DIM = 8
 CAMERAS = {"observation/image": "base_camera", "observation/wrist_image": "hand_camera"}
 # Sent beside the pi05_libero keys (a pi05_libero server ignores them): what a state-only controller
 # served by `sb3-memret serve` reads, and episode boundaries for controllers that keep per-episode state.
-EXTRA_STATE = {"observation/drawer_opening": "drawer_opening", "observation/cube_detection": "cube_detection"}
+EXTRA_STATE = {"observation/drawer_opening": "drawer_opening", "observation/target_detection": "target_detection"}
 CLIENT_KEY, ENV_KEY = "sb3_memret/client", "sb3_memret/env"
 EPISODE_KEY, SEED_KEY = "sb3_memret/episode", "sb3_memret/seed"
 T = TypeVar("T")

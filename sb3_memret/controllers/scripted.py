@@ -2,9 +2,9 @@
 
 It stands in for a finetuned VLA on a CPU: it reads the target drawer only from the prompt
 (``the cube is in drawer layer 2.``; like the finetuned π0.5 it follows the layer number,
-not the object word), opens the top drawer when no layer is given, and sees the cube only
-once a drawer is open, through the task's camera-like ``cube_detection``. It never reads
-the simulator. At every ``act`` call it re-reads the state and the prompt, so a prompt that
+not the object word), opens the top drawer when no layer is given, and sees the object its
+instruction names (``pick out the {entity}.``, any object) only once that object's drawer is
+open, through the task's camera-like ``target_detection``. It never reads the simulator. At every ``act`` call it re-reads the state and the prompt, so a prompt that
 changes mid-episode changes what it does (it lets go, closes the wrong drawer, and goes to
 the new one).
 
@@ -24,7 +24,7 @@ from scipy.spatial.transform import Rotation
 
 from sb3_memret.controllers.base import ControllerSpec, FrozenController, Obs, as_numpy
 from sb3_memret.envs.cabinet import LAYERS, CabinetLayout
-from sb3_memret.prompts import ParsedPrompt, PromptTemplate
+from sb3_memret.prompts import INSTRUCTION_TEMPLATE, ParsedPrompt, PromptTemplate
 
 # ManiSkill 3.0.1 pd_ee_delta_pose: translation = action * 0.1 m in the base frame; rotation =
 # action * rot_lower (-0.1 rad) as a base-frame rotation, i.e. +1 turns by -0.1 rad.
@@ -65,25 +65,25 @@ class Perception:
     tcp_rot: Rotation
     finger_width: float
     opening: np.ndarray
-    cube_visible: bool
-    cube_pos: np.ndarray
-    cube_yaw: float
+    target_visible: bool
+    target_pos: np.ndarray
+    target_yaw: float
 
     @classmethod
     def from_obs(cls, obs: Obs, i: int) -> "Perception":
         eef = as_numpy(obs["agent"]["eef_state"])[i]
-        det = as_numpy(obs["extra"]["cube_detection"])[i]
-        cube_rot = Rotation.from_quat(det[[5, 6, 7, 4]]) if det[0] > 0.5 else Rotation.identity()
-        x_axis = cube_rot.as_matrix()[:, 0]
+        det = as_numpy(obs["extra"]["target_detection"])[i]
+        target_rot = Rotation.from_quat(det[[5, 6, 7, 4]]) if det[0] > 0.5 else Rotation.identity()
+        x_axis = target_rot.as_matrix()[:, 0]
         yaw = (np.arctan2(x_axis[1], x_axis[0]) + np.pi / 4) % (np.pi / 2) - np.pi / 4
         return cls(
             tcp_pos=eef[:3].astype(np.float64),
             tcp_rot=Rotation.from_rotvec(eef[3:6]),
             finger_width=float(eef[6] + eef[7]),
             opening=as_numpy(obs["extra"]["drawer_opening"])[i].astype(np.float64),
-            cube_visible=bool(det[0] > 0.5),
-            cube_pos=det[1:4].astype(np.float64),
-            cube_yaw=float(yaw),
+            target_visible=bool(det[0] > 0.5),
+            target_pos=det[1:4].astype(np.float64),
+            target_yaw=float(yaw),
         )
 
 
@@ -127,7 +127,7 @@ class ScriptedDrawerController(FrozenController):
         self.spec = ControllerSpec(
             action_convention="pd_ee_delta_pose",
             chunk_len=chunk_len,
-            prompt_template=prompt_template or PromptTemplate(),
+            prompt_template=prompt_template or PromptTemplate((INSTRUCTION_TEMPLATE,)),
         )
         self._plans: list[_Plan] = []
 
@@ -198,10 +198,10 @@ class ScriptedDrawerController(FrozenController):
         if p is Phase.PUSH and s.opening[d - 1] < 0.02:
             return (Phase.BACK_OFF,)
         if p is Phase.RISE and s.tcp_pos[2] > self._rise_height(d) - 0.02:
-            return (Phase.ABOVE_CUBE,) if s.cube_visible else (Phase.IDLE,)
-        if p is Phase.ABOVE_CUBE and self._at(s, s.cube_pos + [0, 0, 0.12], self._down(s), g.fine_tol + 0.004):
+            return (Phase.ABOVE_CUBE,) if s.target_visible else (Phase.IDLE,)
+        if p is Phase.ABOVE_CUBE and self._at(s, s.target_pos + [0, 0, 0.12], self._down(s), g.fine_tol + 0.004):
             return (Phase.DESCEND,)
-        if p is Phase.DESCEND and self._at(s, s.cube_pos, self._down(s), g.fine_tol):
+        if p is Phase.DESCEND and self._at(s, s.target_pos, self._down(s), g.fine_tol):
             return (Phase.GRIP_CUBE,)
         if p is Phase.GRIP_CUBE and plan.calls > 0:
             return (Phase.LIFT,) if s.finger_width > 0.03 else (Phase.RELEASE,)
@@ -212,7 +212,7 @@ class ScriptedDrawerController(FrozenController):
     def _after_back_off(self, plan: _Plan, s: Perception) -> tuple[Phase, int] | tuple[Phase]:
         """Decide what to do once the hand is clear of the drawers."""
         g = self.gains
-        if s.cube_visible:
+        if s.target_visible:
             return (Phase.RISE, plan.drawer)
         stray = [layer for layer in LAYERS if layer != plan.layer and s.opening[layer - 1] > 0.03]
         if stray:
@@ -252,9 +252,9 @@ class ScriptedDrawerController(FrozenController):
         if p is Phase.RISE:
             return np.array([s.tcp_pos[0], 0.0, self._rise_height(d)]), self._down(s), OPEN, g.free_speed
         if p is Phase.ABOVE_CUBE:
-            return s.cube_pos + [0, 0, 0.12], self._down(s), OPEN, g.free_speed
+            return s.target_pos + [0, 0, 0.12], self._down(s), OPEN, g.free_speed
         if p is Phase.DESCEND:
-            return s.cube_pos, self._down(s), OPEN, g.fine_speed
+            return s.target_pos, self._down(s), OPEN, g.fine_speed
         if p is Phase.GRIP_CUBE:
             return s.tcp_pos, s.tcp_rot, CLOSE, g.fine_speed
         if p is Phase.LIFT:
@@ -268,7 +268,7 @@ class ScriptedDrawerController(FrozenController):
 
     @staticmethod
     def _down(s: Perception) -> Rotation:
-        return Rotation.from_euler("z", s.cube_yaw) * R_DOWN if s.cube_visible else R_DOWN
+        return Rotation.from_euler("z", s.target_yaw) * R_DOWN if s.target_visible else R_DOWN
 
     def _at(self, s: Perception, pos: np.ndarray, rot: Rotation, tol: float) -> bool:
         return bool(

@@ -1,12 +1,14 @@
-"""Episode seeding: the one true cube memory among plausible decoys, so retrieval is a choice."""
+"""Episode seeding: the true memory of the target among plausible decoys, so retrieval is a choice."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Mapping
 
 import numpy as np
 
 from sb3_memret.envs.cabinet import LAYERS, check_layer
+from sb3_memret.envs.objects import CATALOGUE
 from sb3_memret.memory.schema import MemoryEntry, MemoryType
 
 DEFAULT_VOCABULARY: tuple[str, ...] = ("marker", "key", "block", "battery", "mug", "fork", "sponge", "spoon")
@@ -14,15 +16,17 @@ DEFAULT_VOCABULARY: tuple[str, ...] = ("marker", "key", "block", "battery", "mug
 
 @dataclass(frozen=True)
 class SeedingConfig:
-    """How many decoys of each kind, drawn from which objects."""
+    """How many decoys of each kind, drawn from which words (never the name of a task object)."""
 
     location_decoys: int = 5
     holding_decoys: int = 2
     vocabulary: tuple[str, ...] = DEFAULT_VOCABULARY
 
     def __post_init__(self) -> None:
-        if "cube" in self.vocabulary:
-            raise ValueError("the decoy vocabulary must not contain 'cube', the target object")
+        objects = sorted(set(self.vocabulary) & set(CATALOGUE))
+        if objects:
+            raise ValueError(f"the decoy vocabulary must not contain task objects, got {objects}; "
+                             f"task objects are {sorted(CATALOGUE)}")
         need = max(self.location_decoys, self.holding_decoys)
         if min(self.location_decoys, self.holding_decoys) < 0 or len(set(self.vocabulary)) < need:
             raise ValueError(
@@ -31,25 +35,35 @@ class SeedingConfig:
             )
 
 
-def seed_memories(cube_layer: int, rng: np.random.Generator, config: SeedingConfig | None = None) -> list[MemoryEntry]:
-    """The t=0 memories of an episode, in a random order: the true cube location, location
-    decoys for other objects on layers other than the cube's, and holding decoys.
+def location_memory(entity: str, layer: int, timestamp: int = 0) -> MemoryEntry:
+    return MemoryEntry.create(MemoryType.OBJECT_LOCATION, entity, "is_in", f"drawer layer {check_layer(layer)}",
+                              timestamp)
 
-    Only the true memory names the cube's layer, so a decoy sends the controller elsewhere.
+
+def seed_memories(placed: Mapping[str, int], target: str, rng: np.random.Generator,
+                  config: SeedingConfig | None = None) -> list[MemoryEntry]:
+    """The t=0 memories of an episode, in a random order: where each placed object is (the target's
+    first), location decoys for absent objects on layers other than the target's, and holding decoys.
+
+    Only the target's memory names its layer with its name, so any other pick sends the
+    controller to another drawer or to the top one.
     """
     config = config or SeedingConfig()
-    check_layer(cube_layer)
-    other_layers = [layer for layer in LAYERS if layer != cube_layer]
+    if target not in placed:
+        raise ValueError(f"target {target!r} is not among the placed objects {dict(placed)}")
+    target_layer = check_layer(placed[target])
+    other_layers = [layer for layer in LAYERS if layer != target_layer]
     vocab = sorted(set(config.vocabulary))
-    entries = [MemoryEntry.create(MemoryType.OBJECT_LOCATION, "cube", "is_in", f"drawer layer {cube_layer}", 0)]
+    entries = [location_memory(target, target_layer)]
+    entries += [location_memory(name, layer) for name, layer in placed.items() if name != target]
     for obj in rng.choice(vocab, size=config.location_decoys, replace=False):
-        layer = int(rng.choice(other_layers))
-        entries.append(MemoryEntry.create(MemoryType.OBJECT_LOCATION, str(obj), "is_in", f"drawer layer {layer}", 0))
+        entries.append(location_memory(str(obj), int(rng.choice(other_layers))))
     for obj in rng.choice(vocab, size=config.holding_decoys, replace=False):
         entries.append(MemoryEntry.create(MemoryType.HOLDING, "robot", "holding", str(obj), 0))
     order = rng.permutation(len(entries))
     return [entries[i] for i in order]
 
 
-def is_true_cube_memory(entry: MemoryEntry, cube_layer: int) -> bool:
-    return entry.key == (MemoryType.OBJECT_LOCATION, "cube", "is_in") and entry.value == f"drawer layer {cube_layer}"
+def is_true_memory(entry: MemoryEntry, target: str, layer: int) -> bool:
+    """Whether ``entry`` places ``target`` in ``layer``: the memory the controller needs."""
+    return entry.key == (MemoryType.OBJECT_LOCATION, target, "is_in") and entry.value == f"drawer layer {layer}"

@@ -26,16 +26,17 @@ class TextEncoder(Protocol):
 class BoundingBoxPredicateExtractor:
     """Reads the task's privileged state into predicates keyed (relation, entity).
 
-    (location, cube) is ``drawer layer N`` while the cube's centre is in drawer N's interior
-    box and ``outside`` otherwise; (holding, robot) is ``cube`` while both fingers press on
-    it and ``nothing`` otherwise.
+    (location, target) is ``drawer layer N`` while the target's centre is in drawer N's
+    interior box and ``outside`` otherwise; (holding, robot) is the target while both fingers
+    press on it and ``nothing`` otherwise. The target is the object the instruction names
+    (the cube in the seed's task).
     """
 
     def extract(self, state: DrawerCubeState, index: int = 0) -> Predicates:
-        layer = int(state.cube_in_layer[index])
+        layer, target = int(state.target_in_layer[index]), state.target_name(index)
         return {
-            ("location", "cube"): f"drawer layer {layer}" if layer else OUTSIDE,
-            ("holding", "robot"): "cube" if bool(state.grasped[index]) else NOTHING,
+            ("location", target): f"drawer layer {layer}" if layer else OUTSIDE,
+            ("holding", "robot"): target if bool(state.grasped[index]) else NOTHING,
         }
 
 

@@ -64,7 +64,7 @@ class DemoEpisode:
     """One demonstration to record: placement seed, cube layer, prompt, action noise on the arm."""
 
     seed: int
-    cube_layer: int
+    target_layer: int
     prompt: str
     noise: float = 0.0
 
@@ -111,7 +111,7 @@ def record_episode(env, expert: ScriptedDrawerController, episode: DemoEpisode,
                    idle_stop: int = 16, with_images: bool = False) -> EpisodeFrames:
     """Play one episode, the expert labelling every frame; the learner acts instead when given."""
     rng = np.random.default_rng(episode.seed)
-    obs, _ = env.reset(seed=episode.seed, options={"cube_layer": episode.cube_layer})
+    obs, _ = env.reset(seed=episode.seed, options={"target_layer": episode.target_layer})
     expert.reset([episode.seed])
     if learner is not None:
         learner.reset([episode.seed])

@@ -2,7 +2,7 @@
 
 Requests carry the pi05_libero keys (``observation/image``, ``observation/wrist_image`` (uint8
 224x224x3), ``observation/state`` (the 8-D eef state), ``prompt``) and, from the project's client,
-``observation/drawer_opening`` (3) and ``observation/cube_detection`` (8) so that state-only
+``observation/drawer_opening`` (3) and ``observation/target_detection`` (8) so that state-only
 controllers can act. Each request becomes a batch-of-one DrawerCubeTakeOut-v1 observation for
 ``controller.act``, which still checks the prompt against the controller's template; a key the
 controller reads but the request lacks is an error naming it, which reaches the client as openpi's
@@ -31,7 +31,7 @@ from sb3_memret.controllers.observation import IMAGE_SHAPE, STATE_PARTS
 from sb3_memret.controllers.openpi import CAMERAS, CLIENT_KEY, ENV_KEY, EPISODE_KEY, EXTRA_STATE, SEED_KEY
 
 STATE_KEY, PROMPT_KEY = "observation/state", "prompt"
-SIZES = {key: len(names) for _, key, names in STATE_PARTS}  # eef_state 8, drawer_opening 3, cube_detection 8
+SIZES = {key: len(names) for _, key, names in STATE_PARTS}  # eef_state 8, drawer_opening 3, target_detection 8
 MAX_SLOTS = 4096  # per-slot controllers kept; the least recently used beyond this are dropped
 
 
