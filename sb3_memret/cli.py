@@ -10,6 +10,7 @@ from pathlib import Path
 import click
 
 from sb3_memret.envs.cabinet import LAYERS
+from sb3_memret.envs.objects import OBJECT_SETS
 
 EXPERIMENTS = {"recall": "sb3_memret/DrawerRecall-v0"}
 DEFAULT_CONFIG = Path(__file__).resolve().parents[1] / "zoo_configs" / "memret_ppo.yml"
@@ -167,10 +168,14 @@ def rollout(controller, condition: str, episodes: int, layer: int | None, seed: 
               help="DAgger round: this controller (e.g. learned:PATH) acts while the expert labels every frame.")
 @click.option("--n-envs", type=click.IntRange(min=1), default=os.cpu_count() or 1, show_default=True,
               help="Worker processes.")
+@click.option("--objects", type=click.Choice(sorted(OBJECT_SETS)), default="cube", show_default=True,
+              help="Objects the drawers hide; the targets cycle over them and the prompts name them.")
+@click.option("--n-objects", type=click.IntRange(min=1, max=len(LAYERS)), default=1, show_default=True,
+              help="Objects per episode, one per drawer.")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
 @_render_backend_option
 def demos(episodes: int, out: Path, seed: int, noise: float, noisy_fraction: float, learner: str | None, n_envs: int,
-          progress: bool, render_backend: str) -> None:
+          objects: str, n_objects: int, progress: bool, render_backend: str) -> None:
     """Record the scripted expert's demonstrations as a LeRobotDataset (v3.0) for finetuning.
 
     \b
@@ -185,6 +190,8 @@ def demos(episodes: int, out: Path, seed: int, noise: float, noisy_fraction: flo
     stay held-out tests: two-memory prompts, other objects' and holding facts, and paraphrases.
     Off the expert's path: --noisy-fraction of the episodes run with --noise on the arm (clean
     labels), and --learner makes a DAgger round. Ctrl-C keeps every episode saved so far.
+    With --objects train --n-objects 3 three objects hide in the drawers and the prompts name the
+    target ("pick out the tin. the tin is in drawer layer L.").
     """
     from tqdm import tqdm
 
@@ -194,7 +201,7 @@ def demos(episodes: int, out: Path, seed: int, noise: float, noisy_fraction: flo
         raise click.BadParameter(f"{str(out)!r} already exists; demonstrations go to a new folder", param_hint="--out")
     if learner is not None:
         _controller(click.get_current_context(), None, learner)
-    planned = plan_episodes(episodes, seed, noise, noisy_fraction)
+    planned = plan_episodes(episodes, seed, noise, noisy_fraction, objects=objects)
     wins = 0
     with tqdm(total=episodes, desc="demonstrations", unit="episode", disable=not progress) as bar:
         def on_episode(frames) -> None:
@@ -203,7 +210,8 @@ def demos(episodes: int, out: Path, seed: int, noise: float, noisy_fraction: flo
             bar.update(1)
             bar.set_postfix(success=f"{wins}/{bar.n}")
 
-        record_demos(out, planned, render_backend, learner, n_envs, on_episode=on_episode)
+        record_demos(out, planned, render_backend, learner, n_envs, on_episode=on_episode, objects=objects,
+                     n_objects=n_objects)
     click.echo(f"{episodes} episodes ({wins} successful) written to {out}")
 
 
@@ -361,11 +369,14 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
 @click.option("--seed", type=click.IntRange(min=0), default=HELD_OUT_SEED, show_default=True,
               help="Seed of the evaluation episodes (training never uses it).")
 @click.option("--stochastic", is_flag=True, help="Sample retrievals instead of acting greedily.")
+@click.option("--objects", type=click.Choice(sorted(OBJECT_SETS)), default=None,
+              help="Object set the episodes hide (heldout: objects no training episode had)  [default: the run's]")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON on stdout.")
 @_render_backend_option
 @_physics_options
 def evaluate(model_path: Path, condition: str, episodes: int, controller: str, n_envs: int, seed: int,
-             stochastic: bool, as_json: bool, render_backend: str, backend: str, ray_address: str | None) -> None:
+             stochastic: bool, objects: str | None, as_json: bool, render_backend: str, backend: str,
+             ray_address: str | None) -> None:
     """Evaluate a trained model: success per layer and retrieval accuracy."""
     from sb3_memret.analysis.evaluation import evaluate_retrieval
     from sb3_memret.envs.vec_env import make_recall_vec_env
@@ -373,6 +384,8 @@ def evaluate(model_path: Path, condition: str, episodes: int, controller: str, n
 
     model, = _load_models([model_path], "MODEL_PATH")
     kwargs = eval_env_kwargs(model, model_path, condition, controller, render_backend)
+    if objects is not None:
+        kwargs["objects"] = objects
     kwargs["controller"] = click.get_current_context().meta["controller"]  # the one already built
     venv = make_recall_vec_env(n_envs, kwargs, backend=backend, ray_address=ray_address)
     try:
@@ -382,10 +395,12 @@ def evaluate(model_path: Path, condition: str, episodes: int, controller: str, n
     finally:
         venv.close()
     if as_json:
-        click.echo(json.dumps({"model": str(model_path), "condition": condition, **report.to_dict()}))
+        click.echo(json.dumps({"model": str(model_path), "condition": condition,
+                               "objects": kwargs.get("objects", "cube"), **report.to_dict()}))
         return
     label = "greedy" if not stochastic else "sampled"
-    click.echo(f"model: {model_path}   condition: {condition}   episodes: {report.episodes}")
+    click.echo(f"model: {model_path}   condition: {condition}   objects: {kwargs.get('objects', 'cube')}   "
+               f"episodes: {report.episodes}")
     click.echo(f"{label} retrieval accuracy: {report.greedy_accuracy:.1%} over {report.decisions} decisions "
                f"(sampled fraction {report.sampled_fraction:.1%}, entropy {report.entropy:.2f})")
     click.echo("| layer | episodes | success |")

@@ -8,7 +8,10 @@ from mani_skill.utils.structs.pose import Pose
 
 import sb3_memret.envs  # noqa: F401
 from sb3_memret.envs.cabinet import LAYERS
+from sb3_memret.envs.drawer_cube import layer_containing
+from sb3_memret.envs.objects import OBJECT_SETS
 from sb3_memret.rewards import PHI_MAX
+from sb3_memret.rollout import make_task_env
 
 
 def place_cube(env, xyz):
@@ -109,3 +112,59 @@ def test_cube_stays_hidden_when_another_drawer_opens(task_env):
 def test_unknown_cube_layer_option_is_refused(task_env):
     with pytest.raises(ValueError, match=r"drawer layer must be one of \[1, 2, 3\]"):
         task_env.reset(seed=0, options={"target_layer": 4})
+
+
+@pytest.fixture(scope="module")
+def objects_env():
+    env = make_task_env(robot_init_qpos_noise=0.0, objects=OBJECT_SETS["train"], n_objects=3)
+    yield env
+    env.close()
+
+
+def test_several_objects_one_per_drawer_and_the_rest_parked(objects_env):
+    base = objects_env.unwrapped
+    targets, layers = set(), set()
+    for seed in range(12):
+        objects_env.reset(seed=seed)
+        state = base.privileged_state()
+        placed = state.placed()
+        assert len(placed) == 3 and sorted(placed.values()) == list(LAYERS)
+        np.testing.assert_array_equal(layer_containing(state.object_pos[0], np.repeat(state.layer_boxes, 4, axis=0)),
+                                      state.object_layer[0])  # each placed object lies in its drawer, the rest in none
+        parked = state.object_layer[0] == 0
+        assert np.all(state.object_pos[0, parked, 0] < 0)  # behind the robot, out of the cabinet
+        target = state.target_name()
+        assert placed[target] == state.target_layer[0] == state.target_in_layer[0]
+        np.testing.assert_allclose(state.target_pos[0], state.object_pos[0, state.target_index[0]])
+        targets.add(target)
+        layers.add(int(state.target_layer[0]))
+    assert targets == set(OBJECT_SETS["train"]) and layers == set(LAYERS)
+
+
+def test_target_and_its_layer_can_be_fixed(objects_env):
+    objects_env.reset(seed=5, options={"target": "tin", "target_layer": 2})
+    state = objects_env.unwrapped.privileged_state()
+    assert state.target_name() == "tin" and state.placed()["tin"] == 2
+
+
+def test_only_the_target_is_detected_once_its_drawer_opens(objects_env):
+    objects_env.reset(seed=3, options={"target": "brick", "target_layer": 3})
+    base = objects_env.unwrapped
+    base.cabinet.set_qpos(torch.tensor([[0.28, 0.28, 0.0]]))  # the two other objects' drawers
+    obs = base.get_obs(base.evaluate())
+    assert torch.all(obs["extra"]["target_detection"] == 0)
+    base.cabinet.set_qpos(torch.tensor([[0.0, 0.0, 0.28]]))
+    info = base.evaluate()
+    obs = base.get_obs(info)
+    state = base.privileged_state()
+    assert obs["extra"]["target_detection"][0, 0] == 1.0
+    np.testing.assert_allclose(obs["extra"]["target_detection"][0, 1:4].numpy(), state.target_pos[0], atol=1e-5)
+
+
+def test_bad_object_settings_are_refused(objects_env):
+    with pytest.raises(ValueError, match="objects must be distinct names from"):
+        make_task_env(objects=("cube", "teapot"))
+    with pytest.raises(ValueError, match=r"n_objects must be in \[1, 3\]"):
+        make_task_env(objects=OBJECT_SETS["train"], n_objects=4)
+    with pytest.raises(ValueError, match="target 'soap' is not one of this task's objects"):
+        objects_env.reset(seed=0, options={"target": "soap"})

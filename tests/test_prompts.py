@@ -3,11 +3,13 @@ import pytest
 from sb3_memret.prompts import (
     HOLDING_TEMPLATE,
     INSTRUCTION,
+    INSTRUCTION_TEMPLATE,
     LAYER_LOCATION_TEMPLATE,
     PromptTemplate,
     build_prompt,
     condition_prompt,
     holding_text,
+    instruction_text,
     location_text,
     parse_prompt,
 )
@@ -71,3 +73,16 @@ def test_condition_prompts():
         condition_prompt("maybe", 1)
     with pytest.raises(ValueError, match="drawer layer must be one of"):
         condition_prompt("oracle", 0)
+
+
+def test_instruction_templates_take_any_object_word_and_name_the_target():
+    general = PromptTemplate((INSTRUCTION_TEMPLATE,))
+    parsed = parse_prompt("pick out the tin. the tin is in drawer layer 3.", general)
+    assert parsed.target == "tin" and parsed.layer == 3
+    assert parse_prompt("pick out the cube.").target == "cube"
+    with pytest.raises(ValueError, match="starts with 'pick out the tin.'"):
+        parse_prompt("pick out the tin.")  # the seed's contract: the cube alone
+    with pytest.raises(ValueError, match="starts with 'pick up the tin.'"):
+        parse_prompt("pick up the tin.", general)
+    assert instruction_text("soap") == "pick out the soap."
+    assert condition_prompt("wrong", 3, "dice") == "pick out the dice. the dice is in drawer layer 1."

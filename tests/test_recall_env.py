@@ -6,6 +6,8 @@ import pytest
 from stable_baselines3.common.env_checker import check_env
 
 from sb3_memret.envs import RECALL_ENV_ID
+from sb3_memret.envs.objects import OBJECT_SETS
+from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.policy.networks import RetentionScorer
 
 
@@ -66,3 +68,34 @@ def test_bad_arguments_are_refused(recall_env):
         recall_env.step(np.array([6]))
     with pytest.raises(ValueError, match="unknown mode 'guess'"):
         gym.make(RECALL_ENV_ID, mode="guess")
+
+
+def test_several_objects_the_instruction_names_the_target(encoder):
+    env = gym.make(RECALL_ENV_ID, encoder=encoder, max_control_steps=80, objects="train", n_objects=3,
+                   location_decoys=2, holding_decoys=2).unwrapped
+    targets = set()
+    for seed in range(6):
+        obs, info = env.reset(seed=seed)
+        target, layer = info["target"], info["target_layer"]
+        targets.add(target)
+        assert env.instruction() == f"pick out the {target}."
+        texts = info["memory_texts"]
+        located = [t for t in texts if t.endswith(".") and " is in drawer layer " in t]
+        assert len(texts) == 6 and len(located) == 5  # the three placed objects and two absent ones
+        assert texts[info["true_slot"]] == f"the {target} is in drawer layer {layer}."
+        np.testing.assert_allclose(obs["instruction"], encoder.encode_one(f"pick out the {target}."), atol=1e-6)
+        other = next(i for i, t in enumerate(texts) if t in located and i != info["true_slot"])
+        obs, _, _, _, info = env.step(np.array([other]))
+        assert info["prompt"] == f"pick out the {target}. {texts[other]}" and not info["retrieved_true"]
+    assert len(targets) > 1
+    env.close()
+
+
+def test_held_out_objects_are_never_in_a_training_bank(encoder):
+    env = gym.make(RECALL_ENV_ID, encoder=encoder, objects="heldout", n_objects=3, mode="oracle").unwrapped
+    _, info = env.reset(seed=0)
+    assert info["target"] in OBJECT_SETS["heldout"]
+    assert env.instruction() == f"pick out the {info['target']}. the {info['target']} is in drawer layer " \
+                                f"{info['target_layer']}."
+    env.close()
+    assert not set(OBJECT_SETS["heldout"]) & (set(OBJECT_SETS["train"]) | set(SeedingConfig().vocabulary))

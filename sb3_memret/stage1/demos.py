@@ -7,6 +7,8 @@ Data design (decided up front; the held-out tests depend on what stays out):
   ``pick out the cube. the cube is in drawer layer L.`` for every layer L. The named layer is the
   cube's layer in most episodes and another layer in the rest (the expert opens the named drawer,
   finds it empty and holds still), so the policy learns to follow the prompt, not the cube.
+  With several objects (``objects``, ``n_objects``) the target cycles over the objects and the
+  prompts name it (``pick out the tin. the tin is in drawer layer L.``).
 - **Prompts kept out**: two-memory prompts, other objects' facts, holding facts and any paraphrase
   of the fact sentence, so ``ablate memcount``, ``ablate prompt`` and ``ablate wording`` stay true
   held-out tests.
@@ -38,7 +40,8 @@ from sb3_memret.controllers.observation import (ACTION_KEY, IMAGE_KEYS, STATE_KE
                                                 dataset_features, observation_state)
 from sb3_memret.controllers.scripted import Phase, ScriptedDrawerController
 from sb3_memret.envs.cabinet import LAYERS
-from sb3_memret.prompts import INSTRUCTION, build_prompt, location_text
+from sb3_memret.envs.objects import object_set
+from sb3_memret.prompts import INSTRUCTION_TEMPLATE, PromptTemplate, build_prompt, instruction_text, location_text
 from sb3_memret.rollout import DEFAULT_REPLAN_EVERY, RENDER_BACKENDS, make_task_env
 
 FPS = 20  # pd_ee_delta_pose control frequency of DrawerCubeTakeOut-v1
@@ -61,12 +64,13 @@ class PromptMix:
 
 @dataclass(frozen=True)
 class DemoEpisode:
-    """One demonstration to record: placement seed, cube layer, prompt, action noise on the arm."""
+    """One demonstration to record: placement seed, target layer, prompt, action noise on the arm, target."""
 
     seed: int
     target_layer: int
     prompt: str
     noise: float = 0.0
+    target: str = "cube"
 
 
 @dataclass
@@ -82,9 +86,11 @@ class EpisodeFrames:
 
 
 def plan_episodes(n: int, seed: int = 0, noise: float = 0.0, noisy_fraction: float = 0.5,
-                  mix: PromptMix | None = None) -> list[DemoEpisode]:
-    """``n`` episodes with placement seeds ``seed..seed+n-1``, cube layers cycling over the layers, prompts
-    drawn by ``mix`` and ``noisy_fraction`` of them with arm noise ``noise``."""
+                  mix: PromptMix | None = None, objects: str | Sequence[str] = "cube") -> list[DemoEpisode]:
+    """``n`` episodes with placement seeds ``seed..seed+n-1``, target layers cycling over the layers and
+    targets over ``objects`` (a named set or a list), prompts drawn by ``mix`` and ``noisy_fraction`` of
+    them with arm noise ``noise``."""
+    names = object_set(objects)
     if n < 1:
         raise ValueError(f"episodes must be >= 1, got {n}")
     if noise < 0 or not 0 <= noisy_fraction <= 1:
@@ -93,16 +99,17 @@ def plan_episodes(n: int, seed: int = 0, noise: float = 0.0, noisy_fraction: flo
     rng = np.random.default_rng(seed)
     episodes = []
     for k in range(n):
-        layer = LAYERS[k % len(LAYERS)]
+        layer, target = LAYERS[k % len(LAYERS)], names[(k // len(LAYERS)) % len(names)]
         kind = rng.choice(3, p=[mix.bare, mix.matching, mix.mismatched])
+        instruction = instruction_text(target)
         if kind == 0:
-            prompt = INSTRUCTION
+            prompt = instruction
         else:
             others = [other for other in LAYERS if other != layer]
             named = layer if kind == 1 else int(rng.choice(others))
-            prompt = build_prompt(INSTRUCTION, [location_text("cube", named)])
+            prompt = build_prompt(instruction, [location_text(target, named)], PromptTemplate((INSTRUCTION_TEMPLATE,)))
         noisy = rng.random() < noisy_fraction
-        episodes.append(DemoEpisode(seed + k, layer, prompt, noise if noisy else 0.0))
+        episodes.append(DemoEpisode(seed + k, layer, prompt, noise if noisy else 0.0, target))
     return episodes
 
 
@@ -111,7 +118,7 @@ def record_episode(env, expert: ScriptedDrawerController, episode: DemoEpisode,
                    idle_stop: int = 16, with_images: bool = False) -> EpisodeFrames:
     """Play one episode, the expert labelling every frame; the learner acts instead when given."""
     rng = np.random.default_rng(episode.seed)
-    obs, _ = env.reset(seed=episode.seed, options={"target_layer": episode.target_layer})
+    obs, _ = env.reset(seed=episode.seed, options={"target_layer": episode.target_layer, "target": episode.target})
     expert.reset([episode.seed])
     if learner is not None:
         learner.reset([episode.seed])
@@ -141,11 +148,12 @@ def record_episode(env, expert: ScriptedDrawerController, episode: DemoEpisode,
 class _Recorder:
     """A task env, the expert and an optional learner, recording episodes one after another."""
 
-    def __init__(self, render_backend: str, learner: str | None, replan_every: int, max_steps: int | None):
+    def __init__(self, render_backend: str, learner: str | None, replan_every: int, max_steps: int | None,
+                 objects: tuple[str, ...], n_objects: int):
         self.with_images = render_backend != "none"
         limit = {} if max_steps is None else {"max_episode_steps": max_steps}
         self.env = make_task_env(obs_mode="rgb" if self.with_images else "state_dict", render_backend=render_backend,
-                                 **limit)
+                                 objects=objects, n_objects=n_objects, **limit)
         self.expert = ScriptedDrawerController()
         self.expert.check_env(self.env)
         self.learner = make_controller(learner) if learner is not None else None
@@ -162,13 +170,13 @@ _recorder: _Recorder | None = None
 
 
 def _init_recorder(render_backend: str, learner: str | None, replan_every: int, max_steps: int | None,
-                   in_worker: bool = True) -> None:
+                   objects: tuple[str, ...], n_objects: int, in_worker: bool = True) -> None:
     global _recorder
     if in_worker:
         from sb3_memret.parallel_rollout import init_pool_worker
 
         init_pool_worker()
-    _recorder = _Recorder(render_backend, learner, replan_every, max_steps)
+    _recorder = _Recorder(render_backend, learner, replan_every, max_steps, objects, n_objects)
 
 
 def _record(episode: DemoEpisode) -> EpisodeFrames:
@@ -185,12 +193,19 @@ def record_demos(
     replan_every: int = DEFAULT_REPLAN_EVERY,
     max_steps: int | None = None,
     on_episode: Callable[[EpisodeFrames], None] | None = None,
+    objects: str | Sequence[str] = "cube",
+    n_objects: int = 1,
 ) -> Path:
     """Record ``episodes`` into a new LeRobotDataset at ``out`` and return its folder.
 
     ``learner`` (a controller spec) makes this a DAgger round: the learner acts, the expert labels.
-    ``max_steps`` shortens the task's 400-step limit (quick checks).
+    ``max_steps`` shortens the task's 400-step limit (quick checks). ``objects`` and ``n_objects``
+    set what the drawers hide; every episode's target must be one of ``objects``.
     """
+    names = object_set(objects)
+    strangers = sorted({e.target for e in episodes} - set(names))
+    if strangers:
+        raise ValueError(f"episodes target {strangers}, which are not among the objects {list(names)}")
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     out = Path(out)
@@ -226,8 +241,8 @@ def record_demos(
     bars = datasets_logging.is_progress_bar_enabled()
     datasets_logging.disable_progress_bar()  # a "Map" bar per saved episode would bury the run's own
     try:
-        map_in_workers(_init_recorder, (render_backend, learner, replan_every, max_steps), _record, list(episodes),
-                       n_workers, save)
+        map_in_workers(_init_recorder, (render_backend, learner, replan_every, max_steps, names, n_objects), _record,
+                       list(episodes), n_workers, save)
     finally:
         dataset.finalize()  # an interrupted run keeps every episode saved so far
         if bars:

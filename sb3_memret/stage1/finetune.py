@@ -23,7 +23,7 @@ from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig
 from sb3_memret.controllers.learned.modeling import LearnedPolicy, chunk_loss
 from sb3_memret.controllers.learned.processing import PromptTokenizer, image_tensor
 from sb3_memret.controllers.observation import ACTION_DIM, ACTION_KEY, IMAGE_KEYS, STATE_DIM, STATE_KEY
-from sb3_memret.prompts import parse_prompt
+from sb3_memret.prompts import INSTRUCTION_TEMPLATE, PromptTemplate, parse_prompt
 
 LOG_FILE = "train_log.csv"
 
@@ -138,6 +138,14 @@ def _load_images(dataset, key: str, image_size: int | None) -> np.ndarray:
     return np.stack(frames)
 
 
+def training_instructions(tasks: Sequence[str], fact_templates: Sequence[str]) -> tuple[str, ...]:
+    """The instructions a policy trained on ``tasks`` accepts: the one instruction they hold, or
+    ``pick out the {entity}.`` when they name several objects (the policy then takes any object word)."""
+    template = PromptTemplate((INSTRUCTION_TEMPLATE,), tuple(fact_templates))
+    instructions = sorted({parse_prompt(task, template).instruction for task in tasks})
+    return (INSTRUCTION_TEMPLATE,) if len(instructions) > 1 else tuple(instructions)
+
+
 def finetune(
     datasets: Sequence[str | Path],
     out: str | Path,
@@ -152,6 +160,7 @@ def finetune(
     torch.manual_seed(settings.seed)
     rng = np.random.default_rng(settings.seed)
     demos = load_demonstrations(datasets, config.image_size)
+    config = replace(config, instructions=training_instructions(demos.tasks, config.fact_templates))
     for task in demos.tasks:
         parse_prompt(task, config.prompt_template)  # a dataset prompt outside the contract is refused
     config = replace(config, image_features=tuple(demos.images), training_prompts=tuple(sorted(demos.tasks)))
