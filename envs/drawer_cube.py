@@ -349,12 +349,41 @@ class DrawerCubeTakeOutEnv(BaseEnv):
 
     def _get_obs_extra(self, info: dict) -> dict[str, torch.Tensor]:
         opening = self.cabinet.get_qpos()
+        poses = torch.stack([actor.pose.raw_pose for actor in self.objects], dim=1)
+        envs = torch.arange(len(poses), device=poses.device)
+        target = torch.as_tensor(self._target_index_np, device=poses.device)
         in_layer = info["target_in_layer"]
+        detection = self._detect(poses[envs, target], in_layer, opening)
+        return {"drawer_opening": opening, "target_detection": detection}
+
+    def _detect(self, pose: torch.Tensor, in_layer: torch.Tensor, opening: torch.Tensor) -> torch.Tensor:
+        """(B, 8) what a camera sees of objects at ``pose`` (B, 7) inside drawers ``in_layer`` (0: none):
+        visible flag and pose, zeros while the drawer around it is open less than ``visible_opening``."""
         idx = (in_layer - 1).clamp(min=0)
         drawer_open = opening.gather(1, idx[:, None])[:, 0] >= self.visible_opening
         visible = (in_layer == 0) | drawer_open
-        poses = torch.stack([actor.pose.raw_pose for actor in self.objects], dim=1)
-        target = torch.as_tensor(self._target_index_np, device=poses.device)
-        pose = poses[torch.arange(len(poses), device=poses.device), target]
-        detection = torch.cat([visible[:, None].float(), pose * visible[:, None]], dim=1)
-        return {"drawer_opening": opening, "target_detection": detection}
+        return torch.cat([visible[:, None].float(), pose * visible[:, None]], dim=1)
+
+    def look_in(self) -> np.ndarray:
+        """(B, layers, M, 8): each object of the episode as a camera sees it with drawer L pulled open
+        to ``visible_opening`` (its contents carried with it) and the others closed, for every L.
+
+        The observation phase of the observed-memory variant: what a robot that opened each drawer
+        once would have seen. Computed on the scene's geometry without stepping the simulator
+        (the drawers do not move); objects the episode leaves out are never seen.
+        """
+        state = self.privileged_state()
+        b, m = state.object_layer.shape
+        seen = np.zeros((b, len(LAYERS), m, 8), dtype=np.float32)
+        closed = np.broadcast_to(self._closed_boxes, (m, *self._closed_boxes.shape))
+        for k in range(b):
+            quat = np.stack([actor.pose.raw_pose[k, 3:].cpu().numpy() for actor in self.objects])
+            in_layer = layer_containing(state.object_pos[k], closed)
+            for layer in LAYERS:
+                opening = np.zeros((m, len(LAYERS)))
+                opening[:, layer - 1] = self.visible_opening
+                pos = state.object_pos[k] - (in_layer == layer)[:, None] * [self.visible_opening, 0.0, 0.0]
+                pose = torch.as_tensor(np.concatenate([pos, quat], axis=1), dtype=torch.float32)
+                view = self._detect(pose, torch.as_tensor(in_layer), torch.as_tensor(opening, dtype=torch.float32))
+                seen[k, layer - 1] = view.numpy() * (state.object_layer[k] > 0)[:, None]
+        return seen

@@ -16,7 +16,7 @@ from __future__ import annotations
 import multiprocessing
 from abc import ABC, abstractmethod
 from contextlib import nullcontext
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from multiprocessing.connection import Connection, wait
 from multiprocessing.process import BaseProcess
 from typing import Any, Mapping, Sequence
@@ -35,7 +35,9 @@ class EnvFrame:
     """One task env after a reset or an executed chunk.
 
     ``obs`` is the controller's observation with a batch dimension of one (numpy arrays in
-    the env's nested layout); ``state`` the privileged state of that env (batch of one).
+    the env's nested layout); ``state`` the privileged state of that env (batch of one);
+    ``look_in`` after a reset, the observation phase's views (layers, objects, 8), see
+    ``DrawerCubeTakeOutEnv.look_in``.
     """
 
     obs: dict[str, Any]
@@ -45,6 +47,7 @@ class EnvFrame:
     steps: int = 0  # control steps the chunk executed (0 after a reset)
     terminated: bool = False
     truncated: bool = False
+    look_in: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -104,7 +107,7 @@ class TaskRunner:
 
     def reset(self, seed: int, options: Mapping[str, Any]) -> EnvFrame:
         obs, info = self.env.reset(seed=int(seed), options=dict(options))
-        return self._frame(obs, info)
+        return replace(self._frame(obs, info), look_in=self.env.unwrapped.look_in()[0])
 
     def execute(self, actions: np.ndarray) -> EnvFrame:
         from sb3_memret.rollout import execute_chunk
@@ -303,11 +306,11 @@ class BatchedSimPhysics(PhysicsBackend):
             idx = torch.as_tensor(ids, dtype=torch.long)
             # ManiSkill draws a partial reset's placements from the torch RNG seeded with the group's first seed
             obs, info = self.env.reset(seed=group[0].seed, options={**dict(options), "env_idx": idx})
-            state = self.env.unwrapped.privileged_state()
+            state, look_in = self.env.unwrapped.privileged_state(), self.env.unwrapped.look_in()
             obs = to_numpy(obs)
             for i in ids:
                 frames[i] = EnvFrame(select_obs(obs, i), state.select(i), float(info["potential"][i]),
-                                     bool(info["success"][i]))
+                                     bool(info["success"][i]), look_in=look_in[i])
         return frames
 
     def execute(self, chunks: Mapping[int, np.ndarray]) -> dict[int, EnvFrame]:

@@ -24,9 +24,10 @@ class DrawerRecallEnv(gym.Env):
     """Retrieval decisions over a bounded language memory for a frozen controller (one env).
 
     Takes ``DrawerRecallVecEnv``'s arguments (mode, controller, capacity, k, replan_every,
-    gamma, success_bonus, max_control_steps, render_backend, seeding, encoder, task_kwargs);
-    see it for the modes, the action and the reward. ``reset(options={"target_layer": L})``
-    fixes the cube's drawer.
+    gamma, success_bonus, max_control_steps, render_backend, seeding, encoder, task_kwargs,
+    objects, n_objects, location_decoys, holding_decoys, memory_source); see it for the modes,
+    the action and the reward. ``reset(options={"target_layer": L, "target": name})`` fixes the
+    target's drawer (and, with several objects, the target).
     """
 
     metadata = {"render_modes": []}

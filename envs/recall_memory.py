@@ -12,15 +12,17 @@ import numpy as np
 from gymnasium import spaces
 
 from sb3_memret.envs.cabinet import check_layer
-from sb3_memret.envs.drawer_cube import DrawerCubeState
+from sb3_memret.envs.physics import EnvFrame
 from sb3_memret.memory.bank import MemoryBank
 from sb3_memret.memory.encoder import EMBEDDING_DIM, MiniLMEncoder
 from sb3_memret.memory.schema import MemoryEntry, MemoryType
 from sb3_memret.memory.seeding import SeedingConfig, is_true_memory, seed_memories
-from sb3_memret.memory.writer import BoundingBoxPredicateExtractor, EventCompiler
+from sb3_memret.memory.writer import BoundingBoxPredicateExtractor, EventCompiler, ViewPredicateExtractor
 from sb3_memret.prompts import PromptTemplate, build_prompt, instruction_text, location_text
 
 MODES = ("recall", "oracle", "none")
+# where the placed objects' facts come from: the episode's placement (the seed's), or what the robot saw
+MEMORY_SOURCES = ("seeded", "observed")
 # keep-scores of a bank's entries at decision time t (the retention critic, or the fixed prior)
 KeepScorer = Callable[[Sequence[MemoryEntry], int], np.ndarray]
 
@@ -29,6 +31,12 @@ def check_mode(mode: str) -> str:
     if mode not in MODES:
         raise ValueError(f"unknown mode {mode!r}; expected one of {list(MODES)}")
     return mode
+
+
+def check_memory_source(source: str) -> str:
+    if source not in MEMORY_SOURCES:
+        raise ValueError(f"unknown memory source {source!r}; expected one of {list(MEMORY_SOURCES)}")
+    return source
 
 
 def observation_space(capacity: int) -> spaces.Dict:
@@ -49,32 +57,44 @@ class EpisodeMemory:
     ``start`` seeds the bank for a new episode from the simulator's t=0 state; ``choose`` and
     ``prompt`` turn the retriever's slots into the controller's prompt; ``observe`` writes what
     the simulator says after a chunk. Eviction asks ``keep_scorer`` (the retention critic).
+
+    ``source="observed"``: no fact comes from the placement. The bank starts with decoys only,
+    the observation phase's views (each drawer opened once, ``EnvFrame.look_in``) write where each
+    object was seen, and during the episode the target's location is written only while a camera
+    sees it (``ViewPredicateExtractor``).
     """
 
     def __init__(self, capacity: int, mode: str, encoder: MiniLMEncoder, keep_scorer: KeepScorer,
-                 template: PromptTemplate, seeding: SeedingConfig | None = None):
+                 template: PromptTemplate, seeding: SeedingConfig | None = None, source: str = "seeded"):
         self.mode = check_mode(mode)
+        self.source = check_memory_source(source)
         self.encoder, self.keep_scorer, self.template = encoder, keep_scorer, template
         self.seeding = seeding or SeedingConfig()
         self.bank = MemoryBank(capacity)
-        self.extractor = BoundingBoxPredicateExtractor()
+        self.extractor = BoundingBoxPredicateExtractor() if source == "seeded" else ViewPredicateExtractor()
         self.compiler = EventCompiler(encoder)
         self.t = 0
         self.layer = 1
         self.target = "cube"
         self.true_evicted = False
 
-    def start(self, state: DrawerCubeState, rng: np.random.Generator) -> None:
-        """A new episode: the seeded memories (true facts and decoys) are the bank at t = 0."""
+    def start(self, frame: EnvFrame, rng: np.random.Generator) -> None:
+        """A new episode: the seeded memories (true facts and decoys; decoys and what the observation
+        phase saw for ``observed``) are the bank at t = 0."""
+        state = frame.state
         self.layer = check_layer(int(state.target_layer[0]))
         self.target = state.target_name()
         self.t, self.true_evicted = 0, False
         self.bank.clear()
-        seeds = seed_memories(state.placed(), self.target, rng, self.seeding)
+        seeds = seed_memories(state.placed(), self.target, rng, self.seeding, facts=self.source == "seeded")
         vectors = self.encoder.encode([e.text for e in seeds])
         self._write([e.with_embedding(v) for e, v in zip(seeds, vectors)])
         self.compiler.reset()
-        self.compiler.update(self.extractor.extract(state), 0)
+        if self.source == "observed":
+            if frame.look_in is None:
+                raise RuntimeError("the observed-memory variant needs the reset frame's look_in views")
+            self._write(self.compiler.update(ViewPredicateExtractor.look_in(frame.look_in, state.object_names[0]), 0))
+        self.compiler.update(self._extract(frame), 0)
 
     def choose(self, slots: np.ndarray) -> list[MemoryEntry]:
         """The entries in ``slots`` (empty slots add nothing), each marked as used."""
@@ -92,11 +112,16 @@ class EpisodeMemory:
             return build_prompt(instruction, [], self.template)
         return build_prompt(instruction, [e.text for e in chosen], self.template)
 
-    def observe(self, state: DrawerCubeState, steps: int) -> None:
-        """After a chunk of ``steps`` control steps: write the facts that changed, age the bank."""
-        self.t += steps
-        self._write(self.compiler.update(self.extractor.extract(state), self.t))
+    def observe(self, frame: EnvFrame) -> None:
+        """After an executed chunk: write the facts that changed, age the bank."""
+        self.t += frame.steps
+        self._write(self.compiler.update(self._extract(frame), self.t))
         self.bank.age(self.t)
+
+    def _extract(self, frame: EnvFrame) -> dict:
+        if self.source == "observed":
+            return self.extractor.extract(frame.obs, frame.state)
+        return self.extractor.extract(frame.state)
 
     def _write(self, entries: list[MemoryEntry]) -> None:
         for entry in entries:
@@ -142,4 +167,5 @@ class EpisodeMemory:
         }
 
 
-__all__ = ["EpisodeMemory", "KeepScorer", "MODES", "check_mode", "observation_space"]
+__all__ = ["EpisodeMemory", "KeepScorer", "MEMORY_SOURCES", "MODES", "check_memory_source", "check_mode",
+           "observation_space"]

@@ -27,7 +27,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvS
 from sb3_memret.controllers import FrozenController, make_controller
 from sb3_memret.envs.objects import object_set
 from sb3_memret.envs.physics import EnvFrame, PhysicsBackend, ResetRequest, make_physics, stack_obs
-from sb3_memret.envs.recall_memory import EpisodeMemory, check_mode, observation_space
+from sb3_memret.envs.recall_memory import EpisodeMemory, check_memory_source, check_mode, observation_space
 from sb3_memret.memory.bank import importance_scorer
 from sb3_memret.memory.encoder import MiniLMEncoder
 from sb3_memret.memory.schema import MemoryEntry
@@ -59,6 +59,8 @@ class DrawerRecallVecEnv(VecEnv):
     ``n_objects`` hide several objects in the drawers; the instruction names one, the target, and
     the bank holds where each of them is, so the retriever must read the instruction.
     ``location_decoys`` and ``holding_decoys`` set how many decoy facts seed each bank.
+    ``memory_source="observed"``: the objects' facts come only from what the robot saw, in an
+    observation phase that opens each drawer once before the episode (``EpisodeMemory``).
     """
 
     def __init__(
@@ -80,10 +82,12 @@ class DrawerRecallVecEnv(VecEnv):
         n_objects: int = 1,
         location_decoys: int | None = None,
         holding_decoys: int | None = None,
+        memory_source: str = "seeded",
         backend: str = "auto",
         ray_address: str | None = None,
     ):
         check_mode(mode)
+        check_memory_source(memory_source)
         if not 1 <= k <= capacity:
             raise ValueError(f"k must be in [1, capacity={capacity}], got {k}")
         self.mode, self.capacity, self.k = mode, capacity, k
@@ -107,7 +111,7 @@ class DrawerRecallVecEnv(VecEnv):
             self.physics.close()
             raise
         template = self.controller.spec.prompt_template
-        self.memories = [EpisodeMemory(capacity, mode, self.encoder, self.keep_scores, template, seeding)
+        self.memories = [EpisodeMemory(capacity, mode, self.encoder, self.keep_scores, template, seeding, memory_source)
                          for _ in range(num_envs)]
         self.rngs: list[np.random.Generator | None] = [None] * num_envs
         self.frames: list[EnvFrame | None] = [None] * num_envs
@@ -167,7 +171,7 @@ class DrawerRecallVecEnv(VecEnv):
         for request in requests:
             i, frame = request.env_id, frames[request.env_id]
             self.frames[i] = frame
-            self.memories[i].start(frame.state, self.rngs[i])
+            self.memories[i].start(frame, self.rngs[i])
             infos[i] = self.memories[i].info(success=False)
         return infos
 
@@ -198,7 +202,7 @@ class DrawerRecallVecEnv(VecEnv):
                                                               np.array([frame.potential]), self.gamma)[0])
             rewards[i] = reward + (self.success_bonus if frame.success else 0.0)
             terminated[i], truncated[i] = frame.terminated, frame.truncated and not frame.terminated
-            memory.observe(frame.state, frame.steps)
+            memory.observe(frame)
             info = memory.info(frame.success)
             info.update(prompt=prompts[i], decision_true_slot=true_slots[i],
                         retrieved_true=memory.retrieved_true(chosen[i]), empty_slots=int(self.k - len(chosen[i])))

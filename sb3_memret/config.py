@@ -51,6 +51,8 @@ ENV_KEYS: dict[str, Check] = {
     "n_objects": (int, lambda v: 1 <= v <= len(LAYERS), f"an integer in [1, {len(LAYERS)}] (one object per drawer)"),
     "location_decoys": (int, lambda v: v >= 0, "an integer >= 0"),
     "holding_decoys": (int, lambda v: v >= 0, "an integer >= 0"),
+    "memory_source": (str, lambda v: v in ("seeded", "observed"), "one of 'seeded' (from the placement), "
+                      "'observed' (from what the robot saw)"),
 }
 
 

@@ -26,7 +26,7 @@ import gc
 import time
 from contextlib import nullcontext
 from dataclasses import dataclass, field
-from typing import Any, Callable, ContextManager
+from typing import Any, Callable
 from unittest import mock
 
 import numpy as np
@@ -91,8 +91,8 @@ def sim_backend_physics(sim_backend: str) -> Callable[..., PhysicsBackend]:
 
 def batched_venv(n: int, controller: FrozenController, sim_backend: str, mode: str = "recall") -> DrawerRecallVecEnv:
     """``make_recall_vec_env(n, backend="gpu")`` (its physics on ``sim_backend``), unwrapped from its VecMonitor."""
-    patch: ContextManager[Any] = (nullcontext() if sim_backend == "gpu" else
-                                  mock.patch.object(vec_env, "make_physics", sim_backend_physics(sim_backend)))
+    patch = (nullcontext() if sim_backend == "gpu" else
+             mock.patch.object(vec_env, "make_physics", sim_backend_physics(sim_backend)))
     with patch:
         venv = make_recall_vec_env(n, {"controller": controller, "mode": mode}, seed=SEED, backend="gpu")
     return venv.unwrapped

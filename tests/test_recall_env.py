@@ -1,5 +1,7 @@
 """The decision-level env on the real simulator with the scripted controller."""
 
+from dataclasses import replace
+
 import gymnasium as gym
 import numpy as np
 import pytest
@@ -7,6 +9,10 @@ from stable_baselines3.common.env_checker import check_env
 
 from sb3_memret.envs import RECALL_ENV_ID
 from sb3_memret.envs.objects import OBJECT_SETS
+from sb3_memret.envs.physics import TaskRunner
+from sb3_memret.envs.recall_memory import EpisodeMemory
+from sb3_memret.memory.schema import MemoryType
+from sb3_memret.prompts import PromptTemplate
 from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.policy.networks import RetentionScorer
 
@@ -99,3 +105,19 @@ def test_held_out_objects_are_never_in_a_training_bank(encoder):
                                 f"{info['target_layer']}."
     env.close()
     assert not set(OBJECT_SETS["heldout"]) & (set(OBJECT_SETS["train"]) | set(SeedingConfig().vocabulary))
+
+
+def test_observed_memory_comes_from_what_the_robot_saw_alone(encoder):
+    kwargs = dict(objects=OBJECT_SETS["train"], n_objects=3)
+    runner = TaskRunner({"obs_mode": "state_dict", "render_backend": "none", **kwargs}, 80)
+    memory = EpisodeMemory(6, "recall", encoder, lambda entries, t: np.ones(len(entries)), PromptTemplate(),
+                           SeedingConfig(location_decoys=2), source="observed")
+    frame = runner.reset(7, {})
+    placed, target = frame.state.placed(), frame.state.target_name()
+    memory.start(frame, np.random.default_rng(0))
+    facts = {e.entity: e.value for e in memory.bank.entries if e.type == MemoryType.OBJECT_LOCATION}
+    assert {name: facts[name] for name in placed} == {n: f"drawer layer {layer}" for n, layer in placed.items()}
+    assert memory.true_slot() >= 0 and memory.bank.entries[memory.true_slot()].entity == target
+    memory.start(replace(frame, look_in=np.zeros_like(frame.look_in)), np.random.default_rng(0))  # saw nothing
+    assert not {e.entity for e in memory.bank.entries} & set(placed) and memory.true_slot() == -1
+    runner.close()

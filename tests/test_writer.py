@@ -5,8 +5,11 @@ import pytest
 import torch
 from mani_skill.utils.structs.pose import Pose
 
+from sb3_memret.envs.objects import OBJECT_SETS
+from sb3_memret.envs.physics import to_numpy
 from sb3_memret.memory.schema import MemoryType
-from sb3_memret.memory.writer import BoundingBoxPredicateExtractor, EventCompiler
+from sb3_memret.memory.writer import UNKNOWN, BoundingBoxPredicateExtractor, EventCompiler, ViewPredicateExtractor
+from sb3_memret.rollout import make_task_env
 
 
 class FakeEncoder:
@@ -58,3 +61,43 @@ def test_extractor_changes_when_cube_is_lifted_out(task_env):
     base.objects[0].set_pose(Pose.create_from_pq(torch.tensor([[base.layout.front_x - 0.2, 0.0, 0.5]])))
     entries = compiler.update(extractor.extract(base.privileged_state()), 8)
     assert [e.text for e in entries] == ["the cube is out of the drawers."]
+
+
+@pytest.fixture(scope="module")
+def objects_env():
+    env = make_task_env(robot_init_qpos_noise=0.0, objects=OBJECT_SETS["train"], n_objects=3)
+    yield env
+    env.close()
+
+
+def test_look_in_sees_each_placed_object_once_in_its_drawer(objects_env):
+    base = objects_env.unwrapped
+    for seed in range(5):
+        obs, _ = objects_env.reset(seed=seed)
+        state = base.privileged_state()
+        views = base.look_in()[0]
+        assert views.shape == (3, 4, 8)
+        seen = ViewPredicateExtractor.look_in(views, state.object_names[0])
+        assert seen == {("location", name): f"drawer layer {layer}" for name, layer in state.placed().items()}
+        assert np.all(views[:, state.object_layer[0] == 0] == 0)  # objects the episode left out are never seen
+        np.testing.assert_allclose(base.cabinet.get_qpos().numpy(), 0.0)  # looking in moved nothing
+        assert np.all(obs["extra"]["target_detection"].numpy() == 0)  # and the episode starts blind
+
+
+def test_view_extractor_writes_a_location_only_while_the_target_is_seen(objects_env):
+    objects_env.reset(seed=2, options={"target": "brick", "target_layer": 2})
+    base, extractor = objects_env.unwrapped, ViewPredicateExtractor()
+
+    def read():
+        info = base.evaluate()
+        return extractor.extract(to_numpy(base.get_obs(info)), base.privileged_state())
+
+    assert read() == {("location", "brick"): UNKNOWN, ("holding", "robot"): "nothing"}  # closed: unknown
+    base.cabinet.set_qpos(torch.tensor([[0.0, 0.28, 0.0]]))
+    low, high = base.layout.inner_box(2, 0.28)
+    base.objects[base.object_names.index("brick")].set_pose(
+        Pose.create_from_pq(torch.as_tensor(((low + high) / 2)[None], dtype=torch.float32)))
+    assert read()[("location", "brick")] == "drawer layer 2"  # seen in the open drawer
+    base.objects[base.object_names.index("brick")].set_pose(
+        Pose.create_from_pq(torch.tensor([[base.layout.front_x - 0.2, 0.0, 0.5]])))
+    assert read()[("location", "brick")] == "outside"

@@ -41,9 +41,11 @@ def location_memory(entity: str, layer: int, timestamp: int = 0) -> MemoryEntry:
 
 
 def seed_memories(placed: Mapping[str, int], target: str, rng: np.random.Generator,
-                  config: SeedingConfig | None = None) -> list[MemoryEntry]:
+                  config: SeedingConfig | None = None, facts: bool = True) -> list[MemoryEntry]:
     """The t=0 memories of an episode, in a random order: where each placed object is (the target's
     first), location decoys for absent objects on layers other than the target's, and holding decoys.
+    ``facts=False`` leaves out the placed objects' facts: the observed-memory variant writes them from
+    what the robot sees.
 
     Only the target's memory names its layer with its name, so any other pick sends the
     controller to another drawer or to the top one.
@@ -54,8 +56,8 @@ def seed_memories(placed: Mapping[str, int], target: str, rng: np.random.Generat
     target_layer = check_layer(placed[target])
     other_layers = [layer for layer in LAYERS if layer != target_layer]
     vocab = sorted(set(config.vocabulary))
-    entries = [location_memory(target, target_layer)]
-    entries += [location_memory(name, layer) for name, layer in placed.items() if name != target]
+    entries = [location_memory(target, target_layer)] if facts else []
+    entries += [location_memory(name, layer) for name, layer in placed.items() if name != target and facts]
     for obj in rng.choice(vocab, size=config.location_decoys, replace=False):
         entries.append(location_memory(str(obj), int(rng.choice(other_layers))))
     for obj in rng.choice(vocab, size=config.holding_decoys, replace=False):

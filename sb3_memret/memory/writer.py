@@ -2,11 +2,12 @@
 
 from __future__ import annotations
 
-from typing import Protocol
+from typing import Any, Mapping, Protocol, Sequence
 
 import numpy as np
 
-from sb3_memret.envs.drawer_cube import DrawerCubeState
+from sb3_memret.envs.cabinet import LAYERS, CabinetLayout
+from sb3_memret.envs.drawer_cube import DrawerCubeState, layer_containing
 from sb3_memret.memory.schema import NOTHING, OUTSIDE, MemoryEntry, MemoryType
 
 Predicates = dict[tuple[str, str], str]
@@ -40,6 +41,44 @@ class BoundingBoxPredicateExtractor:
         }
 
 
+class ViewPredicateExtractor:
+    """Reads only what a camera shows, never where the simulator placed anything: the observed-memory writer.
+
+    A location is written for an object only while it is visible: ``extract`` reads the target's
+    ``target_detection`` and the drawer openings (the layer is the drawer box, at its observed
+    opening, that holds the detected position; ``outside`` if none) and is ``unknown`` while the
+    target is hidden; ``look_in`` reads the observation phase's views, in which drawer L alone
+    stood open, so what is seen there is in drawer L. Holding is the gripper's touch (the grasp).
+    """
+
+    def __init__(self, layout: CabinetLayout | None = None):
+        self.layout = layout or CabinetLayout()
+
+    def extract(self, obs: Mapping[str, Any], state: DrawerCubeState, index: int = 0) -> Predicates:
+        detection = np.asarray(obs["extra"]["target_detection"])[index]
+        opening = np.asarray(obs["extra"]["drawer_opening"])[index]
+        target = state.target_name(index)
+        location = UNKNOWN
+        if detection[0] > 0.5:
+            boxes = np.stack([np.stack(self.layout.inner_box(layer, float(opening[layer - 1]))) for layer in LAYERS])
+            layer = int(layer_containing(detection[None, 1:4].astype(np.float64), boxes[None])[0])
+            location = f"drawer layer {layer}" if layer else OUTSIDE
+        return {
+            ("location", target): location,
+            ("holding", "robot"): target if bool(state.grasped[index]) else NOTHING,
+        }
+
+    @staticmethod
+    def look_in(views: np.ndarray, names: Sequence[str]) -> Predicates:
+        """Predicates from ``views`` (layers, objects, 8): each object seen with drawer L open is in L."""
+        predicates: Predicates = {}
+        for layer, view in zip(LAYERS, views):
+            for name, detection in zip(names, view):
+                if detection[0] > 0.5:
+                    predicates[("location", str(name))] = f"drawer layer {layer}"
+        return predicates
+
+
 class EventCompiler:
     """Turns predicate changes into complete memory entries; unchanged predicates emit nothing.
 
@@ -62,7 +101,7 @@ class EventCompiler:
                 continue
             mtype, entry_relation = RELATIONS[relation]
             entries.append(MemoryEntry.create(mtype, entity, entry_relation, value, timestamp))
-        self._previous.update(predicates)
+        self._previous.update({key: value for key, value in predicates.items() if value != UNKNOWN})
         if entries and self.encoder is not None:
             vectors = self.encoder.encode([e.text for e in entries])
             entries = [e.with_embedding(v) for e, v in zip(entries, vectors)]
