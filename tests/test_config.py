@@ -25,6 +25,20 @@ def test_set_retriever_config_differs_from_the_default_only_in_its_retriever():
     assert (variant.ppo, variant.env_kwargs) == (default.ppo, default.env_kwargs)
 
 
+def test_benchmark_configs_differ_from_the_default_only_in_what_they_name():
+    default = load_config(ZOO, ENV_ID)
+    objects = load_config(ZOO.with_name("memret_ppo_objects.yml"), ENV_ID)
+    assert objects.ppo == default.ppo and objects.policy_kwargs == default.policy_kwargs
+    assert objects.env_kwargs == {**default.env_kwargs, "objects": "train", "n_objects": 3, "location_decoys": 2,
+                                  "holding_decoys": 2}
+    objects_set = load_config(ZOO.with_name("memret_ppo_objects_set.yml"), ENV_ID)
+    assert objects_set.policy_kwargs == {**default.policy_kwargs, "retriever": "set"}
+    assert (objects_set.ppo, objects_set.env_kwargs) == (objects.ppo, objects.env_kwargs)
+    observed = load_config(ZOO.with_name("memret_ppo_observed.yml"), ENV_ID)
+    assert observed.env_kwargs == {**objects.env_kwargs, "memory_source": "observed"}
+    assert (observed.ppo, observed.policy_kwargs) == (objects.ppo, objects.policy_kwargs)
+
+
 @pytest.mark.parametrize(
     "section,message",
     [
@@ -37,6 +51,10 @@ def test_set_retriever_config_differs_from_the_default_only_in_its_retriever():
         ({"n_timesteps": 10, "env_kwargs": {"k": 3, "capacity": 2}}, "k=3 exceeds capacity=2"),
         ({"n_timesteps": 10, "policy_kwargs": {"tau": 0.5}}, "unknown key 'tau'"),
         ({"n_timesteps": 10, "policy_kwargs": {"retriever": "gnn"}}, "retriever='gnn' is invalid; expected one of 'mlp'"),
+        ({"n_timesteps": 10, "env_kwargs": {"objects": "kitchen"}}, "objects='kitchen' is invalid; expected one of the "
+                                                                    "object sets"),
+        ({"n_timesteps": 10, "env_kwargs": {"n_objects": 4}}, r"n_objects=4 is invalid; expected an integer in \[1, 3\]"),
+        ({"n_timesteps": 10, "env_kwargs": {"memory_source": "oracle"}}, "memory_source='oracle' is invalid"),
     ],
 )
 def test_bad_configs_are_rejected_with_the_key_and_the_accepted_values(section, message):
