@@ -89,6 +89,7 @@ class DrawerCubeTakeOutEnv(BaseEnv):
     - the target's layer is uniform over {1, 2, 3} (fix it with ``options={"target_layer": L}``)
     - which ``n_objects`` of ``objects`` the episode uses is uniform, and so is which of them is
       the target (fix it with ``options={"target": name}``); the others go to distinct other layers
+      (or fix them all with ``options={"placement": {name: layer, ...}, "target": name}``)
     - each object's position in its drawer: 4-9 cm behind the inner front, |y| <= 8 cm
     - each object's yaw is uniform in [-pi/6, pi/6]
     - the arm's joint positions get N(0, ``robot_init_qpos_noise``) noise around the rest pose
@@ -203,13 +204,16 @@ class DrawerCubeTakeOutEnv(BaseEnv):
             self.cabinet.set_qpos(torch.zeros(b, len(LAYERS)))
             self.cabinet.set_qvel(torch.zeros(b, len(LAYERS)))
 
-            target_layer = options.get("target_layer")
-            if target_layer is None:
-                target_layers = torch.randint(1, len(LAYERS) + 1, (b,))
+            if "placement" in options:
+                chosen, layers = self._placed_as(b, options["placement"], options.get("target"))
             else:
-                target_layers = torch.full((b,), check_layer(target_layer), dtype=torch.long)
-            chosen = self._draw_objects(b, options.get("target"))
-            layers = self._draw_other_layers(target_layers)
+                target_layer = options.get("target_layer")
+                if target_layer is None:
+                    target_layers = torch.randint(1, len(LAYERS) + 1, (b,))
+                else:
+                    target_layers = torch.full((b,), check_layer(target_layer), dtype=torch.long)
+                chosen = self._draw_objects(b, options.get("target"))
+                layers = self._draw_other_layers(target_layers)
             ids = env_idx.cpu().numpy()
             if self._object_layer_np is None:
                 self._object_layer_np = np.zeros((self.num_envs, len(self.object_specs)), dtype=np.int64)
@@ -236,6 +240,20 @@ class DrawerCubeTakeOutEnv(BaseEnv):
                     poses[j][0][i], poses[j][1][i] = pos[i], quat[i]
             for actor, (pos, quat) in zip(self.objects, poses):
                 actor.set_pose(Pose.create_from_pq(pos, quat))
+
+    def _placed_as(self, b: int, placement: dict[str, int], target: str | None) -> tuple[torch.Tensor, torch.Tensor]:
+        """(b, n_objects) object indices and layers of a given ``placement`` (name -> layer), the target first."""
+        names = list(placement)
+        if len(names) != self.n_objects or set(names) - set(self.object_names) or \
+                len({check_layer(layer) for layer in placement.values()}) != len(names):
+            raise ValueError(f"placement must put {self.n_objects} of the objects {list(self.object_names)} in distinct "
+                             f"drawer layers, got {placement!r}")
+        if target is None or target not in placement:
+            raise ValueError(f"a placement needs a target among its objects {names}, got {target!r}")
+        names.remove(target)
+        order = [target, *names]
+        chosen = torch.as_tensor([self.object_names.index(n) for n in order]).repeat(b, 1)
+        return chosen, torch.as_tensor([placement[n] for n in order]).repeat(b, 1)
 
     def _draw_objects(self, b: int, target: str | None) -> torch.Tensor:
         """(b, n_objects) indices of the episode's objects, the target first."""
@@ -363,6 +381,18 @@ class DrawerCubeTakeOutEnv(BaseEnv):
         drawer_open = opening.gather(1, idx[:, None])[:, 0] >= self.visible_opening
         visible = (in_layer == 0) | drawer_open
         return torch.cat([visible[:, None].float(), pose * visible[:, None]], dim=1)
+
+    def views(self, state: DrawerCubeState | None = None) -> np.ndarray:
+        """(B, M, 8) every object of the episode as a camera sees it now (visible flag, pose), by the
+        rule of ``target_detection``; objects the episode leaves out are never seen. ``state``: this
+        instant's ``privileged_state()``, when the caller has it already."""
+        state = state or self.privileged_state()
+        b, m = state.object_layer.shape
+        poses = torch.stack([actor.pose.raw_pose for actor in self.objects], dim=1).cpu().reshape(b * m, 7)
+        in_layer = layer_containing(state.object_pos.reshape(b * m, 3), np.repeat(state.layer_boxes, m, axis=0))
+        opening = torch.as_tensor(np.repeat(state.drawer_qpos, m, axis=0), dtype=torch.float32)
+        seen = self._detect(poses.float(), torch.as_tensor(in_layer), opening).numpy().reshape(b, m, 8)
+        return seen * (state.object_layer > 0)[..., None]
 
     def look_in(self) -> np.ndarray:
         """(B, layers, M, 8): each object of the episode as a camera sees it with drawer L pulled open

@@ -36,8 +36,9 @@ class EnvFrame:
 
     ``obs`` is the controller's observation with a batch dimension of one (numpy arrays in
     the env's nested layout); ``state`` the privileged state of that env (batch of one);
-    ``look_in`` after a reset, the observation phase's views (layers, objects, 8), see
-    ``DrawerCubeTakeOutEnv.look_in``.
+    ``views`` every object as a camera sees it (objects, 8), for the observed-memory writer and
+    never for a controller; ``look_in`` after a reset, the observation phase's views (layers,
+    objects, 8). See ``DrawerCubeTakeOutEnv.views`` and ``look_in``.
     """
 
     obs: dict[str, Any]
@@ -47,6 +48,7 @@ class EnvFrame:
     steps: int = 0  # control steps the chunk executed (0 after a reset)
     terminated: bool = False
     truncated: bool = False
+    views: np.ndarray | None = None
     look_in: np.ndarray | None = None
 
 
@@ -124,8 +126,10 @@ class TaskRunner:
 
     def _frame(self, obs: Any, info: dict, steps: int = 0, terminated: bool = False,
                truncated: bool = False) -> EnvFrame:
-        return EnvFrame(to_numpy(obs), self.env.unwrapped.privileged_state(), float(info["potential"][0]),
-                        bool(info["success"][0]), steps, terminated, truncated)
+        base = self.env.unwrapped
+        state = base.privileged_state()
+        return EnvFrame(to_numpy(obs), state, float(info["potential"][0]), bool(info["success"][0]), steps, terminated,
+                        truncated, base.views(state)[0])
 
     def close(self) -> None:
         self.env.close()
@@ -306,11 +310,13 @@ class BatchedSimPhysics(PhysicsBackend):
             idx = torch.as_tensor(ids, dtype=torch.long)
             # ManiSkill draws a partial reset's placements from the torch RNG seeded with the group's first seed
             obs, info = self.env.reset(seed=group[0].seed, options={**dict(options), "env_idx": idx})
-            state, look_in = self.env.unwrapped.privileged_state(), self.env.unwrapped.look_in()
+            base = self.env.unwrapped
+            state = base.privileged_state()
+            views, look_in = base.views(state), base.look_in()
             obs = to_numpy(obs)
             for i in ids:
                 frames[i] = EnvFrame(select_obs(obs, i), state.select(i), float(info["potential"][i]),
-                                     bool(info["success"][i]), look_in=look_in[i])
+                                     bool(info["success"][i]), views=views[i], look_in=look_in[i])
         return frames
 
     def execute(self, chunks: Mapping[int, np.ndarray]) -> dict[int, EnvFrame]:
@@ -331,11 +337,12 @@ class BatchedSimPhysics(PhysicsBackend):
             finished = [i for i in chunks if running[i] and (term[i] or trunc[i] or ends[i] == step + 1)]
             if finished:
                 state, obs_np = base.privileged_state(), to_numpy(obs)
+                views = base.views(state)
                 for i in finished:
                     running[i] = False
                     frames[i] = EnvFrame(select_obs(obs_np, i), state.select(i), float(info["potential"][i]),
                                          bool(info["success"][i]), step + 1, bool(term[i]),
-                                         bool(trunc[i]) and not bool(term[i]))
+                                         bool(trunc[i]) and not bool(term[i]), views[i])
             if not running.any():
                 break
         return {i: frames[i] for i in chunks}

@@ -119,9 +119,7 @@ class EpisodeMemory:
         self.bank.age(self.t)
 
     def _extract(self, frame: EnvFrame) -> dict:
-        if self.source == "observed":
-            return self.extractor.extract(frame.obs, frame.state)
-        return self.extractor.extract(frame.state)
+        return self.extractor.extract(frame if self.source == "observed" else frame.state)
 
     def _write(self, entries: list[MemoryEntry]) -> None:
         for entry in entries:

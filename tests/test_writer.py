@@ -6,7 +6,7 @@ import torch
 from mani_skill.utils.structs.pose import Pose
 
 from sb3_memret.envs.objects import OBJECT_SETS
-from sb3_memret.envs.physics import to_numpy
+from sb3_memret.envs.physics import EnvFrame, to_numpy
 from sb3_memret.memory.schema import MemoryType
 from sb3_memret.memory.writer import UNKNOWN, BoundingBoxPredicateExtractor, EventCompiler, ViewPredicateExtractor
 from sb3_memret.rollout import make_task_env
@@ -89,10 +89,10 @@ def test_view_extractor_writes_a_location_only_while_the_target_is_seen(objects_
     base, extractor = objects_env.unwrapped, ViewPredicateExtractor()
 
     def read():
-        info = base.evaluate()
-        return extractor.extract(to_numpy(base.get_obs(info)), base.privileged_state())
+        obs, state = to_numpy(base.get_obs(base.evaluate())), base.privileged_state()
+        return extractor.extract(EnvFrame(obs, state, 0.0, False, views=base.views(state)[0]))
 
-    assert read() == {("location", "brick"): UNKNOWN, ("holding", "robot"): "nothing"}  # closed: unknown
+    assert read() == {("location", "brick"): UNKNOWN, ("holding", "robot"): "nothing"}  # all closed: nothing seen
     base.cabinet.set_qpos(torch.tensor([[0.0, 0.28, 0.0]]))
     low, high = base.layout.inner_box(2, 0.28)
     base.objects[base.object_names.index("brick")].set_pose(

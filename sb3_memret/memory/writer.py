@@ -2,12 +2,13 @@
 
 from __future__ import annotations
 
-from typing import Any, Mapping, Protocol, Sequence
+from typing import Protocol, Sequence
 
 import numpy as np
 
 from sb3_memret.envs.cabinet import LAYERS, CabinetLayout
 from sb3_memret.envs.drawer_cube import DrawerCubeState, layer_containing
+from sb3_memret.envs.physics import EnvFrame
 from sb3_memret.memory.schema import NOTHING, OUTSIDE, MemoryEntry, MemoryType
 
 Predicates = dict[tuple[str, str], str]
@@ -44,29 +45,29 @@ class BoundingBoxPredicateExtractor:
 class ViewPredicateExtractor:
     """Reads only what a camera shows, never where the simulator placed anything: the observed-memory writer.
 
-    A location is written for an object only while it is visible: ``extract`` reads the target's
-    ``target_detection`` and the drawer openings (the layer is the drawer box, at its observed
-    opening, that holds the detected position; ``outside`` if none) and is ``unknown`` while the
-    target is hidden; ``look_in`` reads the observation phase's views, in which drawer L alone
-    stood open, so what is seen there is in drawer L. Holding is the gripper's touch (the grasp).
+    A location is written for an object only while it is visible (``EnvFrame.views``): the layer is
+    the drawer box, at its observed opening, that holds the detected position (``outside`` if none);
+    the target's location is ``unknown`` while it is hidden. ``look_in`` reads the observation
+    phase's views, in which drawer L alone stood open, so what is seen there is in drawer L.
+    Holding is the gripper's touch (the grasp).
     """
 
     def __init__(self, layout: CabinetLayout | None = None):
         self.layout = layout or CabinetLayout()
 
-    def extract(self, obs: Mapping[str, Any], state: DrawerCubeState, index: int = 0) -> Predicates:
-        detection = np.asarray(obs["extra"]["target_detection"])[index]
-        opening = np.asarray(obs["extra"]["drawer_opening"])[index]
-        target = state.target_name(index)
-        location = UNKNOWN
-        if detection[0] > 0.5:
-            boxes = np.stack([np.stack(self.layout.inner_box(layer, float(opening[layer - 1]))) for layer in LAYERS])
-            layer = int(layer_containing(detection[None, 1:4].astype(np.float64), boxes[None])[0])
-            location = f"drawer layer {layer}" if layer else OUTSIDE
-        return {
-            ("location", target): location,
-            ("holding", "robot"): target if bool(state.grasped[index]) else NOTHING,
-        }
+    def extract(self, frame: EnvFrame) -> Predicates:
+        if frame.views is None:
+            raise ValueError("the frame carries no views: the observed-memory writer reads what a camera sees")
+        opening = np.asarray(frame.obs["extra"]["drawer_opening"])[0]
+        boxes = np.stack([np.stack(self.layout.inner_box(layer, float(opening[layer - 1]))) for layer in LAYERS])
+        target = frame.state.target_name()
+        predicates: Predicates = {("location", target): UNKNOWN}
+        for name, detection in zip(frame.state.object_names[0], frame.views):
+            if detection[0] > 0.5:
+                layer = int(layer_containing(detection[None, 1:4].astype(np.float64), boxes[None])[0])
+                predicates[("location", str(name))] = f"drawer layer {layer}" if layer else OUTSIDE
+        predicates[("holding", "robot")] = target if bool(frame.state.grasped[0]) else NOTHING
+        return predicates
 
     @staticmethod
     def look_in(views: np.ndarray, names: Sequence[str]) -> Predicates:
