@@ -32,7 +32,7 @@ class RolloutRetrievalCallback(BaseCallback):
             if int(info.get("decision_true_slot", -1)) >= 0:
                 self.decisions += 1
                 self.hits += bool(info["retrieved_true"])
-            if done:
+            if info.get("task_done", done):  # a household's learning episode spans several tasks
                 self.successes.append(bool(info["success"]))
                 self.evicted.append(bool(info["true_evicted"]))
         return True

@@ -6,6 +6,7 @@ controller; the physics that feeds it frames runs elsewhere (``sb3_memret.envs.p
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -16,7 +17,7 @@ from sb3_memret.envs.physics import EnvFrame
 from sb3_memret.memory.bank import MemoryBank
 from sb3_memret.memory.encoder import EMBEDDING_DIM, MiniLMEncoder
 from sb3_memret.memory.schema import MemoryEntry, MemoryType
-from sb3_memret.memory.seeding import SeedingConfig, is_true_memory, seed_memories
+from sb3_memret.memory.seeding import SeedingConfig, hearsay_memories, is_true_memory, seed_memories
 from sb3_memret.memory.writer import BoundingBoxPredicateExtractor, EventCompiler, ViewPredicateExtractor
 from sb3_memret.prompts import PromptTemplate, build_prompt, instruction_text, location_text
 
@@ -52,56 +53,108 @@ def observation_space(capacity: int) -> spaces.Dict:
 
 
 class EpisodeMemory:
-    """One env's bounded bank and rule-based writer across its episodes.
+    """One env's bounded banks and rule-based writer across its episodes.
 
     ``start`` seeds the bank for a new episode from the simulator's t=0 state; ``choose`` and
     ``prompt`` turn the retriever's slots into the controller's prompt; ``observe`` writes what
-    the simulator says after a chunk. Eviction asks ``keep_scorer`` (the retention critic).
+    the simulator says after a chunk. Eviction asks ``keep_scorer`` (the retention critic, or a
+    fixed rule).
 
     ``source="observed"``: no fact comes from the placement. The bank starts with decoys only,
     the observation phase's views (each drawer opened once, ``EnvFrame.look_in``) write where each
-    object was seen, and during the episode the target's location is written only while a camera
+    object was seen, and during the episode an object's location is written only while a camera
     sees it (``ViewPredicateExtractor``).
+
+    ``long_term_capacity > 0`` (observed only; a household's episodes): a long-term store that
+    survives episode resets sits before the per-episode bank in the slots the retriever sees.
+    Where objects were seen in drawers goes there, with ``hearsay`` facts about other things each
+    episode; there is no observation phase, so what the robot knows it saw in earlier episodes.
+    Times run on across episodes. ``needed_fact_gone``: the target was seen since the household
+    last rearranged, yet its fact is no longer in the store.
     """
 
     def __init__(self, capacity: int, mode: str, encoder: MiniLMEncoder, keep_scorer: KeepScorer,
-                 template: PromptTemplate, seeding: SeedingConfig | None = None, source: str = "seeded"):
+                 template: PromptTemplate, seeding: SeedingConfig | None = None, source: str = "seeded",
+                 long_term_capacity: int = 0, hearsay: int = 0):
         self.mode = check_mode(mode)
         self.source = check_memory_source(source)
+        if long_term_capacity and source != "observed":
+            raise ValueError("a long-term store is written from what the robot sees: use memory_source='observed'")
         self.encoder, self.keep_scorer, self.template = encoder, keep_scorer, template
         self.seeding = seeding or SeedingConfig()
         self.bank = MemoryBank(capacity)
+        self.long_term = MemoryBank(long_term_capacity) if long_term_capacity else None
+        self.hearsay = hearsay
         self.extractor = BoundingBoxPredicateExtractor() if source == "seeded" else ViewPredicateExtractor()
         self.compiler = EventCompiler(encoder)
+        self.clock = 0  # control steps of the earlier episodes (long-term times run on)
         self.t = 0
         self.layer = 1
         self.target = "cube"
         self.true_evicted = False
+        self.needed_fact_gone = False
+        self.seen_since_move: set[str] = set()
 
-    def start(self, frame: EnvFrame, rng: np.random.Generator) -> None:
+    @property
+    def now(self) -> int:
+        return self.clock + self.t
+
+    @property
+    def stores(self) -> list[MemoryBank]:
+        """The banks in slot order: the long-term store's slots first."""
+        return [self.long_term, self.bank] if self.long_term is not None else [self.bank]
+
+    def start(self, frame: EnvFrame, rng: np.random.Generator, moved: bool = False) -> None:
         """A new episode: the seeded memories (true facts and decoys; decoys and what the observation
-        phase saw for ``observed``) are the bank at t = 0."""
+        phase saw for ``observed``) are the bank at t = 0. ``moved``: the household rearranged."""
         state = frame.state
         self.layer = check_layer(int(state.target_layer[0]))
         self.target = state.target_name()
+        self.clock = self.clock + self.t if self.long_term is not None else 0
         self.t, self.true_evicted = 0, False
         self.bank.clear()
         seeds = seed_memories(state.placed(), self.target, rng, self.seeding, facts=self.source == "seeded")
-        vectors = self.encoder.encode([e.text for e in seeds])
-        self._write([e.with_embedding(v) for e, v in zip(seeds, vectors)])
+        if self.long_term is not None:
+            if moved:
+                self.seen_since_move.clear()
+            seeds += hearsay_memories(self.hearsay, rng, self.now, self.seeding)
+        self._write(self._encoded([replace(e, timestamp=self.now) for e in seeds]))
+        if self.long_term is not None:
+            self.needed_fact_gone = self.target in self.seen_since_move and not any(
+                self.is_true(e) for e in self.long_term.entries)
         self.compiler.reset()
-        if self.source == "observed":
+        if self.source == "observed" and self.long_term is None:
             if frame.look_in is None:
                 raise RuntimeError("the observed-memory variant needs the reset frame's look_in views")
-            self._write(self.compiler.update(ViewPredicateExtractor.look_in(frame.look_in, state.object_names[0]), 0))
-        self.compiler.update(self._extract(frame), 0)
+            self._write(self.compiler.update(ViewPredicateExtractor.look_in(frame.look_in, state.object_names[0]),
+                                             self.now))
+        self.compiler.update(self._extract(frame), self.now)
+        for store in self.stores:
+            store.age(self.now)
+
+    def slot_entries(self) -> list[MemoryEntry | None]:
+        """Every slot's entry in slot order, None for an empty one (up to the last filled slot)."""
+        slots: list[MemoryEntry | None] = []
+        for store in self.stores[:-1]:
+            entries = store.entries
+            slots += entries + [None] * (store.capacity - len(entries))
+        slots += self.stores[-1].entries
+        while slots and slots[-1] is None:
+            slots.pop()
+        return slots
 
     def choose(self, slots: np.ndarray) -> list[MemoryEntry]:
         """The entries in ``slots`` (empty slots add nothing), each marked as used."""
-        entries = self.bank.entries
-        for s in slots[slots < len(entries)]:
-            self.bank.mark_used(int(s))
-        return [entries[s] for s in slots if s < len(entries)]
+        chosen = []
+        for s in (int(s) for s in slots):
+            for store in self.stores:
+                if s < store.capacity:
+                    if s < len(store):
+                        store.mark_used(s, self.now)
+                        chosen.append(store.entries[s])
+                    break
+                s -= store.capacity
+        return chosen
 
     def prompt(self, chosen: list[MemoryEntry]) -> str:
         """The controller's prompt: the instruction plus the chosen facts (or the mode's fixed text)."""
@@ -113,19 +166,32 @@ class EpisodeMemory:
         return build_prompt(instruction, [e.text for e in chosen], self.template)
 
     def observe(self, frame: EnvFrame) -> None:
-        """After an executed chunk: write the facts that changed, age the bank."""
+        """After an executed chunk: write the facts that changed, age the banks."""
         self.t += frame.steps
-        self._write(self.compiler.update(self._extract(frame), self.t))
-        self.bank.age(self.t)
+        self._write(self.compiler.update(self._extract(frame), self.now))
+        for store in self.stores:
+            store.age(self.now)
 
     def _extract(self, frame: EnvFrame) -> dict:
         return self.extractor.extract(frame if self.source == "observed" else frame.state)
 
+    def _encoded(self, entries: list[MemoryEntry]) -> list[MemoryEntry]:
+        vectors = self.encoder.encode([e.text for e in entries]) if entries else []
+        return [e.with_embedding(v) for e, v in zip(entries, vectors)]
+
+    def _store_for(self, entry: MemoryEntry) -> MemoryBank:
+        """Where an object was seen in a drawer (and hearsay) is long-term; the rest lasts an episode."""
+        lasting = entry.type == MemoryType.OBJECT_LOCATION and entry.value.startswith("drawer layer")
+        return self.long_term if self.long_term is not None and lasting else self.bank
+
     def _write(self, entries: list[MemoryEntry]) -> None:
         for entry in entries:
-            outcome = self.bank.write(entry, lambda stored: self.keep_scorer(stored, self.t))
+            store = self._store_for(entry)
+            outcome = store.write(entry, lambda stored: self.keep_scorer(stored, self.now))
             if outcome.evicted is not None and self.is_true(outcome.evicted):
                 self.true_evicted = True
+            if store is self.long_term and outcome.slot is not None:
+                self.seen_since_move.add(entry.entity)
 
     def instruction(self) -> str:
         """The text the retriever conditions on: the instruction (with the target's layer in oracle mode)."""
@@ -138,31 +204,34 @@ class EpisodeMemory:
         return is_true_memory(entry, self.target, self.layer)
 
     def true_slot(self) -> int:
-        return next((i for i, e in enumerate(self.bank.entries) if self.is_true(e)), -1)
+        return next((i for i, e in enumerate(self.slot_entries()) if e is not None and self.is_true(e)), -1)
 
     def retrieved_true(self, chosen: list[MemoryEntry]) -> bool:
         return any(self.is_true(e) for e in chosen)
 
     def observation(self) -> dict[str, np.ndarray]:
-        view = self.bank.view()
+        views = [store.view() for store in self.stores]
         return {
             "instruction": self.encoder.encode_one(self.instruction()).astype(np.float32),
-            "memories": view.embeddings,
-            "mask": view.mask.astype(np.float32),
-            "type_ids": view.type_ids.astype(np.float32),
-            "age": view.age,
-            "usage": view.usage,
+            "memories": np.concatenate([v.embeddings for v in views]),
+            "mask": np.concatenate([v.mask for v in views]).astype(np.float32),
+            "type_ids": np.concatenate([v.type_ids for v in views]).astype(np.float32),
+            "age": np.concatenate([v.age for v in views]),
+            "usage": np.concatenate([v.usage for v in views]),
         }
 
     def info(self, success: bool) -> dict[str, Any]:
-        return {
+        info = {
             "true_slot": self.true_slot(),
             "true_evicted": self.true_evicted,
             "success": success,
             "target_layer": self.layer,
             "target": self.target,
-            "memory_texts": [e.text for e in self.bank.entries],
+            "memory_texts": [e.text if e is not None else "" for e in self.slot_entries()],
         }
+        if self.long_term is not None:
+            info["needed_fact_gone"] = self.needed_fact_gone
+        return info
 
 
 __all__ = ["EpisodeMemory", "KeepScorer", "MEMORY_SOURCES", "MODES", "check_memory_source", "check_mode",

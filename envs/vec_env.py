@@ -25,12 +25,14 @@ from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvStepReturn
 
 from sb3_memret.controllers import FrozenController, make_controller
+from sb3_memret.envs.household import Household, HouseholdConfig
 from sb3_memret.envs.objects import object_set
 from sb3_memret.envs.physics import EnvFrame, PhysicsBackend, ResetRequest, make_physics, stack_obs
 from sb3_memret.envs.recall_memory import EpisodeMemory, check_memory_source, check_mode, observation_space
 from sb3_memret.memory.bank import importance_scorer
 from sb3_memret.memory.encoder import MiniLMEncoder
 from sb3_memret.memory.schema import MemoryEntry
+from sb3_memret.memory.retention import FIXED_RULES, check_retention
 from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.policy.networks import RetentionScorer
 from sb3_memret.rewards import shaped_reward
@@ -61,6 +63,15 @@ class DrawerRecallVecEnv(VecEnv):
     ``location_decoys`` and ``holding_decoys`` set how many decoy facts seed each bank.
     ``memory_source="observed"``: the objects' facts come only from what the robot saw, in an
     observation phase that opens each drawer once before the episode (``EpisodeMemory``).
+
+    ``long_term_capacity > 0``: each env is a household (``sb3_memret.envs.household``) whose
+    objects stay in their drawers across episodes and are rearranged with ``move_probability``
+    per episode; a long-term store of that many slots, before the per-episode ``capacity`` slots,
+    keeps what the robot saw across episodes, and ``hearsay_per_episode`` facts about other things
+    reach it each episode. ``retention`` picks what evicts: the learned critic or a fixed rule
+    (``sb3_memret.memory.retention``: fifo, lru, prior). ``tasks_per_episode``: tasks (each a reset of
+    the physics, ``info["task_done"]``) per learning episode, so that what memory keeps for a later
+    task is credited to the decisions that kept it; a learning episode ends as a time-limit truncation.
     """
 
     def __init__(
@@ -83,14 +94,26 @@ class DrawerRecallVecEnv(VecEnv):
         location_decoys: int | None = None,
         holding_decoys: int | None = None,
         memory_source: str = "seeded",
+        long_term_capacity: int = 0,
+        move_probability: float = 0.2,
+        hearsay_per_episode: int = 2,
+        retention: str = "learned",
+        tasks_per_episode: int = 1,
         backend: str = "auto",
         ray_address: str | None = None,
     ):
         check_mode(mode)
         check_memory_source(memory_source)
-        if not 1 <= k <= capacity:
-            raise ValueError(f"k must be in [1, capacity={capacity}], got {k}")
-        self.mode, self.capacity, self.k = mode, capacity, k
+        self.retention_rule = check_retention(retention)
+        if tasks_per_episode < 1:
+            raise ValueError(f"tasks_per_episode must be >= 1, got {tasks_per_episode}")
+        self.tasks_per_episode = tasks_per_episode
+        if long_term_capacity < 0:
+            raise ValueError(f"long_term_capacity must be >= 0, got {long_term_capacity}")
+        slots = capacity + long_term_capacity
+        if not 1 <= k <= slots:
+            raise ValueError(f"k must be in [1, slots={slots}], got {k}")
+        self.mode, self.slots, self.k = mode, slots, k
         self.replan_every, self.gamma, self.success_bonus = replan_every, gamma, success_bonus
         self.controller = make_controller(controller) if isinstance(controller, str) else controller
         if not 1 <= replan_every <= self.controller.spec.chunk_len:
@@ -103,7 +126,10 @@ class DrawerRecallVecEnv(VecEnv):
         seeding = dataclasses.replace(seeding, **decoys) if decoys else seeding
         self.encoder = encoder or MiniLMEncoder()
         self.retention: RetentionScorer | None = None
-        super().__init__(num_envs, observation_space(capacity), spaces.MultiDiscrete([capacity] * k))
+        super().__init__(num_envs, observation_space(slots), spaces.MultiDiscrete([slots] * k))
+        household = HouseholdConfig(move_probability, hearsay_per_episode)
+        self.households = [Household(object_set(objects), n_objects, household) for _ in range(num_envs)] \
+            if long_term_capacity else None
         self.physics: PhysicsBackend = make_physics(backend, num_envs, task_kwargs, max_control_steps, ray_address)
         try:
             self.controller.check_env(self.physics.env_info)
@@ -111,11 +137,12 @@ class DrawerRecallVecEnv(VecEnv):
             self.physics.close()
             raise
         template = self.controller.spec.prompt_template
-        self.memories = [EpisodeMemory(capacity, mode, self.encoder, self.keep_scores, template, seeding, memory_source)
-                         for _ in range(num_envs)]
+        self.memories = [EpisodeMemory(capacity, mode, self.encoder, self.keep_scores, template, seeding, memory_source,
+                                       long_term_capacity, hearsay_per_episode) for _ in range(num_envs)]
         self.rngs: list[np.random.Generator | None] = [None] * num_envs
         self.frames: list[EnvFrame | None] = [None] * num_envs
         self.controller_calls = 0
+        self.tasks_played = np.zeros(num_envs, dtype=np.int64)
         self.closed = False
         self._actions: np.ndarray | None = None
         self._controller_batch = False  # whether controller.reset has set up the batch of num_envs
@@ -129,7 +156,9 @@ class DrawerRecallVecEnv(VecEnv):
         self.retention.eval()
 
     def keep_scores(self, entries: Sequence[MemoryEntry], t: int) -> np.ndarray:
-        """Keep-scores at decision time ``t``: the retention critic's, or the fixed type prior before any push."""
+        """Keep-scores at time ``t``: the fixed rule's, else the retention critic's (the type prior before any push)."""
+        if self.retention_rule in FIXED_RULES:
+            return FIXED_RULES[self.retention_rule](entries, t)
         if self.retention is None:
             return importance_scorer(entries)
         with torch.no_grad():
@@ -152,11 +181,17 @@ class DrawerRecallVecEnv(VecEnv):
         reset infos by env id."""
         seeds = list(seeds) if seeds is not None else [None] * len(env_ids)
         options = list(options) if options is not None else [{}] * len(env_ids)
-        requests = []
+        if self.households is not None and any(options):
+            raise ValueError(f"a household decides where its objects are; reset options {options!r} are not accepted")
+        requests, moved = [], {}
         for i, seed, opts in zip(env_ids, seeds, options):
             if seed is not None or self.rngs[i] is None:
                 self.rngs[i], _ = gym_seeding.np_random(seed)
-            requests.append(ResetRequest(i, int(self.rngs[i].integers(2**31 - 1)), dict(opts or {})))
+            opts = dict(opts or {})
+            if self.households is not None:
+                placement, target, moved[i] = self.households[i].next_episode(self.rngs[i])
+                opts = {"placement": placement, "target": target}
+            requests.append(ResetRequest(i, int(self.rngs[i].integers(2**31 - 1)), opts))
         frames = self.physics.reset(requests)
         task_seeds = [r.seed for r in requests]
         if self._controller_batch:
@@ -171,15 +206,15 @@ class DrawerRecallVecEnv(VecEnv):
         for request in requests:
             i, frame = request.env_id, frames[request.env_id]
             self.frames[i] = frame
-            self.memories[i].start(frame, self.rngs[i])
+            self.memories[i].start(frame, self.rngs[i], moved.get(i, False))
             infos[i] = self.memories[i].info(success=False)
         return infos
 
     def decide(self, actions: np.ndarray) -> tuple[list[dict], np.ndarray, np.ndarray, np.ndarray, list[dict]]:
         """One decision round without auto-reset: observations, rewards, terminated, truncated, infos."""
         actions = np.asarray(actions, dtype=np.int64).reshape(self.num_envs, -1)
-        if actions.shape[1] != self.k or (actions < 0).any() or (actions >= self.capacity).any():
-            raise ValueError(f"actions must be {self.k} slot indices in [0, {self.capacity}) per env, "
+        if actions.shape[1] != self.k or (actions < 0).any() or (actions >= self.slots).any():
+            raise ValueError(f"actions must be {self.k} slot indices in [0, {self.slots}) per env, "
                              f"got {actions.tolist()!r}")
         if any(frame is None for frame in self.frames):
             raise RuntimeError("reset the envs before stepping them")
@@ -226,11 +261,16 @@ class DrawerRecallVecEnv(VecEnv):
             raise RuntimeError("step_wait() without step_async()")
         observations, rewards, terminated, truncated, infos = self.decide(self._actions)
         self._actions = None
-        dones = terminated | truncated
-        done_ids = [i for i in range(self.num_envs) if dones[i]]
+        task_done = terminated | truncated
+        self.tasks_played += task_done
+        # a household's learning episode spans tasks_per_episode tasks: memory kept for later tasks earns its reward
+        dones = task_done & (self.tasks_played % self.tasks_per_episode == 0)
+        done_ids = [i for i in range(self.num_envs) if task_done[i]]
         for i in done_ids:
-            infos[i]["terminal_observation"] = observations[i]
-            infos[i]["TimeLimit.truncated"] = bool(truncated[i])
+            infos[i]["task_done"] = True
+            if dones[i]:
+                infos[i]["terminal_observation"] = observations[i]
+                infos[i]["TimeLimit.truncated"] = bool(truncated[i]) or self.tasks_per_episode > 1
         if done_ids:
             reset_infos = self.reset_envs(done_ids)
             for i in done_ids:

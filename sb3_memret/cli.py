@@ -11,6 +11,7 @@ import click
 
 from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.objects import OBJECT_SETS
+from sb3_memret.memory.retention import RETENTION_RULES
 
 EXPERIMENTS = {"recall": "sb3_memret/DrawerRecall-v0"}
 DEFAULT_CONFIG = Path(__file__).resolve().parents[1] / "zoo_configs" / "memret_ppo.yml"
@@ -371,12 +372,14 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
 @click.option("--stochastic", is_flag=True, help="Sample retrievals instead of acting greedily.")
 @click.option("--objects", type=click.Choice(sorted(OBJECT_SETS)), default=None,
               help="Object set the episodes hide (heldout: objects no training episode had)  [default: the run's]")
+@click.option("--retention", type=click.Choice(list(RETENTION_RULES)), default=None,
+              help="What evicts: the learned critic or a fixed rule (fifo, lru, prior)  [default: the run's]")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON on stdout.")
 @_render_backend_option
 @_physics_options
 def evaluate(model_path: Path, condition: str, episodes: int, controller: str, n_envs: int, seed: int,
-             stochastic: bool, objects: str | None, as_json: bool, render_backend: str, backend: str,
-             ray_address: str | None) -> None:
+             stochastic: bool, objects: str | None, retention: str | None, as_json: bool, render_backend: str,
+             backend: str, ray_address: str | None) -> None:
     """Evaluate a trained model: success per layer and retrieval accuracy."""
     from sb3_memret.analysis.evaluation import evaluate_retrieval
     from sb3_memret.envs.vec_env import make_recall_vec_env
@@ -386,6 +389,8 @@ def evaluate(model_path: Path, condition: str, episodes: int, controller: str, n
     kwargs = eval_env_kwargs(model, model_path, condition, controller, render_backend)
     if objects is not None:
         kwargs["objects"] = objects
+    if retention is not None:
+        kwargs["retention"] = retention
     kwargs["controller"] = click.get_current_context().meta["controller"]  # the one already built
     venv = make_recall_vec_env(n_envs, kwargs, backend=backend, ray_address=ray_address)
     try:
@@ -395,12 +400,12 @@ def evaluate(model_path: Path, condition: str, episodes: int, controller: str, n
     finally:
         venv.close()
     if as_json:
-        click.echo(json.dumps({"model": str(model_path), "condition": condition,
-                               "objects": kwargs.get("objects", "cube"), **report.to_dict()}))
+        click.echo(json.dumps({"model": str(model_path), "condition": condition, "objects": kwargs.get("objects", "cube"),
+                               "retention": kwargs.get("retention", "learned"), **report.to_dict()}))
         return
     label = "greedy" if not stochastic else "sampled"
     click.echo(f"model: {model_path}   condition: {condition}   objects: {kwargs.get('objects', 'cube')}   "
-               f"episodes: {report.episodes}")
+               f"retention: {kwargs.get('retention', 'learned')}   episodes: {report.episodes}")
     click.echo(f"{label} retrieval accuracy: {report.greedy_accuracy:.1%} over {report.decisions} decisions "
                f"(sampled fraction {report.sampled_fraction:.1%}, entropy {report.entropy:.2f})")
     click.echo("| layer | episodes | success |")
@@ -409,6 +414,9 @@ def evaluate(model_path: Path, condition: str, episodes: int, controller: str, n
         if key in report.success:
             count = report.episodes if key == "overall" else report.episodes_per_layer[key]
             click.echo(f"| {key} | {count} | {report.success[key]:.0%} |")
+    if report.needed_fact_gone_rate is not None:
+        click.echo(f"needed fact gone (seen since the last move, then evicted): {report.needed_fact_gone_rate:.0%} "
+                   "of episodes")
 
 
 @main.command()

@@ -10,6 +10,7 @@ import yaml
 
 from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.objects import OBJECT_SETS
+from sb3_memret.memory.retention import RETENTION_RULES
 
 Check = tuple[type | tuple[type, ...], Callable[[Any], bool], str]
 
@@ -51,6 +52,11 @@ ENV_KEYS: dict[str, Check] = {
     "n_objects": (int, lambda v: 1 <= v <= len(LAYERS), f"an integer in [1, {len(LAYERS)}] (one object per drawer)"),
     "location_decoys": (int, lambda v: v >= 0, "an integer >= 0"),
     "holding_decoys": (int, lambda v: v >= 0, "an integer >= 0"),
+    "long_term_capacity": (int, lambda v: v >= 0, "an integer >= 0 (0: no long-term store)"),
+    "move_probability": ((int, float), lambda v: 0 <= v <= 1, "a number in [0, 1]"),
+    "hearsay_per_episode": (int, lambda v: v >= 0, "an integer >= 0"),
+    "retention": (str, lambda v: v in RETENTION_RULES, f"one of {list(RETENTION_RULES)}"),
+    "tasks_per_episode": _positive_int(),
     "memory_source": (str, lambda v: v in ("seeded", "observed"), "one of 'seeded' (from the placement), "
                       "'observed' (from what the robot saw)"),
 }
@@ -106,8 +112,9 @@ def parse_section(section: Any, env_id: str, where: str = "config") -> TrainConf
     ppo = _validate(section, PPO_KEYS, f"{where}: {env_id}")
     if "n_timesteps" not in ppo:
         raise ValueError(f"{where}: {env_id} must set n_timesteps")
-    if "k" in env_kwargs and env_kwargs["k"] > env_kwargs.get("capacity", 6):
-        raise ValueError(f"{where}: {env_id}.env_kwargs: k={env_kwargs['k']} exceeds capacity={env_kwargs.get('capacity', 6)}")
+    slots = env_kwargs.get("capacity", 6) + env_kwargs.get("long_term_capacity", 0)
+    if "k" in env_kwargs and env_kwargs["k"] > slots:
+        raise ValueError(f"{where}: {env_id}.env_kwargs: k={env_kwargs['k']} exceeds capacity={slots}")
     return TrainConfig(env_id, ppo, policy_kwargs, env_kwargs)
 
 

@@ -111,8 +111,8 @@ def eval_env_kwargs(model: MemRetPPO, model_path: Path, mode: str, controller: s
             kwargs = dict(load_run_config(folder).env_kwargs)
             break
     nvec = model.action_space.nvec
-    kwargs.update(mode=mode, controller=controller, gamma=model.gamma, capacity=int(nvec[0]), k=len(nvec),
-                  render_backend=render_backend)
+    kwargs.update(mode=mode, controller=controller, gamma=model.gamma, k=len(nvec), render_backend=render_backend,
+                  capacity=int(nvec[0]) - kwargs.get("long_term_capacity", 0))
     return kwargs
 
 

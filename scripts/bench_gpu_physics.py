@@ -107,7 +107,7 @@ def release_gpu() -> None:
 
 def random_round(venv: DrawerRecallVecEnv, rng: np.random.Generator) -> tuple[np.ndarray, list[dict]]:
     """One decision round with uniformly random slot picks; the dones and infos."""
-    venv.step_async(rng.integers(venv.capacity, size=(venv.num_envs, venv.k)))
+    venv.step_async(rng.integers(venv.slots, size=(venv.num_envs, venv.k)))
     _, _, dones, infos = venv.step_wait()
     return dones, infos
 

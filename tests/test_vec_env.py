@@ -143,3 +143,45 @@ def test_physics_workers_leave_stop_signals_to_the_trainer(encoder):
     finally:
         venv.close()
     assert not any(p.is_alive() for p in workers)
+
+
+HOUSEHOLD = dict(objects="train", n_objects=3, memory_source="observed", capacity=3, long_term_capacity=3,
+                 location_decoys=0, holding_decoys=2, hearsay_per_episode=1, move_probability=0.0, tasks_per_episode=2)
+
+
+def test_a_household_remembers_across_tasks_and_a_learning_episode_spans_several(encoder):
+    venv = DrawerRecallVecEnv(1, mode="oracle", controller=ScriptedDrawerController(), encoder=encoder,
+                              max_control_steps=400, retention="fifo", **HOUSEHOLD)
+    assert venv.observation_space["memories"].shape == (6, 384) and venv.action_space.nvec.tolist() == [6]
+    venv.seed(3)
+    venv.reset()
+    memory, placement = venv.memories[0], dict(venv.households[0].placement)
+    first_target, first_layer = memory.target, memory.layer
+    assert [e.text for e in memory.long_term.entries] == [memory.long_term.entries[0].text]  # one hearsay fact
+    assert not {e.entity for e in memory.long_term.entries} & set(placement)  # nothing about the household yet
+    tasks, dones = [], []
+    while len(tasks) < 2:
+        _, _, done, infos = venv.step(np.zeros((1, 1), dtype=np.int64))
+        dones.append(bool(done[0]))
+        if infos[0].get("task_done"):
+            tasks.append({**infos[0], "done": bool(done[0])})
+            if len(tasks) == 1:  # the oracle's drawer was opened: the target was seen there, and is remembered
+                assert venv.households[0].placement == placement
+                seen = f"the {first_target} is in drawer layer {first_layer}."
+                assert seen in [e.text for e in memory.long_term.entries]
+                assert memory.target in placement and memory.clock > 0
+    assert tasks[0]["success"] and [t["done"] for t in tasks] == [False, True] and dones.count(True) == 1
+    assert "terminal_observation" in tasks[1] and tasks[1]["TimeLimit.truncated"]
+    assert all(e.timestamp <= memory.now for e in memory.long_term.entries)
+    venv.close()
+
+
+def test_household_refusals(encoder):
+    with pytest.raises(ValueError, match="long-term store is written from what the robot sees"):
+        DrawerRecallVecEnv(1, encoder=encoder, **{**HOUSEHOLD, "memory_source": "seeded"})
+    venv = DrawerRecallVecEnv(1, encoder=encoder, **HOUSEHOLD)
+    with pytest.raises(ValueError, match="a household decides where its objects are"):
+        venv.reset_envs([0], options=[{"target_layer": 2}])
+    venv.close()
+    with pytest.raises(ValueError, match="unknown retention rule 'newest'"):
+        DrawerRecallVecEnv(1, encoder=encoder, retention="newest")

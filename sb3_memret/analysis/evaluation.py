@@ -33,6 +33,7 @@ class RetrievalReport:
     mean_return: float = 0.0  # shaped return per episode
     mean_reward: float = 0.0  # shaped reward per decision
     true_evicted_rate: float = 0.0
+    needed_fact_gone_rate: float | None = None  # households: the target was seen since the last move, its fact evicted
     deterministic: bool = True
 
     def as_metrics(self) -> dict[str, float]:
@@ -47,6 +48,8 @@ class RetrievalReport:
             "episodes": float(self.episodes),
         }
         metrics.update({f"success_layer_{k}": v for k, v in self.success.items() if k != "overall"})
+        if self.needed_fact_gone_rate is not None:
+            metrics["needed_fact_gone_rate"] = self.needed_fact_gone_rate
         return metrics
 
     def to_dict(self) -> dict[str, Any]:
@@ -101,10 +104,12 @@ def evaluate_retrieval(
                     hits += bool(info["retrieved_true"])
                     sampled += float((draws[i] == true).any(-1).float().mean())
                     entropy += float(ent[i])
-                if dones[i]:
+                if info.get("task_done", dones[i]):  # a household's learning episode spans several tasks
                     episode = dict(layer=int(info["target_layer"]), success=bool(info["success"]),
                                    shaped_return=float(returns[i]), true_evicted=bool(evicted[i]),
-                                   decisions=int(lengths[i]))
+                                   decisions=int(lengths[i]), target=info.get("target", "cube"))
+                    if "needed_fact_gone" in info:
+                        episode["needed_fact_gone"] = bool(info["needed_fact_gone"])
                     episodes.append(episode)
                     if on_episode is not None:
                         on_episode(episode)
@@ -130,6 +135,8 @@ def _report(episodes: list[dict[str, Any]], decisions: float, hits: float, sampl
         entropy=entropy / safe, success=success, episodes_per_layer=per_layer,
         mean_return=float(np.mean([e["shaped_return"] for e in episodes])), mean_reward=mean_reward,
         true_evicted_rate=float(np.mean([e["true_evicted"] for e in episodes])), deterministic=deterministic,
+        needed_fact_gone_rate=float(np.mean([e["needed_fact_gone"] for e in episodes]))
+        if all("needed_fact_gone" in e for e in episodes) else None,
     )
 
 

@@ -89,10 +89,13 @@ class MemoryBank:
         evicted, self._entries[loser] = self._entries[loser], entry
         return WriteOutcome(loser, evicted=evicted)
 
-    def mark_used(self, slot: int) -> None:
+    def mark_used(self, slot: int, now: int | None = None) -> None:
+        """Count a retrieval of ``slot`` (at time ``now``, for least-recently-used eviction)."""
         if not 0 <= slot < len(self._entries):
             raise IndexError(f"slot {slot} is empty; the bank holds {len(self._entries)} entries")
         self._entries[slot].usage_count += 1
+        if now is not None:
+            self._entries[slot].last_used = int(now)
 
     def age(self, now: int) -> None:
         """Set the current time; ages are measured from each entry's timestamp."""

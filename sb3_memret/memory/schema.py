@@ -73,6 +73,7 @@ class MemoryEntry:
     embedding: np.ndarray | None = None
     importance: float = 0.0
     usage_count: int = 0
+    last_used: int = -1  # time of the last retrieval, -1 if never retrieved
 
     @property
     def key(self) -> Key:

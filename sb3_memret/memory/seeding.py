@@ -66,6 +66,15 @@ def seed_memories(placed: Mapping[str, int], target: str, rng: np.random.Generat
     return [entries[i] for i in order]
 
 
+def hearsay_memories(n: int, rng: np.random.Generator, timestamp: int,
+                     config: SeedingConfig | None = None) -> list[MemoryEntry]:
+    """``n`` location facts about things that are none of the task's objects, in random drawers: what a
+    household's long-term store also hears, and must learn to let go of."""
+    vocab = sorted(set((config or SeedingConfig()).vocabulary))
+    return [location_memory(str(obj), int(rng.choice(LAYERS)), timestamp)
+            for obj in rng.choice(vocab, size=min(n, len(vocab)), replace=False)]
+
+
 def is_true_memory(entry: MemoryEntry, target: str, layer: int) -> bool:
     """Whether ``entry`` places ``target`` in ``layer``: the memory the controller needs."""
     return entry.key == (MemoryType.OBJECT_LOCATION, target, "is_in") and entry.value == f"drawer layer {layer}"
