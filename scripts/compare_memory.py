@@ -1,0 +1,82 @@
+"""The memory benchmark's comparisons for trained runs, each evaluated on the same held-out episodes:
+
+- ``objects RUN...``: greedy retrieval accuracy and success on the training objects and on objects no
+  training episode had (``--objects heldout``);
+- ``observed RUN...``: success with the recalled memory against no memory and the oracle (the target's
+  layer in the instruction), and recall / oracle;
+- ``retention RUN...``: success and how often the needed fact was gone, with the learned retention
+  critic and with each fixed rule (fifo, lru, prior) evicting from the same model's banks.
+
+Usage: ``python scripts/compare_memory.py objects runs/objects-seed0 [--controller learned] [--episodes 50]``.
+Each RUN is a training run folder; its ``best_model.zip`` is evaluated (``--model final_model.zip`` for another).
+"""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+from typing import Any
+
+from stable_baselines3 import PPO
+
+from sb3_memret.analysis.evaluation import RetrievalReport, evaluate_retrieval
+from sb3_memret.cli import HELD_OUT_SEED
+from sb3_memret.envs.vec_env import make_recall_vec_env
+from sb3_memret.memory.retention import RETENTION_RULES
+from sb3_memret.training import eval_env_kwargs
+
+def evaluate(model_path: Path, args: argparse.Namespace, mode: str = "recall", **overrides: Any) -> RetrievalReport:
+    model = PPO.load(model_path, device="cpu")
+    kwargs = {**eval_env_kwargs(model, model_path, mode, args.controller), **overrides}
+    venv = make_recall_vec_env(args.n_envs, kwargs)
+    try:
+        return evaluate_retrieval(model, venv, args.episodes, seed=args.seed)
+    finally:
+        venv.close()
+
+
+def compare_objects(args: argparse.Namespace) -> None:
+    print("| run | objects | greedy accuracy | success | decisions |")
+    print("|---|---|---|---|---|")
+    for run in args.runs:
+        for objects in ("train", "heldout"):
+            report = evaluate(run / args.model, args, objects=objects)
+            print(f"| {run.name} | {objects} | {report.greedy_accuracy:.1%} | {report.success['overall']:.0%} | "
+                  f"{report.decisions} |")
+
+
+def compare_observed(args: argparse.Namespace) -> None:
+    print("| run | recall success | none | oracle | recall / oracle | recall greedy accuracy |")
+    print("|---|---|---|---|---|---|")
+    for run in args.runs:
+        reports = {mode: evaluate(run / args.model, args, mode) for mode in ("recall", "none", "oracle")}
+        success = {mode: report.success["overall"] for mode, report in reports.items()}
+        print(f"| {run.name} | {success['recall']:.0%} | {success['none']:.0%} | {success['oracle']:.0%} | "
+              f"{success['recall'] / max(success['oracle'], 1e-9):.2f} | {reports['recall'].greedy_accuracy:.1%} |")
+
+
+def compare_retention(args: argparse.Namespace) -> None:
+    print("| run | retention | success | needed fact gone | greedy accuracy |")
+    print("|---|---|---|---|---|")
+    for run in args.runs:
+        for rule in RETENTION_RULES:
+            report = evaluate(run / args.model, args, retention=rule)
+            print(f"| {run.name} | {rule} | {report.success['overall']:.0%} | {report.needed_fact_gone_rate:.0%} | "
+                  f"{report.greedy_accuracy:.1%} |")
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("comparison", choices=["objects", "observed", "retention"])
+    parser.add_argument("runs", nargs="+", type=Path)
+    parser.add_argument("--model", default="best_model.zip", help="Model file inside each run folder.")
+    parser.add_argument("--controller", default="scripted")
+    parser.add_argument("--episodes", type=int, default=50)
+    parser.add_argument("--n-envs", type=int, default=2)
+    parser.add_argument("--seed", type=int, default=HELD_OUT_SEED)
+    args = parser.parse_args()
+    {"objects": compare_objects, "observed": compare_observed, "retention": compare_retention}[args.comparison](args)
+
+
+if __name__ == "__main__":
+    main()
