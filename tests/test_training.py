@@ -3,6 +3,7 @@ interrupted and resumed from its checkpoint, and `sb3-memret eval` scores the re
 
 import csv
 import json
+from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
@@ -13,6 +14,7 @@ from sb3_memret.cli import main
 from sb3_memret.config import parse_section
 from sb3_memret.training import RunOptions, read_history, train
 
+ZOO = Path(__file__).resolve().parents[1] / "zoo_configs"
 # Rounds of 16 decisions; episodes of 48 control steps (6 decisions) keep the run short.
 TINY = """sb3_memret/DrawerRecall-v0:
   n_timesteps: 32
@@ -186,3 +188,25 @@ def test_retrieval_is_learned_on_the_real_simulator():
     assert before.entropy > 1.75  # uniform over six is 1.79
     assert after.greedy_accuracy >= 0.9, after
     assert after.sampled_fraction > 0.25 and after.entropy < 1.65, after
+
+
+def test_a_household_run_trains_and_is_evaluated_with_each_rule_and_held_out_objects(tmp_path):
+    """The long-term memory variant end to end: train from its zoo config (shortened), then evaluate
+    the same model with a fixed retention rule and on objects no training task had."""
+    config = tmp_path / "household.yml"
+    zoo = (ZOO / "memret_ppo_household.yml").read_text()
+    config.write_text(zoo.replace("n_timesteps: 6144", "n_timesteps: 32").replace("n_envs: 2", "n_envs: 1")
+                      .replace("n_steps: 64", "n_steps: 16").replace("tasks_per_episode: 8", "tasks_per_episode: 2")
+                      + "    max_control_steps: 48\n")
+    out = tmp_path / "run"
+    result = cli("train", "recall", "--controller", "scripted", "--config", config, "--out", out, "--eval-episodes", 2,
+                 "--eval-every", 1, "--no-progress")
+    assert result.exit_code == 0, result.output
+    model = PPO.load(out / "final_model.zip")
+    assert model.action_space.nvec.tolist() == [6]  # 3 long-term slots, then 3 per-episode slots
+    for args, expected in ((["--retention", "fifo"], ("train", "fifo")), (["--objects", "heldout"], ("heldout", "learned"))):
+        result = cli("eval", out / "final_model.zip", "--controller", "scripted", "--episodes", 2, "--json", *args)
+        assert result.exit_code == 0, result.output
+        report = json.loads(result.stdout.strip().splitlines()[-1])
+        assert (report["objects"], report["retention"]) == expected and report["episodes"] == 2
+        assert 0.0 <= report["needed_fact_gone_rate"] <= 1.0
