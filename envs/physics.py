@@ -287,13 +287,13 @@ class BatchedSimPhysics(PhysicsBackend):
     grouped by identical options.
     """
 
-    def __init__(self, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int,
-                 sim_backend: str = "gpu"):
+    def __init__(self, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int):
+        """``task_kwargs`` may name ``sim_backend`` ("gpu" by default; "cpu" holds one env: a dry run)."""
         from sb3_memret.rollout import make_task_env
 
         self.num_envs = num_envs
-        self.env = make_task_env(max_episode_steps=max_control_steps, num_envs=num_envs, sim_backend=sim_backend,
-                                 **task_kwargs)
+        self.env = make_task_env(max_episode_steps=max_control_steps, num_envs=num_envs,
+                                 **{"sim_backend": "gpu", **task_kwargs})
         self.env_info = TaskEnvInfo.of(self.env)
         self.action_dim = int(self.env.action_space.shape[-1])
         self._obs: Any = None

@@ -24,18 +24,15 @@ from __future__ import annotations
 import argparse
 import gc
 import time
-from contextlib import nullcontext
 from dataclasses import dataclass, field
-from typing import Any, Callable
-from unittest import mock
+from typing import Any
 
 import numpy as np
 import torch
 
 from sb3_memret.controllers import FrozenController, make_controller
 from sb3_memret.controllers.learned import LearnedController
-from sb3_memret.envs import vec_env
-from sb3_memret.envs.physics import BatchedSimPhysics, PhysicsBackend, stack_obs, to_numpy
+from sb3_memret.envs.physics import stack_obs, to_numpy
 from sb3_memret.envs.vec_env import DrawerRecallVecEnv, make_recall_vec_env
 from sb3_memret.prompts import condition_prompt
 from sb3_memret.rollout import make_task_env, task_env_kwargs
@@ -80,22 +77,10 @@ def build_controller(name: str, device: str) -> FrozenController:
     return LearnedController(device=device) if name == "learned" else make_controller(name)
 
 
-def sim_backend_physics(sim_backend: str) -> Callable[..., PhysicsBackend]:
-    """``make_physics`` for the VecEnv with ``BatchedSimPhysics`` on ``sim_backend`` whatever backend is named."""
-
-    def make(backend: str, num_envs: int, task_kwargs: Any, max_control_steps: int, ray_address: Any = None):
-        return BatchedSimPhysics(num_envs, task_kwargs, max_control_steps, sim_backend=sim_backend)
-
-    return make
-
-
 def batched_venv(n: int, controller: FrozenController, sim_backend: str, mode: str = "recall") -> DrawerRecallVecEnv:
-    """``make_recall_vec_env(n, backend="gpu")`` (its physics on ``sim_backend``), unwrapped from its VecMonitor."""
-    patch = (nullcontext() if sim_backend == "gpu" else
-             mock.patch.object(vec_env, "make_physics", sim_backend_physics(sim_backend)))
-    with patch:
-        venv = make_recall_vec_env(n, {"controller": controller, "mode": mode}, seed=SEED, backend="gpu")
-    return venv.unwrapped
+    """``make_recall_vec_env(n, backend="gpu")`` with its physics on ``sim_backend``, unwrapped from its VecMonitor."""
+    kwargs = {"controller": controller, "mode": mode, "task_kwargs": {"sim_backend": sim_backend}}
+    return make_recall_vec_env(n, kwargs, seed=SEED, backend="gpu").unwrapped
 
 
 def release_gpu() -> None:

@@ -8,7 +8,8 @@
   critic and with each fixed rule (fifo, lru, prior) evicting from the same model's banks.
 
 Usage: ``python scripts/compare_memory.py objects runs/objects-seed0 [--controller learned] [--episodes 50]``.
-Each RUN is a training run folder; its ``best_model.zip`` is evaluated (``--model final_model.zip`` for another).
+Each RUN is a training run folder; its ``best_model.zip`` is evaluated (``--model final_model.zip`` for another),
+in the run's env settings; ``--set KEY=VALUE`` changes one (e.g. ``--set memory_source=observed``).
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ import argparse
 from pathlib import Path
 from typing import Any
 
+import yaml
 from stable_baselines3 import PPO
 
 from sb3_memret.analysis.evaluation import RetrievalReport, evaluate_retrieval
@@ -27,7 +29,7 @@ from sb3_memret.training import eval_env_kwargs
 
 def evaluate(model_path: Path, args: argparse.Namespace, mode: str = "recall", **overrides: Any) -> RetrievalReport:
     model = PPO.load(model_path, device="cpu")
-    kwargs = {**eval_env_kwargs(model, model_path, mode, args.controller), **overrides}
+    kwargs = {**eval_env_kwargs(model, model_path, mode, args.controller), **args.set, **overrides}
     venv = make_recall_vec_env(args.n_envs, kwargs)
     try:
         return evaluate_retrieval(model, venv, args.episodes, seed=args.seed)
@@ -65,6 +67,13 @@ def compare_retention(args: argparse.Namespace) -> None:
                   f"{report.greedy_accuracy:.1%} |")
 
 
+def _setting(item: str) -> tuple[str, Any]:
+    key, sep, value = item.partition("=")
+    if not sep or not key:
+        raise SystemExit(f"--set takes KEY=VALUE, got {item!r}")
+    return key, yaml.safe_load(value)
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("comparison", choices=["objects", "observed", "retention"])
@@ -74,7 +83,10 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=50)
     parser.add_argument("--n-envs", type=int, default=2)
     parser.add_argument("--seed", type=int, default=HELD_OUT_SEED)
+    parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
+                        help="Change one of the run's env settings (a YAML value).")
     args = parser.parse_args()
+    args.set = dict(_setting(item) for item in args.set)
     {"objects": compare_objects, "observed": compare_observed, "retention": compare_retention}[args.comparison](args)
 
 

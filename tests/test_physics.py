@@ -57,7 +57,7 @@ def test_the_batched_simulation_path_plays_as_a_plain_env():
     simulation holds one env, so here it runs at N = 1 on the CPU against a plain task env: the same frames after
     a reset, after chunks, and when the episode ends inside a chunk (20-step limit, chunks of 8)."""
     rng = np.random.default_rng(1)
-    batched = BatchedSimPhysics(1, KWARGS, 20, sim_backend="cpu")
+    batched = BatchedSimPhysics(1, {**KWARGS, "sim_backend": "cpu"}, 20)
     plain = InProcessPhysics(1, KWARGS, 20)
     try:
         request = [ResetRequest(0, 5, {"target_layer": 2})]
