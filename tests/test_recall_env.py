@@ -13,7 +13,7 @@ from sb3_memret.envs.physics import TaskRunner
 from sb3_memret.envs.recall_memory import EpisodeMemory
 from sb3_memret.memory.schema import MemoryType
 from sb3_memret.prompts import PromptTemplate
-from sb3_memret.memory.seeding import SeedingConfig
+from sb3_memret.memory.seeding import SeedingConfig, location_memory
 from sb3_memret.policy.networks import RetentionScorer
 
 
@@ -120,4 +120,32 @@ def test_observed_memory_comes_from_what_the_robot_saw_alone(encoder):
     assert memory.true_slot() >= 0 and memory.bank.entries[memory.true_slot()].entity == target
     memory.start(replace(frame, look_in=np.zeros_like(frame.look_in)), np.random.default_rng(0))  # saw nothing
     assert not {e.entity for e in memory.bank.entries} & set(placed) and memory.true_slot() == -1
+    runner.close()
+
+
+def test_long_term_slots_come_first_and_a_needed_fact_can_be_gone(encoder):
+    runner = TaskRunner({"obs_mode": "state_dict", "render_backend": "none", "objects": OBJECT_SETS["train"],
+                         "n_objects": 3}, 80)
+    memory = EpisodeMemory(3, "recall", encoder, lambda entries, t: np.array([e.timestamp for e in entries], float),
+                           PromptTemplate(), SeedingConfig(location_decoys=0), source="observed", long_term_capacity=3,
+                           hearsay=1)
+    frame = runner.reset(0, {"placement": {"tin": 2, "cube": 1, "box": 3}, "target": "tin"})
+    memory.start(frame, np.random.default_rng(0), moved=True)
+    assert [e.entity for e in memory.long_term.entries] != [] and len(memory.long_term) == 1  # one hearsay fact
+    obs = memory.observation()
+    assert obs["memories"].shape == (6, 384) and obs["mask"].tolist() == [1, 0, 0, 1, 0, 0]  # hearsay | holding decoy
+    memory.long_term.write(location_memory("tin", 2, 5).with_embedding(encoder.encode_one("the tin is in drawer layer 2.")))
+    memory.seen_since_move.add("tin")
+    assert memory.true_slot() == 1
+    assert [e.text for e in memory.choose(np.array([1, 2, 3]))] == ["the tin is in drawer layer 2.",
+                                                                    memory.bank.entries[0].text]  # slot 2 is empty
+    assert memory.long_term.entries[1].usage_count == 1
+    assert not memory.needed_fact_gone
+    for k in range(10):  # later tasks' hearsay, evicted first in first out, pushes the tin's fact out
+        memory.t = 10  # each task lasted ten control steps
+        memory.start(frame, np.random.default_rng(k))
+        if memory.true_slot() == -1:
+            break
+    assert memory.needed_fact_gone and memory.info(False)["needed_fact_gone"]
+    assert all(e.timestamp > 5 for e in memory.long_term.entries)
     runner.close()
