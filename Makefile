@@ -8,7 +8,7 @@ RENDERER ?= .renderer
 is_py312 = $(shell $(1) -c 'import sys; assert sys.version_info[:2] == (3, 12)' >/dev/null 2>&1 && echo yes)
 PYTHON ?= $(firstword $(foreach p,python3.12 $(wildcard $(HOME)/.pyenv/versions/3.12*/bin/python3.12),$(if $(call is_py312,$(p)),$(p))))
 
-.PHONY: install renderer train test bench controller clean
+.PHONY: install renderer train test bench controller controller-objects clean
 
 $(VENV)/.installed: setup.cfg pyproject.toml constraints.txt
 	@test -n "$(PYTHON)" || { echo "error: no Python 3.12 found; install one (e.g. pyenv install 3.12) or pass PYTHON=/path/to/python3.12" >&2; exit 1; }
@@ -46,6 +46,17 @@ controller: install
 	$(VENV)/bin/sb3-memret finetune $(STAGE1)/demos --out $(STAGE1)/policy
 	mkdir -p $(SHIPPED)
 	cp $(STAGE1)/policy/config.json $(STAGE1)/policy/model.safetensors $(STAGE1)/policy/train_log.csv $(SHIPPED)/
+
+# The learned controller of several objects (`--controller learned-objects`): three objects of the training set
+# in the drawers, the prompts naming the target; as long again as `controller`.
+SHIPPED_OBJECTS := sb3_memret/controllers/checkpoints/drawer-objects-learned
+controller-objects: install
+	rm -rf $(STAGE1)-objects
+	$(VENV)/bin/sb3-memret demos --episodes 240 --objects train --n-objects 3 --out $(STAGE1)-objects/demos
+	$(VENV)/bin/sb3-memret finetune $(STAGE1)-objects/demos --out $(STAGE1)-objects/policy
+	mkdir -p $(SHIPPED_OBJECTS)
+	cp $(STAGE1)-objects/policy/config.json $(STAGE1)-objects/policy/model.safetensors \
+		$(STAGE1)-objects/policy/train_log.csv $(SHIPPED_OBJECTS)/
 
 bench: install
 	$(PY) scripts/bench_env.py

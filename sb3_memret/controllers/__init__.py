@@ -4,6 +4,8 @@ Accepted values (``CONTROLLER_SPECS``):
 
 - ``learned``: the project's learned language-conditioned controller shipped with the package
   (``make controller`` rebuilds it: expert demonstrations, DAgger, finetuning).
+- ``learned-objects``: the same policy trained with several objects in the drawers, the instruction
+  naming the target (``make controller-objects``).
 - ``learned:/PATH/TO/CHECKPOINT[?device=DEV]``: a checkpoint ``sb3-memret finetune`` wrote.
 - ``scripted``: the scripted expert (CPU); it obeys its prompt by construction.
 - ``openpi://HOST:PORT[?timeout=S&attempts=N&chunk_len=H]``: π0.5 served by openpi
@@ -26,6 +28,7 @@ from sb3_memret.controllers.scripted import ScriptedDrawerController
 DEFAULT_CONTROLLER = "learned"
 CONTROLLER_SPECS = (
     "learned",
+    "learned-objects",
     "learned:/PATH/TO/CHECKPOINT[?device=DEV]",
     "scripted",
     "openpi://HOST:PORT[?timeout=S&attempts=N&chunk_len=H]",
@@ -40,12 +43,16 @@ def make_controller(spec: str) -> FrozenController:
     """Build the controller a CLI ``--controller`` value names, or raise a ValueError listing the forms."""
     if spec == "scripted":
         return ScriptedDrawerController()
+    if spec == "learned-objects":
+        from sb3_memret.controllers.learned import LearnedController, default_checkpoint
+
+        return LearnedController(default_checkpoint(spec))
     if spec == "learned" or spec.startswith("learned:"):
         from sb3_memret.controllers.learned import LearnedController
 
         path, _, query = spec.removeprefix("learned").removeprefix(":").partition("?")
         if spec.startswith("learned:") and not path:
-            raise ValueError(f"malformed learned controller {spec!r}; expected 'learned' or {CONTROLLER_SPECS[1]!r}")
+            raise ValueError(f"malformed learned controller {spec!r}; expected 'learned' or {CONTROLLER_SPECS[2]!r}")
         return LearnedController(path or None, **_options(spec, query, LEARNED_OPTIONS))
     if spec.startswith("openpi:"):
         host, port, options = parse_openpi_spec(spec)
@@ -64,7 +71,7 @@ def make_controller(spec: str) -> FrozenController:
 
 def parse_openpi_spec(spec: str) -> tuple[str, int, dict[str, Any]]:
     """``openpi://HOST:PORT[?k=v...]`` -> (host, port, options), or a ValueError naming the problem."""
-    form = CONTROLLER_SPECS[3]
+    form = CONTROLLER_SPECS[4]
     parts = urlsplit(spec)
     try:
         port = parts.port
@@ -79,7 +86,7 @@ def parse_lerobot_spec(spec: str) -> tuple[str, dict[str, Any]]:
     """``lerobot:PATH[?k=v...]`` -> (checkpoint path, options), or a ValueError naming the problem."""
     path, _, query = spec.removeprefix("lerobot:").partition("?")
     if not path:
-        raise ValueError(f"malformed lerobot controller {spec!r}; expected {CONTROLLER_SPECS[4]!r}")
+        raise ValueError(f"malformed lerobot controller {spec!r}; expected {CONTROLLER_SPECS[5]!r}")
     return path, _options(spec, query, LEROBOT_OPTIONS)
 
 

@@ -13,15 +13,24 @@ from sb3_memret.controllers.learned.modeling import LearnedPolicy
 from sb3_memret.controllers.learned.processing import LearnedPolicyProcessor, PromptTokenizer
 from sb3_memret.prompts import ParsedPrompt
 
-SHIPPED_CHECKPOINT = Path(__file__).resolve().parent.parent / "checkpoints" / "drawer-learned"
+CHECKPOINTS = Path(__file__).resolve().parent.parent / "checkpoints"
+# shipped checkpoints by controller name, and the make target that rebuilds each
+SHIPPED: dict[str, tuple[Path, str]] = {
+    "learned": (CHECKPOINTS / "drawer-learned", "controller"),  # the seed's task: the cube alone
+    "learned-objects": (CHECKPOINTS / "drawer-objects-learned", "controller-objects"),  # any object the instruction names
+}
 
 
-def default_checkpoint() -> Path:
-    """The checkpoint ``--controller learned`` names: trained by ``make controller`` and shipped in the package."""
-    if not (SHIPPED_CHECKPOINT / "model.safetensors").is_file():
-        raise FileNotFoundError(f"the shipped learned controller is missing from {SHIPPED_CHECKPOINT}; rebuild it "
-                                "with `make controller` (demos, then finetune)")
-    return SHIPPED_CHECKPOINT
+def default_checkpoint(name: str = "learned") -> Path:
+    """The checkpoint ``--controller NAME`` names: trained by ``make controller`` (or ``controller-objects``) and
+    shipped in the package."""
+    if name not in SHIPPED:
+        raise ValueError(f"no shipped learned controller {name!r}; shipped are {sorted(SHIPPED)}")
+    folder, target = SHIPPED[name]
+    if not (folder / "model.safetensors").is_file():
+        raise FileNotFoundError(f"the shipped learned controller {name!r} is missing from {folder}; rebuild it "
+                                f"with `make {target}` (demos, then finetune)")
+    return folder
 
 
 class LearnedController(FrozenController):
