@@ -14,8 +14,9 @@ from sb3_memret.controllers import make_controller
 from sb3_memret.controllers.learned import LearnedController, LearnedPolicy, LearnedPolicyConfig, default_checkpoint
 from sb3_memret.controllers.observation import IMAGE_KEYS, STATE_DIM
 from sb3_memret.controllers.weights import WeightsNotLoadedError
+from sb3_memret.envs.objects import OBJECT_SETS
 from sb3_memret.prompts import condition_prompt
-from sb3_memret.rollout import run_episode
+from sb3_memret.rollout import execute_chunk, make_task_env, run_episode
 
 SMALL = {"hidden_dim": 32, "n_layers": 2, "text_dim": 16, "text_heads": 2, "chunk_len": 8}
 
@@ -132,3 +133,29 @@ def test_shipped_policy_takes_the_cube_out_of_the_named_drawer(shipped, task_env
     assert run_episode(task_env, shipped, condition_prompt("oracle", layer), seed=1_000_000 + layer, layer=layer).success
     assert not run_episode(task_env, shipped, condition_prompt("wrong", layer), seed=1_000_000 + layer,
                            layer=layer).success
+
+
+def test_the_shipped_objects_policy_takes_any_named_object_out_of_its_drawer():
+    """``learned-objects`` was trained with three objects of the training set in the drawers; it takes any
+    object word in the instruction and here takes a held-out object out of the drawer its prompt names."""
+    controller = make_controller("learned-objects")
+    assert controller.checkpoint == default_checkpoint("learned-objects")
+    assert controller.spec.prompt_template.instructions == ("pick out the {entity}.",)
+    assert {prompt.split(".")[0] for prompt in controller.policy.config.training_prompts} == {
+        f"pick out the {name}" for name in OBJECT_SETS["train"]}
+    env = make_task_env(objects=OBJECT_SETS["heldout"], n_objects=3)
+    controller.check_env(env)
+    obs, _ = env.reset(seed=1_000_001, options={"target": "soap", "target_layer": 2})
+    controller.reset([0])
+    success = False
+    for _ in range(40):
+        outcome = execute_chunk(env, controller.act(obs, [condition_prompt("oracle", 2, "soap")])[0][:8])
+        obs, success = outcome.obs, bool(outcome.info["success"])
+        if outcome.terminated or outcome.truncated:
+            break
+    env.close()
+    assert success
+    with pytest.raises(ValueError, match="starts with 'pick up the soap.'"):
+        controller.act(obs, ["pick up the soap."])
+    with pytest.raises(ValueError, match="no shipped learned controller 'learned-tiny'"):
+        default_checkpoint("learned-tiny")
