@@ -14,6 +14,7 @@ Backends: ``InProcessPhysics`` (task envs in this process: one env, tests), ``Pr
 from __future__ import annotations
 
 import multiprocessing
+import weakref
 from abc import ABC, abstractmethod
 from contextlib import nullcontext
 from dataclasses import dataclass, field, replace
@@ -208,6 +209,8 @@ class ProcessPhysics(PhysicsBackend):
         self.conns: list[Connection] = []
         self.processes: list[BaseProcess] = []
         self.closed = False
+        # workers ignore SIGTERM, which is how multiprocessing ends daemon processes at exit: close them first
+        self._finalizer = weakref.finalize(self, _close_workers, self.conns, self.processes)
         for _ in range(num_envs):
             ours, theirs = context.Pipe()
             process = context.Process(target=_process_worker, args=(theirs, dict(task_kwargs), max_control_steps),
@@ -258,24 +261,27 @@ class ProcessPhysics(PhysicsBackend):
         return self._call({i: ("execute", (np.asarray(chunk),)) for i, chunk in chunks.items()})
 
     def close(self) -> None:
-        """Tell every live worker to close and wait for it; never waits on a reply (after an interrupt some
-        are read and some are not). A worker that outstays ``CLOSE_TIMEOUT`` is killed."""
-        if self.closed:
-            return
+        """Close the workers (``_close_workers``); also done at interpreter exit if nobody called it."""
         self.closed = True
-        for conn, process in zip(self.conns, self.processes):
-            if process.is_alive():
-                try:
-                    conn.send(("close", None))
-                except (EOFError, OSError):
-                    pass
-        for process in self.processes:
-            process.join(timeout=CLOSE_TIMEOUT)
-            if process.is_alive():  # workers ignore SIGTERM
-                process.kill()
-                process.join()
-        for conn in self.conns:
-            conn.close()
+        self._finalizer()
+
+
+def _close_workers(conns: Sequence[Connection], processes: Sequence[BaseProcess]) -> None:
+    """Tell every live worker to close and wait for it; never waits on a reply (after an interrupt some
+    are read and some are not). A worker that outstays ``CLOSE_TIMEOUT`` is killed."""
+    for conn, process in zip(conns, processes):
+        if process.is_alive():
+            try:
+                conn.send(("close", None))
+            except (EOFError, OSError):
+                pass
+    for process in processes:
+        process.join(timeout=CLOSE_TIMEOUT)
+        if process.is_alive():  # workers ignore SIGTERM
+            process.kill()
+            process.join()
+    for conn in conns:
+        conn.close()
 
 
 class BatchedSimPhysics(PhysicsBackend):

@@ -35,7 +35,7 @@ from sb3_memret.analysis.evaluation import RetrievalReport
 from sb3_memret.policy.policy import MemoryRetrievalPolicy
 from sb3_memret.policy.ppo import MemRetPPO
 from sb3_memret.run_logger import make_run_logger
-from sb3_memret.workers import StopRequested, WorkerDiedError, stop_signals_interrupt
+from sb3_memret.workers import StopRequested, WorkerDiedError, stop_signals_deferred, stop_signals_interrupt
 
 CONFIG_FILE = "config.yml"
 INITIAL_MODEL = "initial_model.zip"
@@ -192,8 +192,11 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
         model.logger.close()
         return result
     finally:
-        venv.close()
-        eval_env.close()
+        with stop_signals_deferred():  # a second stop waits until every worker is closed
+            try:
+                venv.close()
+            finally:
+                eval_env.close()
 
 
 def read_history(out: Path) -> list[dict[str, Any]]:

@@ -3,6 +3,8 @@ auto-reset, the retention push, and physics workers that are named when they die
 
 import os
 import signal
+import subprocess
+import sys
 
 import numpy as np
 import pytest
@@ -185,3 +187,15 @@ def test_household_refusals(encoder):
     venv.close()
     with pytest.raises(ValueError, match="unknown retention rule 'newest'"):
         DrawerRecallVecEnv(1, encoder=encoder, retention="newest")
+
+
+def test_a_script_that_never_closes_its_envs_still_exits(tmp_path):
+    """Workers ignore SIGTERM, which is how multiprocessing ends daemon processes at exit: an env left
+    open must close its workers itself, or the interpreter would wait on them forever."""
+    script = tmp_path / "left_open.py"
+    script.write_text('from sb3_memret.envs.vec_env import make_recall_vec_env\n'
+                      'if __name__ == "__main__":\n'
+                      '    make_recall_vec_env(2, {"controller": "scripted"}).reset()\n'
+                      '    print("left open")\n')
+    done = subprocess.run([sys.executable, str(script)], capture_output=True, text=True, timeout=300)
+    assert done.returncode == 0 and "left open" in done.stdout, done.stderr
