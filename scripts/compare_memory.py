@@ -23,6 +23,7 @@ from stable_baselines3 import PPO
 
 from sb3_memret.analysis.evaluation import RetrievalReport, evaluate_retrieval
 from sb3_memret.cli import HELD_OUT_SEED
+from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.memory.retention import RETENTION_RULES
 from sb3_memret.training import eval_env_kwargs
@@ -48,12 +49,13 @@ def compare_objects(args: argparse.Namespace) -> None:
 
 
 def compare_observed(args: argparse.Namespace) -> None:
-    print("| run | recall success | none | oracle | recall / oracle | recall greedy accuracy |")
-    print("|---|---|---|---|---|---|")
+    print("| run | recall success | none | none, by layer 1/2/3 | oracle | recall / oracle | recall greedy accuracy |")
+    print("|---|---|---|---|---|---|---|")
     for run in args.runs:
         reports = {mode: evaluate(run / args.model, args, mode) for mode in ("recall", "none", "oracle")}
         success = {mode: report.success["overall"] for mode, report in reports.items()}
-        print(f"| {run.name} | {success['recall']:.0%} | {success['none']:.0%} | {success['oracle']:.0%} | "
+        by_layer = "/".join(f"{reports['none'].success.get(str(layer), float('nan')):.0%}" for layer in LAYERS)
+        print(f"| {run.name} | {success['recall']:.0%} | {success['none']:.0%} | {by_layer} | {success['oracle']:.0%} | "
               f"{success['recall'] / max(success['oracle'], 1e-9):.2f} | {reports['recall'].greedy_accuracy:.1%} |")
 
 
