@@ -63,7 +63,7 @@ def compare_retention(args: argparse.Namespace) -> None:
     print("| run | retention | success | needed fact gone | greedy accuracy |")
     print("|---|---|---|---|---|")
     for run in args.runs:
-        for rule in RETENTION_RULES:
+        for rule in args.rules:
             report = evaluate(run / args.model, args, retention=rule)
             print(f"| {run.name} | {rule} | {report.success['overall']:.0%} | {report.needed_fact_gone_rate:.0%} | "
                   f"{report.greedy_accuracy:.1%} |")
@@ -85,6 +85,8 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=50)
     parser.add_argument("--n-envs", type=int, default=2)
     parser.add_argument("--seed", type=int, default=HELD_OUT_SEED)
+    parser.add_argument("--rules", nargs="+", choices=RETENTION_RULES, default=list(RETENTION_RULES),
+                        help="retention: the eviction rules to compare.")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="Change one of the run's env settings (a YAML value).")
     args = parser.parse_args()

@@ -78,3 +78,14 @@ def test_trained_policy_scores_high():
 def test_rejects_bad_episode_count():
     with pytest.raises(ValueError, match="n_episodes"):
         evaluate_retrieval(make_model(), DummyVecEnv([ToyBankEnv]), 0)
+
+
+def test_the_models_retention_critic_is_pushed_before_evaluating():
+    """Eviction during evaluation is the model's own critic's, as during training (not the type prior)."""
+    model = make_model()
+    venv = DummyVecEnv([ToyBankEnv] * 2)
+    evaluate_retrieval(model, venv, 2, seed=0)
+    expected = model.policy.retention_state_dict()
+    for env in venv.envs:
+        pushed, = env.received_weights
+        assert pushed.keys() == expected.keys() and all(torch.equal(pushed[k], expected[k]) for k in expected)

@@ -67,10 +67,13 @@ def evaluate_retrieval(
     on_episode: Callable[[dict[str, Any]], None] | None = None,
 ) -> RetrievalReport:
     """Run ``n_episodes`` (split over the envs of ``venv`` as SB3's ``evaluate_policy`` does) and
-    score retrieval and success. ``seed`` reseeds the envs first so the episodes are reproducible."""
+    score retrieval and success. ``seed`` reseeds the envs first so the episodes are reproducible.
+    The model's retention critic is pushed to the envs first, so it evicts as it did in training."""
     if n_episodes < 1:
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
     policy = model.policy
+    if hasattr(policy, "retention_state_dict"):
+        venv.env_method("set_retention_weights", policy.retention_state_dict())
     was_training = policy.training
     policy.set_training_mode(False)
     n = venv.num_envs
