@@ -386,7 +386,7 @@ class DrawerCubeTakeOutEnv(BaseEnv):
         """(B, M, 8) every object of the episode as a camera sees it now (visible flag, pose), by the
         rule of ``target_detection``; objects the episode leaves out are never seen. ``state``: this
         instant's ``privileged_state()``, when the caller has it already."""
-        state = state or self.privileged_state()
+        state = self.privileged_state() if state is None else state
         b, m = state.object_layer.shape
         poses = torch.stack([actor.pose.raw_pose for actor in self.objects], dim=1).cpu().reshape(b * m, 7)
         in_layer = layer_containing(state.object_pos.reshape(b * m, 3), np.repeat(state.layer_boxes, m, axis=0))

@@ -30,6 +30,16 @@ def task_env():
     env.close()
 
 
+@pytest.fixture(scope="module")
+def objects_env():
+    """DrawerCubeTakeOut-v1 with three objects of the training set, one per drawer."""
+    from sb3_memret.envs.objects import OBJECT_SETS
+
+    env = make_task_env(robot_init_qpos_noise=0.0, objects=OBJECT_SETS["train"], n_objects=3)
+    yield env
+    env.close()
+
+
 @pytest.fixture(scope="session")
 def rgb_task_env():
     """DrawerCubeTakeOut-v1 with both 224x224 cameras, rendered on the CPU by the project's lavapipe

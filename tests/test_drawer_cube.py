@@ -114,13 +114,6 @@ def test_unknown_cube_layer_option_is_refused(task_env):
         task_env.reset(seed=0, options={"target_layer": 4})
 
 
-@pytest.fixture(scope="module")
-def objects_env():
-    env = make_task_env(robot_init_qpos_noise=0.0, objects=OBJECT_SETS["train"], n_objects=3)
-    yield env
-    env.close()
-
-
 def test_several_objects_one_per_drawer_and_the_rest_parked(objects_env):
     base = objects_env.unwrapped
     targets, layers = set(), set()

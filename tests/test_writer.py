@@ -5,11 +5,9 @@ import pytest
 import torch
 from mani_skill.utils.structs.pose import Pose
 
-from sb3_memret.envs.objects import OBJECT_SETS
 from sb3_memret.envs.physics import EnvFrame, to_numpy
 from sb3_memret.memory.schema import MemoryType
 from sb3_memret.memory.writer import UNKNOWN, BoundingBoxPredicateExtractor, EventCompiler, ViewPredicateExtractor
-from sb3_memret.rollout import make_task_env
 
 
 class FakeEncoder:
@@ -61,13 +59,6 @@ def test_extractor_changes_when_cube_is_lifted_out(task_env):
     base.objects[0].set_pose(Pose.create_from_pq(torch.tensor([[base.layout.front_x - 0.2, 0.0, 0.5]])))
     entries = compiler.update(extractor.extract(base.privileged_state()), 8)
     assert [e.text for e in entries] == ["the cube is out of the drawers."]
-
-
-@pytest.fixture(scope="module")
-def objects_env():
-    env = make_task_env(robot_init_qpos_noise=0.0, objects=OBJECT_SETS["train"], n_objects=3)
-    yield env
-    env.close()
 
 
 def test_look_in_sees_each_placed_object_once_in_its_drawer(objects_env):
