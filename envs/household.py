@@ -17,18 +17,23 @@ from sb3_memret.envs.cabinet import LAYERS
 
 @dataclass(frozen=True)
 class HouseholdConfig:
-    """How a household lives: the chance, per episode, that it rearranges the drawers, and how many
+    """How a household lives: the chance, per episode, that it rearranges the drawers; how many
     location facts about other things (hearsay: right or wrong, never about its objects) reach the
-    long-term store per episode."""
+    long-term store per episode; and how many drawers, drawn at random, the robot looks into before
+    each episode (a glimpse: what it sees there is written, the rest it must remember)."""
 
     move_probability: float = 0.2
     hearsay_per_episode: int = 2
+    glimpses_per_episode: int = 0
 
     def __post_init__(self) -> None:
         if not 0.0 <= self.move_probability <= 1.0:
             raise ValueError(f"move_probability must be in [0, 1], got {self.move_probability}")
         if self.hearsay_per_episode < 0:
             raise ValueError(f"hearsay_per_episode must be >= 0, got {self.hearsay_per_episode}")
+        if not 0 <= self.glimpses_per_episode <= len(LAYERS):
+            raise ValueError(f"glimpses_per_episode must be in [0, {len(LAYERS)}] (drawers looked into), "
+                             f"got {self.glimpses_per_episode}")
 
 
 class Household:

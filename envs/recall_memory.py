@@ -12,7 +12,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from gymnasium import spaces
 
-from sb3_memret.envs.cabinet import check_layer
+from sb3_memret.envs.cabinet import LAYERS, check_layer
 from sb3_memret.envs.physics import EnvFrame
 from sb3_memret.memory.bank import MemoryBank
 from sb3_memret.memory.encoder import EMBEDDING_DIM, MiniLMEncoder
@@ -68,14 +68,15 @@ class EpisodeMemory:
     ``long_term_capacity > 0`` (observed only; a household's episodes): a long-term store that
     survives episode resets sits before the per-episode bank in the slots the retriever sees.
     Where objects were seen in drawers goes there, with ``hearsay`` facts about other things each
-    episode; there is no observation phase, so what the robot knows it saw in earlier episodes.
+    episode; instead of the observation phase the robot looks into ``glimpses`` drawers drawn at
+    random, so what it knows of the others it saw in earlier episodes.
     Times run on across episodes. ``needed_fact_gone``: the target was seen since the household
     last rearranged, yet its fact is no longer in the store.
     """
 
     def __init__(self, capacity: int, mode: str, encoder: MiniLMEncoder, keep_scorer: KeepScorer,
                  template: PromptTemplate, seeding: SeedingConfig | None = None, source: str = "seeded",
-                 long_term_capacity: int = 0, hearsay: int = 0):
+                 long_term_capacity: int = 0, hearsay: int = 0, glimpses: int = 0):
         self.mode = check_mode(mode)
         self.source = check_memory_source(source)
         if long_term_capacity and source != "observed":
@@ -84,7 +85,7 @@ class EpisodeMemory:
         self.seeding = seeding or SeedingConfig()
         self.bank = MemoryBank(capacity)
         self.long_term = MemoryBank(long_term_capacity) if long_term_capacity else None
-        self.hearsay = hearsay
+        self.hearsay, self.glimpses = hearsay, glimpses
         self.extractor = BoundingBoxPredicateExtractor() if source == "seeded" else ViewPredicateExtractor()
         self.compiler = EventCompiler(encoder)
         self.clock = 0  # control steps of the earlier episodes (long-term times run on)
@@ -123,14 +124,26 @@ class EpisodeMemory:
             self.needed_fact_gone = self.target in self.seen_since_move and not any(
                 self.is_true(e) for e in self.long_term.entries)
         self.compiler.reset()
-        if self.source == "observed" and self.long_term is None:
-            if frame.look_in is None:
-                raise RuntimeError("the observed-memory variant needs the reset frame's look_in views")
-            self._write(self.compiler.update(ViewPredicateExtractor.look_in(frame.look_in, state.object_names[0]),
-                                             self.now))
+        if self.source == "observed":
+            self._look_in(frame, rng)
         self.compiler.update(self._extract(frame), self.now)
         for store in self.stores:
             store.age(self.now)
+
+    def _look_in(self, frame: EnvFrame, rng: np.random.Generator) -> None:
+        """The observation phase: write what is seen in every drawer, or in a household's ``glimpses``
+        drawers drawn at random."""
+        if self.long_term is None:
+            layers = list(LAYERS)
+        elif self.glimpses:
+            layers = sorted(int(layer) for layer in rng.choice(LAYERS, size=self.glimpses, replace=False))
+        else:
+            return
+        if frame.look_in is None:
+            raise RuntimeError("the observed-memory variant needs the reset frame's look_in views")
+        views = frame.look_in[[layer - 1 for layer in layers]]
+        self._write(self.compiler.update(ViewPredicateExtractor.look_in(views, frame.state.object_names[0], layers),
+                                         self.now))
 
     def slot_entries(self) -> list[MemoryEntry | None]:
         """Every slot's entry in slot order, None for an empty one (up to the last filled slot)."""

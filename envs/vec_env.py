@@ -68,7 +68,8 @@ class DrawerRecallVecEnv(VecEnv):
     objects stay in their drawers across episodes and are rearranged with ``move_probability``
     per episode; a long-term store of that many slots, before the per-episode ``capacity`` slots,
     keeps what the robot saw across episodes, and ``hearsay_per_episode`` facts about other things
-    reach it each episode. ``retention`` picks what evicts: the learned critic or a fixed rule
+    reach it each episode; the robot looks into ``glimpses_per_episode`` drawers, drawn at random, before
+    each. ``retention`` picks what evicts: the learned critic or a fixed rule
     (``sb3_memret.memory.retention``: fifo, lru, prior). ``tasks_per_episode``: tasks (each a reset of
     the physics, ``info["task_done"]``) per learning episode, so that what memory keeps for a later
     task is credited to the decisions that kept it; a learning episode ends as a time-limit truncation.
@@ -97,6 +98,7 @@ class DrawerRecallVecEnv(VecEnv):
         long_term_capacity: int = 0,
         move_probability: float = 0.2,
         hearsay_per_episode: int = 2,
+        glimpses_per_episode: int = 0,
         retention: str = "learned",
         tasks_per_episode: int = 1,
         backend: str = "auto",
@@ -127,7 +129,7 @@ class DrawerRecallVecEnv(VecEnv):
         self.encoder = encoder or MiniLMEncoder()
         self.retention: RetentionScorer | None = None
         super().__init__(num_envs, observation_space(slots), spaces.MultiDiscrete([slots] * k))
-        household = HouseholdConfig(move_probability, hearsay_per_episode)
+        household = HouseholdConfig(move_probability, hearsay_per_episode, glimpses_per_episode)
         self.households = [Household(object_set(objects), n_objects, household) for _ in range(num_envs)] \
             if long_term_capacity else None
         self.physics: PhysicsBackend = make_physics(backend, num_envs, task_kwargs, max_control_steps, ray_address)
@@ -138,7 +140,8 @@ class DrawerRecallVecEnv(VecEnv):
             raise
         template = self.controller.spec.prompt_template
         self.memories = [EpisodeMemory(capacity, mode, self.encoder, self.keep_scores, template, seeding, memory_source,
-                                       long_term_capacity, hearsay_per_episode) for _ in range(num_envs)]
+                                       long_term_capacity, hearsay_per_episode, glimpses_per_episode)
+                         for _ in range(num_envs)]
         self.rngs: list[np.random.Generator | None] = [None] * num_envs
         self.frames: list[EnvFrame | None] = [None] * num_envs
         self.controller_calls = 0

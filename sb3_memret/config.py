@@ -55,6 +55,7 @@ ENV_KEYS: dict[str, Check] = {
     "long_term_capacity": (int, lambda v: v >= 0, "an integer >= 0 (0: no long-term store)"),
     "move_probability": ((int, float), lambda v: 0 <= v <= 1, "a number in [0, 1]"),
     "hearsay_per_episode": (int, lambda v: v >= 0, "an integer >= 0"),
+    "glimpses_per_episode": (int, lambda v: 0 <= v <= len(LAYERS), f"an integer in [0, {len(LAYERS)}] (drawers looked into)"),
     "retention": (str, lambda v: v in RETENTION_RULES, f"one of {list(RETENTION_RULES)}"),
     "tasks_per_episode": _positive_int(),
     "memory_source": (str, lambda v: v in ("seeded", "observed"), "one of 'seeded' (from the placement), "

@@ -32,6 +32,7 @@ def test_moves_happen_at_the_configured_rate():
 @pytest.mark.parametrize("config,message", [
     (dict(move_probability=1.5), r"move_probability must be in \[0, 1\]"),
     (dict(hearsay_per_episode=-1), "hearsay_per_episode must be >= 0"),
+    (dict(glimpses_per_episode=4), r"glimpses_per_episode must be in \[0, 3\]"),
 ])
 def test_bad_settings_are_refused(config, message):
     with pytest.raises(ValueError, match=message):

@@ -8,6 +8,7 @@ import pytest
 from stable_baselines3.common.env_checker import check_env
 
 from sb3_memret.envs import RECALL_ENV_ID
+from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.objects import OBJECT_SETS
 from sb3_memret.envs.physics import TaskRunner
 from sb3_memret.envs.recall_memory import EpisodeMemory
@@ -148,4 +149,25 @@ def test_long_term_slots_come_first_and_a_needed_fact_can_be_gone(encoder):
             break
     assert memory.needed_fact_gone and memory.info(False)["needed_fact_gone"]
     assert all(e.timestamp > 5 for e in memory.long_term.entries)
+    runner.close()
+
+
+@pytest.mark.parametrize("glimpses", [1, 2])
+def test_a_household_glimpse_writes_what_is_in_the_drawers_looked_into_and_nothing_else(encoder, glimpses):
+    runner = TaskRunner({"obs_mode": "state_dict", "render_backend": "none", "objects": OBJECT_SETS["train"],
+                         "n_objects": 3}, 80)
+    memory = EpisodeMemory(3, "recall", encoder, lambda entries, t: np.array([e.timestamp for e in entries], float),
+                           PromptTemplate(), SeedingConfig(location_decoys=0), source="observed", long_term_capacity=3,
+                           glimpses=glimpses)
+    placement = {"tin": 2, "cube": 1, "box": 3}
+    frame = runner.reset(0, {"placement": placement, "target": "tin"})
+    seen_layers = set()
+    for seed in range(6):
+        memory.long_term.clear()
+        memory.start(frame, np.random.default_rng(seed), moved=True)
+        facts = {e.entity: e.value for e in memory.long_term.entries}
+        assert len(facts) == glimpses and all(value == f"drawer layer {placement[name]}" for name, value in facts.items())
+        assert memory.seen_since_move == set(facts)
+        seen_layers |= {placement[name] for name in facts}
+    assert seen_layers == set(LAYERS)  # the drawers are drawn at random
     runner.close()

@@ -73,6 +73,10 @@ def test_look_in_sees_each_placed_object_once_in_its_drawer(objects_env):
         assert np.all(views[:, state.object_layer[0] == 0] == 0)  # objects the episode left out are never seen
         np.testing.assert_allclose(base.cabinet.get_qpos().numpy(), 0.0)  # looking in moved nothing
         assert np.all(obs["extra"]["target_detection"].numpy() == 0)  # and the episode starts blind
+        glimpse = ViewPredicateExtractor.look_in(views[[2]], state.object_names[0], layers=[3])
+        assert glimpse == {key: value for key, value in seen.items() if value == "drawer layer 3"}
+        with pytest.raises(ValueError, match=r"3 views for the drawers \[3\]"):
+            ViewPredicateExtractor.look_in(views, state.object_names[0], layers=[3])
 
 
 def test_view_extractor_writes_a_location_only_while_the_target_is_seen(objects_env):

@@ -70,10 +70,13 @@ class ViewPredicateExtractor:
         return predicates
 
     @staticmethod
-    def look_in(views: np.ndarray, names: Sequence[str]) -> Predicates:
-        """Predicates from ``views`` (layers, objects, 8): each object seen with drawer L open is in L."""
+    def look_in(views: np.ndarray, names: Sequence[str], layers: Sequence[int] = LAYERS) -> Predicates:
+        """Predicates from ``views`` (drawers looked into, objects, 8), the drawers ``layers`` in that order
+        (all of them by default): each object seen with drawer L open is in L."""
+        if len(views) != len(layers):
+            raise ValueError(f"{len(views)} views for the drawers {list(layers)}: one view per drawer looked into")
         predicates: Predicates = {}
-        for layer, view in zip(LAYERS, views):
+        for layer, view in zip(layers, views):
             for name, detection in zip(names, view):
                 if detection[0] > 0.5:
                     predicates[("location", str(name))] = f"drawer layer {layer}"
