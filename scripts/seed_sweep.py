@@ -31,6 +31,12 @@ def run_row(run: Path) -> dict[str, float]:
             "success": last["success"]["overall"], "minutes": summary.get("wall_seconds", float("nan")) / 60}
 
 
+def _mean_std(values: list[float]) -> tuple[float, float]:
+    """Mean and standard deviation over the runs that have the figure (NaN where none has)."""
+    present = [v for v in values if not np.isnan(v)]
+    return (float(np.mean(present)), float(np.std(present))) if present else (float("nan"), float("nan"))
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", type=Path)
@@ -43,8 +49,10 @@ def main() -> None:
     for run, row in zip(runs, rows):
         print(f"| {run.name} | {row['seed']} | {row['first_mastered']} | {row['round']} | {row['greedy']:.0%} | "
               f"{row['sampled']:.0%} | {row['entropy']:.2f} | {row['success']:.0%} | {row['minutes']:.1f} |")
-    stats = {k: (np.nanmean([r[k] for r in rows]), np.nanstd([r[k] for r in rows])) for k in keys}
-    print(f"| mean ± std | | {stats['first_mastered'][0]:.1f} ± {stats['first_mastered'][1]:.1f} | | "
+    stats = {k: _mean_std([r[k] for r in rows]) for k in keys}
+    mastered = sum(not np.isnan(r["first_mastered"]) for r in rows)
+    print(f"| mean ± std | | {stats['first_mastered'][0]:.1f} ± {stats['first_mastered'][1]:.1f} "
+          f"({mastered} of {len(rows)} runs reached it) | | "
           f"{stats['greedy'][0]:.0%} ± {stats['greedy'][1]:.0%} | {stats['sampled'][0]:.0%} ± {stats['sampled'][1]:.0%} | "
           f"{stats['entropy'][0]:.2f} ± {stats['entropy'][1]:.2f} | {stats['success'][0]:.0%} ± {stats['success'][1]:.0%} | "
           f"{stats['minutes'][0]:.1f} |")
