@@ -311,6 +311,9 @@ def serve(controller: str, host: str, port: int) -> None:
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Run folder  [default: runs/<experiment>-seed<seed>]")
 @click.option("--resume", is_flag=True, help="Continue the run in --out from its last checkpoint.")
+@click.option("--retriever-from", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+              help="Start the retriever from this model file's (e.g. a run of another benchmark task); the "
+                   "retention critic starts fresh.")
 @click.option("--eval-episodes", type=click.IntRange(min=1), default=50, show_default=True,
               help="Held-out episodes per evaluation.")
 @click.option("--eval-every", type=click.IntRange(min=1), default=5, show_default=True,
@@ -320,12 +323,12 @@ def serve(controller: str, host: str, port: int) -> None:
 @_render_backend_option
 @_physics_options
 def train(experiment: str, config_path: Path | None, controller: str, n_envs: int | None, timesteps: int | None,
-          seed: int, out: Path | None, resume: bool, eval_episodes: int, eval_every: int, progress: bool,
-          render_backend: str, backend: str, ray_address: str | None) -> None:
+          seed: int, out: Path | None, resume: bool, retriever_from: Path | None, eval_episodes: int, eval_every: int,
+          progress: bool, render_backend: str, backend: str, ray_address: str | None) -> None:
     """Train the retriever and retention networks with PPO on EXPERIMENT (recall: the drawer layer
     reaches the controller only through a retrieved memory)."""
     from sb3_memret.config import load_config
-    from sb3_memret.training import RunOptions, format_history, train as run_training
+    from sb3_memret.training import RunOptions, format_history, start_retriever, train as run_training
     from sb3_memret.workers import exit_status
 
     out = out or Path("runs") / f"{experiment}-seed{seed}"
@@ -339,11 +342,17 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
             config.ppo["n_envs"] = n_envs
         if timesteps is not None:
             config.ppo["n_timesteps"] = timesteps
-    options = RunOptions(out=out, controller=controller, seed=seed, resume=resume, eval_episodes=eval_episodes,
+    options = RunOptions(out=out, controller=controller, seed=seed, resume=resume, retriever_from=retriever_from,
+                         eval_episodes=eval_episodes,
                          eval_every=eval_every, eval_seed=HELD_OUT_SEED, progress_bar=progress,
                          render_backend=render_backend, backend=backend, ray_address=ray_address,
                          # the bar and the closing table say enough; without the bar, SB3's per-round dumps
                          log_formats=("csv", "tensorboard") if progress else ("stdout", "csv", "tensorboard"))
+    if retriever_from is not None:
+        try:
+            start_retriever(config, options)
+        except ValueError as err:
+            raise click.BadParameter(str(err), param_hint="--retriever-from") from err
     try:
         result = run_training(config, options, click.get_current_context().meta["controller"])
     except (FileExistsError, FileNotFoundError) as err:

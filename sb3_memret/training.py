@@ -32,7 +32,8 @@ from sb3_memret.controllers import FrozenController, make_controller
 from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.analysis.evaluation import RetrievalReport
-from sb3_memret.policy.policy import MemoryRetrievalPolicy
+from sb3_memret.policy.networks import HIDDEN
+from sb3_memret.policy.policy import MemoryRetrievalPolicy, saved_retriever
 from sb3_memret.policy.ppo import MemRetPPO
 from sb3_memret.run_logger import make_run_logger
 from sb3_memret.workers import StopRequested, WorkerDiedError, stop_signals_deferred, stop_signals_interrupt
@@ -58,6 +59,7 @@ class RunOptions:
     render_backend: str = "none"  # image controllers need "cpu" or "gpu"
     backend: str = "auto"  # where the physics runs (sb3_memret.envs.physics.BACKENDS)
     ray_address: str | None = None  # a Ray cluster for backend "ray"
+    retriever_from: Path | None = None  # a new run's retriever starts from this model file's
     verbose: int = 0
 
 
@@ -116,6 +118,17 @@ def eval_env_kwargs(model: MemRetPPO, model_path: Path, mode: str, controller: s
     return kwargs
 
 
+def start_retriever(config: TrainConfig | None, options: RunOptions) -> dict[str, Any] | None:
+    """The retriever weights a new run starts from (``options.retriever_from``), checked against the
+    config's retriever; None to start from scratch."""
+    if options.retriever_from is None:
+        return None
+    if options.resume or config is None:
+        raise ValueError("--retriever-from starts a new run; a resumed run continues from its own checkpoint")
+    return saved_retriever(options.retriever_from, config.policy_kwargs.get("retriever", "mlp"),
+                           config.policy_kwargs.get("hidden", HIDDEN))
+
+
 def train(config: TrainConfig | None, options: RunOptions, controller: FrozenController | None = None) -> RunResult:
     """Train (or, with ``options.resume``, continue) a run in ``options.out``.
 
@@ -138,6 +151,7 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
     else:
         if config is None:
             raise ValueError("a new run needs a config")
+        retriever = start_retriever(config, options)
         if last is not None or (out / CONFIG_FILE).exists():
             raise FileExistsError(f"{str(out)!r} already holds a run; pass --resume to continue it or choose another --out")
         out.mkdir(parents=True, exist_ok=True)
@@ -166,6 +180,8 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
         else:
             model = MemRetPPO(MemoryRetrievalPolicy, venv, seed=options.seed, verbose=options.verbose,
                               **config.algo_kwargs())
+            if retriever is not None:
+                model.policy.retriever.load_state_dict(retriever)
         model.set_logger(make_run_logger(out, options.log_formats))
         if not options.resume:
             model.save(out / INITIAL_MODEL)
@@ -237,10 +253,11 @@ def retrieval_chance(out: Path) -> float | None:
 def _write_summary(result: RunResult, options: RunOptions) -> None:
     summary = {"num_timesteps": result.num_timesteps, "rounds": result.rounds, "wall_seconds": result.wall_seconds,
                "interrupted": result.interrupted, "stopped_by": result.stopped_by, "model": str(result.model_path), "controller": options.controller,
-               "seed": options.seed, "eval_seed": options.eval_seed, "eval_episodes": options.eval_episodes,
+               "seed": options.seed, "retriever_from": str(options.retriever_from) if options.retriever_from else None,
+               "eval_seed": options.eval_seed, "eval_episodes": options.eval_episodes,
                "final_eval": result.final.to_dict() if result.final else None}
     (result.out / "summary.json").write_text(json.dumps(summary, indent=2))
 
 
 __all__ = ["HISTORY_FILE", "INITIAL_MODEL", "RunOptions", "RunResult", "env_kwargs_for", "eval_env_kwargs", "format_history",
-           "load_run_config", "read_history", "retrieval_chance", "train"]
+           "load_run_config", "read_history", "retrieval_chance", "start_retriever", "train"]

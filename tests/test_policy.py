@@ -6,7 +6,7 @@ import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-from sb3_memret.policy.policy import MemoryRetrievalPolicy
+from sb3_memret.policy.policy import MemoryRetrievalPolicy, saved_retriever
 from sb3_memret.policy.ppo import MemRetPPO
 from toy_bank import ToyBankEnv
 
@@ -84,3 +84,18 @@ def test_retrieval_is_learned_from_reward_alone(retriever):
 def test_an_unknown_retriever_is_refused():
     with pytest.raises(ValueError, match=r"unknown retriever 'gnn'; expected one of \['mlp', 'set'\]"):
         make_model(policy_kwargs={"retriever": "gnn"})
+
+
+def test_a_saved_retriever_is_read_whole_and_another_kind_or_size_is_refused(tmp_path):
+    trained = make_model(seed=1)
+    trained.learn(64 * 2)
+    trained.save(tmp_path / "trained.zip")
+    fresh = make_model(seed=2)
+    fresh.policy.retriever.load_state_dict(saved_retriever(tmp_path / "trained.zip"))
+    for key, value in trained.policy.retriever.state_dict().items():
+        torch.testing.assert_close(fresh.policy.retriever.state_dict()[key], value)
+    assert not torch.equal(fresh.policy.retention.net[0].weight, trained.policy.retention.net[0].weight)
+    with pytest.raises(ValueError, match=r"holds a 'mlp' retriever of hidden size 128; this run's is 'set'"):
+        saved_retriever(tmp_path / "trained.zip", kind="set")
+    with pytest.raises(ValueError, match=r"this run's is 'mlp' of hidden size 64"):
+        saved_retriever(tmp_path / "trained.zip", hidden=64)

@@ -148,6 +148,26 @@ def test_interrupt_saves_a_checkpoint_that_resumes(tmp_path, monkeypatch):
     assert not resumed.interrupted and resumed.num_timesteps >= 48
 
 
+def test_a_run_can_start_from_another_runs_retriever(run, tmp_path):
+    out, config, _ = run
+    source = PPO.load(out / "final_model.zip")
+    result = cli("train", "recall", "--config", config, "--out", tmp_path / "warm", "--retriever-from",
+                 out / "final_model.zip", "--timesteps", 16, "--eval-episodes", 1, "--no-progress")
+    assert result.exit_code == 0, result.output
+    start = PPO.load(tmp_path / "warm" / "initial_model.zip")
+    for key, value in source.policy.retriever.state_dict().items():
+        assert start.policy.retriever.state_dict()[key].equal(value), key
+    assert json.loads((tmp_path / "warm" / "summary.json").read_text())["retriever_from"] == str(out / "final_model.zip")
+    resumed = cli("train", "recall", "--out", out, "--resume", "--retriever-from", out / "final_model.zip", "--no-progress")
+    assert resumed.exit_code == 2 and "--retriever-from starts a new run" in resumed.output
+    set_config = tmp_path / "set.yml"
+    set_config.write_text(TINY + "  policy_kwargs:\n    retriever: set\n")
+    mismatch = cli("train", "recall", "--config", set_config, "--out", tmp_path / "set", "--retriever-from",
+                   out / "final_model.zip", "--no-progress")
+    assert mismatch.exit_code == 2 and "holds a 'mlp' retriever" in mismatch.output
+    assert not (tmp_path / "set").exists()  # refused before the run folder was made
+
+
 def test_run_folder_mistakes_are_refused(run, tmp_path):
     out, config, _ = run
     again = cli("train", "recall", "--config", config, "--out", out, "--no-progress")

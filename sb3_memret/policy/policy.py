@@ -3,11 +3,13 @@ critic is the retention scorer, acting through a Plackett-Luce distribution."""
 
 from __future__ import annotations
 
+from pathlib import Path
 from typing import Any
 
 import torch
 from gymnasium import spaces
 from stable_baselines3.common.policies import ActorCriticPolicy
+from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
 from sb3_memret.memory.encoder import EMBEDDING_DIM
@@ -96,3 +98,19 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
         data = super()._get_constructor_parameters()
         data.update(temperature=self.temperature, hidden=self.hidden, retriever=self.retriever_kind)
         return data
+
+
+def saved_retriever(path: str | Path, kind: str = "mlp", hidden: int = HIDDEN) -> dict[str, torch.Tensor]:
+    """The retriever weights saved in the model file ``path`` (say, trained on another task of the
+    benchmark), to start a new run's retriever from. Refuses a file whose retriever is of another
+    kind or size than ``kind`` and ``hidden`` rather than load part of it."""
+    data, params, _ = load_from_zip_file(path, device="cpu")
+    saved = (data or {}).get("policy_kwargs", {})
+    if (saved.get("retriever", "mlp"), saved.get("hidden", HIDDEN)) != (kind, hidden):
+        raise ValueError(f"{str(path)!r} holds a {saved.get('retriever', 'mlp')!r} retriever of hidden size "
+                         f"{saved.get('hidden', HIDDEN)}; this run's is {kind!r} of hidden size {hidden}")
+    state = {k.removeprefix("retriever."): v for k, v in (params or {}).get("policy", {}).items()
+             if k.startswith("retriever.")}
+    if not state:
+        raise ValueError(f"{str(path)!r} holds no retriever weights: not a MemoryRetrievalPolicy model")
+    return state
