@@ -343,8 +343,7 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
         if timesteps is not None:
             config.ppo["n_timesteps"] = timesteps
     options = RunOptions(out=out, controller=controller, seed=seed, resume=resume, retriever_from=retriever_from,
-                         eval_episodes=eval_episodes,
-                         eval_every=eval_every, eval_seed=HELD_OUT_SEED, progress_bar=progress,
+                         eval_episodes=eval_episodes, eval_every=eval_every, eval_seed=HELD_OUT_SEED, progress_bar=progress,
                          render_backend=render_backend, backend=backend, ray_address=ray_address,
                          # the bar and the closing table say enough; without the bar, SB3's per-round dumps
                          log_formats=("csv", "tensorboard") if progress else ("stdout", "csv", "tensorboard"))
