@@ -40,9 +40,10 @@ def check_memory_source(source: str) -> str:
     return source
 
 
-def observation_space(capacity: int) -> spaces.Dict:
-    """The decision observation: instruction and memory embeddings, slot mask, type ids, age, usage."""
-    return spaces.Dict(
+def observation_space(capacity: int, potential: bool = False) -> spaces.Dict:
+    """The decision observation: instruction and memory embeddings, slot mask, type ids, age, usage;
+    with ``potential``, also the shaping potential in reward units, (1 - gamma) * Phi(s), for the critic."""
+    fields = dict(
         instruction=spaces.Box(-1.0, 1.0, (EMBEDDING_DIM,), np.float32),
         memories=spaces.Box(-1.0, 1.0, (capacity, EMBEDDING_DIM), np.float32),
         mask=spaces.Box(0.0, 1.0, (capacity,), np.float32),
@@ -50,6 +51,9 @@ def observation_space(capacity: int) -> spaces.Dict:
         age=spaces.Box(0.0, np.inf, (capacity,), np.float32),
         usage=spaces.Box(0.0, np.inf, (capacity,), np.float32),
     )
+    if potential:
+        fields["potential"] = spaces.Box(0.0, np.inf, (1,), np.float32)
+    return spaces.Dict(fields)
 
 
 class EpisodeMemory:
@@ -70,8 +74,10 @@ class EpisodeMemory:
     Where objects were seen in drawers goes there, with ``hearsay`` facts about other things each
     episode; instead of the observation phase the robot looks into ``glimpses`` drawers drawn at
     random, so what it knows of the others it saw in earlier episodes.
-    Times run on across episodes. ``needed_fact_gone``: the target was seen since the household
-    last rearranged, yet its fact is no longer in the store.
+    Times run on across episodes. Measured before the glimpse, so they count what retention kept:
+    ``needed_fact_gone``, the target was seen since the household last rearranged (whether or not
+    the store took the fact in), yet its fact is not in the store; ``target_fact_kept``, the store
+    holds the target's true fact; ``stale_fact_kept``, it holds a fact placing the target elsewhere.
     """
 
     def __init__(self, capacity: int, mode: str, encoder: MiniLMEncoder, keep_scorer: KeepScorer,
@@ -93,7 +99,7 @@ class EpisodeMemory:
         self.layer = 1
         self.target = "cube"
         self.true_evicted = False
-        self.needed_fact_gone = False
+        self.needed_fact_gone = self.target_fact_kept = self.stale_fact_kept = False
         self.seen_since_move: set[str] = set()
 
     @property
@@ -121,8 +127,10 @@ class EpisodeMemory:
             seeds += hearsay_memories(self.hearsay, rng, self.now, self.seeding)
         self._write(self._encoded([replace(e, timestamp=self.now) for e in seeds]))
         if self.long_term is not None:
-            self.needed_fact_gone = self.target in self.seen_since_move and not any(
-                self.is_true(e) for e in self.long_term.entries)
+            about_target = [e for e in self.long_term.entries if e.key == (MemoryType.OBJECT_LOCATION, self.target, "is_in")]
+            self.target_fact_kept = any(self.is_true(e) for e in about_target)
+            self.stale_fact_kept = len(about_target) > 0 and not self.target_fact_kept
+            self.needed_fact_gone = self.target in self.seen_since_move and not self.target_fact_kept
         self.compiler.reset()
         if self.source == "observed":
             self._look_in(frame, rng)
@@ -203,7 +211,7 @@ class EpisodeMemory:
             outcome = store.write(entry, lambda stored: self.keep_scorer(stored, self.now))
             if outcome.evicted is not None and self.is_true(outcome.evicted):
                 self.true_evicted = True
-            if store is self.long_term and outcome.slot is not None:
+            if store is self.long_term:  # seen, whether or not the store took it in
                 self.seen_since_move.add(entry.entity)
 
     def instruction(self) -> str:
@@ -243,7 +251,8 @@ class EpisodeMemory:
             "memory_texts": [e.text if e is not None else "" for e in self.slot_entries()],
         }
         if self.long_term is not None:
-            info["needed_fact_gone"] = self.needed_fact_gone
+            info.update(needed_fact_gone=self.needed_fact_gone, target_fact_kept=self.target_fact_kept,
+                        stale_fact_kept=self.stale_fact_kept)
         return info
 
 

@@ -73,6 +73,11 @@ class DrawerRecallVecEnv(VecEnv):
     (``sb3_memret.memory.retention``: fifo, lru, prior). ``tasks_per_episode``: tasks (each a reset of
     the physics, ``info["task_done"]``) per learning episode, so that what memory keeps for a later
     task is credited to the decisions that kept it; a learning episode ends as a time-limit truncation.
+
+    ``observe_potential``: each observation also carries ``potential``, (1 - gamma) * Phi(s) of the
+    state the decision is taken in, so the critic need not explain the shaping from memories alone
+    (``MemoryRetrievalPolicy``). A finished task's potential was paid in full by its last reward, so
+    its terminal observation carries the next task's starting potential, from which the household goes on.
     """
 
     def __init__(
@@ -101,6 +106,7 @@ class DrawerRecallVecEnv(VecEnv):
         glimpses_per_episode: int = 0,
         retention: str = "learned",
         tasks_per_episode: int = 1,
+        observe_potential: bool = False,
         backend: str = "auto",
         ray_address: str | None = None,
     ):
@@ -128,7 +134,8 @@ class DrawerRecallVecEnv(VecEnv):
         seeding = dataclasses.replace(seeding, **decoys) if decoys else seeding
         self.encoder = encoder or MiniLMEncoder()
         self.retention: RetentionScorer | None = None
-        super().__init__(num_envs, observation_space(slots), spaces.MultiDiscrete([slots] * k))
+        self.observe_potential = observe_potential
+        super().__init__(num_envs, observation_space(slots, observe_potential), spaces.MultiDiscrete([slots] * k))
         household = HouseholdConfig(move_probability, hearsay_per_episode, glimpses_per_episode)
         self.households = [Household(object_set(objects), n_objects, household) for _ in range(num_envs)] \
             if long_term_capacity else None
@@ -244,9 +251,16 @@ class DrawerRecallVecEnv(VecEnv):
             info = memory.info(frame.success)
             info.update(prompt=prompts[i], decision_true_slot=true_slots[i],
                         retrieved_true=memory.retrieved_true(chosen[i]), empty_slots=int(self.k - len(chosen[i])))
-            observations.append(memory.observation())
+            observations.append(self._observation(i))
             infos.append(info)
         return observations, rewards, terminated, truncated, infos
+
+    def _observation(self, i: int) -> dict[str, np.ndarray]:
+        """Env ``i``'s decision observation: its memory's, with the shaping potential if observed."""
+        observation = self.memories[i].observation()
+        if self.observe_potential:
+            observation["potential"] = np.array([(1.0 - self.gamma) * self.frames[i].potential], dtype=np.float32)
+        return observation
 
     # ------------------------------------------------------------ VecEnv API
     def reset(self) -> dict[str, np.ndarray]:
@@ -254,7 +268,7 @@ class DrawerRecallVecEnv(VecEnv):
         self.reset_infos = [infos[i] for i in range(self.num_envs)]
         self._reset_seeds()
         self._reset_options()
-        return self._stack([memory.observation() for memory in self.memories])
+        return self._stack([self._observation(i) for i in range(self.num_envs)])
 
     def step_async(self, actions: np.ndarray) -> None:
         self._actions = actions
@@ -278,7 +292,9 @@ class DrawerRecallVecEnv(VecEnv):
             reset_infos = self.reset_envs(done_ids)
             for i in done_ids:
                 self.reset_infos[i] = reset_infos[i]
-                observations[i] = self.memories[i].observation()
+                observations[i] = self._observation(i)
+                if dones[i] and self.observe_potential:
+                    infos[i]["terminal_observation"]["potential"] = observations[i]["potential"]
         return self._stack(observations), rewards, dones, infos
 
     def close(self) -> None:

@@ -423,8 +423,9 @@ def evaluate(model_path: Path, condition: str, episodes: int, controller: str, n
             count = report.episodes if key == "overall" else report.episodes_per_layer[key]
             click.echo(f"| {key} | {count} | {report.success[key]:.0%} |")
     if report.needed_fact_gone_rate is not None:
-        click.echo(f"needed fact gone (seen since the last move, then evicted): {report.needed_fact_gone_rate:.0%} "
-                   "of episodes")
+        click.echo(f"before each task, the long-term store kept the target's true fact in {report.target_fact_kept_rate:.0%} "
+                   f"of tasks, a stale one in {report.stale_fact_kept_rate:.0%}; needed fact gone (seen since the "
+                   f"last move, not kept): {report.needed_fact_gone_rate:.0%}")
 
 
 @main.command()

@@ -58,6 +58,7 @@ ENV_KEYS: dict[str, Check] = {
     "glimpses_per_episode": (int, lambda v: 0 <= v <= len(LAYERS), f"an integer in [0, {len(LAYERS)}] (drawers looked into)"),
     "retention": (str, lambda v: v in RETENTION_RULES, f"one of {list(RETENTION_RULES)}"),
     "tasks_per_episode": _positive_int(),
+    "observe_potential": (bool, lambda v: True, "true or false (the critic subtracts the shaping potential)"),
     "memory_source": (str, lambda v: v in ("seeded", "observed"), "one of 'seeded' (from the placement), "
                       "'observed' (from what the robot saw)"),
 }
@@ -126,6 +127,6 @@ def _validate(values: Any, spec: dict[str, Check], where: str) -> dict[str, Any]
         if key not in spec:
             raise ValueError(f"{where}: unknown key {key!r}; accepted keys are {sorted(spec)}")
         types, ok, expected = spec[key]
-        if isinstance(value, bool) or not isinstance(value, types) or not ok(value):
+        if isinstance(value, bool) != (types is bool) or not isinstance(value, types) or not ok(value):
             raise ValueError(f"{where}: {key}={value!r} is invalid; expected {expected}")
     return dict(values)

@@ -114,7 +114,8 @@ def eval_env_kwargs(model: MemRetPPO, model_path: Path, mode: str, controller: s
             break
     nvec = model.action_space.nvec
     kwargs.update(mode=mode, controller=controller, gamma=model.gamma, k=len(nvec), render_backend=render_backend,
-                  capacity=int(nvec[0]) - kwargs.get("long_term_capacity", 0))
+                  capacity=int(nvec[0]) - kwargs.get("long_term_capacity", 0),
+                  observe_potential="potential" in model.observation_space.spaces)
     return kwargs
 
 

@@ -4,8 +4,9 @@
   training episode had (``--objects heldout``);
 - ``observed RUN...``: success with the recalled memory against no memory and the oracle (the target's
   layer in the instruction), and recall / oracle;
-- ``retention RUN...``: success and how often the needed fact was gone, with the learned retention
-  critic and with each fixed rule (fifo, lru, prior) evicting from the same model's banks.
+- ``retention RUN...``: success, and what the long-term store kept before each task (the target's
+  true fact, a stale one, or nothing though the target was seen since the last move), with the learned
+  retention critic and with each fixed rule (fifo, lru, prior) evicting from the same model's banks.
 
 Usage: ``python scripts/compare_memory.py objects runs/objects-seed0 [--controller learned] [--episodes 50]``.
 Each RUN is a training run folder; its ``best_model.zip`` is evaluated (``--model final_model.zip`` for another),
@@ -60,12 +61,14 @@ def compare_observed(args: argparse.Namespace) -> None:
 
 
 def compare_retention(args: argparse.Namespace) -> None:
-    print("| run | retention | success | success, by layer 1/2/3 | needed fact gone | greedy accuracy |")
-    print("|---|---|---|---|---|---|")
+    print("| run | retention | success | success, by layer 1/2/3 | target's fact kept | stale fact kept | "
+          "needed fact gone | greedy accuracy |")
+    print("|---|---|---|---|---|---|---|---|")
     for run in args.runs:
         for rule in args.rules:
             report = evaluate(run / args.model, args, retention=rule)
             print(f"| {run.name} | {rule} | {report.success['overall']:.0%} | {_by_layer(report)} | "
+                  f"{report.target_fact_kept_rate:.0%} | {report.stale_fact_kept_rate:.0%} | "
                   f"{report.needed_fact_gone_rate:.0%} | {report.greedy_accuracy:.1%} |")
 
 

@@ -55,6 +55,9 @@ def test_benchmark_configs_differ_from_the_default_only_in_what_they_name():
                                                                     "object sets"),
         ({"n_timesteps": 10, "env_kwargs": {"n_objects": 4}}, r"n_objects=4 is invalid; expected an integer in \[1, 3\]"),
         ({"n_timesteps": 10, "env_kwargs": {"memory_source": "oracle"}}, "memory_source='oracle' is invalid"),
+        ({"n_timesteps": 10, "env_kwargs": {"observe_potential": "yes"}}, "observe_potential='yes' is invalid; "
+                                                                         "expected true or false"),
+        ({"n_timesteps": 10, "env_kwargs": {"observe_potential": 1}}, "observe_potential=1 is invalid"),
     ],
 )
 def test_bad_configs_are_rejected_with_the_key_and_the_accepted_values(section, message):

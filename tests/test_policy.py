@@ -47,6 +47,21 @@ def test_value_is_mean_keep_score_over_valid_slots():
     assert model.policy.predict_values(obs_t).item() == pytest.approx(keep[0, :3].mean().item(), rel=1e-5)
 
 
+def test_an_observed_potential_is_subtracted_from_the_value_and_survives_save_and_load(tmp_path):
+    model = MemRetPPO(MemoryRetrievalPolicy, DummyVecEnv([lambda: ToyBankEnv(potential=True)]), n_steps=64, seed=0)
+    assert model.policy.potential_baseline and not make_model().policy.potential_baseline
+    obs, _ = ToyBankEnv(potential=True).reset(seed=2)
+    obs_t, _ = model.policy.obs_to_tensor(obs)
+    f = model.policy.extract_features(obs_t)
+    keep = model.policy.retention(f["memories"], f["type_ids"].long(), f["age"], f["usage"]).mean()
+    assert obs["potential"][0] > 0
+    assert model.policy.predict_values(obs_t).item() == pytest.approx(keep.item() - obs["potential"][0], rel=1e-5)
+    model.save(tmp_path / "m.zip")
+    loaded = PPO.load(tmp_path / "m.zip", device="cpu")
+    assert loaded.policy.potential_baseline
+    assert loaded.policy.predict_values(obs_t).item() == pytest.approx(model.policy.predict_values(obs_t).item())
+
+
 @pytest.mark.parametrize("retriever", ["mlp", "set"])
 def test_save_and_plain_ppo_load_give_identical_greedy_actions(tmp_path, retriever):
     model = make_model(policy_kwargs={"retriever": retriever})

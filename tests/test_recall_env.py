@@ -152,6 +152,32 @@ def test_long_term_slots_come_first_and_a_needed_fact_can_be_gone(encoder):
     runner.close()
 
 
+def test_what_the_store_kept_is_counted_before_the_glimpse_and_a_refused_sighting_still_counts_as_seen(encoder):
+    runner = TaskRunner({"obs_mode": "state_dict", "render_backend": "none", "objects": OBJECT_SETS["train"],
+                         "n_objects": 3}, 80)
+    oldest_first = lambda entries, t: -np.array([e.timestamp for e in entries], float)  # refuses every newcomer
+    memory = EpisodeMemory(3, "recall", encoder, oldest_first, PromptTemplate(), SeedingConfig(location_decoys=0),
+                           source="observed", long_term_capacity=2, hearsay=0)
+    frame = runner.reset(0, {"placement": {"tin": 2, "cube": 1, "box": 3}, "target": "tin"})
+    memory.start(frame, np.random.default_rng(0), moved=True)
+    fact = lambda name, layer, t: location_memory(name, layer, t).with_embedding(
+        encoder.encode_one(f"the {name} is in drawer layer {layer}."))
+    memory._write([fact("tin", 3, 1)])  # seen before the household rearranged: now stale
+    memory.start(frame, np.random.default_rng(0), moved=True)
+    assert memory.stale_fact_kept and not memory.target_fact_kept and not memory.needed_fact_gone
+    memory._write([fact("tin", 2, 2)])  # seen again: the same key is replaced in place
+    memory.start(frame, np.random.default_rng(0))
+    assert memory.target_fact_kept and not memory.stale_fact_kept
+    memory.start(frame, np.random.default_rng(0), moved=True)
+    memory.long_term.clear()
+    memory._write([fact("sponge", 1, 3), fact("mug", 2, 4), fact("tin", 2, 5)])  # the store is full: tin's refused
+    assert "tin" not in {e.entity for e in memory.long_term.entries} and "tin" in memory.seen_since_move
+    memory.start(frame, np.random.default_rng(0))
+    info = memory.info(False)
+    assert info["needed_fact_gone"] and not info["target_fact_kept"] and not info["stale_fact_kept"]
+    runner.close()
+
+
 @pytest.mark.parametrize("glimpses", [1, 2])
 def test_a_household_glimpse_writes_what_is_in_the_drawers_looked_into_and_nothing_else(encoder, glimpses):
     runner = TaskRunner({"obs_mode": "state_dict", "render_backend": "none", "objects": OBJECT_SETS["train"],

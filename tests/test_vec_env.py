@@ -153,20 +153,22 @@ HOUSEHOLD = dict(objects="train", n_objects=3, memory_source="observed", capacit
 
 def test_a_household_remembers_across_tasks_and_a_learning_episode_spans_several(encoder):
     venv = DrawerRecallVecEnv(1, mode="oracle", controller=ScriptedDrawerController(), encoder=encoder,
-                              max_control_steps=400, retention="fifo", **HOUSEHOLD)
+                              max_control_steps=400, retention="fifo", observe_potential=True, **HOUSEHOLD)
     assert venv.observation_space["memories"].shape == (6, 384) and venv.action_space.nvec.tolist() == [6]
     venv.seed(3)
-    venv.reset()
+    obs = venv.reset()
+    assert obs["potential"][0, 0] == pytest.approx((1 - venv.gamma) * venv.frames[0].potential)
     memory, placement = venv.memories[0], dict(venv.households[0].placement)
     first_target, first_layer = memory.target, memory.layer
     assert [e.text for e in memory.long_term.entries] == [memory.long_term.entries[0].text]  # one hearsay fact
     assert not {e.entity for e in memory.long_term.entries} & set(placement)  # nothing about the household yet
     tasks, dones = [], []
     while len(tasks) < 2:
-        _, _, done, infos = venv.step(np.zeros((1, 1), dtype=np.int64))
+        obs, _, done, infos = venv.step(np.zeros((1, 1), dtype=np.int64))
         dones.append(bool(done[0]))
+        assert obs["potential"][0, 0] == pytest.approx((1 - venv.gamma) * venv.frames[0].potential)
         if infos[0].get("task_done"):
-            tasks.append({**infos[0], "done": bool(done[0])})
+            tasks.append({**infos[0], "done": bool(done[0]), "next_potential": obs["potential"][0, 0]})
             if len(tasks) == 1:  # the oracle's drawer was opened: the target was seen there, and is remembered
                 assert venv.households[0].placement == placement
                 seen = f"the {first_target} is in drawer layer {first_layer}."
@@ -174,6 +176,9 @@ def test_a_household_remembers_across_tasks_and_a_learning_episode_spans_several
                 assert memory.target in placement and memory.clock > 0
     assert tasks[0]["success"] and [t["done"] for t in tasks] == [False, True] and dones.count(True) == 1
     assert "terminal_observation" in tasks[1] and tasks[1]["TimeLimit.truncated"]
+    # the task's potential was paid by its last reward: the household goes on from the next task's start
+    assert tasks[1]["terminal_observation"]["potential"][0] == tasks[1]["next_potential"]
+    assert tasks[1]["target_fact_kept"] != tasks[1]["stale_fact_kept"] or not tasks[1]["target_fact_kept"]
     assert all(e.timestamp <= memory.now for e in memory.long_term.entries)
     venv.close()
 

@@ -12,12 +12,13 @@ class ToyBankEnv(gym.Env):
     for retrieving it, and the episode 'succeeds' when it is retrieved. ``info`` carries the keys
     DrawerRecall-v0 reports, so evaluation and callbacks run on it unchanged."""
 
-    def __init__(self, empty_slots: int = 0):
-        self.empty_slots = empty_slots
+    def __init__(self, empty_slots: int = 0, potential: bool = False):
+        self.empty_slots, self.potential = empty_slots, potential
         self.observation_space = spaces.Dict(
             instruction=spaces.Box(-1, 1, (DIM,), np.float32), memories=spaces.Box(-1, 1, (CAP, DIM), np.float32),
             mask=spaces.Box(0, 1, (CAP,), np.float32), type_ids=spaces.Box(0, 5, (CAP,), np.float32),
-            age=spaces.Box(0, np.inf, (CAP,), np.float32), usage=spaces.Box(0, np.inf, (CAP,), np.float32))
+            age=spaces.Box(0, np.inf, (CAP,), np.float32), usage=spaces.Box(0, np.inf, (CAP,), np.float32),
+            **({"potential": spaces.Box(0, np.inf, (1,), np.float32)} if potential else {}))
         self.action_space = spaces.MultiDiscrete([CAP])
         direction = np.random.default_rng(123).standard_normal(DIM)
         self.direction = (direction / np.linalg.norm(direction)).astype(np.float32)
@@ -38,6 +39,8 @@ class ToyBankEnv(gym.Env):
         mask = (np.arange(CAP) < n).astype(np.float32)
         self.obs = dict(instruction=np.full(DIM, 1 / np.sqrt(DIM), np.float32), memories=mem, mask=mask,
                         type_ids=np.zeros(CAP, np.float32), age=np.zeros(CAP, np.float32), usage=np.zeros(CAP, np.float32))
+        if self.potential:
+            self.obs["potential"] = self.np_random.uniform(0.0, 0.2, (1,)).astype(np.float32)
         return self.obs, {"true_slot": self.true}
 
     def step(self, action):

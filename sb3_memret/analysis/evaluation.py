@@ -18,6 +18,9 @@ from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_memret.envs.cabinet import LAYERS
 
+# what a household's long-term store held before each task (``EpisodeMemory.info``)
+HOUSEHOLD_FLAGS = ("needed_fact_gone", "target_fact_kept", "stale_fact_kept")
+
 
 @dataclass
 class RetrievalReport:
@@ -33,7 +36,11 @@ class RetrievalReport:
     mean_return: float = 0.0  # shaped return per episode
     mean_reward: float = 0.0  # shaped reward per decision
     true_evicted_rate: float = 0.0
-    needed_fact_gone_rate: float | None = None  # households: the target was seen since the last move, its fact evicted
+    # households, before each task's glimpse: the target was seen since the last move, yet its fact is not kept;
+    # the store keeps the target's true fact; it keeps a stale one (another drawer)
+    needed_fact_gone_rate: float | None = None
+    target_fact_kept_rate: float | None = None
+    stale_fact_kept_rate: float | None = None
     deterministic: bool = True
 
     def as_metrics(self) -> dict[str, float]:
@@ -48,8 +55,8 @@ class RetrievalReport:
             "episodes": float(self.episodes),
         }
         metrics.update({f"success_layer_{k}": v for k, v in self.success.items() if k != "overall"})
-        if self.needed_fact_gone_rate is not None:
-            metrics["needed_fact_gone_rate"] = self.needed_fact_gone_rate
+        metrics.update({f"{flag}_rate": getattr(self, f"{flag}_rate") for flag in HOUSEHOLD_FLAGS
+                        if getattr(self, f"{flag}_rate") is not None})
         return metrics
 
     def to_dict(self) -> dict[str, Any]:
@@ -111,8 +118,7 @@ def evaluate_retrieval(
                     episode = dict(layer=int(info["target_layer"]), success=bool(info["success"]),
                                    shaped_return=float(returns[i]), true_evicted=bool(evicted[i]),
                                    decisions=int(lengths[i]), target=info.get("target", "cube"))
-                    if "needed_fact_gone" in info:
-                        episode["needed_fact_gone"] = bool(info["needed_fact_gone"])
+                    episode.update({flag: bool(info[flag]) for flag in HOUSEHOLD_FLAGS if flag in info})
                     episodes.append(episode)
                     if on_episode is not None:
                         on_episode(episode)
@@ -138,9 +144,9 @@ def _report(episodes: list[dict[str, Any]], decisions: float, hits: float, sampl
         entropy=entropy / safe, success=success, episodes_per_layer=per_layer,
         mean_return=float(np.mean([e["shaped_return"] for e in episodes])), mean_reward=mean_reward,
         true_evicted_rate=float(np.mean([e["true_evicted"] for e in episodes])), deterministic=deterministic,
-        needed_fact_gone_rate=float(np.mean([e["needed_fact_gone"] for e in episodes]))
-        if all("needed_fact_gone" in e for e in episodes) else None,
+        **{f"{flag}_rate": float(np.mean([e[flag] for e in episodes])) if all(flag in e for e in episodes) else None
+           for flag in HOUSEHOLD_FLAGS},
     )
 
 
-__all__ = ["RetrievalReport", "evaluate_retrieval"]
+__all__ = ["HOUSEHOLD_FLAGS", "RetrievalReport", "evaluate_retrieval"]

@@ -36,7 +36,10 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
     """Actor: retriever scores -> Plackett-Luce top-K at ``temperature``. The retriever is the seed's
     per-memory ``RelevanceMLP`` (``retriever="mlp"``) or the set-structured ``SetRetriever``
     (``"set"``: attention over the whole bank).
-    Critic: the mean RetentionScorer keep-score over valid slots.
+    Critic: the mean RetentionScorer keep-score over valid slots. When the observation carries the
+    shaping potential (env ``observe_potential``), the value is that mean minus the potential: the
+    shaped value is the unshaped one minus the potential (Ng et al., 1999), so the keep-scores model
+    only what the task's future is worth, not how far the current task has got.
 
     ``predict(obs, deterministic=True)`` is greedy retrieval (top-K by score).
     """
@@ -70,8 +73,14 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
     def _distribution(self, f: dict[str, torch.Tensor]) -> PlackettLuceDistribution:
         return self.action_dist.proba_distribution(self.scores(f), f["mask"] > 0.5)
 
+    @property
+    def potential_baseline(self) -> bool:
+        """Whether the value subtracts the observed shaping potential."""
+        return "potential" in self.observation_space.spaces
+
     def _value(self, f: dict[str, torch.Tensor]) -> torch.Tensor:
-        return self.retention.value(f["memories"], f["type_ids"].long(), f["age"], f["usage"], f["mask"] > 0.5)[:, None]
+        value = self.retention.value(f["memories"], f["type_ids"].long(), f["age"], f["usage"], f["mask"] > 0.5)[:, None]
+        return value - f["potential"] if self.potential_baseline else value
 
     def forward(self, obs, deterministic: bool = False):
         f = self.extract_features(obs)
