@@ -70,7 +70,8 @@ def trace_first_retrieval(model: BaseAlgorithm, env: gym.Env, seed: int, label: 
     Plackett-Luce draw at the policy's temperature from ``sample_seed`` (global RNG untouched)."""
     obs, info = env.reset(seed=seed)
     policy = model.policy
-    tensors, _ = policy.obs_to_tensor(obs)
+    # the models traced together may differ in whether their critic reads the potential
+    tensors, _ = policy.obs_to_tensor({k: obs[k] for k in policy.observation_space.spaces})
     features = policy.extract_features(tensors)
     mask = (tensors["mask"] > 0.5)[0].cpu().numpy()
     scores = policy.scores(features)[0].cpu().numpy().astype(np.float64)  # float64: tiny probabilities stay > 0
