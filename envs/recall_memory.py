@@ -127,9 +127,10 @@ class EpisodeMemory:
             seeds += hearsay_memories(self.hearsay, rng, self.now, self.seeding)
         self._write(self._encoded([replace(e, timestamp=self.now) for e in seeds]))
         if self.long_term is not None:
-            about_target = [e for e in self.long_term.entries if e.key == (MemoryType.OBJECT_LOCATION, self.target, "is_in")]
-            self.target_fact_kept = any(self.is_true(e) for e in about_target)
-            self.stale_fact_kept = len(about_target) > 0 and not self.target_fact_kept
+            slot = self.long_term.find((MemoryType.OBJECT_LOCATION, self.target, "is_in"))  # one fact per key
+            kept = self.long_term.entries[slot] if slot is not None else None
+            self.target_fact_kept = kept is not None and self.is_true(kept)
+            self.stale_fact_kept = kept is not None and not self.target_fact_kept
             self.needed_fact_gone = self.target in self.seen_since_move and not self.target_fact_kept
         self.compiler.reset()
         if self.source == "observed":
