@@ -48,8 +48,8 @@ class DrawerRecallEnv(gym.Env):
     def mode(self) -> str:
         return self.venv.mode
 
-    def set_retention_weights(self, state_dict) -> None:
-        self.venv.set_retention_weights(state_dict)
+    def set_retention_weights(self, state_dict, age_unit: str) -> None:
+        self.venv.set_retention_weights(state_dict, age_unit)
 
     def reset(self, *, seed: int | None = None, options: dict | None = None):
         super().reset(seed=seed)

@@ -16,7 +16,7 @@ from sb3_memret.envs.cabinet import LAYERS, check_layer
 from sb3_memret.envs.physics import EnvFrame
 from sb3_memret.memory.bank import MemoryBank
 from sb3_memret.memory.encoder import EMBEDDING_DIM, MiniLMEncoder
-from sb3_memret.memory.schema import MemoryEntry, MemoryType
+from sb3_memret.memory.schema import MemoryEntry, MemoryType, check_age_unit
 from sb3_memret.memory.seeding import SeedingConfig, hearsay_memories, is_true_memory, seed_memories
 from sb3_memret.memory.writer import BoundingBoxPredicateExtractor, EventCompiler, ViewPredicateExtractor
 from sb3_memret.prompts import PromptTemplate, build_prompt, instruction_text, location_text
@@ -24,8 +24,8 @@ from sb3_memret.prompts import PromptTemplate, build_prompt, instruction_text, l
 MODES = ("recall", "oracle", "none")
 # where the placed objects' facts come from: the episode's placement (the seed's), or what the robot saw
 MEMORY_SOURCES = ("seeded", "observed")
-# keep-scores of a bank's entries at decision time t (the retention critic, or the fixed prior)
-KeepScorer = Callable[[Sequence[MemoryEntry], int], np.ndarray]
+# keep-scores of a bank's entries given their ages (the retention critic, or a fixed rule)
+KeepScorer = Callable[[Sequence[MemoryEntry], np.ndarray], np.ndarray]
 
 
 def check_mode(mode: str) -> str:
@@ -74,7 +74,9 @@ class EpisodeMemory:
     Where objects were seen in drawers goes there, with ``hearsay`` facts about other things each
     episode; instead of the observation phase the robot looks into ``glimpses`` drawers drawn at
     random, so what it knows of the others it saw in earlier episodes.
-    Times run on across episodes. Measured before the glimpse, so they count what retention kept:
+    Times run on across episodes. ``age_unit``: a memory's age is the control steps since it was
+    written (``"steps"``) or the episodes, a household's tasks (``"tasks"``): objects move only between
+    tasks, so a fact's age in tasks is what says how likely it is to be stale. Measured before the glimpse, so they count what retention kept:
     ``needed_fact_gone``, the target was seen since the household last rearranged (whether or not
     the store took the fact in), yet its fact is not in the store; ``target_fact_kept``, the store
     holds the target's true fact; ``stale_fact_kept``, it holds a fact placing the target elsewhere.
@@ -82,7 +84,7 @@ class EpisodeMemory:
 
     def __init__(self, capacity: int, mode: str, encoder: MiniLMEncoder, keep_scorer: KeepScorer,
                  template: PromptTemplate, seeding: SeedingConfig | None = None, source: str = "seeded",
-                 long_term_capacity: int = 0, hearsay: int = 0, glimpses: int = 0):
+                 long_term_capacity: int = 0, hearsay: int = 0, glimpses: int = 0, age_unit: str = "steps"):
         self.mode = check_mode(mode)
         self.source = check_memory_source(source)
         if long_term_capacity and source != "observed":
@@ -92,6 +94,8 @@ class EpisodeMemory:
         self.bank = MemoryBank(capacity)
         self.long_term = MemoryBank(long_term_capacity) if long_term_capacity else None
         self.hearsay, self.glimpses = hearsay, glimpses
+        self.age_unit = check_age_unit(age_unit)
+        self.episode = 0  # episodes started so far (a household's tasks)
         self.extractor = BoundingBoxPredicateExtractor() if source == "seeded" else ViewPredicateExtractor()
         self.compiler = EventCompiler(encoder)
         self.clock = 0  # control steps of the earlier episodes (long-term times run on)
@@ -119,6 +123,7 @@ class EpisodeMemory:
         self.target = state.target_name()
         self.clock = self.clock + self.t if self.long_term is not None else 0
         self.t, self.true_evicted = 0, False
+        self.episode += 1
         self.bank.clear()
         seeds = seed_memories(state.placed(), self.target, rng, self.seeding, facts=self.source == "seeded")
         if self.long_term is not None:
@@ -206,10 +211,17 @@ class EpisodeMemory:
         lasting = entry.type == MemoryType.OBJECT_LOCATION and entry.value.startswith("drawer layer")
         return self.long_term if self.long_term is not None and lasting else self.bank
 
+    def ages(self, entries: Sequence[MemoryEntry]) -> np.ndarray:
+        """The entries' ages in ``age_unit``: control steps, or episodes since each was written."""
+        if self.age_unit == "tasks":
+            return np.array([self.episode - e.episode for e in entries], dtype=np.float32)
+        return np.array([self.now - e.timestamp for e in entries], dtype=np.float32)
+
     def _write(self, entries: list[MemoryEntry]) -> None:
         for entry in entries:
+            entry = replace(entry, episode=self.episode)
             store = self._store_for(entry)
-            outcome = store.write(entry, lambda stored: self.keep_scorer(stored, self.now))
+            outcome = store.write(entry, lambda stored: self.keep_scorer(stored, self.ages(stored)))
             if outcome.evicted is not None and self.is_true(outcome.evicted):
                 self.true_evicted = True
             if store is self.long_term:  # seen, whether or not the store took it in
@@ -238,9 +250,14 @@ class EpisodeMemory:
             "memories": np.concatenate([v.embeddings for v in views]),
             "mask": np.concatenate([v.mask for v in views]).astype(np.float32),
             "type_ids": np.concatenate([v.type_ids for v in views]).astype(np.float32),
-            "age": np.concatenate([v.age for v in views]),
+            "age": np.concatenate([self._slot_ages(store) for store in self.stores]),
             "usage": np.concatenate([v.usage for v in views]),
         }
+
+    def _slot_ages(self, store: MemoryBank) -> np.ndarray:
+        ages = np.zeros(store.capacity, dtype=np.float32)
+        ages[:len(store)] = self.ages(store.entries)
+        return ages
 
     def info(self, success: bool) -> dict[str, Any]:
         info = {

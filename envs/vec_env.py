@@ -31,7 +31,7 @@ from sb3_memret.envs.physics import EnvFrame, PhysicsBackend, ResetRequest, make
 from sb3_memret.envs.recall_memory import EpisodeMemory, check_memory_source, check_mode, observation_space
 from sb3_memret.memory.bank import importance_scorer
 from sb3_memret.memory.encoder import MiniLMEncoder
-from sb3_memret.memory.schema import MemoryEntry
+from sb3_memret.memory.schema import MemoryEntry, check_age_unit
 from sb3_memret.memory.retention import FIXED_RULES, check_retention
 from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.policy.networks import RetentionScorer
@@ -78,6 +78,9 @@ class DrawerRecallVecEnv(VecEnv):
     state the decision is taken in, so the critic need not explain the shaping from memories alone
     (``MemoryRetrievalPolicy``). A finished task's potential was paid in full by its last reward, so
     its terminal observation carries the next task's starting potential, from which the household goes on.
+
+    ``age_unit``: the memories' ages the observation carries (and the critic evicts by), in control
+    steps or in tasks (``EpisodeMemory``); the policy must read the same unit (its ``age_unit``).
     """
 
     def __init__(
@@ -107,6 +110,7 @@ class DrawerRecallVecEnv(VecEnv):
         retention: str = "learned",
         tasks_per_episode: int = 1,
         observe_potential: bool = False,
+        age_unit: str = "steps",
         backend: str = "auto",
         ray_address: str | None = None,
     ):
@@ -135,6 +139,7 @@ class DrawerRecallVecEnv(VecEnv):
         self.encoder = encoder or MiniLMEncoder()
         self.retention: RetentionScorer | None = None
         self.observe_potential = observe_potential
+        self.age_unit = check_age_unit(age_unit)
         super().__init__(num_envs, observation_space(slots, observe_potential), spaces.MultiDiscrete([slots] * k))
         household = HouseholdConfig(move_probability, hearsay_per_episode, glimpses_per_episode)
         self.households = [Household(object_set(objects), n_objects, household) for _ in range(num_envs)] \
@@ -147,7 +152,7 @@ class DrawerRecallVecEnv(VecEnv):
             raise
         template = self.controller.spec.prompt_template
         self.memories = [EpisodeMemory(capacity, mode, self.encoder, self.keep_scores, template, seeding, memory_source,
-                                       long_term_capacity, hearsay_per_episode, glimpses_per_episode)
+                                       long_term_capacity, hearsay_per_episode, glimpses_per_episode, age_unit)
                          for _ in range(num_envs)]
         self.rngs: list[np.random.Generator | None] = [None] * num_envs
         self.frames: list[EnvFrame | None] = [None] * num_envs
@@ -158,23 +163,28 @@ class DrawerRecallVecEnv(VecEnv):
         self._controller_batch = False  # whether controller.reset has set up the batch of num_envs
 
     # ------------------------------------------------------------ retention
-    def set_retention_weights(self, state_dict: dict[str, torch.Tensor]) -> None:
-        """Use these retention-network weights for eviction (pushed by the trainer each rollout)."""
+    def set_retention_weights(self, state_dict: dict[str, torch.Tensor], age_unit: str) -> None:
+        """Use these retention-network weights for eviction (pushed by the trainer each rollout); the
+        network reads ages in ``age_unit``, which must be the unit this env observes."""
+        if age_unit != self.age_unit:
+            raise ValueError(f"the retention critic reads ages in {age_unit!r}, but this env counts them in "
+                             f"{self.age_unit!r}: build the env with age_unit={age_unit!r}")
         if self.retention is None:
-            self.retention = RetentionScorer()
+            self.retention = RetentionScorer(age_unit=age_unit)
         self.retention.load_state_dict(state_dict)
         self.retention.eval()
 
-    def keep_scores(self, entries: Sequence[MemoryEntry], t: int) -> np.ndarray:
-        """Keep-scores at time ``t``: the fixed rule's, else the retention critic's (the type prior before any push)."""
+    def keep_scores(self, entries: Sequence[MemoryEntry], ages: np.ndarray) -> np.ndarray:
+        """Keep-scores of ``entries`` of these ``ages`` (in ``age_unit``): the fixed rule's, else the
+        retention critic's (the type prior before any push)."""
         if self.retention_rule in FIXED_RULES:
-            return FIXED_RULES[self.retention_rule](entries, t)
+            return FIXED_RULES[self.retention_rule](entries)
         if self.retention is None:
             return importance_scorer(entries)
         with torch.no_grad():
             mem = torch.as_tensor(np.stack([e.embedding for e in entries]))[None]
             types = torch.tensor([[int(e.type) for e in entries]])
-            age = torch.tensor([[float(t - e.timestamp) for e in entries]])
+            age = torch.as_tensor(np.asarray(ages, dtype=np.float32))[None]
             usage = torch.tensor([[float(e.usage_count) for e in entries]])
             return self.retention(mem, types, age, usage)[0].numpy()
 

@@ -11,6 +11,7 @@ import yaml
 from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.objects import OBJECT_SETS
 from sb3_memret.memory.retention import RETENTION_RULES
+from sb3_memret.memory.schema import AGE_UNITS
 
 Check = tuple[type | tuple[type, ...], Callable[[Any], bool], str]
 
@@ -58,6 +59,7 @@ ENV_KEYS: dict[str, Check] = {
     "glimpses_per_episode": (int, lambda v: 0 <= v <= len(LAYERS), f"an integer in [0, {len(LAYERS)}] (drawers looked into)"),
     "retention": (str, lambda v: v in RETENTION_RULES, f"one of {list(RETENTION_RULES)}"),
     "tasks_per_episode": _positive_int(),
+    "age_unit": (str, lambda v: v in AGE_UNITS, f"one of {list(AGE_UNITS)} (what a memory's age counts)"),
     "observe_potential": (bool, lambda v: True, "true or false (the critic subtracts the shaping potential)"),
     "memory_source": (str, lambda v: v in ("seeded", "observed"), "one of 'seeded' (from the placement), "
                       "'observed' (from what the robot saw)"),
@@ -84,7 +86,10 @@ class TrainConfig:
     def algo_kwargs(self) -> dict[str, Any]:
         """Keyword arguments for MemRetPPO (everything but the run length and env count)."""
         kwargs = {k: v for k, v in self.ppo.items() if k not in ("n_timesteps", "n_envs")}
-        return {**kwargs, "policy_kwargs": dict(self.policy_kwargs)}
+        policy_kwargs = dict(self.policy_kwargs)
+        if "age_unit" in self.env_kwargs:  # the critic reads ages in the unit the env counts them in
+            policy_kwargs["age_unit"] = self.env_kwargs["age_unit"]
+        return {**kwargs, "policy_kwargs": policy_kwargs}
 
 
 def load_config(path: str | Path, env_id: str) -> TrainConfig:

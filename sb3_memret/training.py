@@ -115,7 +115,7 @@ def eval_env_kwargs(model: MemRetPPO, model_path: Path, mode: str, controller: s
     nvec = model.action_space.nvec
     kwargs.update(mode=mode, controller=controller, gamma=model.gamma, k=len(nvec), render_backend=render_backend,
                   capacity=int(nvec[0]) - kwargs.get("long_term_capacity", 0),
-                  observe_potential="potential" in model.observation_space.spaces)
+                  observe_potential="potential" in model.observation_space.spaces, age_unit=model.policy.age_unit)
     return kwargs
 
 

@@ -58,11 +58,19 @@ def test_benchmark_configs_differ_from_the_default_only_in_what_they_name():
         ({"n_timesteps": 10, "env_kwargs": {"observe_potential": "yes"}}, "observe_potential='yes' is invalid; "
                                                                          "expected true or false"),
         ({"n_timesteps": 10, "env_kwargs": {"observe_potential": 1}}, "observe_potential=1 is invalid"),
+        ({"n_timesteps": 10, "env_kwargs": {"age_unit": "seconds"}}, r"age_unit='seconds' is invalid; expected one of "
+                                                                     r"\['steps', 'tasks'\]"),
     ],
 )
 def test_bad_configs_are_rejected_with_the_key_and_the_accepted_values(section, message):
     with pytest.raises(ValueError, match=message):
         parse_section(section, ENV_ID)
+
+
+def test_the_policy_reads_ages_in_the_unit_the_env_counts_them_in():
+    assert "age_unit" not in parse_section({"n_timesteps": 10}, ENV_ID).algo_kwargs()["policy_kwargs"]  # steps
+    config = parse_section({"n_timesteps": 10, "env_kwargs": {"age_unit": "tasks"}}, ENV_ID)
+    assert config.algo_kwargs()["policy_kwargs"]["age_unit"] == "tasks"
 
 
 def test_missing_env_section_and_file(tmp_path):

@@ -62,6 +62,15 @@ def test_an_observed_potential_is_subtracted_from_the_value_and_survives_save_an
     assert loaded.policy.predict_values(obs_t).item() == pytest.approx(model.policy.predict_values(obs_t).item())
 
 
+def test_the_age_unit_sets_the_critics_age_scale_and_survives_save_and_load(tmp_path):
+    model = make_model(policy_kwargs={"age_unit": "tasks"})
+    assert model.policy.retention.age_scale == 1.0 and make_model().policy.retention.age_scale == 100.0
+    model.save(tmp_path / "m.zip")
+    assert PPO.load(tmp_path / "m.zip", device="cpu").policy.age_unit == "tasks"
+    with pytest.raises(ValueError, match="unknown age unit 'days'; expected one of"):
+        make_model(policy_kwargs={"age_unit": "days"})
+
+
 @pytest.mark.parametrize("retriever", ["mlp", "set"])
 def test_save_and_plain_ppo_load_give_identical_greedy_actions(tmp_path, retriever):
     model = make_model(policy_kwargs={"retriever": retriever})

@@ -62,7 +62,7 @@ def test_retrieving_the_true_memory_earns_more_than_a_decoy(recall_env):
 def test_retention_weights_drive_eviction(encoder):
     env = gym.make(RECALL_ENV_ID, encoder=encoder).unwrapped
     scorer = RetentionScorer()
-    env.set_retention_weights(scorer.state_dict())
+    env.set_retention_weights(scorer.state_dict(), "steps")
     for seed in range(5):
         env.reset(seed=seed)
         assert len(env.bank) == 6  # 7 distinct keys competed for 6 slots
@@ -111,7 +111,7 @@ def test_held_out_objects_are_never_in_a_training_bank(encoder):
 def test_observed_memory_comes_from_what_the_robot_saw_alone(encoder):
     kwargs = dict(objects=OBJECT_SETS["train"], n_objects=3)
     runner = TaskRunner({"obs_mode": "state_dict", "render_backend": "none", **kwargs}, 80)
-    memory = EpisodeMemory(6, "recall", encoder, lambda entries, t: np.ones(len(entries)), PromptTemplate(),
+    memory = EpisodeMemory(6, "recall", encoder, lambda entries, ages: np.ones(len(entries)), PromptTemplate(),
                            SeedingConfig(location_decoys=2), source="observed")
     frame = runner.reset(7, {})
     placed, target = frame.state.placed(), frame.state.target_name()
@@ -127,7 +127,7 @@ def test_observed_memory_comes_from_what_the_robot_saw_alone(encoder):
 def test_long_term_slots_come_first_and_a_needed_fact_can_be_gone(encoder):
     runner = TaskRunner({"obs_mode": "state_dict", "render_backend": "none", "objects": OBJECT_SETS["train"],
                          "n_objects": 3}, 80)
-    memory = EpisodeMemory(3, "recall", encoder, lambda entries, t: np.array([e.timestamp for e in entries], float),
+    memory = EpisodeMemory(3, "recall", encoder, lambda entries, ages: np.array([e.timestamp for e in entries], float),
                            PromptTemplate(), SeedingConfig(location_decoys=0), source="observed", long_term_capacity=3,
                            hearsay=1)
     frame = runner.reset(0, {"placement": {"tin": 2, "cube": 1, "box": 3}, "target": "tin"})
@@ -155,7 +155,7 @@ def test_long_term_slots_come_first_and_a_needed_fact_can_be_gone(encoder):
 def test_what_the_store_kept_is_counted_before_the_glimpse_and_a_refused_sighting_still_counts_as_seen(encoder):
     runner = TaskRunner({"obs_mode": "state_dict", "render_backend": "none", "objects": OBJECT_SETS["train"],
                          "n_objects": 3}, 80)
-    oldest_first = lambda entries, t: -np.array([e.timestamp for e in entries], float)  # refuses every newcomer
+    oldest_first = lambda entries, ages: -np.array([e.timestamp for e in entries], float)  # refuses every newcomer
     memory = EpisodeMemory(3, "recall", encoder, oldest_first, PromptTemplate(), SeedingConfig(location_decoys=0),
                            source="observed", long_term_capacity=2, hearsay=0)
     frame = runner.reset(0, {"placement": {"tin": 2, "cube": 1, "box": 3}, "target": "tin"})
@@ -182,7 +182,7 @@ def test_what_the_store_kept_is_counted_before_the_glimpse_and_a_refused_sightin
 def test_a_household_glimpse_writes_what_is_in_the_drawers_looked_into_and_nothing_else(encoder, glimpses):
     runner = TaskRunner({"obs_mode": "state_dict", "render_backend": "none", "objects": OBJECT_SETS["train"],
                          "n_objects": 3}, 80)
-    memory = EpisodeMemory(3, "recall", encoder, lambda entries, t: np.array([e.timestamp for e in entries], float),
+    memory = EpisodeMemory(3, "recall", encoder, lambda entries, ages: np.array([e.timestamp for e in entries], float),
                            PromptTemplate(), SeedingConfig(location_decoys=0), source="observed", long_term_capacity=3,
                            glimpses=glimpses)
     placement = {"tin": 2, "cube": 1, "box": 3}
@@ -196,4 +196,34 @@ def test_a_household_glimpse_writes_what_is_in_the_drawers_looked_into_and_nothi
         assert memory.seen_since_move == set(facts)
         seen_layers |= {placement[name] for name in facts}
     assert seen_layers == set(LAYERS)  # the drawers are drawn at random
+    runner.close()
+
+
+@pytest.mark.parametrize("unit", ["steps", "tasks"])
+def test_ages_count_control_steps_or_tasks_alike_for_the_critic_and_the_observation(encoder, unit):
+    runner = TaskRunner({"obs_mode": "state_dict", "render_backend": "none", "objects": OBJECT_SETS["train"],
+                         "n_objects": 3}, 80)
+    scored: list[np.ndarray] = []
+
+    def newest_first(entries, ages):
+        scored.append(np.asarray(ages))
+        return -np.asarray(ages, dtype=float)
+
+    memory = EpisodeMemory(3, "recall", encoder, newest_first, PromptTemplate(), SeedingConfig(location_decoys=0),
+                           source="observed", long_term_capacity=2, hearsay=0, age_unit=unit)
+    frame = runner.reset(0, {"placement": {"tin": 2, "cube": 1, "box": 3}, "target": "tin"})
+    fact = lambda name, layer: location_memory(name, layer, memory.now).with_embedding(
+        encoder.encode_one(f"the {name} is in drawer layer {layer}."))
+    memory.start(frame, np.random.default_rng(0), moved=True)
+    memory._write([fact("tin", 2)])  # written in the first task at step 0
+    memory.t = 10
+    memory.start(frame, np.random.default_rng(0))
+    memory.t = 4
+    memory._write([fact("cube", 1)])  # the second task, step 14 of the household
+    memory.t = 7
+    expected = {"steps": [17, 3], "tasks": [1, 0]}[unit]
+    np.testing.assert_array_equal(memory.observation()["age"][:2], expected)
+    memory._write([fact("box", 3)])  # the store is full: the oldest goes, by the ages the scorer was given
+    np.testing.assert_array_equal(scored[-1], expected + [0])
+    assert [e.entity for e in memory.long_term.entries] == ["box", "cube"]
     runner.close()

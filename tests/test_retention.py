@@ -25,21 +25,21 @@ def full_bank(*entries: MemoryEntry) -> MemoryBank:
 
 def test_fifo_lets_the_oldest_go():
     bank = full_bank(fact("tin", 5), fact("key", 1), fact("mug", 3))
-    outcome = bank.write(fact("box", 9), lambda entries: fifo_scores(entries, 9))
+    outcome = bank.write(fact("box", 9), fifo_scores)
     assert outcome.evicted.entity == "key" and [e.entity for e in bank.entries] == ["tin", "box", "mug"]
 
 
 def test_lru_keeps_an_old_fact_that_was_retrieved_lately():
     bank = full_bank(fact("tin", 5), fact("key", 1), fact("mug", 3))
     bank.mark_used(1, now=8)
-    outcome = bank.write(fact("box", 9), lambda entries: lru_scores(entries, 9))
+    outcome = bank.write(fact("box", 9), lru_scores)
     assert outcome.evicted.entity == "mug"
     assert bank.entries[1].usage_count == 1 and bank.entries[1].last_used == 8
 
 
 def test_prior_ranks_by_type_and_the_newcomer_can_lose():
     bank = full_bank(fact("tin", 5), fact("key", 1))
-    outcome = bank.write(fact("marker", 9, MemoryType.HOLDING), lambda entries: prior_scores(entries, 9))
+    outcome = bank.write(fact("marker", 9, MemoryType.HOLDING), prior_scores)
     assert outcome.slot is None and outcome.evicted.text == "the robot is holding the marker."
 
 

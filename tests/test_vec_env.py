@@ -58,7 +58,7 @@ def test_envs_in_workers_are_seeded_apart_and_receive_retention_weights(encoder)
         assert obs["memories"].shape == (2, 6, 384) and obs["mask"].shape == (2, 6)
         assert not np.array_equal(obs["memories"][0], obs["memories"][1])  # seeds 7 and 8 differ
         weights = RetentionScorer().state_dict()
-        venv.env_method("set_retention_weights", weights)
+        venv.env_method("set_retention_weights", weights, age_unit="steps")
         assert venv.unwrapped.retention is not None
         for _ in range(2):
             obs, rewards, dones, infos = venv.step(np.zeros((2, 1), dtype=np.int64))
@@ -192,6 +192,12 @@ def test_household_refusals(encoder):
     venv.close()
     with pytest.raises(ValueError, match="unknown retention rule 'newest'"):
         DrawerRecallVecEnv(1, encoder=encoder, retention="newest")
+    with pytest.raises(ValueError, match="unknown age unit 'days'"):
+        DrawerRecallVecEnv(1, encoder=encoder, age_unit="days")
+    venv = DrawerRecallVecEnv(1, encoder=encoder, **HOUSEHOLD, age_unit="tasks")
+    with pytest.raises(ValueError, match="reads ages in 'steps', but this env counts them in 'tasks'"):
+        venv.set_retention_weights(RetentionScorer().state_dict(), "steps")
+    venv.close()
 
 
 def test_a_script_that_never_closes_its_envs_still_exits(tmp_path):

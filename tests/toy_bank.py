@@ -24,7 +24,7 @@ class ToyBankEnv(gym.Env):
         self.direction = (direction / np.linalg.norm(direction)).astype(np.float32)
         self.received_weights = []
 
-    def set_retention_weights(self, state_dict):
+    def set_retention_weights(self, state_dict, age_unit):
         self.received_weights.append(state_dict)
 
     def reset(self, *, seed=None, options=None):

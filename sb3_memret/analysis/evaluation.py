@@ -80,7 +80,7 @@ def evaluate_retrieval(
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
     policy = model.policy
     if hasattr(policy, "retention_state_dict"):
-        venv.env_method("set_retention_weights", policy.retention_state_dict())
+        venv.env_method("set_retention_weights", policy.retention_state_dict(), age_unit=policy.age_unit)
     was_training = policy.training
     policy.set_training_mode(False)
     n = venv.num_envs

@@ -15,19 +15,19 @@ import numpy as np
 
 from sb3_memret.memory.schema import MemoryEntry
 
-# keep-scores of a bank's entries at time t
-RetentionRule = Callable[[Sequence[MemoryEntry], int], np.ndarray]
+# keep-scores of a bank's entries, from what the entries record (times written and used, type)
+RetentionRule = Callable[[Sequence[MemoryEntry]], np.ndarray]
 
 
-def fifo_scores(entries: Sequence[MemoryEntry], t: int) -> np.ndarray:
+def fifo_scores(entries: Sequence[MemoryEntry]) -> np.ndarray:
     return np.array([e.timestamp for e in entries], dtype=np.float64)
 
 
-def lru_scores(entries: Sequence[MemoryEntry], t: int) -> np.ndarray:
+def lru_scores(entries: Sequence[MemoryEntry]) -> np.ndarray:
     return np.array([max(e.timestamp, e.last_used) for e in entries], dtype=np.float64)
 
 
-def prior_scores(entries: Sequence[MemoryEntry], t: int) -> np.ndarray:
+def prior_scores(entries: Sequence[MemoryEntry]) -> np.ndarray:
     return np.array([e.importance for e in entries], dtype=np.float64)
 
 

@@ -50,6 +50,15 @@ IMPORTANCE: dict[MemoryType, float] = {
 
 Key = tuple[MemoryType, str, str]
 
+# What a memory's age counts: control steps since it was written, or episodes (a household's tasks).
+AGE_UNITS = ("steps", "tasks")
+
+
+def check_age_unit(unit: str) -> str:
+    if unit not in AGE_UNITS:
+        raise ValueError(f"unknown age unit {unit!r}; expected one of {list(AGE_UNITS)}")
+    return unit
+
 
 def linearize(mtype: MemoryType, entity: str, relation: str, value: str) -> str:
     """The memory's text, from its type's template; lowercase words only."""
@@ -74,6 +83,7 @@ class MemoryEntry:
     importance: float = 0.0
     usage_count: int = 0
     last_used: int = -1  # time of the last retrieval, -1 if never retrieved
+    episode: int = 0  # the episode it was written in (a household's task), for ages counted in tasks
 
     @property
     def key(self) -> Key:

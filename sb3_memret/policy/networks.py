@@ -6,11 +6,11 @@ import torch
 from torch import nn
 
 from sb3_memret.memory.encoder import EMBEDDING_DIM
-from sb3_memret.memory.schema import MemoryType
+from sb3_memret.memory.schema import MemoryType, check_age_unit
 
 HIDDEN = 128
 TYPE_EMBEDDING_DIM = 32
-AGE_SCALE = 100.0
+AGE_SCALES: dict[str, float] = {"steps": 100.0, "tasks": 1.0}  # per unit of AGE_UNITS
 USAGE_SCALE = 10.0
 
 
@@ -65,21 +65,25 @@ RETRIEVERS = ("mlp", "set")
 
 
 class RetentionScorer(nn.Module):
-    """Task-agnostic keep-score of each memory from [h_m, type embedding, age/100, usage/10].
+    """Task-agnostic keep-score of each memory from [h_m, type embedding, age/scale, usage/10].
 
     It never sees the instruction: it judges how valuable a memory is in general. Its mean
-    over valid slots is the PPO value; its argmin is evicted when the bank is full.
+    over valid slots is the PPO value; its argmin is evicted when the bank is full. ``age_unit``:
+    ages in control steps (scale 100, the seed's) or in tasks (scale 1: episodes of a household,
+    between which objects may move, so a fact's chance of being stale grows with its age in tasks).
     """
 
-    def __init__(self, embedding_dim: int = EMBEDDING_DIM, hidden: int = HIDDEN):
+    def __init__(self, embedding_dim: int = EMBEDDING_DIM, hidden: int = HIDDEN, age_unit: str = "steps"):
         super().__init__()
+        self.age_unit = check_age_unit(age_unit)
+        self.age_scale = AGE_SCALES[age_unit]
         self.type_embedding = nn.Embedding(len(MemoryType), TYPE_EMBEDDING_DIM)
         self.net = mlp(embedding_dim + TYPE_EMBEDDING_DIM + 2, hidden)
 
     def forward(self, memories: torch.Tensor, type_ids: torch.Tensor, age: torch.Tensor, usage: torch.Tensor) -> torch.Tensor:
         """memories (B, N, D), type_ids/age/usage (B, N) -> keep-scores (B, N)."""
         x = torch.cat(
-            [memories, self.type_embedding(type_ids.long()), (age / AGE_SCALE).unsqueeze(-1), (usage / USAGE_SCALE).unsqueeze(-1)],
+            [memories, self.type_embedding(type_ids.long()), (age / self.age_scale).unsqueeze(-1), (usage / USAGE_SCALE).unsqueeze(-1)],
             dim=-1,
         )
         return self.net(x).squeeze(-1)

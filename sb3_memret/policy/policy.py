@@ -13,6 +13,7 @@ from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
 from sb3_memret.memory.encoder import EMBEDDING_DIM
+from sb3_memret.memory.schema import check_age_unit
 from sb3_memret.policy.distributions import PlackettLuceDistribution
 from sb3_memret.policy.networks import HIDDEN, RETRIEVERS, RelevanceMLP, RetentionScorer, SetRetriever
 
@@ -39,13 +40,15 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
     Critic: the mean RetentionScorer keep-score over valid slots. When the observation carries the
     shaping potential (env ``observe_potential``), the value is that mean minus the potential: the
     shaped value is the unshaped one minus the potential (Ng et al., 1999), so the keep-scores model
-    only what the task's future is worth, not how far the current task has got.
+    only what the task's future is worth, not how far the current task has got. ``age_unit`` is
+    the unit of the memories' ages the env observes (``DrawerRecallVecEnv(age_unit=...)``).
 
     ``predict(obs, deterministic=True)`` is greedy retrieval (top-K by score).
     """
 
     def __init__(self, observation_space: spaces.Dict, action_space: spaces.MultiDiscrete, lr_schedule,
-                 temperature: float = 0.5, hidden: int = HIDDEN, retriever: str = "mlp", **kwargs: Any):
+                 temperature: float = 0.5, hidden: int = HIDDEN, retriever: str = "mlp", age_unit: str = "steps",
+                 **kwargs: Any):
         if not isinstance(action_space, spaces.MultiDiscrete):
             raise ValueError(f"MemoryRetrievalPolicy needs a MultiDiscrete action space of slot indices, got {action_space}")
         if retriever not in RETRIEVERS:
@@ -53,6 +56,7 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
         self.temperature = temperature
         self.hidden = hidden
         self.retriever_kind = retriever
+        self.age_unit = check_age_unit(age_unit)
         kwargs.setdefault("features_extractor_class", BankExtractor)
         kwargs.setdefault("optimizer_class", torch.optim.AdamW)
         kwargs["ortho_init"] = False
@@ -61,7 +65,7 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
     def _build(self, lr_schedule) -> None:
         self.action_dist = PlackettLuceDistribution(len(self.action_space.nvec), self.temperature)
         self.retriever = SetRetriever(hidden=self.hidden) if self.retriever_kind == "set" else RelevanceMLP(hidden=self.hidden)
-        self.retention = RetentionScorer(hidden=self.hidden)
+        self.retention = RetentionScorer(hidden=self.hidden, age_unit=self.age_unit)
         self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
 
     def scores(self, features: dict[str, torch.Tensor]) -> torch.Tensor:
@@ -105,7 +109,8 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
 
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
-        data.update(temperature=self.temperature, hidden=self.hidden, retriever=self.retriever_kind)
+        data.update(temperature=self.temperature, hidden=self.hidden, retriever=self.retriever_kind,
+                    age_unit=self.age_unit)
         return data
 
 

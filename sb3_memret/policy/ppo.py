@@ -33,7 +33,7 @@ class MemRetPPO(PPO):
 
     def collect_rollouts(self, env: VecEnv, callback: BaseCallback, rollout_buffer: RolloutBuffer,
                          n_rollout_steps: int) -> bool:
-        env.env_method("set_retention_weights", self.policy.retention_state_dict())
+        env.env_method("set_retention_weights", self.policy.retention_state_dict(), age_unit=self.policy.age_unit)
         return super().collect_rollouts(env, callback, rollout_buffer, n_rollout_steps)
 
     def train(self) -> None:
