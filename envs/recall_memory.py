@@ -141,8 +141,6 @@ class EpisodeMemory:
         if self.source == "observed":
             self._look_in(frame, rng)
         self.compiler.update(self._extract(frame), self.now)
-        for store in self.stores:
-            store.age(self.now)
 
     def _look_in(self, frame: EnvFrame, rng: np.random.Generator) -> None:
         """The observation phase: write what is seen in every drawer, or in a household's ``glimpses``
@@ -193,11 +191,9 @@ class EpisodeMemory:
         return build_prompt(instruction, [e.text for e in chosen], self.template)
 
     def observe(self, frame: EnvFrame) -> None:
-        """After an executed chunk: write the facts that changed, age the banks."""
+        """After an executed chunk: write the facts that changed."""
         self.t += frame.steps
         self._write(self.compiler.update(self._extract(frame), self.now))
-        for store in self.stores:
-            store.age(self.now)
 
     def _extract(self, frame: EnvFrame) -> dict:
         return self.extractor.extract(frame if self.source == "observed" else frame.state)
@@ -244,20 +240,15 @@ class EpisodeMemory:
         return any(self.is_true(e) for e in chosen)
 
     def observation(self) -> dict[str, np.ndarray]:
-        views = [store.view() for store in self.stores]
+        views = [store.view(self.ages(store.entries)) for store in self.stores]
         return {
             "instruction": self.encoder.encode_one(self.instruction()).astype(np.float32),
             "memories": np.concatenate([v.embeddings for v in views]),
             "mask": np.concatenate([v.mask for v in views]).astype(np.float32),
             "type_ids": np.concatenate([v.type_ids for v in views]).astype(np.float32),
-            "age": np.concatenate([self._slot_ages(store) for store in self.stores]),
+            "age": np.concatenate([v.age for v in views]),
             "usage": np.concatenate([v.usage for v in views]),
         }
-
-    def _slot_ages(self, store: MemoryBank) -> np.ndarray:
-        ages = np.zeros(store.capacity, dtype=np.float32)
-        ages[:len(store)] = self.ages(store.entries)
-        return ages
 
     def info(self, success: bool) -> dict[str, Any]:
         info = {

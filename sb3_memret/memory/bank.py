@@ -35,7 +35,7 @@ class BankView:
     embeddings: np.ndarray  # (capacity, 384) float32, zeros in empty slots
     mask: np.ndarray  # (capacity,) bool, True where a slot holds an entry
     type_ids: np.ndarray  # (capacity,) int64
-    age: np.ndarray  # (capacity,) float32, steps since the entry was written
+    age: np.ndarray  # (capacity,) float32, steps since the entry was written (or the ages given to ``view``)
     usage: np.ndarray  # (capacity,) float32, times the entry was retrieved
 
 
@@ -101,7 +101,9 @@ class MemoryBank:
         """Set the current time; ages are measured from each entry's timestamp."""
         self._now = int(now)
 
-    def view(self) -> BankView:
+    def view(self, ages: Sequence[float] | None = None) -> BankView:
+        """The bank's arrays; ``ages`` of the entries when their owner counts age otherwise than in steps
+        since ``timestamp`` (default: ``now - timestamp``)."""
         n, cap = len(self._entries), self.capacity
         embeddings = np.zeros((cap, self.embedding_dim), dtype=np.float32)
         type_ids = np.zeros(cap, dtype=np.int64)
@@ -110,7 +112,7 @@ class MemoryBank:
         for i, e in enumerate(self._entries):
             embeddings[i] = e.embedding
             type_ids[i] = int(e.type)
-            age[i] = self._now - e.timestamp
+            age[i] = self._now - e.timestamp if ages is None else ages[i]
             usage[i] = e.usage_count
         return BankView(embeddings, np.arange(cap) < n, type_ids, age, usage)
 
