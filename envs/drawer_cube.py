@@ -129,6 +129,10 @@ class DrawerCubeTakeOutEnv(BaseEnv):
         **kwargs: Any,
     ):
         kwargs.setdefault("control_mode", "pd_ee_delta_pose")
+        if kwargs.get("render_backend") in ("cpu", "sapien_cpu"):
+            from sb3_memret.rendering import use_cpu_renderer
+
+            use_cpu_renderer()  # however the env is made (gymnasium, the toolkit, a worker); refuses naming `make renderer`
         self.layout = layout or CabinetLayout()
         self.object_specs: tuple[ObjectSpec, ...] = object_specs(objects)
         if not 1 <= n_objects <= min(len(self.object_specs), len(LAYERS)):

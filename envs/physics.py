@@ -17,40 +17,19 @@ import multiprocessing
 import weakref
 from abc import ABC, abstractmethod
 from contextlib import nullcontext
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, field
 from multiprocessing.connection import Connection, wait
 from multiprocessing.process import BaseProcess
 from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from sb3_memret.envs.drawer_cube import DrawerCubeState
+from sb3_memret.tasks import Task, make_task
+from sb3_memret.tasks.base import EnvFrame
 from sb3_memret.workers import START_METHOD, WorkerDiedError, exit_description, init_worker_process
 
 BACKENDS = ("auto", "inprocess", "process", "gpu", "ray")
 CLOSE_TIMEOUT = 10.0  # seconds a worker gets to finish its chunk and exit
-
-
-@dataclass
-class EnvFrame:
-    """One task env after a reset or an executed chunk.
-
-    ``obs`` is the controller's observation with a batch dimension of one (numpy arrays in
-    the env's nested layout); ``state`` the privileged state of that env (batch of one);
-    ``views`` every object as a camera sees it (objects, 8), for the observed-memory writer and
-    never for a controller; ``look_in`` after a reset, the observation phase's views (layers,
-    objects, 8). See ``DrawerCubeTakeOutEnv.views`` and ``look_in``.
-    """
-
-    obs: dict[str, Any]
-    state: DrawerCubeState
-    potential: float
-    success: bool
-    steps: int = 0  # control steps the chunk executed (0 after a reset)
-    terminated: bool = False
-    truncated: bool = False
-    views: np.ndarray | None = None
-    look_in: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -98,25 +77,35 @@ def select_obs(tree: Any, index: int) -> Any:
 
 
 class TaskRunner:
-    """One DrawerCubeTakeOut-v1 env that resets and plays chunks: what every CPU physics worker runs."""
+    """One env of a task that resets and plays chunks: what every CPU physics worker runs. It keeps
+    the episode's success once (a task whose episodes go on after success, as MIKASA's do, counts it)."""
 
-    def __init__(self, task_kwargs: Mapping[str, Any], max_control_steps: int):
-        from sb3_memret.rollout import make_task_env
-
-        self.env = make_task_env(max_episode_steps=max_control_steps, **task_kwargs)
+    def __init__(self, task_kwargs: Mapping[str, Any], max_control_steps: int, task: Task | str = "drawer"):
+        self.task = make_task(task)
+        self.env = self.task.make_env(max_episode_steps=max_control_steps, **task_kwargs)
+        self.succeeded = False
 
     def info(self) -> TaskEnvInfo:
         return TaskEnvInfo.of(self.env)
 
     def reset(self, seed: int, options: Mapping[str, Any]) -> EnvFrame:
         obs, info = self.env.reset(seed=int(seed), options=dict(options))
-        return replace(self._frame(obs, info), look_in=self.env.unwrapped.look_in()[0])
+        frame, = self.task.frames(self.env, obs, info, reset=True)
+        self.succeeded = frame.success
+        if self.task.perceives_every_step:
+            frame.percepts = [self.task.perceive(self.env, obs)]
+        return frame
 
     def execute(self, actions: np.ndarray) -> EnvFrame:
         from sb3_memret.rollout import execute_chunk
 
-        outcome = execute_chunk(self.env, actions)
-        return self._frame(outcome.obs, outcome.info, outcome.steps, outcome.terminated, outcome.truncated)
+        outcome = execute_chunk(self.env, actions, self.task.perceive if self.task.perceives_every_step else None)
+        frame, = self.task.frames(self.env, outcome.obs, outcome.info)
+        self.succeeded = self.succeeded or outcome.succeeded or frame.success
+        frame.success, frame.steps, frame.reward, frame.percepts = self.succeeded, outcome.steps, outcome.reward, \
+            outcome.percepts
+        frame.terminated, frame.truncated = outcome.terminated, outcome.truncated
+        return frame
 
     def replay(self, seed: int, options: Mapping[str, Any], chunks: Sequence[np.ndarray]) -> EnvFrame:
         """Play an episode again from its seed and its executed chunks (a restarted worker catching up)."""
@@ -124,13 +113,6 @@ class TaskRunner:
         for chunk in chunks:
             frame = self.execute(chunk)
         return frame
-
-    def _frame(self, obs: Any, info: dict, steps: int = 0, terminated: bool = False,
-               truncated: bool = False) -> EnvFrame:
-        base = self.env.unwrapped
-        state = base.privileged_state()
-        return EnvFrame(to_numpy(obs), state, float(info["potential"][0]), bool(info["success"][0]), steps, terminated,
-                        truncated, base.views(state)[0])
 
     def close(self) -> None:
         self.env.close()
@@ -159,9 +141,9 @@ class PhysicsBackend(ABC):
 class InProcessPhysics(PhysicsBackend):
     """Task envs in this process, one after another: no start-up cost, no parallelism."""
 
-    def __init__(self, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int):
+    def __init__(self, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int, task: Task | str = "drawer"):
         self.num_envs = num_envs
-        self.runners = [TaskRunner(task_kwargs, max_control_steps) for _ in range(num_envs)]
+        self.runners = [TaskRunner(task_kwargs, max_control_steps, task) for _ in range(num_envs)]
         self.env_info = self.runners[0].info()
 
     def reset(self, requests: Sequence[ResetRequest]) -> dict[int, EnvFrame]:
@@ -175,10 +157,10 @@ class InProcessPhysics(PhysicsBackend):
             runner.close()
 
 
-def _process_worker(conn: Connection, task_kwargs: dict[str, Any], max_control_steps: int) -> None:
+def _process_worker(conn: Connection, task_kwargs: dict[str, Any], max_control_steps: int, task: Task | str) -> None:
     """A physics worker's loop: build the task env, then answer ("reset"|"execute"|"close", args)."""
     init_worker_process()
-    runner = TaskRunner(task_kwargs, max_control_steps)
+    runner = TaskRunner(task_kwargs, max_control_steps, task)
     conn.send(runner.info())
     try:
         while True:
@@ -203,7 +185,7 @@ class ProcessPhysics(PhysicsBackend):
 
     shares_cores = True
 
-    def __init__(self, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int):
+    def __init__(self, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int, task: Task | str = "drawer"):
         self.num_envs = num_envs
         context = multiprocessing.get_context(START_METHOD)
         self.conns: list[Connection] = []
@@ -213,7 +195,7 @@ class ProcessPhysics(PhysicsBackend):
         self._finalizer = weakref.finalize(self, _close_workers, self.conns, self.processes)
         for _ in range(num_envs):
             ours, theirs = context.Pipe()
-            process = context.Process(target=_process_worker, args=(theirs, dict(task_kwargs), max_control_steps),
+            process = context.Process(target=_process_worker, args=(theirs, dict(task_kwargs), max_control_steps, task),
                                       daemon=True)
             process.start()
             theirs.close()
@@ -293,16 +275,18 @@ class BatchedSimPhysics(PhysicsBackend):
     grouped by identical options.
     """
 
-    def __init__(self, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int):
+    def __init__(self, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int, task: Task | str = "drawer"):
         """``task_kwargs`` may name ``sim_backend`` ("gpu" by default; "cpu" holds one env: a dry run)."""
-        from sb3_memret.rollout import make_task_env
-
         self.num_envs = num_envs
-        self.env = make_task_env(max_episode_steps=max_control_steps, num_envs=num_envs,
-                                 **{"sim_backend": "gpu", **task_kwargs})
+        self.task = make_task(task)
+        if self.task.perceives_every_step:
+            raise ValueError(f"task {self.task.name!r} perceives every control step, which the batched simulation "
+                             "does not yet do: use --backend process")
+        self.env = self.task.make_env(max_episode_steps=max_control_steps, num_envs=num_envs,
+                                      **{"sim_backend": "gpu", **task_kwargs})
         self.env_info = TaskEnvInfo.of(self.env)
         self.action_dim = int(self.env.action_space.shape[-1])
-        self._obs: Any = None
+        self.succeeded = np.zeros(num_envs, dtype=bool)
 
     def reset(self, requests: Sequence[ResetRequest]) -> dict[int, EnvFrame]:
         import torch
@@ -316,13 +300,10 @@ class BatchedSimPhysics(PhysicsBackend):
             idx = torch.as_tensor(ids, dtype=torch.long)
             # ManiSkill draws a partial reset's placements from the torch RNG seeded with the group's first seed
             obs, info = self.env.reset(seed=group[0].seed, options={**dict(options), "env_idx": idx})
-            base = self.env.unwrapped
-            state = base.privileged_state()
-            views, look_in = base.views(state), base.look_in()
-            obs = to_numpy(obs)
+            batch = self.task.frames(self.env, obs, info, reset=True)
             for i in ids:
-                frames[i] = EnvFrame(select_obs(obs, i), state.select(i), float(info["potential"][i]),
-                                     bool(info["success"][i]), views=views[i], look_in=look_in[i])
+                frames[i] = batch[i]
+                self.succeeded[i] = batch[i].success
         return frames
 
     def execute(self, chunks: Mapping[int, np.ndarray]) -> dict[int, EnvFrame]:
@@ -333,22 +314,26 @@ class BatchedSimPhysics(PhysicsBackend):
             actions[: len(chunk), i] = chunk
             running[i] = True
         ends = {i: len(chunk) for i, chunk in chunks.items()}
+        rewards = np.zeros(self.num_envs)
         frames: dict[int, EnvFrame] = {}
         base = self.env.unwrapped
+        paused = getattr(base, "sensors_paused", None)
         for step in range(horizon):
-            observed = step == horizon - 1 or any(ends[i] == step + 1 for i in chunks)  # a controller reads it
-            with nullcontext() if observed else base.sensors_paused():
-                obs, _, terminated, truncated, info = self.env.step(actions[step])  # ManiSkill moves it to the sim device
+            observed = paused is None or step == horizon - 1 or any(ends[i] == step + 1 for i in chunks)
+            with nullcontext() if observed else paused():
+                obs, reward, terminated, truncated, info = self.env.step(actions[step])  # ManiSkill moves it to the sim device
             term, trunc = to_numpy(terminated).reshape(-1), to_numpy(truncated).reshape(-1)
+            rewards += np.where(running, to_numpy(reward).reshape(-1), 0.0)
+            self.succeeded |= running & to_numpy(info["success"]).reshape(-1).astype(bool)
             finished = [i for i in chunks if running[i] and (term[i] or trunc[i] or ends[i] == step + 1)]
             if finished:
-                state, obs_np = base.privileged_state(), to_numpy(obs)
-                views = base.views(state)
+                batch = self.task.frames(self.env, obs, info)
                 for i in finished:
                     running[i] = False
-                    frames[i] = EnvFrame(select_obs(obs_np, i), state.select(i), float(info["potential"][i]),
-                                         bool(info["success"][i]), step + 1, bool(term[i]),
-                                         bool(trunc[i]) and not bool(term[i]), views[i])
+                    frame = batch[i]
+                    frame.success, frame.steps, frame.reward = bool(self.succeeded[i]), step + 1, float(rewards[i])
+                    frame.terminated, frame.truncated = bool(term[i]), bool(trunc[i]) and not bool(term[i])
+                    frames[i] = frame
             if not running.any():
                 break
         return {i: frames[i] for i in chunks}
@@ -358,7 +343,7 @@ class BatchedSimPhysics(PhysicsBackend):
 
 
 def make_physics(backend: str, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int,
-                 ray_address: str | None = None) -> PhysicsBackend:
+                 ray_address: str | None = None, task: Task | str = "drawer") -> PhysicsBackend:
     """The physics backend ``backend`` names (one of ``BACKENDS``): ``auto`` is in-process for one env and
     worker processes for several (Ray when a ``ray_address`` is given); ``gpu`` one batched GPU simulation;
     ``ray`` Ray actors at ``ray_address`` (None: ``$RAY_ADDRESS`` or a local Ray instance)."""
@@ -373,14 +358,14 @@ def make_physics(backend: str, num_envs: int, task_kwargs: Mapping[str, Any], ma
     if backend == "auto":
         backend = "inprocess" if num_envs == 1 else "process"
     if backend == "inprocess":
-        return InProcessPhysics(num_envs, task_kwargs, max_control_steps)
+        return InProcessPhysics(num_envs, task_kwargs, max_control_steps, task)
     if backend == "process":
-        return ProcessPhysics(num_envs, task_kwargs, max_control_steps)
+        return ProcessPhysics(num_envs, task_kwargs, max_control_steps, task)
     if backend == "gpu":
-        return BatchedSimPhysics(num_envs, task_kwargs, max_control_steps)
+        return BatchedSimPhysics(num_envs, task_kwargs, max_control_steps, task)
     from sb3_memret.envs.ray_physics import RayPhysics
 
-    return RayPhysics(num_envs, task_kwargs, max_control_steps, address=ray_address)
+    return RayPhysics(num_envs, task_kwargs, max_control_steps, address=ray_address, task=task)
 
 
 __all__ = ["BACKENDS", "BatchedSimPhysics", "EnvFrame", "InProcessPhysics", "PhysicsBackend", "ProcessPhysics",

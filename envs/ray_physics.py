@@ -20,6 +20,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
+from sb3_memret.tasks import Task
 from sb3_memret.envs.physics import EnvFrame, PhysicsBackend, ResetRequest, TaskEnvInfo, TaskRunner
 from sb3_memret.workers import WorkerDiedError
 
@@ -32,13 +33,13 @@ REPLAY_ATOL = 1e-5  # how close (m, rad) a replayed episode must land to the sta
 class PhysicsActor:
     """One task env in a Ray actor process (wrapped by ``ray.remote`` when a ``RayPhysics`` starts)."""
 
-    def __init__(self, task_kwargs: dict[str, Any], max_control_steps: int):
+    def __init__(self, task_kwargs: dict[str, Any], max_control_steps: int, task: Task | str = "drawer"):
         import os
 
         import torch
 
         torch.set_num_threads(1)  # several actors share a node's cores
-        self.runner = TaskRunner(task_kwargs, max_control_steps)
+        self.runner = TaskRunner(task_kwargs, max_control_steps, task)
         self._pid = os.getpid()
 
     def pid(self) -> int:
@@ -81,7 +82,7 @@ class RayPhysics(PhysicsBackend):
     none is running; ``ray.init`` also reads ``RAY_ADDRESS``)."""
 
     def __init__(self, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int,
-                 address: str | None = None, max_restarts: int = MAX_RESTARTS):
+                 address: str | None = None, max_restarts: int = MAX_RESTARTS, task: Task | str = "drawer"):
         import ray
 
         if not ray.is_initialized():
@@ -91,7 +92,7 @@ class RayPhysics(PhysicsBackend):
         self.num_envs, self.max_restarts = num_envs, max_restarts
         actor_class = ray.remote(max_restarts=max_restarts, max_task_retries=0,
                                  scheduling_strategy="SPREAD")(PhysicsActor)
-        self.actors = [actor_class.remote(dict(task_kwargs), max_control_steps) for _ in range(num_envs)]
+        self.actors = [actor_class.remote(dict(task_kwargs), max_control_steps, task) for _ in range(num_envs)]
         self.logs: list[EpisodeLog | None] = [None] * num_envs
         self.restarts: list[Restart] = []
         self.closed = False

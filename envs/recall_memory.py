@@ -12,14 +12,15 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from gymnasium import spaces
 
-from sb3_memret.envs.cabinet import LAYERS, check_layer
-from sb3_memret.envs.physics import EnvFrame
+from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.memory.bank import MemoryBank
 from sb3_memret.memory.encoder import EMBEDDING_DIM, MiniLMEncoder
 from sb3_memret.memory.schema import MemoryEntry, MemoryType, check_age_unit
-from sb3_memret.memory.seeding import SeedingConfig, hearsay_memories, is_true_memory, seed_memories
-from sb3_memret.memory.writer import BoundingBoxPredicateExtractor, EventCompiler, ViewPredicateExtractor
-from sb3_memret.prompts import PromptTemplate, build_prompt, instruction_text, location_text
+from sb3_memret.memory.seeding import SeedingConfig, hearsay_memories
+from sb3_memret.memory.writer import EventCompiler, ViewPredicateExtractor
+from sb3_memret.prompts import PromptTemplate, build_prompt
+from sb3_memret.tasks import Task, make_task
+from sb3_memret.tasks.base import EnvFrame, Episode
 
 MODES = ("recall", "oracle", "none")
 # where the placed objects' facts come from: the episode's placement (the seed's), or what the robot saw
@@ -57,12 +58,12 @@ def observation_space(capacity: int, potential: bool = False) -> spaces.Dict:
 
 
 class EpisodeMemory:
-    """One env's bounded banks and rule-based writer across its episodes.
+    """One env's bounded banks and rule-based writer across its episodes, for one ``task``.
 
-    ``start`` seeds the bank for a new episode from the simulator's t=0 state; ``choose`` and
+    ``start`` seeds the bank for a new episode from the task's reset frame; ``choose`` and
     ``prompt`` turn the retriever's slots into the controller's prompt; ``observe`` writes what
-    the simulator says after a chunk. Eviction asks ``keep_scorer`` (the retention critic, or a
-    fixed rule).
+    the task's writer reads from an executed chunk (at every control step it perceived). Eviction
+    asks ``keep_scorer`` (the retention critic, or a fixed rule).
 
     ``source="observed"``: no fact comes from the placement. The bank starts with decoys only,
     the observation phase's views (each drawer opened once, ``EnvFrame.look_in``) write where each
@@ -84,8 +85,10 @@ class EpisodeMemory:
 
     def __init__(self, capacity: int, mode: str, encoder: MiniLMEncoder, keep_scorer: KeepScorer,
                  template: PromptTemplate, seeding: SeedingConfig | None = None, source: str = "seeded",
-                 long_term_capacity: int = 0, hearsay: int = 0, glimpses: int = 0, age_unit: str = "steps"):
+                 long_term_capacity: int = 0, hearsay: int = 0, glimpses: int = 0, age_unit: str = "steps",
+                 task: Task | str = "drawer"):
         self.mode = check_mode(mode)
+        self.task = make_task(task)
         self.source = check_memory_source(source)
         if long_term_capacity and source != "observed":
             raise ValueError("a long-term store is written from what the robot sees: use memory_source='observed'")
@@ -96,12 +99,11 @@ class EpisodeMemory:
         self.hearsay, self.glimpses = hearsay, glimpses
         self.age_unit = check_age_unit(age_unit)
         self.episode = 0  # episodes started so far (a household's tasks)
-        self.extractor = BoundingBoxPredicateExtractor() if source == "seeded" else ViewPredicateExtractor()
-        self.compiler = EventCompiler(encoder)
+        self.writer = self.task.writer(source)
+        self.compiler = EventCompiler(encoder, self.writer.relations)
         self.clock = 0  # control steps of the earlier episodes (long-term times run on)
         self.t = 0
-        self.layer = 1
-        self.target = "cube"
+        self.truth: Episode | None = None  # the episode's ground truth (metrics only)
         self.true_evicted = False
         self.needed_fact_gone = self.target_fact_kept = self.stale_fact_kept = False
         self.seen_since_move: set[str] = set()
@@ -118,14 +120,12 @@ class EpisodeMemory:
     def start(self, frame: EnvFrame, rng: np.random.Generator, moved: bool = False) -> None:
         """A new episode: the seeded memories (true facts and decoys; decoys and what the observation
         phase saw for ``observed``) are the bank at t = 0. ``moved``: the household rearranged."""
-        state = frame.state
-        self.layer = check_layer(int(state.target_layer[0]))
-        self.target = state.target_name()
+        self.truth = self.task.episode(frame)
         self.clock = self.clock + self.t if self.long_term is not None else 0
         self.t, self.true_evicted = 0, False
         self.episode += 1
         self.bank.clear()
-        seeds = seed_memories(state.placed(), self.target, rng, self.seeding, facts=self.source == "seeded")
+        seeds = self.task.seed_memories(frame, self.truth, rng, self.seeding, facts=self.source == "seeded")
         if self.long_term is not None:
             if moved:
                 self.seen_since_move.clear()
@@ -140,7 +140,7 @@ class EpisodeMemory:
         self.compiler.reset()
         if self.source == "observed":
             self._look_in(frame, rng)
-        self.compiler.update(self._extract(frame), self.now)
+        self._read(frame)
 
     def _look_in(self, frame: EnvFrame, rng: np.random.Generator) -> None:
         """The observation phase: write what is seen in every drawer, or in a household's ``glimpses``
@@ -181,22 +181,32 @@ class EpisodeMemory:
                 s -= store.capacity
         return chosen
 
+    @property
+    def target(self) -> str:
+        return self.truth.target
+
     def prompt(self, chosen: list[MemoryEntry]) -> str:
         """The controller's prompt: the instruction plus the chosen facts (or the mode's fixed text)."""
-        instruction = instruction_text(self.target)
+        instruction = self.task.instruction(self.truth)
         if self.mode == "oracle":
-            return build_prompt(instruction, [location_text(self.target, self.layer)], self.template)
+            return build_prompt(instruction, self.task.oracle_facts(self.truth), self.template)
         if self.mode == "none":
             return build_prompt(instruction, [], self.template)
         return build_prompt(instruction, [e.text for e in chosen], self.template)
 
     def observe(self, frame: EnvFrame) -> None:
-        """After an executed chunk: write the facts that changed."""
+        """After an executed chunk: write the facts that changed, each at the control step it was read."""
+        self._read(frame)
         self.t += frame.steps
-        self._write(self.compiler.update(self._extract(frame), self.now))
 
-    def _extract(self, frame: EnvFrame) -> dict:
-        return self.extractor.extract(frame if self.source == "observed" else frame.state)
+    def _read(self, frame: EnvFrame) -> None:
+        """Compile what the writer reads from ``frame``, the clock set to each reading's control step
+        (counted from the chunk's start), so ages and evictions see the time it was read."""
+        start = self.t
+        for step, predicates in self.writer.read(frame):
+            self.t = start + step
+            self._write(self.compiler.update(predicates, self.now))
+        self.t = start
 
     def _encoded(self, entries: list[MemoryEntry]) -> list[MemoryEntry]:
         vectors = self.encoder.encode([e.text for e in entries]) if entries else []
@@ -224,14 +234,15 @@ class EpisodeMemory:
                 self.seen_since_move.add(entry.entity)
 
     def instruction(self) -> str:
-        """The text the retriever conditions on: the instruction (with the target's layer in oracle mode)."""
-        instruction = instruction_text(self.target)
+        """The text the retriever conditions on: the instruction (with the oracle's facts in oracle mode)."""
+        instruction = self.task.instruction(self.truth)
         if self.mode == "oracle":
-            return build_prompt(instruction, [location_text(self.target, self.layer)], PromptTemplate((instruction,)))
+            template = PromptTemplate((instruction,), self.task.prompt_template.fact_templates)
+            return build_prompt(instruction, self.task.oracle_facts(self.truth), template)
         return instruction
 
     def is_true(self, entry: MemoryEntry) -> bool:
-        return is_true_memory(entry, self.target, self.layer)
+        return self.truth.is_true(entry)
 
     def true_slot(self) -> int:
         return next((i for i, e in enumerate(self.slot_entries()) if e is not None and self.is_true(e)), -1)
@@ -255,9 +266,10 @@ class EpisodeMemory:
             "true_slot": self.true_slot(),
             "true_evicted": self.true_evicted,
             "success": success,
-            "target_layer": self.layer,
+            "group": self.truth.group,
             "target": self.target,
             "memory_texts": [e.text if e is not None else "" for e in self.slot_entries()],
+            **self.truth.details,
         }
         if self.long_term is not None:
             info.update(needed_fact_gone=self.needed_fact_gone, target_fact_kept=self.target_fact_kept,

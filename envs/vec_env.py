@@ -27,7 +27,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvS
 from sb3_memret.controllers import FrozenController, make_controller
 from sb3_memret.envs.household import Household, HouseholdConfig
 from sb3_memret.envs.objects import object_set
-from sb3_memret.envs.physics import EnvFrame, PhysicsBackend, ResetRequest, make_physics, stack_obs
+from sb3_memret.envs.physics import PhysicsBackend, ResetRequest, make_physics, stack_obs
 from sb3_memret.envs.recall_memory import EpisodeMemory, check_memory_source, check_mode, observation_space
 from sb3_memret.memory.bank import importance_scorer
 from sb3_memret.memory.encoder import MiniLMEncoder
@@ -37,6 +37,8 @@ from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.policy.networks import RetentionScorer
 from sb3_memret.rewards import shaped_reward
 from sb3_memret.rollout import task_env_kwargs
+from sb3_memret.tasks import DEFAULT_TASK, Task, make_task
+from sb3_memret.tasks.base import EnvFrame
 from sb3_memret.workers import torch_threads
 
 
@@ -93,7 +95,7 @@ class DrawerRecallVecEnv(VecEnv):
         replan_every: int = 8,
         gamma: float = 0.97,
         success_bonus: float = 0.0,
-        max_control_steps: int = 400,
+        max_control_steps: int | None = None,
         render_backend: str = "none",
         seeding: SeedingConfig | None = None,
         encoder: MiniLMEncoder | None = None,
@@ -113,8 +115,12 @@ class DrawerRecallVecEnv(VecEnv):
         age_unit: str = "steps",
         backend: str = "auto",
         ray_address: str | None = None,
+        task: str | Task = DEFAULT_TASK,
     ):
         check_mode(mode)
+        self.task = make_task(task)
+        self.task.check_options(objects=objects != "cube" or n_objects != 1, observed=memory_source == "observed",
+                                household=long_term_capacity > 0)
         check_memory_source(memory_source)
         self.retention_rule = check_retention(retention)
         if tasks_per_episode < 1:
@@ -127,11 +133,12 @@ class DrawerRecallVecEnv(VecEnv):
             raise ValueError(f"k must be in [1, slots={slots}], got {k}")
         self.mode, self.slots, self.k = mode, slots, k
         self.replan_every, self.gamma, self.success_bonus = replan_every, gamma, success_bonus
-        self.controller = make_controller(controller) if isinstance(controller, str) else controller
+        self.controller = make_controller(controller, self.task) if isinstance(controller, str) else controller
         if not 1 <= replan_every <= self.controller.spec.chunk_len:
             raise ValueError(f"replan_every must be in [1, {self.controller.spec.chunk_len}], got {replan_every}")
-        task_kwargs = {**task_env_kwargs(self.controller, render_backend), "objects": object_set(objects),
-                       "n_objects": n_objects, **(task_kwargs or {})}
+        objects_kwargs = {"objects": object_set(objects), "n_objects": n_objects} if "objects" in self.task.features else {}
+        task_kwargs = {**task_env_kwargs(self.controller, render_backend, self.task), **objects_kwargs,
+                       **(task_kwargs or {})}
         seeding = seeding or SeedingConfig()
         decoys = {k: v for k, v in (("location_decoys", location_decoys), ("holding_decoys", holding_decoys))
                   if v is not None}
@@ -144,7 +151,9 @@ class DrawerRecallVecEnv(VecEnv):
         household = HouseholdConfig(move_probability, hearsay_per_episode, glimpses_per_episode)
         self.households = [Household(object_set(objects), n_objects, household) for _ in range(num_envs)] \
             if long_term_capacity else None
-        self.physics: PhysicsBackend = make_physics(backend, num_envs, task_kwargs, max_control_steps, ray_address)
+        self.physics: PhysicsBackend = make_physics(backend, num_envs, task_kwargs,
+                                                    max_control_steps or self.task.max_control_steps, ray_address,
+                                                    self.task)
         try:
             self.controller.check_env(self.physics.env_info)
         except ValueError:
@@ -152,7 +161,8 @@ class DrawerRecallVecEnv(VecEnv):
             raise
         template = self.controller.spec.prompt_template
         self.memories = [EpisodeMemory(capacity, mode, self.encoder, self.keep_scores, template, seeding, memory_source,
-                                       long_term_capacity, hearsay_per_episode, glimpses_per_episode, age_unit)
+                                       long_term_capacity, hearsay_per_episode, glimpses_per_episode, age_unit,
+                                       self.task)
                          for _ in range(num_envs)]
         self.rngs: list[np.random.Generator | None] = [None] * num_envs
         self.frames: list[EnvFrame | None] = [None] * num_envs
@@ -253,9 +263,7 @@ class DrawerRecallVecEnv(VecEnv):
         for i, memory in enumerate(self.memories):
             before, frame = self.frames[i], frames[i]
             self.frames[i] = frame
-            reward = (1.0 - self.gamma) * float(shaped_reward(np.array([before.potential]),
-                                                              np.array([frame.potential]), self.gamma)[0])
-            rewards[i] = reward + (self.success_bonus if frame.success else 0.0)
+            rewards[i] = self._reward(before, frame)
             terminated[i], truncated[i] = frame.terminated, frame.truncated and not frame.terminated
             memory.observe(frame)
             info = memory.info(frame.success)
@@ -264,6 +272,15 @@ class DrawerRecallVecEnv(VecEnv):
             observations.append(self._observation(i))
             infos.append(info)
         return observations, rewards, terminated, truncated, infos
+
+    def _reward(self, before: EnvFrame, frame: EnvFrame) -> float:
+        """(1 - gamma) times the shaping term of the task's potential (or, for a task without one, the env's
+        own reward summed over the chunk), plus the success bonus."""
+        if frame.potential is None:
+            reward = frame.reward
+        else:
+            reward = float(shaped_reward(np.array([before.potential]), np.array([frame.potential]), self.gamma)[0])
+        return (1.0 - self.gamma) * reward + (self.success_bonus if frame.success else 0.0)
 
     def _observation(self, i: int) -> dict[str, np.ndarray]:
         """Env ``i``'s decision observation: its memory's, with the shaping potential if observed."""

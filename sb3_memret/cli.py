@@ -418,10 +418,9 @@ def evaluate(model_path: Path, condition: str, episodes: int, controller: str, n
                f"(sampled fraction {report.sampled_fraction:.1%}, entropy {report.entropy:.2f})")
     click.echo("| layer | episodes | success |")
     click.echo("|---|---|---|")
-    for key in [str(layer) for layer in LAYERS] + ["overall"]:
-        if key in report.success:
-            count = report.episodes if key == "overall" else report.episodes_per_layer[key]
-            click.echo(f"| {key} | {count} | {report.success[key]:.0%} |")
+    for key in list(report.episodes_per_layer) + ["overall"]:
+        count = report.episodes if key == "overall" else report.episodes_per_layer[key]
+        click.echo(f"| {key} | {count} | {report.success[key]:.0%} |")
     if report.needed_fact_gone_rate is not None:
         click.echo(f"before each task, the long-term store kept the target's true fact in {report.target_fact_kept_rate:.0%} "
                    f"of tasks, a stale one in {report.stale_fact_kept_rate:.0%}; needed fact gone (seen since the "

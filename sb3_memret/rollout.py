@@ -3,20 +3,21 @@
 from __future__ import annotations
 
 from contextlib import nullcontext
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Sequence
 
 import gymnasium as gym
 import numpy as np
 
 import sb3_memret.envs  # noqa: F401  (registers DrawerCubeTakeOut-v1)
-from sb3_memret.controllers.base import RENDER_HINT, FrozenController
+from sb3_memret.controllers.base import FrozenController, as_numpy
 from sb3_memret.envs.cabinet import LAYERS, check_layer
 from sb3_memret.prompts import CONDITIONS, condition_prompt
+from sb3_memret.tasks import Task
+from sb3_memret.tasks.base import RENDER_BACKENDS, check_render_backend
+from sb3_memret.tasks.drawer import ENV_ID, DrawerTask
 
-ENV_ID = "DrawerCubeTakeOut-v1"
 DEFAULT_REPLAN_EVERY = 8
-RENDER_BACKENDS = ("none", "cpu", "gpu")
 
 
 @dataclass(frozen=True)
@@ -36,47 +37,53 @@ class ChunkOutcome:
     steps: int  # control steps executed
     terminated: bool
     truncated: bool
+    reward: float = 0.0  # the env's reward summed over the executed steps
+    succeeded: bool = False  # whether the env reported success at any executed step
+    percepts: list[Any] = field(default_factory=list)  # perceive(env, obs) after each step, when asked for
 
 
 def make_task_env(obs_mode: str = "state_dict", render_backend: str = "none", **kwargs) -> gym.Env:
     """DrawerCubeTakeOut-v1 as a frozen controller consumes it (CPU physics; cameras only with a
     render backend, ``"cpu"`` being the project's lavapipe)."""
-    if render_backend == "cpu":
-        from sb3_memret.rendering import use_cpu_renderer
-
-        use_cpu_renderer()
-    return gym.make(ENV_ID, obs_mode=obs_mode, render_backend=render_backend, **kwargs)
+    return DrawerTask().make_env(obs_mode=obs_mode, render_backend=render_backend, **kwargs)
 
 
-def execute_chunk(env: gym.Env, actions: Sequence[np.ndarray] | np.ndarray) -> ChunkOutcome:
+def execute_chunk(env: gym.Env, actions: Sequence[np.ndarray] | np.ndarray,
+                  perceive: Callable[[gym.Env, Any], Any] | None = None) -> ChunkOutcome:
     """Execute ``actions`` in order until the episode ends.
 
-    A controller reads the observation only when it is next called, so cameras render only
-    for the one after the last action (the next decision), not for every control step.
+    A controller reads the observation only when it is next called, so an env that can pause its
+    sensors (``sensors_paused``) renders only for the one after the last action (the next decision).
+    ``perceive(env, obs)`` is called after every step (a writer that must see every step: then
+    nothing is paused) and its answers are the outcome's ``percepts``.
     """
-    paused = env.unwrapped.sensors_paused
+    paused = getattr(env.unwrapped, "sensors_paused", None)
     obs, info, steps, terminated, truncated = None, {}, 0, False, False
+    reward, succeeded, percepts = 0.0, False, []
     for i, action in enumerate(actions):
-        with paused() if i < len(actions) - 1 else nullcontext():
-            obs, _, term, trunc, info = env.step(action)
+        pause = paused is not None and perceive is None and i < len(actions) - 1
+        with paused() if pause else nullcontext():
+            obs, r, term, trunc, info = env.step(action)
         steps += 1
-        terminated, truncated = bool(term), bool(trunc)
+        reward += float(np.sum(as_numpy(r)))
+        succeeded = succeeded or bool(np.any(as_numpy(info.get("success", False))))
+        if perceive is not None:
+            percepts.append(perceive(env, obs))
+        terminated, truncated = bool(np.any(as_numpy(term))), bool(np.any(as_numpy(trunc)))
         if terminated or truncated:
             break
-    return ChunkOutcome(obs, info, steps, terminated, truncated)
+    return ChunkOutcome(obs, info, steps, terminated, truncated, reward, succeeded, percepts)
 
 
-def task_env_kwargs(controller: FrozenController, render_backend: str = "none") -> dict[str, str]:
-    """The obs mode and render backend ``controller`` needs: camera images ("rgb") for an image
-    controller, which therefore cannot run without a render backend."""
-    if render_backend not in RENDER_BACKENDS:
-        raise ValueError(f"unknown render backend {render_backend!r}; expected one of {list(RENDER_BACKENDS)}")
-    if not controller.spec.needs_images:
-        return {"obs_mode": "state_dict", "render_backend": render_backend}
-    if render_backend == "none":
-        raise ValueError(f"{type(controller).__name__} needs camera images, so choose a render backend "
-                         f"(--render-backend cpu or gpu): {RENDER_HINT}")
-    return {"obs_mode": "rgb", "render_backend": render_backend}
+
+def task_env_kwargs(controller: FrozenController, render_backend: str = "none", task: Task | None = None) -> dict[str, str]:
+    """The obs mode and render backend ``controller`` needs on ``task`` (the drawer by default): camera
+    images ("rgb") for an image controller, which therefore cannot run without a render backend."""
+    check_render_backend(render_backend)
+    try:
+        return (task or DrawerTask()).env_kwargs(controller.spec.needs_images, render_backend)
+    except ValueError as err:
+        raise ValueError(f"{type(controller).__name__} {err}") from None
 
 
 def run_episode(

@@ -29,7 +29,6 @@ from sb3_memret.callbacks import RetrievalEvalCallback, RolloutRetrievalCallback
 from sb3_memret.callbacks.checkpoint import checkpoints as list_checkpoints
 from sb3_memret.config import TrainConfig, parse_section
 from sb3_memret.controllers import FrozenController, make_controller
-from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.analysis.evaluation import RetrievalReport
 from sb3_memret.policy.networks import HIDDEN
@@ -229,13 +228,19 @@ def read_history(out: Path) -> list[dict[str, Any]]:
     return [rows[r] for r in sorted(rows)]
 
 
+def group_label(group: str) -> str:
+    """A success group's column name: the drawer's groups are its layers."""
+    return f"layer {group}" if group.isdigit() else group
+
+
 def format_history(history: list[dict[str, Any]]) -> str:
-    """The per-round evaluation table of a run, in markdown."""
-    lines = ["| round | decisions | greedy acc. | sampled | entropy | success | layer 1 | layer 2 | layer 3 |",
-             "|---|---|---|---|---|---|---|---|---|"]
+    """The per-round evaluation table of a run, in markdown: success overall and per group (the drawer's
+    layers, a cue's colours)."""
+    groups = sorted({key for row in history for key in row["success"] if key != "overall"})
+    lines = ["| round | decisions | greedy acc. | sampled | entropy | success | "
+             + " | ".join(map(group_label, groups)) + " |", "|---|---|---|---|---|---|" + "---|" * len(groups)]
     for row in history:
-        layers = " | ".join(f"{row['success'][str(layer)]:.0%}" if str(layer) in row["success"] else "-"
-                            for layer in LAYERS)
+        layers = " | ".join(f"{row['success'][group]:.0%}" if group in row["success"] else "-" for group in groups)
         lines.append(f"| {row['round']} | {row['timesteps']} | {row['greedy_accuracy']:.0%} | "
                      f"{row['sampled_fraction']:.0%} | {row['entropy']:.2f} | {row['success']['overall']:.0%} | {layers} |")
     return "\n".join(lines)

@@ -159,7 +159,7 @@ def test_a_household_remembers_across_tasks_and_a_learning_episode_spans_several
     obs = venv.reset()
     assert obs["potential"][0, 0] == pytest.approx((1 - venv.gamma) * venv.frames[0].potential)
     memory, placement = venv.memories[0], dict(venv.households[0].placement)
-    first_target, first_layer = memory.target, memory.layer
+    first_target, first_layer = memory.target, memory.truth.details["target_layer"]
     assert [e.text for e in memory.long_term.entries] == [memory.long_term.entries[0].text]  # one hearsay fact
     assert not {e.entity for e in memory.long_term.entries} & set(placement)  # nothing about the household yet
     tasks, dones = [], []

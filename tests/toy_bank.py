@@ -46,5 +46,5 @@ class ToyBankEnv(gym.Env):
     def step(self, action):
         hit = int(action[0]) == self.true
         info = {"true_slot": self.true, "decision_true_slot": self.true, "retrieved_true": hit, "success": hit,
-                "target_layer": self.layer, "true_evicted": False}
+                "group": str(self.layer), "true_evicted": False}
         return self.obs, float(hit), True, False, info

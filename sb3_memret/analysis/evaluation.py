@@ -16,7 +16,6 @@ import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_memret.envs.cabinet import LAYERS
 
 # what a household's long-term store held before each task (``EpisodeMemory.info``)
 HOUSEHOLD_FLAGS = ("needed_fact_gone", "target_fact_kept", "stale_fact_kept")
@@ -115,7 +114,7 @@ def evaluate_retrieval(
                     sampled += float((draws[i] == true).any(-1).float().mean())
                     entropy += float(ent[i])
                 if info.get("task_done", dones[i]):  # a household's learning episode spans several tasks
-                    episode = dict(layer=int(info["target_layer"]), success=bool(info["success"]),
+                    episode = dict(group=str(info["group"]), success=bool(info["success"]),
                                    shaped_return=float(returns[i]), true_evicted=bool(evicted[i]),
                                    decisions=int(lengths[i]), target=info.get("target", "cube"))
                     episode.update({flag: bool(info[flag]) for flag in HOUSEHOLD_FLAGS if flag in info})
@@ -133,11 +132,10 @@ def _report(episodes: list[dict[str, Any]], decisions: float, hits: float, sampl
             mean_reward: float, deterministic: bool) -> RetrievalReport:
     success = {"overall": float(np.mean([e["success"] for e in episodes]))}
     per_layer = {}
-    for layer in LAYERS:
-        group = [e["success"] for e in episodes if e["layer"] == layer]
-        per_layer[str(layer)] = len(group)
-        if group:
-            success[str(layer)] = float(np.mean(group))
+    for key in sorted({e["group"] for e in episodes}):
+        group = [e["success"] for e in episodes if e["group"] == key]
+        per_layer[key] = len(group)
+        success[key] = float(np.mean(group))
     safe = max(decisions, 1.0)
     return RetrievalReport(
         episodes=len(episodes), decisions=int(decisions), greedy_accuracy=hits / safe, sampled_fraction=sampled / safe,

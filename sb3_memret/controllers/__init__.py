@@ -19,11 +19,14 @@ The π0.5 controllers are imported only when named: their dependencies are slow 
 
 from __future__ import annotations
 
-from typing import Any, Callable
+from typing import TYPE_CHECKING, Any, Callable
 from urllib.parse import parse_qsl, urlsplit
 
 from sb3_memret.controllers.base import ControllerSpec, FrozenController
 from sb3_memret.controllers.scripted import ScriptedDrawerController
+
+if TYPE_CHECKING:
+    from sb3_memret.tasks import Task
 
 DEFAULT_CONTROLLER = "learned"
 CONTROLLER_SPECS = (
@@ -39,21 +42,23 @@ LEARNED_OPTIONS: dict[str, Callable[[str], Any]] = {"device": str}
 LEROBOT_OPTIONS: dict[str, Callable[[str], Any]] = {"adapter": str, "tokenizer": str, "device": str}
 
 
-def make_controller(spec: str) -> FrozenController:
-    """Build the controller a CLI ``--controller`` value names, or raise a ValueError listing the forms."""
-    if spec == "scripted":
-        return ScriptedDrawerController()
-    if spec == "learned-objects":
-        from sb3_memret.controllers.learned import LearnedController, default_checkpoint
+def make_controller(spec: str, task: "str | Task" = "drawer") -> FrozenController:
+    """Build the controller a CLI ``--controller`` value names for ``task`` (a name or a ``Task``), or raise
+    a ValueError listing the forms. ``scripted`` is the task's expert, ``learned`` and ``learned-objects``
+    its shipped learned controllers."""
+    from sb3_memret.tasks import make_task
 
-        return LearnedController(default_checkpoint(spec))
-    if spec == "learned" or spec.startswith("learned:"):
+    if spec == "scripted":
+        return make_task(task).expert()
+    if spec in ("learned", "learned-objects"):
+        return make_task(task).learned_controller(spec)
+    if spec.startswith("learned:"):
         from sb3_memret.controllers.learned import LearnedController
 
-        path, _, query = spec.removeprefix("learned").removeprefix(":").partition("?")
-        if spec.startswith("learned:") and not path:
+        path, _, query = spec.removeprefix("learned:").partition("?")
+        if not path:
             raise ValueError(f"malformed learned controller {spec!r}; expected 'learned' or {CONTROLLER_SPECS[2]!r}")
-        return LearnedController(path or None, **_options(spec, query, LEARNED_OPTIONS))
+        return LearnedController(path, **_options(spec, query, LEARNED_OPTIONS))
     if spec.startswith("openpi:"):
         host, port, options = parse_openpi_spec(spec)
         from sb3_memret.controllers.openpi import OpenPIController, ServerLimits

@@ -2,19 +2,18 @@
 
 from __future__ import annotations
 
-from typing import Protocol, Sequence
+from typing import Mapping, Protocol, Sequence
 
 import numpy as np
 
 from sb3_memret.envs.cabinet import LAYERS, CabinetLayout
 from sb3_memret.envs.drawer_cube import DrawerCubeState, layer_containing
-from sb3_memret.envs.physics import EnvFrame
 from sb3_memret.memory.schema import NOTHING, OUTSIDE, MemoryEntry, MemoryType
+from sb3_memret.tasks.base import EnvFrame, Predicates
 
-Predicates = dict[tuple[str, str], str]
 UNKNOWN = "unknown"
 
-# relation -> (memory type, relation name in the entry)
+# the drawer's relations: relation -> (memory type, relation name in the entry)
 RELATIONS: dict[str, tuple[MemoryType, str]] = {
     "location": (MemoryType.OBJECT_LOCATION, "is_in"),
     "holding": (MemoryType.HOLDING, "holding"),
@@ -87,10 +86,14 @@ class EventCompiler:
     """Turns predicate changes into complete memory entries; unchanged predicates emit nothing.
 
     Every predicate starts as ``unknown``, so the first reading of an episode is written.
+    ``relations`` maps each predicate relation to the memory type and entry relation it becomes
+    (a task's writer declares its own; the drawer's by default).
     """
 
-    def __init__(self, encoder: TextEncoder | None = None):
+    def __init__(self, encoder: TextEncoder | None = None,
+                 relations: Mapping[str, tuple[MemoryType, str]] = RELATIONS):
         self.encoder = encoder
+        self.relations = relations
         self._previous: Predicates = {}
 
     def reset(self) -> None:
@@ -99,11 +102,11 @@ class EventCompiler:
     def update(self, predicates: Predicates, timestamp: int) -> list[MemoryEntry]:
         entries = []
         for (relation, entity), value in predicates.items():
-            if relation not in RELATIONS:
-                raise ValueError(f"unknown predicate relation {relation!r}; expected one of {sorted(RELATIONS)}")
+            if relation not in self.relations:
+                raise ValueError(f"unknown predicate relation {relation!r}; expected one of {sorted(self.relations)}")
             if value == UNKNOWN or self._previous.get((relation, entity), UNKNOWN) == value:
                 continue
-            mtype, entry_relation = RELATIONS[relation]
+            mtype, entry_relation = self.relations[relation]
             entries.append(MemoryEntry.create(mtype, entity, entry_relation, value, timestamp))
         self._previous.update({key: value for key, value in predicates.items() if value != UNKNOWN})
         if entries and self.encoder is not None:

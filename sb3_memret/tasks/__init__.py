@@ -1,0 +1,53 @@
+"""Memory tasks behind one interface (``Task``), and the registry that ``--task`` names them by.
+
+Built in: ``drawer`` (DrawerCubeTakeOut-v1, the seed's task) and MIKASA-Robo-VLA's memory tasks
+(``RememberColor3-VLA-v0`` ...; the ``mikasa-robo-suite`` package, installed by ``make install``).
+A task of your own is one module: subclass ``Task`` and ``register_task("name", MyTask)``; see the
+README's "Adding a task". Task modules import only when a task is made, so listing names is cheap.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Callable
+
+from sb3_memret.tasks.base import EnvFrame, Episode, Predicates, Task, Writer
+
+DEFAULT_TASK = "drawer"
+_FACTORIES: dict[str, Callable[[], Task]] = {}
+
+
+def register_task(name: str, factory: Callable[[], Task]) -> None:
+    """Make ``name`` a task ``--task`` and ``make_task`` accept; ``factory()`` builds it."""
+    if not name or not isinstance(name, str):
+        raise ValueError(f"a task name must be a non-empty string, got {name!r}")
+    if name in _FACTORIES:
+        raise ValueError(f"task {name!r} is already registered")
+    _FACTORIES[name] = factory
+
+
+def task_names() -> list[str]:
+    """Every registered task name."""
+    return list(_FACTORIES)
+
+
+def make_task(task: str | Task) -> Task:
+    """The task ``task`` names (or ``task`` itself), or a ValueError listing the registered names."""
+    if isinstance(task, Task):
+        return task
+    if task not in _FACTORIES:
+        raise ValueError(f"unknown task {task!r}; expected one of {task_names()}")
+    return _FACTORIES[task]()
+
+
+def _lazy(module: str, attr: str, *args: str) -> Callable[[], Task]:
+    """A factory that imports ``module`` only when the task is made."""
+    return lambda: getattr(importlib.import_module(module), attr)(*args)
+
+
+register_task(DEFAULT_TASK, _lazy("sb3_memret.tasks.drawer", "DrawerTask"))
+for _env_id in ("RememberColor3-VLA-v0", "RememberColor5-VLA-v0", "RememberColor9-VLA-v0"):
+    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.remember_color", "RememberColorTask", _env_id))
+
+__all__ = ["DEFAULT_TASK", "EnvFrame", "Episode", "Predicates", "Task", "Writer", "make_task", "register_task",
+           "task_names"]

@@ -1,0 +1,193 @@
+"""The Task interface: what one memory task hands the toolkit, and nothing else.
+
+Everything else (bank, encoder, retriever, retention, PPO, the decision VecEnv, physics backends,
+evaluation) is task-agnostic and reaches the task only through this class:
+
+- **simulation**: ``make_env`` builds the task's gymnasium env (ManiSkill or not) and ``frames``
+  says what a reset or an executed chunk left in each env of a batch (``EnvFrame``); with
+  ``perceives_every_step`` the physics also calls ``perceive`` after every control step, so a
+  cue shorter than a replan still reaches the writer;
+- **the writer**: ``writer()`` turns frames into predicates, which the ``EventCompiler``
+  compiles into typed facts (``relations`` says which memory type each predicate becomes);
+- **the prompt contract**: ``prompt_template`` (what the controller was trained on),
+  ``instruction``, ``oracle_facts`` and ``wrong_facts``;
+- **decoys**: ``seed_memories``, the bank at t = 0;
+- **ground truth, for metrics only**: ``episode(frame)`` (never an input of the policy or the
+  controller);
+- **the expert**: ``expert()``, the frozen controller that records demonstrations and serves as
+  ``--controller scripted``.
+"""
+
+from __future__ import annotations
+
+from abc import ABC, abstractmethod
+from dataclasses import dataclass, field
+from typing import TYPE_CHECKING, Any, ClassVar, Mapping, Protocol
+
+import gymnasium as gym
+import numpy as np
+
+from sb3_memret.memory.schema import Key, MemoryEntry, MemoryType
+
+if TYPE_CHECKING:
+    from sb3_memret.memory.seeding import SeedingConfig
+
+Predicates = dict[tuple[str, str], str]
+RENDER_BACKENDS = ("none", "cpu", "gpu")
+
+
+@dataclass
+class EnvFrame:
+    """One task env after a reset or an executed chunk.
+
+    ``obs`` is the controller's observation with a batch dimension of one (numpy arrays in the
+    env's nested layout); ``state`` whatever the task's writer and ``episode`` read (privileged:
+    never a controller's input); ``potential`` the task's shaping potential (None: the decision
+    reward is the env's own, ``reward``, summed over the chunk); ``success`` whether the episode
+    has succeeded at any step so far (success once); ``percepts`` what ``Task.perceive`` read at
+    each control step of the chunk (the reset frame's: at the reset), for tasks that perceive every
+    step. ``views`` and ``look_in``: what a camera sees of each object now and in the observation
+    phase (the drawer's observed memory).
+    """
+
+    obs: dict[str, Any]
+    state: Any
+    potential: float | None
+    success: bool
+    steps: int = 0  # control steps the chunk executed (0 after a reset)
+    terminated: bool = False
+    truncated: bool = False
+    views: np.ndarray | None = None
+    look_in: np.ndarray | None = None
+    reward: float = 0.0  # the env's own reward summed over the executed steps
+    percepts: list[Any] = field(default_factory=list)
+
+
+@dataclass(frozen=True)
+class Episode:
+    """What the task knows of one episode, for metrics only.
+
+    ``target`` is the entity the instruction names; ``group`` the bucket success is reported by
+    (the drawer's layer, a cue's colour); ``true_facts`` the (key, value) pairs of the memories
+    the controller needs; ``details`` extra task-specific info copied into the decision env's info.
+    """
+
+    target: str
+    group: str
+    true_facts: tuple[tuple[Key, str], ...]
+    details: Mapping[str, Any] = field(default_factory=dict)
+
+    def is_true(self, entry: MemoryEntry) -> bool:
+        """Whether ``entry`` is one of the memories the controller needs."""
+        return (entry.key, entry.value) in self.true_facts
+
+
+class Writer(Protocol):
+    """The rule-based writer's reading side: frames in, predicates keyed (relation, entity) out."""
+
+    relations: Mapping[str, tuple[MemoryType, str]]
+
+    def read(self, frame: EnvFrame) -> list[tuple[int, Predicates]]:
+        """Predicates read from ``frame``, each with its control step counted from the chunk's start
+        (the reset frame's at 0)."""
+
+
+class Task(ABC):
+    """One memory task family. Subclass it, give it a ``name``, and ``register_task`` it (or hand an
+    instance to ``make_recall_vec_env(env_kwargs={"task": ...})``); instances must pickle, as physics
+    worker processes receive them."""
+
+    name: ClassVar[str]
+    #: the zoo config file (under zoo_configs/) and its section key for ``sb3-memret train``
+    zoo_config: ClassVar[str] = "memret_ppo.yml"
+    #: decision-env options beyond the generic ones that this task implements
+    features: ClassVar[frozenset[str]] = frozenset()
+    #: whether the physics calls ``perceive`` after every control step (else frames carry no percepts)
+    perceives_every_step: ClassVar[bool] = False
+    #: the render backend a run gets when none is named: "none" unless the task itself must see
+    default_render_backend: ClassVar[str] = "none"
+    max_control_steps: int = 400
+
+    @property
+    def config_key(self) -> str:
+        """The section of ``zoo_config`` that holds this task's hyperparameters."""
+        return self.name
+
+    # ------------------------------------------------------------ simulation
+    @abstractmethod
+    def make_env(self, *, max_episode_steps: int | None = None, num_envs: int = 1, **kwargs: Any) -> gym.Env:
+        """The task's env (with every wrapper its protocol applies); ``kwargs`` from ``env_kwargs``."""
+
+    @abstractmethod
+    def env_kwargs(self, needs_images: bool, render_backend: str) -> dict[str, Any]:
+        """The obs mode and render backend a controller (reading images or not) needs, checked."""
+
+    @abstractmethod
+    def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
+        """One frame per env of the batch after a reset or a step (steps, reward, percepts and
+        success-once are filled in by the physics)."""
+
+    def perceive(self, env: gym.Env, obs: Any) -> Any:
+        """What the writer needs of one control step's observation, read where the physics runs
+        (small and picklable: it crosses process boundaries). Only with ``perceives_every_step``."""
+        raise NotImplementedError(f"{type(self).__name__} does not perceive every step")
+
+    # ------------------------------------------------------------ memory
+    @abstractmethod
+    def writer(self, source: str = "seeded") -> Writer:
+        """A new writer for one env's episodes (``source``: where facts come from, if the task has several)."""
+
+    @abstractmethod
+    def episode(self, frame: EnvFrame) -> Episode:
+        """The ground truth of the episode a reset frame starts (metrics only)."""
+
+    @abstractmethod
+    def seed_memories(self, frame: EnvFrame, episode: Episode, rng: np.random.Generator, seeding: "SeedingConfig",
+                      facts: bool = True) -> list[MemoryEntry]:
+        """The bank at t = 0, in a random order: decoys as ``seeding`` says, and with ``facts`` the facts
+        the task hands over at the start (the drawer's seeded memory; a task that must observe them
+        writes them from its frames instead)."""
+
+    # ------------------------------------------------------------ prompts
+    @property
+    @abstractmethod
+    def prompt_template(self) -> Any:
+        """The ``PromptTemplate`` of the controllers this task's prompts are checked against."""
+
+    @abstractmethod
+    def instruction(self, episode: Episode) -> str:
+        """The instruction of ``episode``, as the controller was trained on it."""
+
+    @abstractmethod
+    def oracle_facts(self, episode: Episode) -> list[str]:
+        """The fact texts that tell the controller what it must remember (the oracle condition)."""
+
+    @abstractmethod
+    def wrong_facts(self, episode: Episode) -> list[str]:
+        """Fact texts worded as the true ones but naming something else (the wrong condition)."""
+
+    # ------------------------------------------------------------ controllers
+    @abstractmethod
+    def expert(self) -> Any:
+        """The scripted expert, a ``FrozenController`` that obeys its prompt."""
+
+    def learned_controller(self, name: str) -> Any:
+        """The shipped learned controller ``--controller NAME`` names for this task (``learned``, ...)."""
+        raise ValueError(f"task {self.name!r} has no shipped learned controller {name!r}; use --controller "
+                         "scripted (its expert) or learned:PATH (a checkpoint trained on it)")
+
+    def check_options(self, **options: Any) -> None:
+        """Refuse decision-env options this task does not implement, naming them."""
+        unsupported = sorted(name for name, used in options.items() if used and name not in self.features)
+        if unsupported:
+            raise ValueError(f"task {self.name!r} does not implement {unsupported}; "
+                             f"its options are {sorted(self.features) or 'none beyond the generic ones'}")
+
+
+def check_render_backend(render_backend: str) -> str:
+    if render_backend not in RENDER_BACKENDS:
+        raise ValueError(f"unknown render backend {render_backend!r}; expected one of {list(RENDER_BACKENDS)}")
+    return render_backend
+
+
+__all__ = ["EnvFrame", "Episode", "Predicates", "RENDER_BACKENDS", "Task", "Writer", "check_render_backend"]

@@ -1,0 +1,117 @@
+"""The drawer task: DrawerCubeTakeOut-v1 behind the Task interface (the seed's testbed).
+
+The target's drawer layer is what must be remembered: the writer reads it from the simulator's
+state (``memory_source: seeded``) or from what a camera saw (``observed``), the prompt contract
+is ``pick out the {entity}.`` plus ``the {entity} is in drawer layer {layer}.``, and success is
+reported per layer.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Mapping
+
+import gymnasium as gym
+import numpy as np
+
+from sb3_memret.controllers.base import RENDER_HINT
+from sb3_memret.envs.cabinet import LAYERS
+from sb3_memret.memory.schema import MemoryEntry, MemoryType
+from sb3_memret.memory.seeding import SeedingConfig, seed_memories
+from sb3_memret.memory.writer import RELATIONS, BoundingBoxPredicateExtractor, ViewPredicateExtractor
+from sb3_memret.prompts import PromptTemplate, instruction_text, location_text
+from sb3_memret.tasks.base import EnvFrame, Episode, Predicates, Task, check_render_backend
+
+ENV_ID = "DrawerCubeTakeOut-v1"
+
+
+class DrawerWriter:
+    """Reads the drawer's predicates at the end of each chunk: from the privileged state (``seeded``)
+    or from what a camera sees (``observed``)."""
+
+    relations = RELATIONS
+
+    def __init__(self, source: str = "seeded"):
+        self.source = source
+        self.extractor = BoundingBoxPredicateExtractor() if source == "seeded" else ViewPredicateExtractor()
+
+    def read(self, frame: EnvFrame) -> list[tuple[int, Predicates]]:
+        return [(frame.steps, self.extractor.extract(frame if self.source == "observed" else frame.state))]
+
+
+class DrawerTask(Task):
+    """Take the named object out of the one of three drawers the memory says (DrawerCubeTakeOut-v1)."""
+
+    name = "drawer"
+    zoo_config = "memret_ppo.yml"
+    features = frozenset({"objects", "observed", "household"})
+    max_control_steps = 400
+
+    @property
+    def config_key(self) -> str:
+        return "sb3_memret/DrawerRecall-v0"
+
+    def make_env(self, *, max_episode_steps: int | None = None, num_envs: int = 1, obs_mode: str = "state_dict",
+                 render_backend: str = "none", **kwargs: Any) -> gym.Env:
+        import sb3_memret.envs  # noqa: F401  (registers DrawerCubeTakeOut-v1)
+
+        if max_episode_steps is not None:
+            kwargs["max_episode_steps"] = max_episode_steps
+        return gym.make(ENV_ID, obs_mode=obs_mode, render_backend=render_backend, num_envs=num_envs, **kwargs)
+
+    def env_kwargs(self, needs_images: bool, render_backend: str) -> dict[str, Any]:
+        check_render_backend(render_backend)
+        if not needs_images:
+            return {"obs_mode": "state_dict", "render_backend": render_backend}
+        if render_backend == "none":
+            raise ValueError("needs camera images, so choose a render backend "
+                             f"(--render-backend cpu or gpu): {RENDER_HINT}")
+        return {"obs_mode": "rgb", "render_backend": render_backend}
+
+    def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
+        from sb3_memret.envs.physics import select_obs, to_numpy
+
+        base = env.unwrapped
+        state = base.privileged_state()
+        views = base.views(state)
+        look_in = base.look_in() if reset else None
+        obs = to_numpy(obs)
+        potential, success = to_numpy(info["potential"]).reshape(-1), to_numpy(info["success"]).reshape(-1)
+        return [EnvFrame(select_obs(obs, i), state.select(i), float(potential[i]), bool(success[i]), views=views[i],
+                         look_in=None if look_in is None else look_in[i]) for i in range(len(potential))]
+
+    def writer(self, source: str = "seeded") -> DrawerWriter:
+        return DrawerWriter(source)
+
+    def episode(self, frame: EnvFrame) -> Episode:
+        layer, target = int(frame.state.target_layer[0]), frame.state.target_name()
+        key = (MemoryType.OBJECT_LOCATION, target, "is_in")
+        return Episode(target, str(layer), ((key, f"drawer layer {layer}"),), {"target_layer": layer})
+
+    def seed_memories(self, frame: EnvFrame, episode: Episode, rng: np.random.Generator, seeding: SeedingConfig,
+                      facts: bool = True) -> list[MemoryEntry]:
+        return seed_memories(frame.state.placed(), episode.target, rng, seeding, facts=facts)
+
+    @property
+    def prompt_template(self) -> PromptTemplate:
+        return PromptTemplate()
+
+    def instruction(self, episode: Episode) -> str:
+        return instruction_text(episode.target)
+
+    def oracle_facts(self, episode: Episode) -> list[str]:
+        return [location_text(episode.target, episode.details["target_layer"])]
+
+    def wrong_facts(self, episode: Episode) -> list[str]:
+        return [location_text(episode.target, episode.details["target_layer"] % len(LAYERS) + 1)]
+
+    def expert(self):
+        from sb3_memret.controllers.scripted import ScriptedDrawerController
+
+        return ScriptedDrawerController()
+
+    def learned_controller(self, name: str):
+        from sb3_memret.controllers.learned import LearnedController, default_checkpoint
+
+        return LearnedController(default_checkpoint(name))
+
+__all__ = ["DrawerTask", "DrawerWriter", "ENV_ID"]

@@ -1,0 +1,1 @@
+"""MIKASA-Robo-VLA memory tasks (the ``mikasa-robo-suite`` package) as sb3-memret tasks."""
