@@ -13,24 +13,34 @@ from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.objects import OBJECT_SETS
 from sb3_memret.memory.retention import RETENTION_RULES
 
-EXPERIMENTS = {"recall": "sb3_memret/DrawerRecall-v0"}
-DEFAULT_CONFIG = Path(__file__).resolve().parents[1] / "zoo_configs" / "memret_ppo.yml"
+EXPERIMENTS = ("recall",)
+ZOO_CONFIGS = Path(__file__).resolve().parents[1] / "zoo_configs"
+DEFAULT_TASK = "drawer"  # sb3_memret.tasks.DEFAULT_TASK
 HELD_OUT_SEED = 1_000_000
 DEFAULT_CONTROLLER = "learned"  # sb3_memret.controllers.DEFAULT_CONTROLLER, without importing torch for --help
 DEMO_SEED = 100_000  # demonstrations never share a placement with rollout (0..) or held-out (1e6..) episodes
 
 
-def _controller(ctx: click.Context, param: click.Parameter, value: str):
+def _controller(ctx: click.Context, param: click.Parameter | None, value: str, task: str | None = None):
+    """The controller ``value`` names for ``task`` (default: the command's ``--task``, else the drawer)."""
     from sb3_memret.controllers import make_controller
 
     try:
-        return make_controller(value)
+        return make_controller(value, task or ctx.params.get("task") or DEFAULT_TASK)
     except (ValueError, OSError, ImportError, RuntimeError) as err:  # bad spec, server down, missing extra or weights
         raise click.BadParameter(str(err), ctx=ctx, param=param) from err
 
 
-def _render_backend(ctx: click.Context, param: click.Parameter, value: str) -> str:
-    """Refuse ``cpu`` here, with the install command, when the project's lavapipe is missing."""
+def _render_backend(ctx: click.Context, param: click.Parameter, value: str | None) -> str:
+    """The render backend: by default the task's (``cpu`` for a task whose writer reads cameras, else
+    ``none``); ``cpu`` is refused here, with the install command, when the project's lavapipe is missing."""
+    if value is None:
+        task = ctx.params.get("task")
+        if task is None and any(p.name == "task" for p in ctx.command.params):
+            return None  # the run's task decides (train --resume, eval): resolved by the command
+        from sb3_memret.tasks import make_task
+
+        value = make_task(task or DEFAULT_TASK).default_render_backend
     if value == "cpu":
         from sb3_memret.rendering import RendererNotFoundError, use_cpu_renderer
 
@@ -42,10 +52,23 @@ def _render_backend(ctx: click.Context, param: click.Parameter, value: str) -> s
 
 
 def _render_backend_option(command):
-    return click.option("--render-backend", type=click.Choice(["none", "cpu", "gpu"]), default="none", show_default=True,
+    return click.option("--render-backend", type=click.Choice(["none", "cpu", "gpu"]), default=None,
                         callback=_render_backend,
                         help="SAPIEN render backend; controllers that read camera images need cpu (the software "
-                             "renderer of `make renderer`) or gpu.")(command)
+                             "renderer of `make renderer`) or gpu  [default: the task's: none for the drawer, cpu "
+                             "for MIKASA's tasks, whose writer reads the cameras]")(command)
+
+
+def _task_option(default: str | None = DEFAULT_TASK):
+    """``--task``: the memory task (parsed first, so the controller and render defaults follow it)."""
+    def decorate(command):
+        from sb3_memret.tasks import task_names
+
+        return click.option("--task", type=click.Choice(task_names()), default=default, is_eager=True,
+                            show_default=default is not None,
+                            help="Memory task: drawer (DrawerCubeTakeOut-v1) or a MIKASA-Robo-VLA task."
+                                 + ("" if default else "  [default: the run's]"))(command)
+    return decorate
 
 
 def _check_physics(ctx: click.Context, param: click.Parameter, value):
@@ -301,15 +324,18 @@ def serve(controller: str, host: str, port: int) -> None:
 
 @main.command()
 @click.argument("experiment", type=click.Choice(list(EXPERIMENTS)), metavar="EXPERIMENT")
+@_task_option(default=None)
 @click.option("--config", "config_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help=f"rl-zoo-style YAML keyed by env id  [default: {DEFAULT_CONFIG.name} of the source tree]")
-@click.option("--controller", default=DEFAULT_CONTROLLER, show_default=True, callback=_controller_spec,
-              help="Frozen controller the memory serves.")
+              help="rl-zoo-style YAML keyed by task  [default: the task's file in zoo_configs/ of the source tree: "
+                   "memret_ppo.yml for the drawer, memret_ppo_mikasa.yml for MIKASA's tasks]")
+@click.option("--controller", default=DEFAULT_CONTROLLER, show_default=True,
+              help="Frozen controller the memory serves ('scripted': the task's expert).")
 @click.option("--n-envs", type=click.IntRange(min=1), default=None, help="Parallel envs  [default: config]")
 @click.option("--timesteps", type=click.IntRange(min=1), default=None, help="Decisions in all  [default: config]")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="Run folder  [default: runs/<experiment>-seed<seed>]")
+              help="Run folder  [default: runs/<experiment>-seed<seed>, runs/<experiment>-<task>-seed<seed> for "
+                   "another task than the drawer]")
 @click.option("--resume", is_flag=True, help="Continue the run in --out from its last checkpoint.")
 @click.option("--retriever-from", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="Start the retriever from this model file's (e.g. a run of another benchmark task); the "
@@ -322,26 +348,42 @@ def serve(controller: str, host: str, port: int) -> None:
               help="Show a progress bar (without it, SB3 prints every round's statistics).")
 @_render_backend_option
 @_physics_options
-def train(experiment: str, config_path: Path | None, controller: str, n_envs: int | None, timesteps: int | None,
-          seed: int, out: Path | None, resume: bool, retriever_from: Path | None, eval_episodes: int, eval_every: int,
-          progress: bool, render_backend: str, backend: str, ray_address: str | None) -> None:
-    """Train the retriever and retention networks with PPO on EXPERIMENT (recall: the drawer layer
-    reaches the controller only through a retrieved memory)."""
+@click.pass_context
+def train(ctx: click.Context, experiment: str, task: str | None, config_path: Path | None, controller: str,
+          n_envs: int | None, timesteps: int | None, seed: int, out: Path | None, resume: bool,
+          retriever_from: Path | None, eval_episodes: int, eval_every: int, progress: bool, render_backend: str,
+          backend: str, ray_address: str | None) -> None:
+    """Train the retriever and retention networks with PPO on EXPERIMENT (recall: what the task's controller
+    must know, the drawer's layer or a cue's colour, reaches it only through a retrieved memory)."""
     from sb3_memret.config import load_config
-    from sb3_memret.training import RunOptions, format_history, start_retriever, train as run_training
+    from sb3_memret.tasks import make_task
+    from sb3_memret.training import RunOptions, format_history, load_run_config, start_retriever, train as run_training
     from sb3_memret.workers import exit_status
 
-    out = out or Path("runs") / f"{experiment}-seed{seed}"
+    name = task or DEFAULT_TASK
+    out = out or Path("runs") / (f"{experiment}-seed{seed}" if name == DEFAULT_TASK else f"{experiment}-{name}-seed{seed}")
+    if resume and (out / "config.yml").exists():
+        saved = load_run_config(out).env_kwargs.get("task", DEFAULT_TASK)
+        if task is not None and task != saved:
+            raise click.BadParameter(f"the run in {str(out)!r} is of task {saved!r}, not {task!r}", param_hint="--task")
+        name = saved
+    the_task = make_task(name)
     config = None
     if not resume or config_path or timesteps:
         try:
-            config = load_config(config_path or DEFAULT_CONFIG, EXPERIMENTS[experiment])
+            config = load_config(config_path or ZOO_CONFIGS / the_task.zoo_config, the_task.config_key)
         except (FileNotFoundError, ValueError) as err:
             raise click.BadParameter(str(err), param_hint="--config") from err
+        if config.env_kwargs.get("task", name) != name:
+            raise click.BadParameter(f"section {the_task.config_key!r} of the config is for task "
+                                     f"{config.env_kwargs['task']!r}, not {name!r}", param_hint="--config")
+        config.env_kwargs["task"] = name
         if n_envs is not None:
             config.ppo["n_envs"] = n_envs
         if timesteps is not None:
             config.ppo["n_timesteps"] = timesteps
+    built = _controller(ctx, None, controller, name)
+    render_backend = render_backend or _render_backend(ctx, None, the_task.default_render_backend)
     options = RunOptions(out=out, controller=controller, seed=seed, resume=resume, retriever_from=retriever_from,
                          eval_episodes=eval_episodes, eval_every=eval_every, eval_seed=HELD_OUT_SEED, progress_bar=progress,
                          render_backend=render_backend, backend=backend, ray_address=ray_address,
@@ -353,7 +395,7 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
         except ValueError as err:
             raise click.BadParameter(str(err), param_hint="--retriever-from") from err
     try:
-        result = run_training(config, options, click.get_current_context().meta["controller"])
+        result = run_training(config, options, built)
     except (FileExistsError, FileNotFoundError) as err:
         raise click.UsageError(str(err)) from err
     click.echo(format_history(result.history))
@@ -369,11 +411,12 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
 
 @main.command("eval")
 @click.argument("model_path", type=click.Path(exists=True, dir_okay=False, path_type=Path))
+@_task_option(default=None)
 @click.option("--condition", type=click.Choice(["recall", "oracle", "none"]), default="recall", show_default=True,
               help="recall: the layer only via retrieved memory; oracle: in the instruction; none: bare instruction.")
 @click.option("--episodes", type=click.IntRange(min=1), default=50, show_default=True, help="Held-out episodes.")
-@click.option("--controller", default=DEFAULT_CONTROLLER, show_default=True, callback=_controller_spec,
-              help="Frozen controller the memory serves.")
+@click.option("--controller", default=DEFAULT_CONTROLLER, show_default=True,
+              help="Frozen controller the memory serves ('scripted': the run's task's expert).")
 @click.option("--n-envs", type=click.IntRange(min=1), default=1, show_default=True)
 @click.option("--seed", type=click.IntRange(min=0), default=HELD_OUT_SEED, show_default=True,
               help="Seed of the evaluation episodes (training never uses it).")
@@ -385,7 +428,8 @@ def train(experiment: str, config_path: Path | None, controller: str, n_envs: in
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON on stdout.")
 @_render_backend_option
 @_physics_options
-def evaluate(model_path: Path, condition: str, episodes: int, controller: str, n_envs: int, seed: int,
+@click.pass_context
+def evaluate(ctx: click.Context, model_path: Path, task: str | None, condition: str, episodes: int, controller: str, n_envs: int, seed: int,
              stochastic: bool, objects: str | None, retention: str | None, as_json: bool, render_backend: str,
              backend: str, ray_address: str | None) -> None:
     """Evaluate a trained model: success per layer and retrieval accuracy."""
@@ -393,13 +437,20 @@ def evaluate(model_path: Path, condition: str, episodes: int, controller: str, n
     from sb3_memret.envs.vec_env import make_recall_vec_env
     from sb3_memret.training import eval_env_kwargs
 
+    from sb3_memret.tasks import make_task
+
     model, = _load_models([model_path], "MODEL_PATH")
     kwargs = eval_env_kwargs(model, model_path, condition, controller, render_backend)
+    kwargs["render_backend"] = render_backend or _render_backend(
+        ctx, None, make_task(kwargs.get("task", DEFAULT_TASK)).default_render_backend)
     if objects is not None:
         kwargs["objects"] = objects
     if retention is not None:
         kwargs["retention"] = retention
-    kwargs["controller"] = click.get_current_context().meta["controller"]  # the one already built
+    if task is not None and task != kwargs.get("task", DEFAULT_TASK):
+        raise click.BadParameter(f"{str(model_path)!r} was trained on task {kwargs.get('task', DEFAULT_TASK)!r}, "
+                                 f"not {task!r}", param_hint="--task")
+    kwargs["controller"] = _controller(ctx, None, controller, kwargs.get("task"))
     venv = make_recall_vec_env(n_envs, kwargs, backend=backend, ray_address=ray_address)
     try:
         with click.progressbar(length=episodes, label=f"{condition} evaluation", file=sys.stderr) as bar:

@@ -12,6 +12,7 @@ from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.objects import OBJECT_SETS
 from sb3_memret.memory.retention import RETENTION_RULES
 from sb3_memret.memory.schema import AGE_UNITS
+from sb3_memret.tasks import task_names
 
 Check = tuple[type | tuple[type, ...], Callable[[Any], bool], str]
 
@@ -43,6 +44,7 @@ POLICY_KEYS: dict[str, Check] = {
     "retriever": (str, lambda v: v in ("mlp", "set"), "one of 'mlp' (per memory), 'set' (attention over the bank)"),
 }
 ENV_KEYS: dict[str, Check] = {
+    "task": (str, lambda v: v in task_names(), f"one of the registered tasks {task_names()}"),
     "mode": (str, lambda v: v in ("recall", "oracle", "none"), "one of 'recall', 'oracle', 'none'"),
     "capacity": _positive_int(),
     "k": _positive_int(),

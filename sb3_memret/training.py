@@ -30,6 +30,7 @@ from sb3_memret.callbacks.checkpoint import checkpoints as list_checkpoints
 from sb3_memret.config import TrainConfig, parse_section
 from sb3_memret.controllers import FrozenController, make_controller
 from sb3_memret.envs.vec_env import make_recall_vec_env
+from sb3_memret.tasks import DEFAULT_TASK
 from sb3_memret.analysis.evaluation import RetrievalReport
 from sb3_memret.policy.networks import HIDDEN
 from sb3_memret.policy.policy import MemoryRetrievalPolicy, saved_retriever
@@ -158,7 +159,7 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
         save_run_config(config, out / CONFIG_FILE)
 
     env_kwargs = env_kwargs_for(config, options.controller, options.render_backend)
-    controller = controller or make_controller(options.controller)
+    controller = controller or make_controller(options.controller, config.env_kwargs.get("task", DEFAULT_TASK))
     env_kwargs["controller"] = controller
     done_steps = list_checkpoints(checkpoints)[-1][0] if options.resume else 0
     placement = {"backend": options.backend, "ray_address": options.ray_address}
