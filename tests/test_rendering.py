@@ -65,3 +65,19 @@ def test_a_chunk_renders_once_for_the_next_decision(rgb_task_env, monkeypatch):
     outcome = execute_chunk(rgb_task_env, np.zeros((8, 7), np.float32))
     assert outcome.steps == 8 and len(captures) == 1
     assert images(outcome.obs)["base_camera"].shape == (224, 224, 3)
+
+
+def test_a_drawer_env_made_through_gymnasium_sets_up_the_cpu_renderer_itself():
+    """The README's gymnasium path with cameras works in a fresh process that never called use_cpu_renderer."""
+    import os
+    import subprocess
+    import sys
+
+    code = ("import gymnasium as gym, sb3_memret.envs\n"
+            "env = gym.make('DrawerCubeTakeOut-v1', obs_mode='rgb', render_backend='cpu')\n"
+            "obs, _ = env.reset(seed=0)\n"
+            "print(tuple(obs['sensor_data']['base_camera']['rgb'].shape))\n")
+    env = {k: v for k, v in os.environ.items() if k != "VK_ICD_FILENAMES"}
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, env=env, timeout=300)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == "(1, 224, 224, 3)"
