@@ -116,7 +116,8 @@ class ControllerObservation(gym.ObservationWrapper):
                 "cube_visible": spaces.Box(0, 1, (batch, self.n_colours), np.bool_),
             }),
             "sensor_data": spaces.Dict({
-                cam: spaces.Dict({"rgb": data["rgb"]}) for cam, data in space["sensor_data"].items() if "rgb" in data
+                cam: spaces.Dict({"rgb": data["rgb"]})
+                for cam, data in space.spaces.get("sensor_data", spaces.Dict()).items() if "rgb" in data
             }),
         })
 
@@ -129,7 +130,9 @@ class ControllerObservation(gym.ObservationWrapper):
         return {
             "agent": {"qpos": obs["agent"]["qpos"], "qvel": obs["agent"]["qvel"]},
             "extra": {"tcp_pose": obs["extra"]["tcp_pose"], "cube_positions": positions, "cube_visible": visible},
-            "sensor_data": {cam: {"rgb": data["rgb"]} for cam, data in obs["sensor_data"].items() if "rgb" in data},
+            "sensor_data": {
+                cam: {"rgb": data["rgb"]} for cam, data in obs.get("sensor_data", {}).items() if "rgb" in data
+            },
         }
 
 

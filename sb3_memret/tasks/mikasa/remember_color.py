@@ -32,7 +32,7 @@ from sb3_memret.memory.schema import MemoryEntry, MemoryType
 from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.prompts import PromptTemplate
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates, Task, check_render_backend
-from sb3_memret.tasks.mikasa.expert import FACT_TEMPLATE, INSTRUCTION, PROMPT_TEMPLATE, ScriptedTouchController
+from sb3_memret.tasks.mikasa.expert import CUE_FACT, INSTRUCTION, PROMPT_TEMPLATE, ScriptedTouchController
 from sb3_memret.tasks.mikasa.perception import COLOUR_NAMES, ControllerObservation, read_cue_colour
 
 CUE_ENTITY = "cue cube"
@@ -133,11 +133,11 @@ class RememberColorTask(Task):
         return INSTRUCTION
 
     def oracle_facts(self, episode: Episode) -> list[str]:
-        return [FACT_TEMPLATE.format(colour=episode.group)]
+        return [CUE_FACT.format(colour=episode.group)]
 
     def wrong_facts(self, episode: Episode) -> list[str]:
         other = self.colours[(self.colours.index(episode.group) + 1) % self.n_colours]
-        return [FACT_TEMPLATE.format(colour=other)]
+        return [CUE_FACT.format(colour=other)]
 
     def expert(self) -> ScriptedTouchController:
         return ScriptedTouchController()

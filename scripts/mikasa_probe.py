@@ -1,0 +1,183 @@
+"""Probe MIKASA-Robo-VLA's RememberColor tasks: the scripted expert's success and the cue reader's accuracy.
+
+For each task, ``--episodes`` episodes at MIKASA's evaluation seeds (4242424242 + i) per prompt
+condition: ``oracle`` (instruction + the true cue colour; read from the env's ``oracle_info`` only
+to build this prompt), ``none`` (the bare instruction) and ``wrong`` (the next colour of the task).
+Success is MIKASA's success-once over the 25-step episode. The expert replans every ``--replan``
+control steps, executing the first actions of each 8-step chunk. At every step the base-camera frame
+goes through ``read_cue_colour``, scored against the episode's phase (cue / delay / manipulation).
+
+    .venv/bin/python scripts/mikasa_probe.py [--tasks RememberColor9-VLA-v0] [--episodes 50]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+from collections import Counter
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from sb3_memret.rendering import use_cpu_renderer
+
+MIKASA_SEED = 4242424242
+TASKS = ("RememberColor3-VLA-v0", "RememberColor5-VLA-v0", "RememberColor9-VLA-v0")
+CONDITIONS = ("oracle", "none", "wrong")
+
+
+def make_env(env_id: str, obs_mode: str = "rgb"):
+    """A MIKASA env as the project runs it: CPU renderer, MIKASA's no-op wrapper, the controller's view."""
+    use_cpu_renderer()
+    import gymnasium as gym
+    import mikasa_robo_suite.vla.memory_envs  # noqa: F401  (registers the envs)
+    from mikasa_robo_suite.vla.utils.wrappers import CurriculumPhaseNoopActionWrapper
+
+    from sb3_memret.tasks.mikasa.perception import ControllerObservation
+
+    env = gym.make(env_id, num_envs=1, obs_mode=obs_mode, control_mode="pd_ee_delta_pose", render_backend="cpu",
+                   sim_backend="cpu", reward_mode="normalized_dense")
+    return ControllerObservation(CurriculumPhaseNoopActionWrapper(env))
+
+
+@dataclass
+class CueStats:
+    """Cue readings against the phase the frame was taken in."""
+
+    confusion: Counter = field(default_factory=Counter)  # (true, read) in the cue phase
+    false_readings: Counter = field(default_factory=Counter)  # phase -> frames read as a colour outside the cue
+    frames: Counter = field(default_factory=Counter)  # phase -> frames
+    seconds: float = 0.0
+
+    def cue_accuracy(self) -> float:
+        total = sum(self.confusion.values())
+        return sum(n for (t, r), n in self.confusion.items() if t == r) / max(total, 1)
+
+
+def phase_of(base, elapsed: int) -> str:
+    """The episode's phase at ``elapsed`` steps (ground truth, for scoring only)."""
+    cue = int(base.cue_steps_per_env[0])
+    return "cue" if elapsed < cue else "delay" if elapsed < cue + int(base.empty_steps_per_env[0]) else "manip"
+
+
+def run_episode(env, controller, seed: int, condition: str, replan: int, stats: CueStats) -> tuple[bool, int, float]:
+    """One episode; returns (success once, control steps, seconds spent in env.step)."""
+    from sb3_memret.tasks.mikasa.expert import colour_prompt
+    from sb3_memret.tasks.mikasa.perception import COLOUR_NAMES, read_cue_colour
+
+    obs, info = env.reset(seed=seed)
+    base = env.unwrapped
+    n = len(base.cubes)
+    true = int(info["oracle_info"][0])  # metrics and the oracle prompt only
+    colour = {"oracle": COLOUR_NAMES[true], "wrong": COLOUR_NAMES[(true + 1) % n], "none": None}[condition]
+    prompt = colour_prompt(colour)
+    controller.reset([seed])
+    success, steps, env_seconds, chunk, done = False, 0, 0.0, None, False
+    while True:
+        elapsed = int(info["elapsed_steps"][0])
+        t0 = time.perf_counter()
+        reading = read_cue_colour(obs["sensor_data"]["base_camera"]["rgb"][0].cpu().numpy(), n)
+        stats.seconds += time.perf_counter() - t0
+        phase = phase_of(base, elapsed)
+        stats.frames[phase] += 1
+        if phase == "cue":
+            stats.confusion[(COLOUR_NAMES[true], reading)] += 1
+        elif reading is not None:
+            stats.false_readings[phase] += 1
+        if done:
+            break
+        if steps % replan == 0:
+            chunk = controller.act(obs, [prompt])[0]
+        t0 = time.perf_counter()
+        obs, _, terminated, truncated, info = env.step(torch.from_numpy(chunk[steps % replan][None]).float())
+        env_seconds += time.perf_counter() - t0
+        steps += 1
+        success |= bool(info["success"][0])
+        done = bool(terminated[0]) or bool(truncated[0])
+    return success, steps, env_seconds
+
+
+def render_cost(env_id: str, steps: int = 50) -> dict[str, float]:
+    """Seconds per env.step with zero actions in state_dict mode and in rgb mode (two 128x128 cameras)."""
+    out = {}
+    for mode in ("state_dict", "rgb"):
+        env = make_env(env_id, obs_mode=mode) if mode == "rgb" else _state_env(env_id)
+        env.reset(seed=MIKASA_SEED)
+        zero = torch.zeros(1, 7)
+        t0 = time.perf_counter()
+        for k in range(steps):
+            _, _, te, tr, _ = env.step(zero)
+            if bool(tr[0]) or bool(te[0]):
+                env.reset(seed=MIKASA_SEED + k)
+        out[mode] = (time.perf_counter() - t0) / steps
+        env.close()
+    return out
+
+
+def _state_env(env_id: str):
+    import gymnasium as gym
+
+    use_cpu_renderer()
+    import mikasa_robo_suite.vla.memory_envs  # noqa: F401
+
+    return gym.make(env_id, num_envs=1, obs_mode="state_dict", control_mode="pd_ee_delta_pose", render_backend="cpu",
+                    sim_backend="cpu", reward_mode="normalized_dense")
+
+
+def report_cues(title: str, stats: CueStats) -> None:
+    """Print the cue reader's accuracy in the cue phase, its per-colour confusion and its false readings."""
+    n_cue = sum(stats.confusion.values())
+    misread = {k: v for k, v in stats.confusion.items() if k[0] != k[1]}
+    per_colour = Counter()
+    for (true, _), n in stats.confusion.items():
+        per_colour[true] += n
+    print(f"{title}: {stats.cue_accuracy():.1%} of {n_cue} cue-phase frames right (frames per colour "
+          f"{dict(sorted(per_colour.items()))}); misread {misread}; false readings {dict(stats.false_readings)} "
+          f"in {dict(stats.frames)} frames; {1000 * stats.seconds / sum(stats.frames.values()):.2f} ms/frame",
+          flush=True)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--tasks", nargs="+", default=list(TASKS))
+    parser.add_argument("--conditions", nargs="+", default=list(CONDITIONS), choices=CONDITIONS)
+    parser.add_argument("--episodes", type=int, default=50)
+    parser.add_argument("--replan", type=int, default=4, help="control steps executed of each chunk")
+    parser.add_argument("--no-timing", action="store_true", help="skip the state-vs-rgb step timing")
+    parser.add_argument("--cue-check", type=int, default=0, metavar="N",
+                        help="also score the cue reader on N more oracle episodes per task, at seeds 0..N-1")
+    args = parser.parse_args()
+
+    from sb3_memret.tasks.mikasa.expert import ScriptedTouchController
+
+    for env_id in args.tasks:
+        env = make_env(env_id)
+        controller = ScriptedTouchController()
+        controller.check_env(env)
+        stats = CueStats()
+        for condition in args.conditions:
+            wins, steps, seconds, t0 = 0, 0, 0.0, time.perf_counter()
+            for i in range(args.episodes):
+                ok, n, s = run_episode(env, controller, MIKASA_SEED + i, condition, args.replan, stats)
+                wins, steps, seconds = wins + ok, steps + n, seconds + s
+            wall = time.perf_counter() - t0
+            print(f"{env_id} {condition:6s} success_once {wins}/{args.episodes} = {wins / args.episodes:.0%}  "
+                  f"env steps/s {steps / seconds:.1f} (env.step only), {steps / wall:.1f} (with reset, expert, "
+                  f"cue reading)", flush=True)
+        report_cues(f"{env_id} cue reading (the episodes above)", stats)
+        if args.cue_check:
+            stats, wins = CueStats(), 0
+            for seed in range(args.cue_check):
+                wins += run_episode(env, controller, seed, "oracle", args.replan, stats)[0]
+            report_cues(f"{env_id} cue reading (seeds 0..{args.cue_check - 1}, oracle success {wins}/{args.cue_check})",
+                        stats)
+        env.close()
+    if not args.no_timing:
+        cost = render_cost(args.tasks[0])
+        print(f"{args.tasks[0]} s/step: state_dict {cost['state_dict']:.4f}, rgb {cost['rgb']:.4f} "
+              f"(render of 2 cameras ~{cost['rgb'] - cost['state_dict']:.4f} s/step)")
+
+
+if __name__ == "__main__":
+    main()
