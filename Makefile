@@ -20,7 +20,7 @@ $(VENV)/.installed: setup.cfg pyproject.toml constraints.txt
 	# openpi-client (and openpi-server, which needs it) pin numpy<2 but work with numpy 2: install them without their pins
 	$(PY) -m pip install --quiet --no-deps openpi-client==0.1.2 openpi-server==0.1.0
 	# MIKASA-Robo-VLA pins Python < 3.12 and mani_skill 3.0.0b15 but runs on this stack: install it without its pins
-	$(PY) -m pip install --quiet --no-deps mikasa-robo-suite==1.0.0
+	$(PY) -m pip install --quiet --no-deps --ignore-requires-python mikasa-robo-suite==1.0.0
 	touch $@
 
 # Mesa 25 lavapipe, a software Vulkan driver SAPIEN can render with on a CPU (render_backend="cpu")

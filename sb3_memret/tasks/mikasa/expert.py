@@ -22,7 +22,9 @@ action and 17 mm of coasting after it. Knowing the coasting, the chunk brakes in
 
 from __future__ import annotations
 
+import contextlib
 import functools
+import io
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Sequence
@@ -72,7 +74,9 @@ def _panda_chain() -> Any:
     import torch
 
     urdf = Path(mani_skill.__file__).parent / "assets/robots/panda/panda_v3.urdf"
-    return pk.build_serial_chain_from_urdf(urdf.read_bytes(), "panda_hand_tcp").to(dtype=torch.float64)
+    with contextlib.redirect_stderr(io.StringIO()):  # its parser lists 28 joint attributes it does not know
+        chain = pk.build_serial_chain_from_urdf(urdf.read_bytes(), "panda_hand_tcp")
+    return chain.to(dtype=torch.float64)
 
 
 def tcp_velocity(qpos: np.ndarray, qvel: np.ndarray) -> np.ndarray:
