@@ -61,8 +61,7 @@ class LightWriter:
     relations = {"light": (MemoryType.OTHER, "was")}
 
     def read(self, frame: EnvFrame) -> list[tuple[int, Predicates]]:
-        first = 0 if frame.steps == 0 else 1
-        return [(first + j, {("light", "light"): c}) for j, c in enumerate(frame.percepts) if c is not None]
+        return [(step, {("light", "light"): c}) for step, c in frame.timed_percepts() if c is not None]
 
 
 class DoorsExpert(FrozenController):

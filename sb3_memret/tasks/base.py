@@ -62,6 +62,12 @@ class EnvFrame:
     reward: float = 0.0  # the env's own reward summed over the executed steps
     percepts: list[Any] = field(default_factory=list)
 
+    def timed_percepts(self) -> list[tuple[int, Any]]:
+        """Each percept with its control step counted from the chunk's start: the reset frame's at 0,
+        a chunk's j-th after step j + 1 (what a per-step writer's ``read`` answers with)."""
+        first = 0 if self.steps == 0 else 1
+        return [(first + j, percept) for j, percept in enumerate(self.percepts)]
+
 
 @dataclass(frozen=True)
 class Episode:

@@ -49,9 +49,7 @@ class CueWriter:
     relations = {"cue": (MemoryType.OTHER, "was")}
 
     def read(self, frame: EnvFrame) -> list[tuple[int, Predicates]]:
-        first = 0 if frame.steps == 0 else 1  # the reset frame's percept is at 0, a chunk's j-th after step j + 1
-        return [(first + j, {("cue", CUE_ENTITY): colour}) for j, colour in enumerate(frame.percepts)
-                if colour is not None]
+        return [(step, {("cue", CUE_ENTITY): colour}) for step, colour in frame.timed_percepts() if colour is not None]
 
 
 class RememberColorTask(Task):
