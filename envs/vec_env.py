@@ -165,6 +165,8 @@ class DrawerRecallVecEnv(VecEnv):
                                        self.task)
                          for _ in range(num_envs)]
         self.rngs: list[np.random.Generator | None] = [None] * num_envs
+        self.task_seed_queues: list[list[int]] = [[] for _ in range(num_envs)]
+        self.episode_task_seeds: list[int | None] = [None] * num_envs  # the seed each env's episode started from
         self.frames: list[EnvFrame | None] = [None] * num_envs
         self.controller_calls = 0
         self.tasks_played = np.zeros(num_envs, dtype=np.int64)
@@ -204,6 +206,18 @@ class DrawerRecallVecEnv(VecEnv):
         return len(getattr(self.physics, "restarts", ()))
 
     # ------------------------------------------------------------ episodes
+    def set_task_seeds(self, per_env: Sequence[Sequence[int]]) -> None:
+        """Seed the task env's next episodes explicitly (a benchmark's evaluation seeds): env ``i`` starts its
+        next ``len(per_env[i])`` episodes at these seeds, then draws from its generator again. The memory's
+        own randomness (decoys) still comes from the env's generator."""
+        if len(per_env) != self.num_envs:
+            raise ValueError(f"per_env must list task seeds for each of the {self.num_envs} envs, got {len(per_env)}")
+        for seeds in per_env:
+            bad = [s for s in seeds if not isinstance(s, (int, np.integer)) or not 0 <= s < 2**32]
+            if bad:
+                raise ValueError(f"task seeds must be integers in [0, 2**32), got {bad!r}")
+        self.task_seed_queues = [[int(s) for s in seeds] for seeds in per_env]
+
     def reset_envs(self, env_ids: Sequence[int], seeds: Sequence[int | None] | None = None,
                    options: Sequence[dict[str, Any]] | None = None) -> dict[int, dict[str, Any]]:
         """Start new episodes in ``env_ids``: a ``seeds`` entry reseeds that env's generator (None
@@ -221,7 +235,10 @@ class DrawerRecallVecEnv(VecEnv):
             if self.households is not None:
                 placement, target, moved[i] = self.households[i].next_episode(self.rngs[i])
                 opts = {"placement": placement, "target": target}
-            requests.append(ResetRequest(i, int(self.rngs[i].integers(2**31 - 1)), opts))
+            task_seed = int(self.rngs[i].integers(2**31 - 1))
+            if self.task_seed_queues[i]:
+                task_seed = self.task_seed_queues[i].pop(0)
+            requests.append(ResetRequest(i, task_seed, opts))
         frames = self.physics.reset(requests)
         task_seeds = [r.seed for r in requests]
         if self._controller_batch:
@@ -235,9 +252,9 @@ class DrawerRecallVecEnv(VecEnv):
         infos = {}
         for request in requests:
             i, frame = request.env_id, frames[request.env_id]
-            self.frames[i] = frame
+            self.frames[i], self.episode_task_seeds[i] = frame, request.seed
             self.memories[i].start(frame, self.rngs[i], moved.get(i, False))
-            infos[i] = self.memories[i].info(success=False)
+            infos[i] = {**self.memories[i].info(success=False), "task_seed": request.seed}
         return infos
 
     def decide(self, actions: np.ndarray) -> tuple[list[dict], np.ndarray, np.ndarray, np.ndarray, list[dict]]:
@@ -267,7 +284,7 @@ class DrawerRecallVecEnv(VecEnv):
             terminated[i], truncated[i] = frame.terminated, frame.truncated and not frame.terminated
             memory.observe(frame)
             info = memory.info(frame.success)
-            info.update(prompt=prompts[i], decision_true_slot=true_slots[i],
+            info.update(prompt=prompts[i], decision_true_slot=true_slots[i], task_seed=self.episode_task_seeds[i],
                         retrieved_true=memory.retrieved_true(chosen[i]), empty_slots=int(self.k - len(chosen[i])))
             observations.append(self._observation(i))
             infos.append(info)

@@ -21,6 +21,15 @@ DEFAULT_CONTROLLER = "learned"  # sb3_memret.controllers.DEFAULT_CONTROLLER, wit
 DEMO_SEED = 100_000  # demonstrations never share a placement with rollout (0..) or held-out (1e6..) episodes
 
 
+def load_task_config(task: str = DEFAULT_TASK, path: Path | None = None):
+    """The hyperparameters of ``task``: its section of ``path`` (default: the task's own zoo config)."""
+    from sb3_memret.config import load_config
+    from sb3_memret.tasks import make_task
+
+    the_task = make_task(task)
+    return load_config(path or ZOO_CONFIGS / the_task.zoo_config, the_task.config_key)
+
+
 def _controller(ctx: click.Context, param: click.Parameter | None, value: str, task: str | None = None):
     """The controller ``value`` names for ``task`` (default: the command's ``--task``, else the drawer)."""
     from sb3_memret.controllers import make_controller
@@ -355,7 +364,6 @@ def train(ctx: click.Context, experiment: str, task: str | None, config_path: Pa
           backend: str, ray_address: str | None) -> None:
     """Train the retriever and retention networks with PPO on EXPERIMENT (recall: what the task's controller
     must know, the drawer's layer or a cue's colour, reaches it only through a retrieved memory)."""
-    from sb3_memret.config import load_config
     from sb3_memret.tasks import make_task
     from sb3_memret.training import RunOptions, format_history, load_run_config, start_retriever, train as run_training
     from sb3_memret.workers import exit_status
@@ -371,7 +379,7 @@ def train(ctx: click.Context, experiment: str, task: str | None, config_path: Pa
     config = None
     if not resume or config_path or timesteps:
         try:
-            config = load_config(config_path or ZOO_CONFIGS / the_task.zoo_config, the_task.config_key)
+            config = load_task_config(name, config_path)
         except (FileNotFoundError, ValueError) as err:
             raise click.BadParameter(str(err), param_hint="--config") from err
         if config.env_kwargs.get("task", name) != name:

@@ -15,7 +15,7 @@ from sb3_memret.envs.cabinet import LAYERS, check_layer
 from sb3_memret.prompts import CONDITIONS, condition_prompt
 from sb3_memret.tasks import Task
 from sb3_memret.tasks.base import RENDER_BACKENDS, check_render_backend
-from sb3_memret.tasks.drawer import ENV_ID, DrawerTask
+from sb3_memret.tasks.drawer import DrawerTask
 
 DEFAULT_REPLAN_EVERY = 8
 

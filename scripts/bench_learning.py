@@ -18,8 +18,7 @@ import shutil
 import time
 from pathlib import Path
 
-from sb3_memret.cli import DEFAULT_CONFIG, EXPERIMENTS, HELD_OUT_SEED
-from sb3_memret.config import load_config
+from sb3_memret.cli import HELD_OUT_SEED, load_task_config
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.analysis.evaluation import evaluate_retrieval
 from sb3_memret.policy.ppo import MemRetPPO
@@ -36,14 +35,16 @@ def episodes_per_round(out: Path) -> list[int]:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
-    parser.add_argument("--config", type=Path, default=DEFAULT_CONFIG)
+    parser.add_argument("--task", default="drawer")
+    parser.add_argument("--config", type=Path, default=None, help="zoo config [default: the task's]")
     parser.add_argument("--out", type=Path, default=Path("runs/bench_learning"))
     parser.add_argument("--seed", type=int, default=0)
     parser.add_argument("--eval-episodes", type=int, default=50)
     args = parser.parse_args()
 
     shutil.rmtree(args.out, ignore_errors=True)
-    config = load_config(args.config, EXPERIMENTS["recall"])
+    config = load_task_config(args.task, args.config)
+    config.env_kwargs["task"] = args.task
     start = time.perf_counter()
     result = train(config, RunOptions(out=args.out, seed=args.seed, eval_episodes=args.eval_episodes,
                                       eval_seed=HELD_OUT_SEED, log_formats=("csv",)))

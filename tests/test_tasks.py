@@ -179,3 +179,38 @@ def test_the_memory_learner_trains_on_a_task_of_its_own(encoder):
     assert after.greedy_accuracy >= 0.9 > before.greedy_accuracy
     assert after.success["overall"] >= 0.9
     assert set(after.success) <= {"overall", *COLOURS}
+
+
+class SeededDoorsTask(DoorsTask):
+    """The doors with a benchmark protocol: held-out episodes play seeds 4242424242 + i."""
+
+    def evaluation_seeds(self, n_episodes: int) -> list[int]:
+        return [4242424242 + i for i in range(n_episodes)]
+
+
+def test_evaluation_plays_the_tasks_protocol_seeds_once_each(encoder):
+    venv = make_recall_vec_env(2, {"task": SeededDoorsTask(), "controller": "scripted", "encoder": encoder,
+                                   "replan_every": 4, "location_decoys": 3, "capacity": 4}, backend="inprocess")
+    model = MemRetPPO(env=venv, n_steps=8, batch_size=8, seed=0)
+    from sb3_memret.analysis.evaluation import evaluate_retrieval
+
+    played = []
+    report = evaluate_retrieval(model, venv, 5, seed=3, on_episode=played.append)
+    assert sorted(e["task_seed"] for e in played) == [4242424242 + i for i in range(5)]
+    for episode in played:  # the seed decides the light, as MIKASA's seeds decide its cue
+        assert episode["group"] == _colour_of(episode["task_seed"])
+    assert report.episodes == 5 and venv.task_seed_queues == [[], []]  # later episodes draw seeds again
+    explicit = []
+    evaluate_retrieval(model, venv, 3, seed=3, on_episode=explicit.append, task_seeds=[11, 12, 13])
+    assert sorted(e["task_seed"] for e in explicit) == [11, 12, 13]
+    with pytest.raises(ValueError, match="4 episodes need as many task seeds, got 3"):
+        evaluate_retrieval(model, venv, 4, task_seeds=[1, 2, 3])
+    with pytest.raises(ValueError, match="task seeds must be integers in \\[0, 2\\*\\*32\\)"):
+        venv.set_task_seeds([[-1], []])
+    venv.close()
+
+
+def _colour_of(seed: int) -> str:
+    env = DoorsEnv()
+    env.reset(seed=seed)
+    return COLOURS[env.colour]

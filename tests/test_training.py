@@ -185,15 +185,14 @@ def test_retrieval_is_learned_on_the_real_simulator():
     """Ten rounds of the default config from random initialisation: the greedy retriever picks the
     true cube memory and the sampling policy has moved well away from chance (scripts/bench_learning.py
     runs the full 48 rounds)."""
-    from sb3_memret.cli import DEFAULT_CONFIG
-    from sb3_memret.config import load_config
+    from sb3_memret.cli import load_task_config
     from sb3_memret.envs.vec_env import make_recall_vec_env
     from sb3_memret.analysis.evaluation import evaluate_retrieval
     from sb3_memret.policy.policy import MemoryRetrievalPolicy
     from sb3_memret.policy.ppo import MemRetPPO
     from sb3_memret.training import env_kwargs_for
 
-    config = load_config(DEFAULT_CONFIG, "sb3_memret/DrawerRecall-v0")
+    config = load_task_config("drawer")
     kwargs = env_kwargs_for(config, "scripted")
     venv = make_recall_vec_env(config.n_envs, kwargs, seed=0)
     held_out = make_recall_vec_env(config.n_envs, kwargs)

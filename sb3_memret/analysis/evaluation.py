@@ -9,7 +9,7 @@ Plackett-Luce draw at the training temperature would contain it, estimated from
 from __future__ import annotations
 
 from dataclasses import asdict, dataclass, field
-from typing import Any, Callable
+from typing import Any, Callable, Sequence
 
 import numpy as np
 import torch
@@ -71,9 +71,12 @@ def evaluate_retrieval(
     deterministic: bool = True,
     samples: int = 32,
     on_episode: Callable[[dict[str, Any]], None] | None = None,
+    task_seeds: Sequence[int] | None = None,
 ) -> RetrievalReport:
     """Run ``n_episodes`` (split over the envs of ``venv`` as SB3's ``evaluate_policy`` does) and
     score retrieval and success. ``seed`` reseeds the envs first so the episodes are reproducible.
+    The task envs start at ``task_seeds`` (default: the task's protocol seeds, e.g. MIKASA's
+    4242424242 + i, where it has them), each seed played once, in contiguous blocks per env.
     The model's retention critic is pushed to the envs first, so it evicts as it did in training."""
     if n_episodes < 1:
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
@@ -89,6 +92,13 @@ def evaluate_retrieval(
     hits = sampled = entropy = decisions = 0.0
     rewards_total, steps_total = 0.0, 0
     episodes: list[dict[str, Any]] = []
+    if task_seeds is None and hasattr(venv, "task"):
+        task_seeds = venv.task.evaluation_seeds(n_episodes)
+    if task_seeds is not None:
+        if len(task_seeds) < n_episodes:
+            raise ValueError(f"{n_episodes} episodes need as many task seeds, got {len(task_seeds)}")
+        starts = np.concatenate([[0], np.cumsum(targets)])
+        venv.env_method("set_task_seeds", [list(task_seeds[starts[i]:starts[i + 1]]) for i in range(n)])
     if seed is not None:
         venv.seed(seed)
     obs = venv.reset()
@@ -116,7 +126,8 @@ def evaluate_retrieval(
                 if info.get("task_done", dones[i]):  # a household's learning episode spans several tasks
                     episode = dict(group=str(info["group"]), success=bool(info["success"]),
                                    shaped_return=float(returns[i]), true_evicted=bool(evicted[i]),
-                                   decisions=int(lengths[i]), target=info.get("target", "cube"))
+                                   decisions=int(lengths[i]), target=info.get("target", "cube"),
+                                   task_seed=info.get("task_seed"))
                     episode.update({flag: bool(info[flag]) for flag in HOUSEHOLD_FLAGS if flag in info})
                     episodes.append(episode)
                     if on_episode is not None:
@@ -125,6 +136,8 @@ def evaluate_retrieval(
                     returns[i], evicted[i], lengths[i] = 0.0, False, 0
     finally:
         policy.set_training_mode(was_training)
+        if task_seeds is not None:
+            venv.env_method("set_task_seeds", [[] for _ in range(n)])
     return _report(episodes, decisions, hits, sampled, entropy, rewards_total / max(steps_total, 1), deterministic)
 
 

@@ -182,6 +182,11 @@ class Task(ABC):
         raise ValueError(f"task {self.name!r} has no shipped learned controller {name!r}; use --controller "
                          "scripted (its expert) or learned:PATH (a checkpoint trained on it)")
 
+    def evaluation_seeds(self, n_episodes: int) -> list[int] | None:
+        """The env seeds of the task's benchmark protocol for ``n_episodes`` held-out episodes, or None
+        (held-out episodes then draw their seeds from the evaluation seed)."""
+        return None
+
     def check_options(self, **options: Any) -> None:
         """Refuse decision-env options this task does not implement, naming them."""
         unsupported = sorted(name for name, used in options.items() if used and name not in self.features)

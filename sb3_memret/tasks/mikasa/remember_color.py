@@ -66,6 +66,9 @@ class RememberColorTask(Task):
             raise ValueError(f"unknown RememberColor task {env_id!r}; expected one of {sorted(colours)}")
         self.name, self.n_colours = env_id, colours[env_id]
 
+    def evaluation_seeds(self, n_episodes: int) -> list[int]:
+        return [EVAL_SEED + i for i in range(n_episodes)]
+
     @property
     def colours(self) -> tuple[str, ...]:
         return COLOUR_NAMES[: self.n_colours]
