@@ -68,15 +68,29 @@ def _render_backend_option(command):
                              "for MIKASA's tasks, whose writer reads the cameras]")(command)
 
 
+class _TaskName(click.ParamType):
+    """A registered task name or ``package.module:Class``; a task that cannot run here says why."""
+
+    name = "task"
+
+    def convert(self, value, param, ctx):
+        from sb3_memret.tasks import check_task_name
+
+        try:
+            return check_task_name(value)
+        except ValueError as err:
+            self.fail(str(err), param, ctx)
+
+
 def _task_option(default: str | None = DEFAULT_TASK):
     """``--task``: the memory task (parsed first, so the controller and render defaults follow it)."""
     def decorate(command):
         from sb3_memret.tasks import task_names
 
-        return click.option("--task", type=click.Choice(task_names()), default=default, is_eager=True,
+        return click.option("--task", type=_TaskName(), default=default, is_eager=True,
                             show_default=default is not None,
-                            help="Memory task: drawer (DrawerCubeTakeOut-v1) or a MIKASA-Robo-VLA task."
-                                 + ("" if default else "  [default: the run's]"))(command)
+                            help=f"Memory task: one of {', '.join(task_names())}, or package.module:Class (a Task "
+                                 "of your own)." + ("" if default else "  [default: the run's]"))(command)
     return decorate
 
 
@@ -152,42 +166,60 @@ def main() -> None:
 
 
 @main.command()
+@_task_option()
 @click.option("--controller", "controller", default=DEFAULT_CONTROLLER, show_default=True, callback=_controller,
               help="Frozen controller to run: 'learned' (the shipped learned policy), 'learned:PATH', 'scripted' "
-                   "(the expert), 'openpi://HOST:PORT' or 'lerobot:PATH'.")
+                   "(the task's expert), 'openpi://HOST:PORT' or 'lerobot:PATH'.")
 @click.option("--condition", type=click.Choice(["oracle", "none", "wrong"]), default="oracle", show_default=True,
-              help="Prompt: oracle names the cube's layer, wrong names another layer, none is the bare instruction.")
-@click.option("--episodes", type=click.IntRange(min=1), default=10, show_default=True, help="Episodes per layer.")
+              help="Prompt: oracle tells what must be remembered (the cube's layer, the cue's colour), wrong names "
+                   "something else, none is the bare instruction.")
+@click.option("--episodes", type=click.IntRange(min=1), default=10, show_default=True,
+              help="Episodes per layer (the drawer), else episodes in all.")
 @click.option("--layer", type=click.IntRange(min=min(LAYERS), max=max(LAYERS)), default=None,
-              help="Only this layer (1 = top); default all three.")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True, help="First episode seed.")
+              help="The drawer only: this layer (1 = top); default all three.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="First episode seed (a task with protocol seeds, as MIKASA's, plays those instead).")
 @click.option("--replan-every", type=click.IntRange(min=1), default=8, show_default=True,
               help="Control steps executed from each action chunk before replanning.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
 @_render_backend_option
-def rollout(controller, condition: str, episodes: int, layer: int | None, seed: int, replan_every: int,
+def rollout(task: str, controller, condition: str, episodes: int, layer: int | None, seed: int, replan_every: int,
             as_json: bool, render_backend: str) -> None:
-    """Run a frozen controller on DrawerCubeTakeOut-v1 and print success per layer."""
-    from sb3_memret.rollout import evaluate_condition, summarize
+    """Run a frozen controller on a task under a fixed prompt and print its success per group (the
+    drawer's layer, the cue's colour)."""
+    from sb3_memret.rollout import evaluate_condition, evaluate_task_condition, summarize
 
+    if task != DEFAULT_TASK and layer is not None:
+        raise click.BadParameter(f"--layer chooses a drawer; task {task!r} has none", param_hint="--layer")
     layers = (layer,) if layer else LAYERS
-    with click.progressbar(length=episodes * len(layers), label=f"{condition} rollouts", file=sys.stderr) as bar:
-        results = evaluate_condition(controller, condition, episodes, layers, seed, replan_every,
-                                     on_episode=lambda _: bar.update(1), render_backend=render_backend)
+    total = episodes * len(layers) if task == DEFAULT_TASK else episodes
+    with click.progressbar(length=total, label=f"{condition} rollouts", file=sys.stderr) as bar:
+        try:
+            if task == DEFAULT_TASK:
+                results = evaluate_condition(controller, condition, episodes, layers, seed, replan_every,
+                                             on_episode=lambda _: bar.update(1), render_backend=render_backend)
+            else:
+                results = evaluate_task_condition(controller, condition, task, episodes, seed, replan_every,
+                                                  on_episode=lambda _: bar.update(1), render_backend=render_backend)
+        except ValueError as err:
+            raise click.UsageError(str(err)) from err
     summary = summarize(results)
     if as_json:
-        click.echo(json.dumps({"condition": condition, "episodes": episodes, "success": summary["success"],
+        click.echo(json.dumps({"task": task, "condition": condition, "episodes": len(results),
+                               "seeds": [r.seed for r in results], "success": summary["success"],
                                "median_steps_to_success": summary["median_steps_to_success"]}))
         return
-    click.echo(f"condition: {condition}   episodes per layer: {episodes}")
-    click.echo("| layer | success | median steps to success |")
-    click.echo("|---|---|---|")
+    group = "layer" if task == DEFAULT_TASK else "group"
+    click.echo(f"task: {task}   condition: {condition}   episodes: {len(results)}")
+    click.echo(f"| {group} | episodes | success | median steps to success |")
+    click.echo("|---|---|---|---|")
     for key, rate in summary["success"].items():
         steps = summary["median_steps_to_success"][key]
-        click.echo(f"| {key} | {rate:.0%} | {'-' if steps is None else f'{steps:.0f}'} |")
+        click.echo(f"| {key} | {summary['episodes'][key]} | {rate:.0%} | {'-' if steps is None else f'{steps:.0f}'} |")
 
 
 @main.command()
+@_task_option()
 @click.option("--episodes", type=click.IntRange(min=1), default=240, show_default=True, help="Episodes to record.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="New folder for the LeRobotDataset.")
@@ -205,11 +237,14 @@ def rollout(controller, condition: str, episodes: int, layer: int | None, seed: 
               help="Objects the drawers hide; the targets cycle over them and the prompts name them.")
 @click.option("--n-objects", type=click.IntRange(min=1, max=len(LAYERS)), default=1, show_default=True,
               help="Objects per episode, one per drawer.")
+@click.option("--replan-every", type=click.IntRange(min=1), default=None,
+              help="Control steps executed from each expert chunk  [default: 8; 4 for MIKASA's short episodes]")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
 @_render_backend_option
-def demos(episodes: int, out: Path, seed: int, noise: float, noisy_fraction: float, learner: str | None, n_envs: int,
-          objects: str, n_objects: int, progress: bool, render_backend: str) -> None:
-    """Record the scripted expert's demonstrations as a LeRobotDataset (v3.0) for finetuning.
+def demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fraction: float, learner: str | None,
+          n_envs: int, objects: str, n_objects: int, replan_every: int | None, progress: bool,
+          render_backend: str) -> None:
+    """Record the task's scripted expert as a LeRobotDataset (v3.0) for finetuning.
 
     \b
     Per frame: observation.state (19: end-effector state, drawer openings, cube detection, which is
@@ -225,13 +260,26 @@ def demos(episodes: int, out: Path, seed: int, noise: float, noisy_fraction: flo
     labels), and --learner makes a DAgger round. Ctrl-C keeps every episode saved so far.
     With --objects train --n-objects 3 three objects hide in the drawers and the prompts name the
     target ("pick out the tin. the tin is in drawer layer L.").
+    \b
+    Other tasks (--task RememberColor3-VLA-v0 ...): the task's own frame layout (MIKASA: joints,
+    hand pose, the object detector, both 128x128 cameras), episodes at seeds seed.. with the bare
+    instruction (20%), the true fact ("... the cue cube was red.", 60%) or a wrong one (20%).
     """
     from tqdm import tqdm
 
-    from sb3_memret.stage1.demos import plan_episodes, record_demos
-
     if out.exists():
         raise click.BadParameter(f"{str(out)!r} already exists; demonstrations go to a new folder", param_hint="--out")
+    if task != DEFAULT_TASK:
+        for name, used in (("--learner", learner is not None), ("--objects", objects != "cube"),
+                           ("--n-objects", n_objects != 1)):
+            if used:
+                raise click.BadParameter(f"{name} applies to the drawer's demonstrations only, not task {task!r}",
+                                         param_hint=name)
+        _task_demos(task, episodes, out, seed, noise, noisy_fraction, n_envs, replan_every or 4, progress,
+                    render_backend)
+        return
+    from sb3_memret.stage1.demos import plan_episodes, record_demos
+
     if learner is not None:
         _controller(click.get_current_context(), None, learner)
     planned = plan_episodes(episodes, seed, noise, noisy_fraction, objects=objects)
@@ -243,8 +291,31 @@ def demos(episodes: int, out: Path, seed: int, noise: float, noisy_fraction: flo
             bar.update(1)
             bar.set_postfix(success=f"{wins}/{bar.n}")
 
-        record_demos(out, planned, render_backend, learner, n_envs, on_episode=on_episode, objects=objects,
-                     n_objects=n_objects)
+        record_demos(out, planned, render_backend, learner, n_envs, replan_every=replan_every or 8,
+                     on_episode=on_episode, objects=objects, n_objects=n_objects)
+    click.echo(f"{episodes} episodes ({wins} successful) written to {out}")
+
+
+def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fraction: float, n_envs: int,
+                replan_every: int, progress: bool, render_backend: str) -> None:
+    """``demos`` for a task other than the drawer, through the Task interface."""
+    from tqdm import tqdm
+
+    from sb3_memret.stage1.task_demos import plan_task_episodes, record_task_demos
+
+    wins = 0
+    with tqdm(total=episodes, desc=f"{task} demonstrations", unit="episode", disable=not progress) as bar:
+        def on_episode(recorded) -> None:
+            nonlocal wins
+            wins += recorded.success
+            bar.update(1)
+            bar.set_postfix(success=f"{wins}/{bar.n}")
+
+        try:
+            record_task_demos(out, task, plan_task_episodes(episodes, seed, noise, noisy_fraction), render_backend,
+                              n_envs, replan_every, on_episode=on_episode)
+        except (NotImplementedError, ValueError) as err:
+            raise click.UsageError(str(err)) from err
     click.echo(f"{episodes} episodes ({wins} successful) written to {out}")
 
 
@@ -440,7 +511,8 @@ def train(ctx: click.Context, experiment: str, task: str | None, config_path: Pa
 def evaluate(ctx: click.Context, model_path: Path, task: str | None, condition: str, episodes: int, controller: str, n_envs: int, seed: int,
              stochastic: bool, objects: str | None, retention: str | None, as_json: bool, render_backend: str,
              backend: str, ray_address: str | None) -> None:
-    """Evaluate a trained model: success per layer and retrieval accuracy."""
+    """Evaluate a trained model: success per group (the drawer's layer, the cue's colour) and retrieval
+    accuracy, at the task's protocol seeds where it has them (MIKASA's 4242424242 + i)."""
     from sb3_memret.analysis.evaluation import evaluate_retrieval
     from sb3_memret.envs.vec_env import make_recall_vec_env
     from sb3_memret.training import eval_env_kwargs
@@ -475,7 +547,7 @@ def evaluate(ctx: click.Context, model_path: Path, task: str | None, condition: 
                f"retention: {kwargs.get('retention', 'learned')}   episodes: {report.episodes}")
     click.echo(f"{label} retrieval accuracy: {report.greedy_accuracy:.1%} over {report.decisions} decisions "
                f"(sampled fraction {report.sampled_fraction:.1%}, entropy {report.entropy:.2f})")
-    click.echo("| layer | episodes | success |")
+    click.echo(f"| {'layer' if kwargs.get('task', DEFAULT_TASK) == DEFAULT_TASK else 'group'} | episodes | success |")
     click.echo("|---|---|---|")
     for key in list(report.episodes_per_layer) + ["overall"]:
         count = report.episodes if key == "overall" else report.episodes_per_layer[key]

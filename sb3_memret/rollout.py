@@ -1,4 +1,4 @@
-"""Run a frozen controller on DrawerCubeTakeOut-v1 under a prompt condition and score it."""
+"""Run a frozen controller on a task under a prompt condition (oracle / none / wrong) and score it."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ import numpy as np
 import sb3_memret.envs  # noqa: F401  (registers DrawerCubeTakeOut-v1)
 from sb3_memret.controllers.base import FrozenController, as_numpy
 from sb3_memret.envs.cabinet import LAYERS, check_layer
-from sb3_memret.prompts import CONDITIONS, condition_prompt
-from sb3_memret.tasks import Task
+from sb3_memret.prompts import CONDITIONS, build_prompt, condition_prompt
+from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import RENDER_BACKENDS, check_render_backend
 from sb3_memret.tasks.drawer import DrawerTask
 
@@ -22,10 +22,10 @@ DEFAULT_REPLAN_EVERY = 8
 
 @dataclass(frozen=True)
 class EpisodeResult:
-    layer: int
+    layer: int | str  # the drawer's layer; a task's group (e.g. the cue's colour) elsewhere
     seed: int
     success: bool
-    steps: int  # control steps until success, or the episode limit
+    steps: int  # control steps until success (the drawer ends there), or the episode's length
 
 
 @dataclass
@@ -144,11 +144,59 @@ def evaluate_condition(
     return results
 
 
+def evaluate_task_condition(
+    controller: FrozenController,
+    condition: str,
+    task: Task | str,
+    episodes: int,
+    seed: int = 0,
+    replan_every: int = DEFAULT_REPLAN_EVERY,
+    on_episode: Callable[[EpisodeResult], None] | None = None,
+    render_backend: str | None = None,
+) -> list[EpisodeResult]:
+    """``episodes`` episodes of ``task`` at its protocol seeds (MIKASA's 4242424242 + i), else at
+    seed..seed+episodes-1, each prompted by ``condition``: the task's instruction with its oracle
+    facts, with none, or with its wrong facts. Success is the task's (once per episode)."""
+    from sb3_memret.envs.physics import TaskRunner, stack_obs
+
+    if condition not in CONDITIONS:
+        raise ValueError(f"unknown condition {condition!r}; expected one of {list(CONDITIONS)}")
+    if episodes < 1:
+        raise ValueError(f"episodes must be >= 1, got {episodes}")
+    if not 1 <= replan_every <= controller.spec.chunk_len:
+        raise ValueError(f"replan_every must be in [1, {controller.spec.chunk_len}] (the chunk length), got {replan_every}")
+    task = make_task(task)
+    runner = TaskRunner(task_env_kwargs(controller, render_backend or task.default_render_backend, task),
+                        task.max_control_steps, task)
+    results = []
+    try:
+        controller.check_env(runner.info())
+        for episode_seed in task.evaluation_seeds(episodes) or range(seed, seed + episodes):
+            frame = runner.reset(episode_seed, {})
+            episode = task.episode(frame)
+            facts = {"oracle": task.oracle_facts, "wrong": task.wrong_facts}.get(condition, lambda _: [])(episode)
+            prompt = build_prompt(task.instruction(episode), facts, controller.spec.prompt_template)
+            controller.reset([episode_seed])
+            steps, success_steps = 0, 0 if frame.success else None
+            while not (frame.terminated or frame.truncated):
+                frame = runner.execute(controller.act(stack_obs([frame.obs]), [prompt])[0][:replan_every])
+                steps += frame.steps
+                if frame.success and success_steps is None:
+                    success_steps = steps  # at the end of the chunk it succeeded in
+            results.append(EpisodeResult(episode.group, episode_seed, frame.success,
+                                         steps if success_steps is None else success_steps))
+            if on_episode is not None:
+                on_episode(results[-1])
+    finally:
+        runner.close()
+    return results
+
+
 def summarize(results: Iterable[EpisodeResult]) -> dict:
     """Success rate and median steps-to-success per layer and overall."""
     results = list(results)
     summary: dict = {"success": {}, "median_steps_to_success": {}, "episodes": {}}
-    groups = {str(layer): [r for r in results if r.layer == layer] for layer in sorted({r.layer for r in results})}
+    groups = {str(key): [r for r in results if r.layer == key] for key in sorted({r.layer for r in results}, key=str)}
     groups["overall"] = results
     for key, group in groups.items():
         wins = [r.steps for r in group if r.success]
@@ -158,5 +206,6 @@ def summarize(results: Iterable[EpisodeResult]) -> dict:
     return summary
 
 
-__all__ = ["ChunkOutcome", "EpisodeResult", "RENDER_BACKENDS", "evaluate_condition", "execute_chunk", "make_task_env",
+__all__ = ["ChunkOutcome", "EpisodeResult", "RENDER_BACKENDS", "evaluate_condition", "evaluate_task_condition",
+           "execute_chunk", "make_task_env",
            "run_episode", "summarize", "task_env_kwargs"]

@@ -7,12 +7,15 @@ bank holds decoys worded like its fact, and the expert goes to the door its prom
 
 from __future__ import annotations
 
+import json
 from typing import Any, Mapping, Sequence
 
 import gymnasium as gym
 import numpy as np
 import pytest
+from click.testing import CliRunner
 
+from sb3_memret.cli import main
 from sb3_memret.controllers.base import ControllerSpec, FrozenController
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.memory.schema import MemoryEntry, MemoryType
@@ -214,3 +217,15 @@ def _colour_of(seed: int) -> str:
     env = DoorsEnv()
     env.reset(seed=seed)
     return COLOURS[env.colour]
+
+
+def test_the_cli_runs_a_task_class_named_by_module_path():
+    """``--task module:Class`` runs a task of one's own without registering it; a bad path says what failed."""
+    runner = CliRunner()
+    result = runner.invoke(main, ["rollout", "--task", f"{__name__}:DoorsTask", "--controller", "scripted",
+                                  "--episodes", "6", "--replan-every", "4", "--json"])
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.output.strip().splitlines()[-1])
+    assert summary["success"]["overall"] == 1.0 and set(summary["success"]) <= {"overall", *COLOURS}
+    result = runner.invoke(main, ["rollout", "--task", f"{__name__}:Missing"])
+    assert result.exit_code == 2 and f"cannot import 'Missing' from module '{__name__}'" in result.output

@@ -15,6 +15,11 @@ from sb3_memret.tasks.base import EnvFrame, Episode, Predicates, Task, Writer
 
 DEFAULT_TASK = "drawer"
 _FACTORIES: dict[str, Callable[[], Task]] = {}
+# task names that exist elsewhere but cannot run here, by prefix, with the reason
+UNAVAILABLE = {
+    "ShellGame": "MIKASA's ShellGame tasks need the YCB mug model, which ManiSkill downloads at run time "
+                 "(no downloads on this machine's stack)",
+}
 
 
 def register_task(name: str, factory: Callable[[], Task]) -> None:
@@ -32,12 +37,39 @@ def task_names() -> list[str]:
 
 
 def make_task(task: str | Task) -> Task:
-    """The task ``task`` names (or ``task`` itself), or a ValueError listing the registered names."""
+    """The task ``task`` names (or ``task`` itself): a registered name, or ``package.module:Class`` (a
+    task class of your own, imported; no registration needed). Else a ValueError listing the names."""
     if isinstance(task, Task):
         return task
-    if task not in _FACTORIES:
-        raise ValueError(f"unknown task {task!r}; expected one of {task_names()}")
-    return _FACTORIES[task]()
+    if isinstance(task, str) and ":" in task:
+        return _import_task(task)
+    return _FACTORIES[check_task_name(task)]()
+
+
+def _import_task(spec: str) -> Task:
+    module_name, _, attr = spec.partition(":")
+    try:
+        factory = getattr(importlib.import_module(module_name), attr)
+    except (ImportError, AttributeError) as err:
+        raise ValueError(f"task {spec!r}: cannot import {attr!r} from module {module_name!r} ({err})") from None
+    task = factory()
+    if not isinstance(task, Task):
+        raise ValueError(f"task {spec!r} made a {type(task).__name__}, not a sb3_memret.tasks.Task")
+    return task
+
+
+def check_task_name(name: str) -> str:
+    """``name`` if it is a registered task or a ``module:Class`` that imports; else a ValueError that says
+    why it cannot run or lists the names."""
+    if name in _FACTORIES:
+        return name
+    if ":" in str(name):
+        _import_task(name)
+        return name
+    reason = next((why for prefix, why in UNAVAILABLE.items() if str(name).startswith(prefix)), None)
+    if reason is not None:
+        raise ValueError(f"task {name!r} is not available: {reason}; available tasks: {task_names()}")
+    raise ValueError(f"unknown task {name!r}; expected one of {task_names()}")
 
 
 def _lazy(module: str, attr: str, *args: str) -> Callable[[], Task]:
@@ -49,5 +81,5 @@ register_task(DEFAULT_TASK, _lazy("sb3_memret.tasks.drawer", "DrawerTask"))
 for _env_id in ("RememberColor3-VLA-v0", "RememberColor5-VLA-v0", "RememberColor9-VLA-v0"):
     register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.remember_color", "RememberColorTask", _env_id))
 
-__all__ = ["DEFAULT_TASK", "EnvFrame", "Episode", "Predicates", "Task", "Writer", "make_task", "register_task",
-           "task_names"]
+__all__ = ["DEFAULT_TASK", "EnvFrame", "Episode", "Predicates", "Task", "UNAVAILABLE", "Writer", "check_task_name",
+           "make_task", "register_task", "task_names"]

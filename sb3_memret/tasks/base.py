@@ -177,6 +177,16 @@ class Task(ABC):
     def expert(self) -> Any:
         """The scripted expert, a ``FrozenController`` that obeys its prompt."""
 
+    # ------------------------------------------------------------ demonstrations
+    def demo_features(self, with_images: bool) -> dict[str, dict[str, Any]]:
+        """The LeRobotDataset feature spec of one demonstration frame: what a learned controller may see
+        (``observation.state``, cameras with ``with_images``) and its ``action``."""
+        raise NotImplementedError(f"task {self.name!r} defines no demonstration layout (Task.demo_features)")
+
+    def demo_frame(self, obs: Any, with_images: bool) -> dict[str, np.ndarray]:
+        """One frame of a batch-1 controller observation, in ``demo_features``' layout."""
+        raise NotImplementedError(f"task {self.name!r} defines no demonstration layout (Task.demo_frame)")
+
     def learned_controller(self, name: str) -> Any:
         """The shipped learned controller ``--controller NAME`` names for this task (``learned``, ...)."""
         raise ValueError(f"task {self.name!r} has no shipped learned controller {name!r}; use --controller "

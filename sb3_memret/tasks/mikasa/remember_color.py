@@ -32,6 +32,7 @@ from sb3_memret.memory.schema import MemoryEntry, MemoryType
 from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.prompts import PromptTemplate
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates, Task, check_render_backend
+from sb3_memret.tasks.mikasa import demo_layout
 from sb3_memret.tasks.mikasa.expert import CUE_FACT, INSTRUCTION, PROMPT_TEMPLATE, ScriptedTouchController
 from sb3_memret.tasks.mikasa.perception import COLOUR_NAMES, ControllerObservation, read_cue_colour
 
@@ -142,6 +143,12 @@ class RememberColorTask(Task):
 
     def expert(self) -> ScriptedTouchController:
         return ScriptedTouchController()
+
+    def demo_features(self, with_images: bool) -> dict[str, dict[str, Any]]:
+        return demo_layout.demo_features(self.colours, with_images)
+
+    def demo_frame(self, obs: Any, with_images: bool) -> dict[str, np.ndarray]:
+        return demo_layout.demo_frame(obs, with_images)
 
 
 __all__ = ["CUE_ENTITY", "CueWriter", "EVAL_SEED", "RememberColorTask"]

@@ -1,0 +1,177 @@
+"""A task's expert demonstrations as a LeRobotDataset (v3.0), for any task with a demonstration layout.
+
+The drawer has its own recorder (``demos.py``: layers chosen per episode, DAgger rounds, object sets);
+this one serves every other task through the ``Task`` interface alone. Each episode starts at its seed
+(MIKASA's cue is drawn from it), then its prompt is drawn by ``PromptMix``: the bare instruction, the
+instruction with the task's true facts (``oracle_facts``: ``the cue cube was red.``), or with facts
+naming something else (``wrong_facts``), which the expert follows as a controller trained on them would.
+Per frame: ``Task.demo_frame`` (state, cameras with a renderer), the expert's action as label, the
+exact prompt as ``task``. A share of episodes runs with Gaussian noise on the arm (labels stay clean).
+Episodes are written as they finish; an interrupted run keeps every episode saved so far.
+"""
+
+from __future__ import annotations
+
+import json
+from dataclasses import asdict, dataclass
+from pathlib import Path
+from typing import Any, Callable, Sequence
+
+import numpy as np
+
+from sb3_memret.controllers.base import as_numpy
+from sb3_memret.controllers.observation import ACTION_KEY, TASK_KEY
+from sb3_memret.prompts import build_prompt
+from sb3_memret.rollout import DEFAULT_REPLAN_EVERY
+from sb3_memret.stage1.demos import EPISODES_FILE, PromptMix
+from sb3_memret.tasks import Task, make_task
+from sb3_memret.tasks.base import check_render_backend
+
+PROMPT_KINDS = ("bare", "matching", "mismatched")
+
+
+@dataclass(frozen=True)
+class TaskDemoEpisode:
+    """One demonstration to record: the task seed, which prompt it gets, and the action noise on the arm."""
+
+    seed: int
+    prompt_kind: str
+    noise: float = 0.0
+
+
+@dataclass
+class TaskEpisodeFrames:
+    """A recorded episode: its frames in the task's layout, the expert's labels, and how it went."""
+
+    episode: TaskDemoEpisode
+    prompt: str
+    group: str
+    frames: list[dict[str, np.ndarray]]
+    actions: np.ndarray  # (T, action_dim)
+    success: bool
+
+
+def plan_task_episodes(n: int, seed: int = 0, noise: float = 0.0, noisy_fraction: float = 0.5,
+                       mix: PromptMix | None = None) -> list[TaskDemoEpisode]:
+    """``n`` episodes at task seeds ``seed..seed+n-1``, prompt kinds drawn by ``mix``, ``noisy_fraction``
+    of them with arm noise ``noise``."""
+    if n < 1:
+        raise ValueError(f"episodes must be >= 1, got {n}")
+    if noise < 0 or not 0 <= noisy_fraction <= 1:
+        raise ValueError(f"noise must be >= 0 and noisy_fraction in [0, 1], got {noise}, {noisy_fraction}")
+    mix = mix or PromptMix()
+    rng = np.random.default_rng(seed)
+    kinds = rng.choice(len(PROMPT_KINDS), size=n, p=[mix.bare, mix.matching, mix.mismatched])
+    noisy = rng.random(n) < noisy_fraction
+    return [TaskDemoEpisode(seed + k, PROMPT_KINDS[kinds[k]], noise if noisy[k] else 0.0) for k in range(n)]
+
+
+class TaskRecorder:
+    """A task env and the task's expert, recording episodes one after another."""
+
+    def __init__(self, task: Task | str, render_backend: str, replan_every: int = DEFAULT_REPLAN_EVERY):
+        self.task = make_task(task)
+        self.with_images = check_render_backend(render_backend) != "none"
+        self.expert = self.task.expert()
+        if not 1 <= replan_every <= self.expert.spec.chunk_len:
+            raise ValueError(f"replan_every must be in [1, {self.expert.spec.chunk_len}], got {replan_every}")
+        self.task.demo_features(self.with_images)  # a task without a layout refuses before any env is made
+        self.env = self.task.make_env(**self.task.env_kwargs(self.with_images, render_backend))
+        self.expert.check_env(self.env)
+        self.replan_every = replan_every
+
+    def record(self, episode: TaskDemoEpisode) -> TaskEpisodeFrames:
+        """Play one episode, the expert acting on the episode's prompt and labelling every frame."""
+        rng = np.random.default_rng(episode.seed)
+        obs, info = self.env.reset(seed=episode.seed)
+        truth = self.task.episode(self.task.frames(self.env, obs, info, reset=True)[0])
+        facts = {"bare": [], "matching": self.task.oracle_facts(truth),
+                 "mismatched": self.task.wrong_facts(truth)}[episode.prompt_kind]
+        prompt = build_prompt(self.task.instruction(truth), facts, self.expert.spec.prompt_template)
+        self.expert.reset([episode.seed])
+        frames, actions, success, done = [], [], False, False
+        while not done:
+            for label in self.expert.act(obs, [prompt])[0][: self.replan_every]:
+                frames.append(self.task.demo_frame(obs, self.with_images))
+                actions.append(label)
+                action = label.copy()
+                if episode.noise:
+                    action[:6] = np.clip(action[:6] + rng.normal(0.0, episode.noise, 6), -1.0, 1.0)
+                obs, _, terminated, truncated, info = self.env.step(action[None])
+                success = success or bool(np.any(as_numpy(info["success"])))  # MIKASA counts success once
+                done = bool(np.any(as_numpy(terminated)) or np.any(as_numpy(truncated)))
+                if done:
+                    break
+        return TaskEpisodeFrames(episode, prompt, truth.group, frames, np.asarray(actions, np.float32), success)
+
+
+_recorder: TaskRecorder | None = None
+
+
+def _init_recorder(task: Task | str, render_backend: str, replan_every: int, in_worker: bool = True) -> None:
+    global _recorder
+    if in_worker:
+        from sb3_memret.parallel_rollout import init_pool_worker
+
+        init_pool_worker()
+    _recorder = TaskRecorder(task, render_backend, replan_every)
+
+
+def _record(episode: TaskDemoEpisode) -> TaskEpisodeFrames:
+    assert _recorder is not None, "recorder used before its initializer ran"
+    return _recorder.record(episode)
+
+
+def record_task_demos(
+    out: str | Path,
+    task: Task | str,
+    episodes: Sequence[TaskDemoEpisode],
+    render_backend: str = "cpu",
+    n_workers: int = 1,
+    replan_every: int = DEFAULT_REPLAN_EVERY,
+    on_episode: Callable[[TaskEpisodeFrames], None] | None = None,
+) -> Path:
+    """Record ``episodes`` of ``task``'s expert into a new LeRobotDataset at ``out`` and return its folder."""
+    from datasets.utils import logging as datasets_logging
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from sb3_memret.parallel_rollout import map_in_workers
+    from sb3_memret.stage1.demos import FPS
+
+    out = Path(out)
+    if out.exists():
+        raise FileExistsError(f"{out} already exists; demonstrations are written to a new folder")
+    the_task = make_task(task)
+    with_images = check_render_backend(render_backend) != "none"
+    features: dict[str, Any] = the_task.demo_features(with_images)
+    dataset = LeRobotDataset.create(repo_id=f"sb3_memret/{out.name}", fps=FPS, root=out, robot_type="panda",
+                                    features=features, use_videos=False, video_backend="pyav")
+
+    def save(_: TaskDemoEpisode, recorded: TaskEpisodeFrames) -> None:
+        for frame, action in zip(recorded.frames, recorded.actions):
+            dataset.add_frame({**frame, ACTION_KEY: action, TASK_KEY: recorded.prompt})
+        dataset.save_episode()
+        record = {**asdict(recorded.episode), "task": the_task.name, "prompt": recorded.prompt,
+                  "group": recorded.group, "frames": len(recorded.actions), "success": recorded.success}
+        with open(out / EPISODES_FILE, "a") as f:
+            f.write(json.dumps(record) + "\n")
+        if on_episode is not None:
+            on_episode(recorded)
+
+    global _recorder
+    bars = datasets_logging.is_progress_bar_enabled()
+    datasets_logging.disable_progress_bar()
+    try:
+        map_in_workers(_init_recorder, (task, render_backend, replan_every), _record, list(episodes), n_workers, save)
+    finally:
+        dataset.finalize()
+        if bars:
+            datasets_logging.enable_progress_bar()
+        if _recorder is not None:
+            _recorder.env.close()
+            _recorder = None
+    return out
+
+
+__all__ = ["PROMPT_KINDS", "TaskDemoEpisode", "TaskEpisodeFrames", "TaskRecorder", "plan_task_episodes",
+           "record_task_demos"]

@@ -1,0 +1,106 @@
+"""MIKASA-Robo-VLA's RememberColor tasks in the memory loop: the writer's fact comes from the camera,
+prompts follow the task's contract, evaluation plays MIKASA's seeds, and the CLI runs them."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from click.testing import CliRunner
+
+from sb3_memret.cli import main
+from sb3_memret.envs.vec_env import make_recall_vec_env
+from sb3_memret.tasks import make_task
+from sb3_memret.tasks.mikasa.remember_color import EVAL_SEED, RememberColorTask
+
+TASK = "RememberColor3-VLA-v0"
+
+
+def test_the_three_sizes_are_registered_and_other_ids_refused():
+    for n in (3, 5, 9):
+        task = make_task(f"RememberColor{n}-VLA-v0")
+        assert isinstance(task, RememberColorTask) and len(task.colours) == n
+    assert make_task(TASK).evaluation_seeds(3) == [EVAL_SEED, EVAL_SEED + 1, EVAL_SEED + 2] == [4242424242, 4242424243,
+                                                                                                 4242424244]
+    with pytest.raises(ValueError, match="unknown RememberColor task 'RememberColor4-VLA-v0'"):
+        RememberColorTask("RememberColor4-VLA-v0")
+    with pytest.raises(ValueError, match="ShellGameTouch-VLA-v0' is not available: .*YCB mug"):
+        make_task("ShellGameTouch-VLA-v0")
+
+
+def test_without_a_renderer_the_task_refuses_in_one_line():
+    with pytest.raises(ValueError, match="need a renderer .* --render-backend cpu"):
+        make_task(TASK).env_kwargs(needs_images=False, render_backend="none")
+
+
+def test_the_cue_fact_is_written_from_the_camera_and_retrieved(encoder):
+    """Recall with the true slot on one episode: the fact appears once the cue was seen, it names the
+    episode's colour, and the expert succeeds through it; decoys are worded alike."""
+    venv = make_recall_vec_env(1, {"task": TASK, "controller": "scripted", "encoder": encoder, "replan_every": 4,
+                                   "capacity": 6, "location_decoys": 5, "render_backend": "cpu"}, seed=0)
+    try:
+        venv.set_task_seeds([[EVAL_SEED]])
+        venv.reset()
+        memory = venv.venv.memories[0]
+        colour = memory.truth.group
+        assert venv.venv.episode_task_seeds == [EVAL_SEED]
+        done, success, retrieved = False, False, []
+        while not done:
+            slot = memory.true_slot()
+            obs, _, dones, infos = venv.step(np.array([[max(slot, 0)]]))
+            done, success = bool(dones[0]), bool(infos[0]["success"])
+            retrieved.append(infos[0]["retrieved_true"])
+            if not done:
+                texts = [e.text for e in memory.bank.entries]
+        assert f"the cue cube was {colour}." in texts
+        assert all(t.endswith(".") and " was " in t for t in texts)
+        assert any(retrieved) and success and infos[0]["group"] == colour and infos[0]["task_seed"] == EVAL_SEED
+    finally:
+        venv.close()
+
+
+@pytest.mark.parametrize("condition, expected", [("oracle", 1.0), ("wrong", 0.0)])
+def test_rollout_runs_a_mikasa_task_at_its_seeds(condition, expected):
+    result = CliRunner().invoke(main, ["rollout", "--task", TASK, "--controller", "scripted", "--condition", condition,
+                                       "--episodes", "2", "--replan-every", "4", "--json"])
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.output.strip().splitlines()[-1])
+    assert summary["task"] == TASK and summary["seeds"] == [EVAL_SEED, EVAL_SEED + 1]
+    assert summary["success"]["overall"] == expected
+
+
+def test_rollout_refuses_a_layer_on_a_task_without_drawers():
+    result = CliRunner().invoke(main, ["rollout", "--task", TASK, "--controller", "scripted", "--layer", "2"])
+    assert result.exit_code == 2 and "--layer chooses a drawer; task 'RememberColor3-VLA-v0' has none" in result.output
+
+
+def test_demos_of_a_mikasa_task_are_a_lerobot_dataset_whose_prompts_carry_the_fact(tmp_path):
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from sb3_memret.stage1.demos import read_episode_log
+    from sb3_memret.tasks.mikasa.demo_layout import state_names
+
+    out = tmp_path / "rc3"
+    result = CliRunner().invoke(main, ["demos", "--task", TASK, "--episodes", "2", "--seed", "100005", "--n-envs", "1",
+                                       "--noisy-fraction", "0", "--out", str(out), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    log = read_episode_log(out)
+    assert [r["seed"] for r in log] == [100005, 100006] and {r["prompt_kind"] for r in log} == {"matching", "mismatched"} and all(r["frames"] == 25 for r in log)
+    dataset = LeRobotDataset("sb3_memret/rc3", root=out)
+    assert len(dataset) == 50 and dataset.meta.features["observation.state"]["names"] == list(
+        state_names(make_task(TASK).colours))
+    frame = dataset[0]
+    assert frame["observation.state"].shape == (37,) and frame["observation.images.image"].shape == (3, 128, 128)
+    for record in log:
+        kind, prompt, colour = record["prompt_kind"], record["prompt"], record["group"]
+        if kind == "matching":
+            assert prompt.endswith(f"the cue cube was {colour}.") and record["success"]
+        elif kind == "mismatched":
+            assert "the cue cube was" in prompt and not prompt.endswith(f"{colour}.")
+    assert {dataset[i]["task"] for i in range(0, 50, 25)} == {r["prompt"] for r in log}
+
+
+def test_demos_refuse_drawer_options_on_a_mikasa_task(tmp_path):
+    result = CliRunner().invoke(main, ["demos", "--task", TASK, "--objects", "train", "--out", str(tmp_path / "x")])
+    assert result.exit_code == 2 and "--objects applies to the drawer's demonstrations only" in result.output
