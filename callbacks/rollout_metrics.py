@@ -10,7 +10,7 @@ class RolloutRetrievalCallback(BaseCallback):
     """Logs, for the decisions PPO collected this round, how often the sampled selection held
     the true memory (``rollout/sampled_fraction``), plus success, true-memory evictions and the
     mean shaped reward of the episodes that ended in the round, and how many physics workers have
-    died and been restarted so far (``DrawerRecallVecEnv.physics_restarts``)."""
+    died and been restarted so far (``RecallVecEnv.physics_restarts``)."""
 
     def __init__(self, verbose: int = 0):
         super().__init__(verbose)

@@ -2,7 +2,7 @@
 
 One step is one decision: pick K memory slots, append their texts to the instruction, let
 the frozen controller act for ``replan_every`` control steps, write what the simulator now
-says into the bank. It is ``DrawerRecallVecEnv`` (``sb3_memret.envs.vec_env``) with one env
+says into the bank. It is ``RecallVecEnv`` (``sb3_memret.envs.vec_env``) with one env
 whose physics runs in this process, so a gymnasium user and the SB3 trainer play the same code.
 """
 
@@ -14,7 +14,7 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_memret.envs.recall_memory import MODES
-from sb3_memret.envs.vec_env import DrawerRecallVecEnv
+from sb3_memret.envs.vec_env import RecallVecEnv
 from sb3_memret.memory.bank import MemoryBank
 
 __all__ = ["DrawerRecallEnv", "MODES"]
@@ -23,7 +23,7 @@ __all__ = ["DrawerRecallEnv", "MODES"]
 class DrawerRecallEnv(gym.Env):
     """Retrieval decisions over a bounded language memory for a frozen controller (one env).
 
-    Takes ``DrawerRecallVecEnv``'s arguments (mode, controller, capacity, k, replan_every,
+    Takes ``RecallVecEnv``'s arguments (mode, controller, capacity, k, replan_every,
     gamma, success_bonus, max_control_steps, render_backend, seeding, encoder, task_kwargs,
     objects, n_objects, location_decoys, holding_decoys, memory_source); see it for the modes,
     the action and the reward. ``reset(options={"target_layer": L, "target": name})`` fixes the
@@ -33,7 +33,7 @@ class DrawerRecallEnv(gym.Env):
     metadata = {"render_modes": []}
 
     def __init__(self, **kwargs: Any):
-        self.venv = DrawerRecallVecEnv(1, backend="inprocess", **kwargs)
+        self.venv = RecallVecEnv(1, backend="inprocess", **kwargs)
         self.observation_space, self.action_space = self.venv.observation_space, self.venv.action_space
 
     @property

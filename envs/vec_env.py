@@ -1,4 +1,4 @@
-"""DrawerRecallVecEnv: N recall envs served by ONE frozen controller call per decision round.
+"""RecallVecEnv: N recall envs served by ONE frozen controller call per decision round.
 
 The memory banks, writers, encoder, retention critic and the frozen controller live here, in
 the trainer process; the task physics runs in a backend (``sb3_memret.envs.physics``): worker
@@ -42,16 +42,18 @@ from sb3_memret.tasks.base import EnvFrame
 from sb3_memret.workers import torch_threads
 
 
-class DrawerRecallVecEnv(VecEnv):
-    """Retrieval decisions over a bounded language memory for a frozen controller, ``num_envs`` at once.
+class RecallVecEnv(VecEnv):
+    """Retrieval decisions over a bounded language memory for a frozen controller on any ``task``,
+    ``num_envs`` at once.
 
-    Modes: ``recall`` (the layer reaches the controller only through retrieved memories),
-    ``oracle`` (the layer is in the instruction; retrieval is ignored) and ``none`` (the bare
-    instruction). Action per env: ``MultiDiscrete([capacity] * k)``, ordered slots; an empty slot
+    Modes: ``recall`` (what the controller must know, the drawer's layer or a cue's colour, reaches it
+    only through retrieved memories), ``oracle`` (the task's true facts are in the prompt; retrieval is
+    ignored) and ``none`` (the bare instruction). Action per env: ``MultiDiscrete([capacity] * k)``, ordered slots; an empty slot
     adds no text (``info["empty_slots"]`` counts them).
 
     Reward: (1 - gamma) * (gamma * Phi(s') - Phi(s)), s and s' the states before and after the
-    executed control steps, plus ``success_bonus`` on success. Shaping at the decision level,
+    executed control steps, plus ``success_bonus`` on success (a task without a potential Phi, as
+    MIKASA's, gives its env's own reward summed over the steps instead of the shaping term). Shaping at the decision level,
     with the gamma PPO discounts decisions by, telescopes exactly, so it cannot change which
     retrieval policy is optimal (Ng et al., 1999).
 
@@ -120,7 +122,7 @@ class DrawerRecallVecEnv(VecEnv):
         check_mode(mode)
         self.task = make_task(task)
         self.task.check_options(objects=objects != "cube" or n_objects != 1, observed=memory_source == "observed",
-                                household=long_term_capacity > 0)
+                                household=long_term_capacity > 0, observe_potential=observe_potential)
         check_memory_source(memory_source)
         self.retention_rule = check_retention(retention)
         if tasks_per_episode < 1:
@@ -368,17 +370,17 @@ class DrawerRecallVecEnv(VecEnv):
 
 def make_recall_vec_env(n_envs: int = 1, env_kwargs: dict[str, Any] | None = None, seed: int | None = None,
                         backend: str = "auto", ray_address: str | None = None) -> VecMonitor:
-    """``DrawerRecallVecEnv`` with ``n_envs`` envs behind a ``VecMonitor`` (episode return/length logs).
+    """``RecallVecEnv`` with ``n_envs`` envs behind a ``VecMonitor`` (episode return/length logs).
 
     Env ``i`` is seeded with ``seed + i``; ``backend`` and ``ray_address`` place the physics
     (``sb3_memret.envs.physics.make_physics``).
     """
     if n_envs < 1:
         raise ValueError(f"n_envs must be >= 1, got {n_envs}")
-    venv = DrawerRecallVecEnv(n_envs, backend=backend, ray_address=ray_address, **dict(env_kwargs or {}))
+    venv = RecallVecEnv(n_envs, backend=backend, ray_address=ray_address, **dict(env_kwargs or {}))
     if seed is not None:
         venv.seed(seed)
     return VecMonitor(venv)
 
 
-__all__ = ["DrawerRecallVecEnv", "make_recall_vec_env"]
+__all__ = ["RecallVecEnv", "make_recall_vec_env"]

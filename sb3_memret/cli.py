@@ -549,8 +549,8 @@ def evaluate(ctx: click.Context, model_path: Path, task: str | None, condition: 
                f"(sampled fraction {report.sampled_fraction:.1%}, entropy {report.entropy:.2f})")
     click.echo(f"| {'layer' if kwargs.get('task', DEFAULT_TASK) == DEFAULT_TASK else 'group'} | episodes | success |")
     click.echo("|---|---|---|")
-    for key in list(report.episodes_per_layer) + ["overall"]:
-        count = report.episodes if key == "overall" else report.episodes_per_layer[key]
+    for key in list(report.episodes_per_group) + ["overall"]:
+        count = report.episodes if key == "overall" else report.episodes_per_group[key]
         click.echo(f"| {key} | {count} | {report.success[key]:.0%} |")
     if report.needed_fact_gone_rate is not None:
         click.echo(f"before each task, the long-term store kept the target's true fact in {report.target_fact_kept_rate:.0%} "

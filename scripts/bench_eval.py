@@ -5,7 +5,7 @@ Two evaluation paths:
 - controller episodes (``sb3-memret ablate``): ``run_jobs`` playing oracle-prompt episodes
   on every layer, 1 env in-process vs n physics worker processes served by one controller;
 - policy evaluation (``sb3-memret eval``, the training-time evaluation): ``evaluate_retrieval``
-  of an untrained memory policy on the recall env, a 1-env vs an n-env DrawerRecallVecEnv.
+  of an untrained memory policy on the recall env, a 1-env vs an n-env RecallVecEnv.
 
 Each is timed end to end (start-up included, as a user waits for it) and in steady state:
 the rate of the episodes that end after every env has ended its first one, which leaves out

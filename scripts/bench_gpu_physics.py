@@ -1,4 +1,4 @@
-"""Decision throughput of DrawerRecallVecEnv on the batched GPU simulation (``--backend gpu``: one ManiSkill env
+"""Decision throughput of RecallVecEnv on the batched GPU simulation (``--backend gpu``: one ManiSkill env
 with ``num_envs=N`` and ``sim_backend="gpu"``, ``BatchedSimPhysics``), ONE controller call per decision round.
 
 Every (controller, N) is built, warmed up (``--warmup`` rounds: start-up and first kernel launches left out),
@@ -33,7 +33,7 @@ import torch
 from sb3_memret.controllers import FrozenController, make_controller
 from sb3_memret.controllers.learned import LearnedController
 from sb3_memret.envs.physics import stack_obs, to_numpy
-from sb3_memret.envs.vec_env import DrawerRecallVecEnv, make_recall_vec_env
+from sb3_memret.envs.vec_env import RecallVecEnv, make_recall_vec_env
 from sb3_memret.prompts import condition_prompt
 from sb3_memret.rollout import make_task_env, task_env_kwargs
 
@@ -77,7 +77,7 @@ def build_controller(name: str, device: str) -> FrozenController:
     return LearnedController(device=device) if name == "learned" else make_controller(name)
 
 
-def batched_venv(n: int, controller: FrozenController, sim_backend: str, mode: str = "recall") -> DrawerRecallVecEnv:
+def batched_venv(n: int, controller: FrozenController, sim_backend: str, mode: str = "recall") -> RecallVecEnv:
     """``make_recall_vec_env(n, backend="gpu")`` with its physics on ``sim_backend``, unwrapped from its VecMonitor."""
     kwargs = {"controller": controller, "mode": mode, "task_kwargs": {"sim_backend": sim_backend}}
     return make_recall_vec_env(n, kwargs, seed=SEED, backend="gpu").unwrapped
@@ -90,7 +90,7 @@ def release_gpu() -> None:
         torch.cuda.empty_cache()
 
 
-def random_round(venv: DrawerRecallVecEnv, rng: np.random.Generator) -> tuple[np.ndarray, list[dict]]:
+def random_round(venv: RecallVecEnv, rng: np.random.Generator) -> tuple[np.ndarray, list[dict]]:
     """One decision round with uniformly random slot picks; the dones and infos."""
     venv.step_async(rng.integers(venv.slots, size=(venv.num_envs, venv.k)))
     _, _, dones, infos = venv.step_wait()

@@ -1,4 +1,4 @@
-"""Decision throughput of DrawerRecallVecEnv (one controller in the trainer, physics in workers) against
+"""Decision throughput of RecallVecEnv (one controller in the trainer, physics in workers) against
 SB3's SubprocVecEnv over DrawerRecall-v0 (a controller in every worker), measured in the same run.
 
 Every configuration is built and warmed up first (``--warmup`` rounds, so start-up is left out),
@@ -32,7 +32,7 @@ from stable_baselines3.common.vec_env import SubprocVecEnv, VecEnv
 from sb3_memret.controllers import make_controller
 from sb3_memret.envs import RECALL_ENV_ID
 from sb3_memret.envs.physics import stack_obs, to_numpy
-from sb3_memret.envs.vec_env import DrawerRecallVecEnv
+from sb3_memret.envs.vec_env import RecallVecEnv
 from sb3_memret.prompts import condition_prompt
 from sb3_memret.rollout import make_task_env, task_env_kwargs
 from sb3_memret.workers import init_worker_process
@@ -112,7 +112,7 @@ class TimedController:
 
 def one_controller(controller: str, n: int, backend: str) -> Config:
     timed = TimedController(make_controller(controller))
-    venv = DrawerRecallVecEnv(n, controller=timed.controller, backend=backend)
+    venv = RecallVecEnv(n, controller=timed.controller, backend=backend)
     physics = venv.physics
     pids = physics.pids() if backend == "ray" else [p.pid for p in physics.processes]
     return Config(venv, pids, timed)

@@ -34,7 +34,7 @@ def test_counts_every_episode_once_over_several_envs():
     assert report.episodes == len(seen) == 10
     assert report.decisions == 10  # one decision per toy episode, the true memory always present
     assert [episode["decisions"] for episode in seen] == [1] * 10
-    assert sum(report.episodes_per_layer.values()) == 10
+    assert sum(report.episodes_per_group.values()) == 10
     assert set(report.success) >= {"overall"}
 
 
@@ -43,7 +43,7 @@ def test_same_seed_same_report():
     venv = DummyVecEnv([ToyBankEnv] * 2)
     first = evaluate_retrieval(model, venv, 12, seed=3).to_dict()
     second = evaluate_retrieval(model, venv, 12, seed=3).to_dict()
-    for key in ("greedy_accuracy", "success", "episodes_per_layer", "mean_return"):
+    for key in ("greedy_accuracy", "success", "episodes_per_group", "mean_return"):
         assert first[key] == second[key]
 
 

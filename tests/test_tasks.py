@@ -165,6 +165,9 @@ def test_options_a_task_does_not_implement_are_refused(encoder):
     with pytest.raises(ValueError, match="task 'doors-test' does not implement \\['household', 'observed'\\]"):
         make_recall_vec_env(1, {"task": "doors-test", "controller": "scripted", "encoder": encoder,
                                 "long_term_capacity": 2, "memory_source": "observed"})
+    with pytest.raises(ValueError, match="does not implement \\['observe_potential'\\]"):  # it has no potential
+        make_recall_vec_env(1, {"task": "doors-test", "controller": "scripted", "encoder": encoder,
+                                "observe_potential": True})
 
 
 def test_the_memory_learner_trains_on_a_task_of_its_own(encoder):

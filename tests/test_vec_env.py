@@ -1,4 +1,4 @@
-"""DrawerRecallVecEnv: one controller call per decision round for N envs, per-env seeds and
+"""RecallVecEnv: one controller call per decision round for N envs, per-env seeds and
 auto-reset, the retention push, and physics workers that are named when they die."""
 
 import os
@@ -11,7 +11,7 @@ import pytest
 
 from sb3_memret.controllers.scripted import ScriptedDrawerController
 from sb3_memret.envs.physics import InProcessPhysics, ProcessPhysics, make_physics
-from sb3_memret.envs.vec_env import DrawerRecallVecEnv, make_recall_vec_env
+from sb3_memret.envs.vec_env import RecallVecEnv, make_recall_vec_env
 from sb3_memret.policy.networks import RetentionScorer
 from sb3_memret.workers import WorkerDiedError
 
@@ -106,7 +106,7 @@ def test_one_env_stays_in_process_and_bad_arguments_are_refused(encoder):
 
 
 def test_stepping_before_reset_is_refused(encoder):
-    venv = DrawerRecallVecEnv(1, encoder=encoder, **SHORT)
+    venv = RecallVecEnv(1, encoder=encoder, **SHORT)
     try:
         with pytest.raises(RuntimeError, match="reset the envs before stepping them"):
             venv.step(np.zeros((1, 1), dtype=np.int64))
@@ -152,7 +152,7 @@ HOUSEHOLD = dict(objects="train", n_objects=3, memory_source="observed", capacit
 
 
 def test_a_household_remembers_across_tasks_and_a_learning_episode_spans_several(encoder):
-    venv = DrawerRecallVecEnv(1, mode="oracle", controller=ScriptedDrawerController(), encoder=encoder,
+    venv = RecallVecEnv(1, mode="oracle", controller=ScriptedDrawerController(), encoder=encoder,
                               max_control_steps=400, retention="fifo", observe_potential=True, **HOUSEHOLD)
     assert venv.observation_space["memories"].shape == (6, 384) and venv.action_space.nvec.tolist() == [6]
     venv.seed(3)
@@ -185,16 +185,16 @@ def test_a_household_remembers_across_tasks_and_a_learning_episode_spans_several
 
 def test_household_refusals(encoder):
     with pytest.raises(ValueError, match="long-term store is written from what the robot sees"):
-        DrawerRecallVecEnv(1, encoder=encoder, **{**HOUSEHOLD, "memory_source": "seeded"})
-    venv = DrawerRecallVecEnv(1, encoder=encoder, **HOUSEHOLD)
+        RecallVecEnv(1, encoder=encoder, **{**HOUSEHOLD, "memory_source": "seeded"})
+    venv = RecallVecEnv(1, encoder=encoder, **HOUSEHOLD)
     with pytest.raises(ValueError, match="a household decides where its objects are"):
         venv.reset_envs([0], options=[{"target_layer": 2}])
     venv.close()
     with pytest.raises(ValueError, match="unknown retention rule 'newest'"):
-        DrawerRecallVecEnv(1, encoder=encoder, retention="newest")
+        RecallVecEnv(1, encoder=encoder, retention="newest")
     with pytest.raises(ValueError, match="unknown age unit 'days'"):
-        DrawerRecallVecEnv(1, encoder=encoder, age_unit="days")
-    venv = DrawerRecallVecEnv(1, encoder=encoder, **HOUSEHOLD, age_unit="tasks")
+        RecallVecEnv(1, encoder=encoder, age_unit="days")
+    venv = RecallVecEnv(1, encoder=encoder, **HOUSEHOLD, age_unit="tasks")
     with pytest.raises(ValueError, match="reads ages in 'steps', but this env counts them in 'tasks'"):
         venv.set_retention_weights(RetentionScorer().state_dict(), "steps")
     venv.close()

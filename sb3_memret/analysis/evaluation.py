@@ -30,8 +30,8 @@ class RetrievalReport:
     greedy_accuracy: float
     sampled_fraction: float
     entropy: float
-    success: dict[str, float] = field(default_factory=dict)  # "overall" and one key per layer
-    episodes_per_layer: dict[str, int] = field(default_factory=dict)
+    success: dict[str, float] = field(default_factory=dict)  # "overall" and one key per group (the drawer's layer, the cue's colour)
+    episodes_per_group: dict[str, int] = field(default_factory=dict)
     mean_return: float = 0.0  # shaped return per episode
     mean_reward: float = 0.0  # shaped reward per decision
     true_evicted_rate: float = 0.0
@@ -53,7 +53,7 @@ class RetrievalReport:
             "true_evicted_rate": self.true_evicted_rate,
             "episodes": float(self.episodes),
         }
-        metrics.update({f"success_layer_{k}": v for k, v in self.success.items() if k != "overall"})
+        metrics.update({f"success_group_{k}": v for k, v in self.success.items() if k != "overall"})
         metrics.update({f"{flag}_rate": getattr(self, f"{flag}_rate") for flag in HOUSEHOLD_FLAGS
                         if getattr(self, f"{flag}_rate") is not None})
         return metrics
@@ -144,15 +144,15 @@ def evaluate_retrieval(
 def _report(episodes: list[dict[str, Any]], decisions: float, hits: float, sampled: float, entropy: float,
             mean_reward: float, deterministic: bool) -> RetrievalReport:
     success = {"overall": float(np.mean([e["success"] for e in episodes]))}
-    per_layer = {}
+    per_group = {}
     for key in sorted({e["group"] for e in episodes}):
         group = [e["success"] for e in episodes if e["group"] == key]
-        per_layer[key] = len(group)
+        per_group[key] = len(group)
         success[key] = float(np.mean(group))
     safe = max(decisions, 1.0)
     return RetrievalReport(
         episodes=len(episodes), decisions=int(decisions), greedy_accuracy=hits / safe, sampled_fraction=sampled / safe,
-        entropy=entropy / safe, success=success, episodes_per_layer=per_layer,
+        entropy=entropy / safe, success=success, episodes_per_group=per_group,
         mean_return=float(np.mean([e["shaped_return"] for e in episodes])), mean_reward=mean_reward,
         true_evicted_rate=float(np.mean([e["true_evicted"] for e in episodes])), deterministic=deterministic,
         **{f"{flag}_rate": float(np.mean([e[flag] for e in episodes])) if all(flag in e for e in episodes) else None

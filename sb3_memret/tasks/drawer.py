@@ -43,7 +43,7 @@ class DrawerTask(Task):
 
     name = "drawer"
     zoo_config = "memret_ppo.yml"
-    features = frozenset({"objects", "observed", "household"})
+    features = frozenset({"objects", "observed", "household", "observe_potential"})
     max_control_steps = 400
 
     @property

@@ -1,0 +1,181 @@
+"""What a camera sees of MIKASA-Robo-VLA's RememberShape3 task, and what a frozen controller may read.
+
+``read_cue_shape`` reads the cue's shape from pixels alone; ``ShapeControllerObservation`` strips the
+env's observation down to what a controller with a camera and a shape detector would see.
+
+Calibration (SAPIEN 3.0.3 rasteriser, lavapipe, the 128x128 ``base_camera``; MIKASA's evaluation
+seeds 4242424242 + i). Every shape is the same blue (0, 0, 255), 4 cm across, and the cue stands
+at the table centre in a fixed orientation with the arm parked (actions are no-ops in the cue
+phase), so a cue frame is the same, pixel for pixel, in every episode of a shape. The blue pixels
+(``cube_mask``: min channel <= 20, max >= 80; no table, floor or robot pixel passes) of the three
+cues, rows x columns of their bounding box, the share of it they fill, and the share of them on one
+of the two flat face shades (blue 231 top, 148 camera-facing side, +-6):
+
+=========  ======  =====  =====  ====
+shape      pixels  box    fill   flat
+=========  ======  =====  =====  ====
+cube       24      6x4    1.00   1.00
+cylinder   18      5x4    0.90   1.00
+sphere     14      4x4    0.88   0.21
+=========  ======  =====  =====  ====
+
+The sphere is smooth-shaded (blue 153-238 over its 14 pixels); the cube's two faces and the
+cylinder's top and (at this resolution) side are flat. Area and aspect alone separate the three,
+shading separates the sphere from the others a second way; ``read_cue_shape`` takes the nearest of
+the measured prototypes and refuses a blob that is near none (a gripper finger over a shape, a
+shape cut by the frame). Calibrated for the first three shapes of MIKASA's SHAPE_MAPPING
+(RememberShape3) only: RememberShape5/9's cross, torus, star, ... are not.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, Sequence
+
+import gymnasium as gym
+import numpy as np
+from gymnasium import spaces
+from scipy import ndimage
+
+from sb3_memret.tasks.mikasa.perception import (
+    CUE_PIXEL,
+    CUE_RADIUS,
+    FACE_LEVELS,
+    HIDDEN_Z,
+    MIN_BLOB_PIXELS,
+    REFERENCE_SIZE,
+    _stack,
+    cube_mask,
+)
+
+# MIKASA's RememberShapeVLABaseEnv.SHAPE_MAPPING, in order: index i is actor ``shape_actors[i]``.
+SHAPE_NAMES: tuple[str, ...] = ("cube", "sphere", "cylinder", "cross", "torus", "star", "pyramide", "t_shape",
+                                "crescent")
+CALIBRATED_SHAPES = 3  # prototypes exist for cube, sphere and cylinder (RememberShape3)
+FLAT_LEVELS = (FACE_LEVELS["top"][255], FACE_LEVELS["side"][255])  # blue of a flat top / side face: 231, 148
+FLAT_TOL = 6
+# Each cue's silhouette at 128x128 (measured, see the table above): pixels, rows / columns of its
+# bounding box, the box's share it fills, and its share of flat-shaded pixels.
+PROTOTYPES: dict[str, tuple[float, float, float, float]] = {
+    "cube": (24.0, 1.50, 1.000, 1.00),
+    "sphere": (14.0, 1.00, 0.875, 0.21),
+    "cylinder": (18.0, 1.25, 0.900, 1.00),
+}
+# How far a feature may stray, per prototype distance unit: pixels in log-ratio, aspect, fill, flat share.
+FEATURE_SCALE = np.array([0.12, 0.15, 0.08, 0.25])
+MAX_DISTANCE = 1.0  # a blob farther than this from every prototype is not read (the prototypes are >= 3.1 apart)
+
+
+def cue_blob(rgb: np.ndarray) -> np.ndarray | None:
+    """The mask of the one coloured object at the table centre, or None when none or several are in view."""
+    rgb = np.asarray(rgb)
+    if rgb.ndim != 3 or rgb.shape[-1] != 3:
+        raise ValueError(f"expected one (H, W, 3) frame, got shape {rgb.shape}")
+    labels, n_blobs = ndimage.label(cube_mask(rgb), structure=np.ones((3, 3)))
+    sizes = np.bincount(labels.ravel(), minlength=n_blobs + 1)[1:]
+    scale = np.array(rgb.shape[:2]) / REFERENCE_SIZE
+    blobs = [i + 1 for i, s in enumerate(sizes) if s >= MIN_BLOB_PIXELS * scale.prod()]
+    if len(blobs) != 1:
+        return None
+    blob = labels == blobs[0]
+    centre = np.argwhere(blob).mean(axis=0) / scale
+    return blob if np.hypot(*(centre - CUE_PIXEL)) <= CUE_RADIUS else None
+
+
+def shape_features(rgb: np.ndarray, blob: np.ndarray) -> np.ndarray:
+    """(pixels at 128x128, rows / columns of the bounding box, fill of the box, share of flat-shaded pixels)."""
+    scale = np.array(blob.shape) / REFERENCE_SIZE
+    cells = np.argwhere(blob)
+    rows, cols = cells.max(axis=0) - cells.min(axis=0) + 1
+    area = len(cells)
+    brightest = np.asarray(rgb)[blob].max(axis=-1).astype(np.float32)
+    flat = np.min([np.abs(brightest - level) for level in FLAT_LEVELS], axis=0) <= FLAT_TOL
+    return np.array([area / scale.prod(), rows / cols, area / (rows * cols), flat.mean()])
+
+
+def shape_distances(features: np.ndarray, n_shapes: int) -> np.ndarray:
+    """The scaled distance of ``features`` to each of the first ``n_shapes`` shapes' prototypes."""
+    protos = np.array([PROTOTYPES[name] for name in SHAPE_NAMES[:n_shapes]])
+    delta = np.column_stack([np.log(features[0] / protos[:, 0]), features[1:] - protos[:, 1:]]) / FEATURE_SCALE
+    return np.linalg.norm(delta, axis=1)
+
+
+def read_cue_shape(rgb: np.ndarray, n_shapes: int = 3) -> str | None:
+    """The shape of the one object at the table centre, or None when no object or several are in view.
+
+    Reads one base-camera frame (H, W, 3) uint8 only: the cue phase is the only phase with exactly
+    one object in sight, at the table centre. Its silhouette and shading go to the nearest of the
+    first ``n_shapes`` shapes' prototypes; a blob near none of them reads as None.
+    """
+    if not 1 <= n_shapes <= CALIBRATED_SHAPES:
+        raise ValueError(f"read_cue_shape is calibrated for the first {CALIBRATED_SHAPES} shapes "
+                         f"{SHAPE_NAMES[:CALIBRATED_SHAPES]} (RememberShape3), got n_shapes={n_shapes}")
+    blob = cue_blob(rgb)
+    if blob is None:
+        return None
+    distances = shape_distances(shape_features(rgb, blob), n_shapes)
+    best = int(distances.argmin())
+    return SHAPE_NAMES[best] if distances[best] <= MAX_DISTANCE else None
+
+
+class DetectorObservation(gym.ObservationWrapper):
+    """A MIKASA observation cut to what a frozen controller with an object detector may see.
+
+    A controller gets its joints (``agent/qpos``, ``qvel``), its hand (``extra/tcp_pose``), the
+    cameras' ``rgb``, and every candidate object's position by index (``extra/{key}_positions``,
+    (B, n, 3)) and whether it is in sight (``extra/{key}_visible``, (B, n)); hidden objects (parked
+    at z = 1000 by MIKASA) read as invisible and at zero. Everything else is dropped (``oracle_info``,
+    ``task_cue``, the ``goal_{i}_pose`` keys of state modes): the cue's answer must reach a
+    controller only through its prompt. The env's ``info`` is passed on untouched (metrics only).
+    ``actors(base_env)`` lists the candidate objects in index order.
+    """
+
+    def __init__(self, env: gym.Env, actors: Callable[[Any], Sequence[Any]], key: str):
+        super().__init__(env)
+        self._actors, self.key = actors, key
+        self.n_objects = len(actors(env.unwrapped))
+        batch = int(getattr(env.unwrapped, "num_envs", 1))
+        space = env.observation_space
+        self.observation_space = spaces.Dict({
+            "agent": spaces.Dict({k: space["agent"][k] for k in ("qpos", "qvel")}),
+            "extra": spaces.Dict({
+                "tcp_pose": space["extra"]["tcp_pose"],
+                f"{key}_positions": spaces.Box(-np.inf, np.inf, (batch, self.n_objects, 3), np.float32),
+                f"{key}_visible": spaces.Box(0, 1, (batch, self.n_objects), np.bool_),
+            }),
+            "sensor_data": spaces.Dict({
+                cam: spaces.Dict({"rgb": data["rgb"]})
+                for cam, data in space.spaces.get("sensor_data", spaces.Dict()).items() if "rgb" in data
+            }),
+        })
+
+    def observation(self, obs: dict[str, Any]) -> dict[str, Any]:
+        """Whitelist the controller's keys and add the detections."""
+        actors = self._actors(self.env.unwrapped)
+        positions = _stack([actor.pose.p for actor in actors], like=obs["extra"]["tcp_pose"])
+        visible = positions[..., 2] < HIDDEN_Z
+        positions = positions * visible[..., None]
+        return {
+            "agent": {"qpos": obs["agent"]["qpos"], "qvel": obs["agent"]["qvel"]},
+            "extra": {"tcp_pose": obs["extra"]["tcp_pose"], f"{self.key}_positions": positions,
+                      f"{self.key}_visible": visible},
+            "sensor_data": {
+                cam: {"rgb": data["rgb"]} for cam, data in obs.get("sensor_data", {}).items() if "rgb" in data
+            },
+        }
+
+
+def _shape_actors(base: Any) -> list[Any]:
+    return [base.shape_actors[i] for i in sorted(base.shape_actors)]
+
+
+class ShapeControllerObservation(DetectorObservation):
+    """A RememberShape observation cut to a controller's view: ``extra/shape_positions`` (B, n_shapes, 3) and
+    ``extra/shape_visible`` (B, n_shapes) by SHAPE_MAPPING index, as a shape detector would report them."""
+
+    def __init__(self, env: gym.Env):
+        super().__init__(env, _shape_actors, "shape")
+        self.n_shapes = self.n_objects
+
+
+__all__ = ["CALIBRATED_SHAPES", "DetectorObservation", "PROTOTYPES", "SHAPE_NAMES", "ShapeControllerObservation",
+           "cue_blob", "read_cue_shape", "shape_distances", "shape_features"]
