@@ -117,6 +117,14 @@ def _physics_options(command):
                              "every env whatever the backend.")(command)
 
 
+def _run_task(ctx: click.Context, task: str | None, run_task: str, where: Path, controller: str) -> str:
+    """The task of the run at ``where``: ``--task`` must match it if given; ``controller`` is checked on it."""
+    if task is not None and task != run_task:
+        raise click.BadParameter(f"{str(where)!r} was trained on task {run_task!r}, not {task!r}", param_hint="--task")
+    _controller(ctx, None, controller, run_task)
+    return run_task
+
+
 def _load_models(paths: list[Path], param_hint: str) -> list:
     from sb3_memret.policy.ppo import load_model
 
@@ -560,6 +568,7 @@ def evaluate(ctx: click.Context, model_path: Path, task: str | None, condition: 
 
 @main.command()
 @click.argument("ablation", type=click.Choice(["replan", "prompt", "memcount", "wording"]))
+@_task_option()
 @click.option("--controller", default=DEFAULT_CONTROLLER, show_default=True, callback=_controller_spec,
               help="Frozen controller to characterise.")
 @click.option("--episodes", type=click.IntRange(min=1), default=17, show_default=True, help="Episodes per cell.")
@@ -580,13 +589,18 @@ def evaluate(ctx: click.Context, model_path: Path, task: str | None, condition: 
 @_render_backend_option
 @_physics_options
 @click.pass_context
-def ablate(ctx: click.Context, ablation: str, controller: str, episodes: int, seed: int, n_envs: int, layer: int,
+def ablate(ctx: click.Context, ablation: str, task: str, controller: str, episodes: int, seed: int, n_envs: int, layer: int,
            intervals: str, replan_every: int, out: Path | None, as_json: bool, progress: bool,
            render_backend: str, backend: str, ray_address: str | None) -> None:
     """Characterise how a frozen controller consumes memory: ABLATION is replan (success per layer
     per replan interval, oracle memory), prompt (object word x layer number) or memcount (zero, one
     or two memories) or wording (the oracle memory reworded as no training prompt was; these
-    cells alone waive the prompt contract)."""
+    cells alone waive the prompt contract). These are the drawer's ablations (its layers and wordings);
+    another task's prompt conditions are `rollout --task T --condition oracle|none|wrong --replan-every N`."""
+    if task != DEFAULT_TASK:
+        raise click.BadParameter(f"the ablations vary the drawer's layers and wordings; for task {task!r} compare "
+                                 "prompt conditions and replan intervals with `sb3-memret rollout --task "
+                                 f"{task} --condition oracle|none|wrong --replan-every N`", param_hint="--task")
     from sb3_memret.analysis.ablations import (memcount_ablation, prompt_ablation, replan_ablation, run_ablation,
                                       wording_ablation)
 
@@ -642,6 +656,7 @@ def _trace_targets(paths: tuple[Path, ...]) -> list[Path]:
 
 @main.command()
 @click.argument("models", nargs=-1, required=True, type=click.Path(exists=True, path_type=Path))
+@_task_option(default=None)
 @click.option("--seed", type=click.IntRange(min=0), default=HELD_OUT_SEED, show_default=True,
               help="Episode whose first decision is traced (the same bank for every model).")
 @click.option("--sample-seed", type=click.IntRange(min=0), default=0, show_default=True,
@@ -650,10 +665,10 @@ def _trace_targets(paths: tuple[Path, ...]) -> list[Path]:
               help="Frozen controller the memory serves.")
 @click.option("--json", "as_json", is_flag=True, help="Print the traces as JSON on stdout.")
 @_render_backend_option
-def trace(models: tuple[Path, ...], seed: int, sample_seed: int, controller: str, as_json: bool,
-          render_backend: str) -> None:
+def trace(models: tuple[Path, ...], task: str | None, seed: int, sample_seed: int, controller: str, as_json: bool,
+          render_backend: str | None) -> None:
     """Show every memory in the bank at the first retrieval step with each model's retriever score
-    ('*' = sampled, 'C' = the true cube memory). MODELS are model files or run folders (a run
+    ('*' = sampled, 'C' = the true memory). MODELS are model files or run folders (a run
     folder traces its untrained and final policies: before and after training)."""
     from sb3_memret.analysis.trace import model_label, trace_models
     from sb3_memret.training import eval_env_kwargs
@@ -661,12 +676,13 @@ def trace(models: tuple[Path, ...], seed: int, sample_seed: int, controller: str
     paths = _trace_targets(models)
     loaded = list(zip(paths, _load_models(paths, "MODELS")))
     env_kwargs = eval_env_kwargs(loaded[0][1], paths[0], "recall", controller, render_backend)
+    _run_task(click.get_current_context(), task, env_kwargs.get("task", DEFAULT_TASK), paths[0], controller)
     traces = trace_models([(model_label(m, p), m) for p, m in loaded], env_kwargs, seed, sample_seed)
     if as_json:
         click.echo(json.dumps([t.to_dict() for t in traces]))
         return
-    click.echo(f'instruction: "{traces[0].instruction}"   episode seed {seed}, cube in layer {traces[0].target_layer}   '
-               f"( * = sampled, C = true cube memory )")
+    click.echo(f'instruction: "{traces[0].instruction}"   episode seed {seed}, group {traces[0].group}   '
+               f"( * = sampled, C = the true memory )")
     for t in traces:
         click.echo("\n" + t.format())
 
@@ -691,6 +707,7 @@ def plot(run: Path, out: Path | None) -> None:
 
 @main.command()
 @click.argument("run", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@_task_option(default=None)
 @click.option("--controller", default=DEFAULT_CONTROLLER, show_default=True, callback=_controller_spec,
               help="Frozen controller for the baseline evaluations and the trace.")
 @click.option("--baseline-episodes", type=click.IntRange(min=0), default=None,
@@ -700,11 +717,16 @@ def plot(run: Path, out: Path | None) -> None:
               help="Episode of the introspection trace  [default: the run's held-out seed]")
 @_render_backend_option
 @_physics_options
-def report(run: Path, controller: str, baseline_episodes: int | None, n_envs: int, trace_seed: int | None,
-           render_backend: str, backend: str, ray_address: str | None) -> None:
+def report(run: Path, task: str | None, controller: str, baseline_episodes: int | None, n_envs: int,
+           trace_seed: int | None, render_backend: str | None, backend: str, ray_address: str | None) -> None:
     """Write RUN/report.md: what was learned, the learning curves, the evaluation tables, the
     baselines, the before/after trace, any saved ablations and the configuration."""
     from sb3_memret.analysis.report import ReportOptions, write_report
+    from sb3_memret.training import load_run_config
+
+    if (run / "config.yml").exists():
+        _run_task(click.get_current_context(), task, load_run_config(run).env_kwargs.get("task", DEFAULT_TASK), run,
+                  controller)
 
     options = ReportOptions(controller, baseline_episodes, n_envs, trace_seed, render_backend, backend, ray_address)
     try:

@@ -30,7 +30,7 @@ from sb3_memret.callbacks.checkpoint import checkpoints as list_checkpoints
 from sb3_memret.config import TrainConfig, parse_section
 from sb3_memret.controllers import FrozenController, make_controller
 from sb3_memret.envs.vec_env import make_recall_vec_env
-from sb3_memret.tasks import DEFAULT_TASK
+from sb3_memret.tasks import DEFAULT_TASK, make_task
 from sb3_memret.analysis.evaluation import RetrievalReport
 from sb3_memret.policy.networks import HIDDEN
 from sb3_memret.policy.policy import MemoryRetrievalPolicy, saved_retriever
@@ -104,15 +104,17 @@ def env_kwargs_for(config: TrainConfig, controller: str, render_backend: str = "
 
 
 def eval_env_kwargs(model: MemRetPPO, model_path: Path, mode: str, controller: str,
-                    render_backend: str = "none") -> dict[str, Any]:
+                    render_backend: str | None = None) -> dict[str, Any]:
     """Decision-env arguments matching a saved model: its bank size and K from its spaces, the
-    rest of the env settings from the run's config.yml when the model sits in a run folder."""
+    rest of the env settings from the run's config.yml when the model sits in a run folder
+    (``render_backend`` None: the run's task's default)."""
     kwargs: dict[str, Any] = {}
     for folder in (Path(model_path).parent, Path(model_path).parent.parent):
         if (folder / CONFIG_FILE).exists():
             kwargs = dict(load_run_config(folder).env_kwargs)
             break
     nvec = model.action_space.nvec
+    render_backend = render_backend or make_task(kwargs.get("task", DEFAULT_TASK)).default_render_backend
     kwargs.update(mode=mode, controller=controller, gamma=model.gamma, k=len(nvec), render_backend=render_backend,
                   capacity=int(nvec[0]) - kwargs.get("long_term_capacity", 0),
                   observe_potential="potential" in model.observation_space.spaces, age_unit=model.policy.age_unit)

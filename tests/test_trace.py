@@ -58,8 +58,8 @@ def assert_consistent(trace, info):
         assert row.text == info["memory_texts"][row.slot]
     (true_row,) = [row for row in trace.rows if row.true]
     assert true_row.slot == info["true_slot"]
-    assert true_row.text == f"the cube is in drawer layer {trace.target_layer}."
-    assert trace.target_layer == info["target_layer"]
+    assert true_row.text == f"the cube is in drawer layer {trace.group}."
+    assert trace.group == info["group"] == str(info["target_layer"])
     assert sum(row.sampled for row in trace.rows) == 1  # K = 1
     scores = [row.score for row in trace.rows]
     assert scores == sorted(scores, reverse=True)
@@ -111,7 +111,7 @@ def test_to_dict_is_json(model, env, episode):
     data = json.loads(json.dumps(trace.to_dict()))
     assert data["greedy_correct"] == trace.greedy_correct
     assert [row["text"] for row in data["rows"]] == [row.text for row in trace.rows]
-    assert data["target_layer"] == trace.target_layer
+    assert data["group"] == trace.group
 
 
 def test_a_retriever_that_prefers_the_true_memory_is_correct(env, episode, monkeypatch):
@@ -154,6 +154,6 @@ def test_trace_models_traces_each_model_on_the_same_bank(env, encoder, episode, 
 def test_a_bank_without_the_true_memory_says_so():
     rows = (TraceRow(0, "the key is in drawer layer 1.", 0.2, 0.6, True, False),
             TraceRow(1, "the robot is holding the mug.", -0.1, 0.4, False, False))
-    trace = RetrievalTrace("after eviction", "pick out the cube.", 0, 2, 0.5, rows)
+    trace = RetrievalTrace("after eviction", "pick out the cube.", 0, "2", 0.5, rows)
     assert not trace.greedy_correct
-    assert "the true cube memory is not in the bank" in trace.format()
+    assert "the true memory is not in the bank" in trace.format()

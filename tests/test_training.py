@@ -119,7 +119,7 @@ def test_plot_trace_ablate_and_report_of_a_run(run):
                     "## Configuration", "## Reproduce"):
         assert heading in report, heading
     assert "![learning curves](learning_curves.png)" in report
-    assert "| oracle | the instruction + the true cube memory | 1 |" in report and "| none | the bare instruction | 1 |" in report
+    assert "| oracle | the instruction + the true memory | 1 |" in report and "| none | the bare instruction | 1 |" in report
     assert "initial_model.zip (round 0)" in report and "**Prompt ablation: cube in drawer layer 2**" in report
     history_rows = [line for line in report.splitlines() if line.startswith("| ") and line[2].isdigit()]
     assert len(history_rows) == len(read_history(out))

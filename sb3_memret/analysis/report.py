@@ -15,20 +15,20 @@ from pathlib import Path
 from typing import Any, Callable
 
 from sb3_memret.analysis.ablations import ABLATIONS
-from sb3_memret.envs.cabinet import LAYERS
+from sb3_memret.tasks import DEFAULT_TASK
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.analysis.evaluation import RetrievalReport, evaluate_retrieval
 from sb3_memret.analysis.plotting import PLOT_FILE, plot_learning_curves
 from sb3_memret.policy.ppo import MemRetPPO, load_model
 from sb3_memret.analysis.trace import model_label, trace_models
-from sb3_memret.training import (CONFIG_FILE, INITIAL_MODEL, eval_env_kwargs, format_history, read_history,
-                                 retrieval_chance)
+from sb3_memret.training import (CONFIG_FILE, INITIAL_MODEL, eval_env_kwargs, format_history, load_run_config,
+                                 read_history, retrieval_chance)
 
 REPORT_FILE = "report.md"
 MASTERY = 0.95  # greedy accuracy that counts as "learned"
 CONDITION_PROMPTS = {
     "recall": "the instruction + the memory the retriever picks",
-    "oracle": "the instruction + the true cube memory",
+    "oracle": "the instruction + the true memory",
     "none": "the bare instruction",
 }
 
@@ -41,7 +41,7 @@ class ReportOptions:
     baseline_episodes: int | None = None  # None: as many as the final evaluation; 0: skip the baselines
     n_envs: int = 2
     trace_seed: int | None = None  # None: the run's held-out evaluation seed
-    render_backend: str = "none"
+    render_backend: str | None = None  # None: the run's task's default
     backend: str = "auto"  # where the baselines' physics runs (sb3_memret.envs.physics.BACKENDS)
     ray_address: str | None = None
 
@@ -56,6 +56,8 @@ def write_report(run: Path, options: ReportOptions | None = None,
         raise FileNotFoundError(f"{str(run)!r} has no summary.json: not a finished training run "
                                 f"(sb3-memret train writes it when training ends)")
     summary = json.loads(summary_path.read_text())
+    task = load_run_config(run).env_kwargs.get("task", DEFAULT_TASK) if (run / CONFIG_FILE).exists() else DEFAULT_TASK
+    summary.setdefault("task", task)
     history = read_history(run)
     if not history:
         raise ValueError(f"{str(run)!r} holds no evaluations (evaluations.jsonl is missing or empty)")
@@ -79,7 +81,8 @@ def write_report(run: Path, options: ReportOptions | None = None,
         "training-time sampled retrievals that held the true memory (every round), and the policy entropy "
         "(right axis).*",
         "## Held-out evaluations during training",
-        f"{history[0]['episodes']} episodes per evaluation, placement seed {eval_seed}; "
+        f"{history[0]['episodes']} episodes per evaluation, evaluation seed {eval_seed} (and the task's protocol "
+        "seeds where it has them); "
         "greedy accuracy counts decisions where the acted memory was the true one, sampled is the chance "
         "a training-time draw holds it.",
         format_history(history),
@@ -97,7 +100,7 @@ def write_report(run: Path, options: ReportOptions | None = None,
         + f"; {summary['num_timesteps']} decisions in {summary['rounds']} rounds.",
         "## Reproduce",
         "```bash\n" + "\n".join([
-            f"sb3-memret train recall --seed {summary.get('seed', 0)} --out {run}",
+            f"sb3-memret train recall --task {task} --seed {summary.get('seed', 0)} --out {run}",
             f"sb3-memret plot {run}",
             f"sb3-memret trace {run if (run / INITIAL_MODEL).exists() else final_path}",
             f"sb3-memret eval {final_path} --condition recall --episodes {history[-1]['episodes']}",
@@ -123,12 +126,13 @@ def _overview(summary: dict[str, Any], history: list[dict[str, Any]], chance: fl
     lines = [
         f"PPO trained the retriever (actor) and the retention scorer (critic) from random initialisation for "
         f"{summary['rounds']} rounds ({summary['num_timesteps']} decisions, {summary['wall_seconds'] / 60:.1f} min). "
-        "The drawer holding the cube reaches the frozen controller only through the memory the retriever appends "
-        "to its prompt; the reward is physics only, and no label says which memory is right.",
+        f"What the frozen controller must know on task `{summary.get('task', 'drawer')}` (the drawer holding the "
+        "cube, the cue's colour) reaches it only through the memory the retriever appends to its prompt; the "
+        "reward is physics only, and no label says which memory is right.",
         "",
         "**What was learned**",
         "",
-        f"- Greedy retrieval of the true cube memory on held-out episodes: {first['greedy_accuracy']:.0%} at "
+        f"- Greedy retrieval of the true memory on held-out episodes: {first['greedy_accuracy']:.0%} at "
         f"round {first['round']}{chance_text} → {last['greedy_accuracy']:.0%} at round {last['round']}.",
         f"- Greedy accuracy first reached {MASTERY:.0%} at round {mastered['round']} "
         f"({mastered['timesteps']} decisions)." if mastered else
@@ -165,10 +169,11 @@ def _baseline_table(final: RetrievalReport | None, baselines: dict[str, Retrieva
     rows = ([("recall", final)] if final else []) + list(baselines.items())
     if not rows:
         return "No final evaluation was recorded."
-    lines = ["| condition | prompt | episodes | greedy acc. | success | " + " | ".join(f"layer {l}" for l in LAYERS) + " |",
-             "|---|---|---|---|---|" + "---|" * len(LAYERS)]
+    groups = sorted({key for _, report in rows for key in report.success if key != "overall"})
+    lines = ["| condition | prompt | episodes | greedy acc. | success | " + " | ".join(groups) + " |",
+             "|---|---|---|---|---|" + "---|" * len(groups)]
     for name, report in rows:
-        layers = " | ".join(f"{report.success[str(l)]:.0%}" if str(l) in report.success else "–" for l in LAYERS)
+        layers = " | ".join(f"{report.success[g]:.0%}" if g in report.success else "–" for g in groups)
         accuracy = f"{report.greedy_accuracy:.0%}" if name == "recall" else "–"
         lines.append(f"| {name} | {CONDITION_PROMPTS[name]} | {report.episodes} | {accuracy} | "
                      f"{report.success['overall']:.0%} | {layers} |")
@@ -186,9 +191,9 @@ def _traces(run: Path, model: MemRetPPO, final_path: Path, options: ReportOption
 
 def _trace_section(traces: list) -> list[str]:
     head = (f'Instruction "{traces[0].instruction}". '
-            f"Every memory in the bank at the first decision of held-out episode {traces[0].seed} (cube in layer "
-            f"{traces[0].target_layer}), with the retriever's score and first-pick probability; `*` marks a sampled "
-            "pick, `C` the true cube memory.")
+            f"Every memory in the bank at the first decision of held-out episode {traces[0].seed} (group "
+            f"{traces[0].group}), with the retriever's score and first-pick probability; `*` marks a sampled "
+            "pick, `C` the true memory.")
     note = "" if len(traces) > 1 else "\n\n(The run has no initial_model.zip, so only the final policy is traced.)"
     return [head + note, "```text\n" + "\n\n".join(t.format() for t in traces) + "\n```"]
 

@@ -37,7 +37,7 @@ class RetrievalTrace:
     label: str
     instruction: str
     seed: int
-    target_layer: int
+    group: str  # the episode's group: the drawer's layer, the cue's colour
     temperature: float
     rows: tuple[TraceRow, ...]
 
@@ -52,9 +52,9 @@ class RetrievalTrace:
     def format(self) -> str:
         """A plain-text block like Figure 6 of the seed paper."""
         if not any(row.true for row in self.rows):
-            verdict = "a decoy  [the true cube memory is not in the bank: evicted]"
+            verdict = "a decoy  [the true memory is not in the bank: not yet written, or evicted]"
         else:
-            verdict = "the cube  [CORRECT]" if self.greedy_correct else "a decoy  [WRONG]"
+            verdict = "the true memory  [CORRECT]" if self.greedy_correct else "a decoy  [WRONG]"
         width = max(len(row.text) for row in self.rows) + 4
         lines = [f"{self.label}  retriever top-1 = {verdict}",
                  f"  {'':{width}}{'score':>8}{'p(first)':>10}"]
@@ -87,7 +87,7 @@ def trace_first_retrieval(model: BaseAlgorithm, env: gym.Env, seed: int, label: 
                      int(slot) == int(info["true_slot"])) for slot, p in zip(valid, probs)]
     rows.sort(key=lambda row: -row.score)
     instruction = env.unwrapped.instruction()
-    return RetrievalTrace(label, instruction, seed, int(info["target_layer"]), float(policy.temperature), tuple(rows))
+    return RetrievalTrace(label, instruction, seed, str(info["group"]), float(policy.temperature), tuple(rows))
 
 
 def trace_models(models: list[tuple[str, BaseAlgorithm]], env_kwargs: dict[str, Any], seed: int,
