@@ -89,3 +89,14 @@ def test_the_models_retention_critic_is_pushed_before_evaluating():
     for env in venv.envs:
         pushed, = env.received_weights
         assert pushed.keys() == expected.keys() and all(torch.equal(pushed[k], expected[k]) for k in expected)
+
+
+def test_a_report_round_trips_and_reads_runs_saved_with_layer_groups():
+    from sb3_memret.analysis.evaluation import RetrievalReport
+
+    report = RetrievalReport(episodes=4, decisions=8, greedy_accuracy=0.5, sampled_fraction=0.4, entropy=1.0,
+                             success={"overall": 0.5, "red": 1.0, "blue": 0.0}, episodes_per_group={"red": 2, "blue": 2})
+    assert RetrievalReport.from_dict(report.to_dict()) == report
+    old = {**report.to_dict(), "episodes_per_layer": {"1": 4}}
+    del old["episodes_per_group"]
+    assert RetrievalReport.from_dict(old).episodes_per_group == {"1": 4}

@@ -61,6 +61,15 @@ class RetrievalReport:
     def to_dict(self) -> dict[str, Any]:
         return asdict(self)
 
+    @classmethod
+    def from_dict(cls, data: dict[str, Any]) -> "RetrievalReport":
+        """A report as ``to_dict`` wrote it; runs saved before success was grouped by task name the
+        groups ``episodes_per_layer``."""
+        data = dict(data)
+        if "episodes_per_layer" in data:
+            data["episodes_per_group"] = data.pop("episodes_per_layer")
+        return cls(**data)
+
 
 @torch.no_grad()
 def evaluate_retrieval(

@@ -68,7 +68,7 @@ def write_report(run: Path, options: ReportOptions | None = None,
     chance = retrieval_chance(run)
     plot_learning_curves(run, run / PLOT_FILE, chance=chance)
     eval_seed = summary.get("eval_seed", 1_000_000)
-    final = RetrievalReport(**summary["final_eval"]) if summary.get("final_eval") else None
+    final = RetrievalReport.from_dict(summary["final_eval"]) if summary.get("final_eval") else None
     model = load_model(final_path)
     baselines = _baselines(model, final_path, final, eval_seed, options, say)
     say("tracing the first decision")
