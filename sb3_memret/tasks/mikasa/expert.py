@@ -61,9 +61,9 @@ def colour_prompt(colour: str | None) -> str:
     return build_prompt(INSTRUCTION, facts, PROMPT_TEMPLATE)
 
 
-def named_colour(parsed: ParsedPrompt) -> str | None:
-    """The colour word of the prompt's first cue fact, or None without one."""
-    return next((v for f in parsed.facts for k, v in f.fields if k == "colour"), None)
+def named_word(parsed: ParsedPrompt, field: str = "colour") -> str | None:
+    """The ``field`` word (``colour``, ``shape``) of the prompt's first fact that has one, or None."""
+    return next((v for f in parsed.facts for k, v in f.fields if k == field), None)
 
 
 @functools.lru_cache(maxsize=1)
@@ -104,14 +104,20 @@ class TouchGains:
 
 
 class ScriptedTouchController(FrozenController):
-    """Moves the TCP onto the cube whose colour the prompt's fact names, then holds still."""
+    """Moves the TCP onto the object whose word (by default its colour) the prompt's fact names, then
+    holds still. ``vocabulary[i]`` names candidate i of the detector (``extra/{key}_positions``,
+    ``extra/{key}_visible``) and ``field`` is the fact's field that names it; RememberShape's expert
+    is this controller with shapes."""
 
     stateful = False
 
-    def __init__(self, chunk_len: int = 8, gains: TouchGains | None = None):
+    def __init__(self, chunk_len: int = 8, gains: TouchGains | None = None,
+                 vocabulary: Sequence[str] = COLOUR_NAMES, field: str = "colour",
+                 prompt_template: PromptTemplate = PROMPT_TEMPLATE, key: str = "cube"):
         self.gains = gains or TouchGains()
+        self.vocabulary, self.field, self.key = tuple(vocabulary), field, key
         self.spec = ControllerSpec(
-            action_convention="pd_ee_delta_pose", chunk_len=chunk_len, action_dim=7, prompt_template=PROMPT_TEMPLATE
+            action_convention="pd_ee_delta_pose", chunk_len=chunk_len, action_dim=7, prompt_template=prompt_template
         )
         self._batch = 0
 
@@ -125,19 +131,20 @@ class ScriptedTouchController(FrozenController):
         if len(prompts) != self._batch:
             raise RuntimeError(f"reset() was called for {self._batch} envs but act() got {len(prompts)} prompts")
         chunks = np.zeros((len(prompts), self.spec.chunk_len, self.spec.action_dim))
-        colours = [named_colour(p) for p in parsed]
-        if not any(c in COLOUR_NAMES for c in colours):
+        words = [named_word(p, self.field) for p in parsed]
+        if not any(w in self.vocabulary for w in words):
             return chunks
-        tcp = as_numpy(obs["extra"]["tcp_pose"]).astype(np.float64)
-        cubes = as_numpy(obs["extra"]["cube_positions"]).astype(np.float64)
-        visible = as_numpy(obs["extra"]["cube_visible"]).astype(bool)
+        extra = obs["extra"]
+        tcp = as_numpy(extra["tcp_pose"]).astype(np.float64)
+        targets = as_numpy(extra[f"{self.key}_positions"]).astype(np.float64)
+        visible = as_numpy(extra[f"{self.key}_visible"]).astype(bool)
         velocity = tcp_velocity(as_numpy(obs["agent"]["qpos"]), as_numpy(obs["agent"]["qvel"]))
-        for i, colour in enumerate(colours):
-            if colour not in COLOUR_NAMES:
+        for i, word in enumerate(words):
+            if word not in self.vocabulary:
                 continue  # no cue fact (or a word it was never trained on): hold still
-            index = COLOUR_NAMES.index(colour)
-            cube = cubes[i, index] if index < visible.shape[1] and visible[i, index] else None
-            chunks[i] = self._chunk(tcp[i], velocity[i] * CONTROL_DT, cube)
+            index = self.vocabulary.index(word)
+            target = targets[i, index] if index < visible.shape[1] and visible[i, index] else None
+            chunks[i] = self._chunk(tcp[i], velocity[i] * CONTROL_DT, target)
         return chunks
 
     def _waypoint(self, pos: np.ndarray, cube: np.ndarray | None) -> np.ndarray:
@@ -173,4 +180,4 @@ class ScriptedTouchController(FrozenController):
 
 
 __all__ = ["CUE_FACT", "FACT_TEMPLATE", "INSTRUCTION", "PROMPT_TEMPLATE", "ScriptedTouchController", "TouchGains",
-           "colour_prompt", "named_colour", "tcp_velocity"]
+           "colour_prompt", "named_word", "tcp_velocity"]

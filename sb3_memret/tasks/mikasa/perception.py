@@ -14,7 +14,7 @@ table, floor or robot (300k sampled, arm moving) has a min channel below 36.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Callable, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -88,32 +88,30 @@ def read_cue_colour(rgb: np.ndarray, n_colours: int) -> str | None:
     return COLOUR_NAMES[best] if votes[best] >= MIN_VOTE_SHARE * votes.sum() else None
 
 
-class ControllerObservation(gym.ObservationWrapper):
-    """A RememberColor observation cut to what a frozen controller may see.
+class DetectorObservation(gym.ObservationWrapper):
+    """A MIKASA observation cut to what a frozen controller with an object detector may see.
 
     A controller gets its joints (``agent/qpos``, ``qvel``), its hand (``extra/tcp_pose``), the
-    cameras' ``rgb``, and what a camera with a colour detector would report: every candidate
-    cube's position by colour index (``extra/cube_positions``, (B, n_colours, 3)) and whether it is
-    in sight (``extra/cube_visible``, (B, n_colours)); hidden cubes (parked at z = 1000 by MIKASA)
-    read as invisible and at zero. Everything else is dropped: the cue's answer (``oracle_info``,
-    ``task_cue``, the ``goal_{i}_pose`` keys of state modes) must reach a controller only through
-    its prompt, or the memory under test would be bypassed. Note that the cue cube itself is in
-    sight during the cue phase, as it is to the camera. Arrays stay torch or numpy as the env
-    gives them. The env's ``info`` is passed on untouched (it holds ``oracle_info``: metrics only).
+    cameras' ``rgb``, and every candidate object's position by index (``extra/{key}_positions``,
+    (B, n, 3)) and whether it is in sight (``extra/{key}_visible``, (B, n)); hidden objects (parked
+    at z = 1000 by MIKASA) read as invisible and at zero. Everything else is dropped (``oracle_info``,
+    ``task_cue``, the ``goal_{i}_pose`` keys of state modes): the cue's answer must reach a
+    controller only through its prompt. The env's ``info`` is passed on untouched (metrics only).
+    ``actors(base_env)`` lists the candidate objects in index order.
     """
 
-    def __init__(self, env: gym.Env):
+    def __init__(self, env: gym.Env, actors: Callable[[Any], Sequence[Any]], key: str):
         super().__init__(env)
-        base = env.unwrapped
-        self.n_colours = len(base.cubes)
-        batch = int(getattr(base, "num_envs", 1))
+        self._actors, self.key = actors, key
+        self.n_objects = len(actors(env.unwrapped))
+        batch = int(getattr(env.unwrapped, "num_envs", 1))
         space = env.observation_space
         self.observation_space = spaces.Dict({
             "agent": spaces.Dict({k: space["agent"][k] for k in ("qpos", "qvel")}),
             "extra": spaces.Dict({
                 "tcp_pose": space["extra"]["tcp_pose"],
-                "cube_positions": spaces.Box(-np.inf, np.inf, (batch, self.n_colours, 3), np.float32),
-                "cube_visible": spaces.Box(0, 1, (batch, self.n_colours), np.bool_),
+                f"{key}_positions": spaces.Box(-np.inf, np.inf, (batch, self.n_objects, 3), np.float32),
+                f"{key}_visible": spaces.Box(0, 1, (batch, self.n_objects), np.bool_),
             }),
             "sensor_data": spaces.Dict({
                 cam: spaces.Dict({"rgb": data["rgb"]})
@@ -122,18 +120,34 @@ class ControllerObservation(gym.ObservationWrapper):
         })
 
     def observation(self, obs: dict[str, Any]) -> dict[str, Any]:
-        """Whitelist the controller's keys and add the cube detections."""
-        base = self.env.unwrapped
-        positions = _stack([base.cubes[i].pose.p for i in range(self.n_colours)], like=obs["extra"]["tcp_pose"])
+        """Whitelist the controller's keys and add the detections."""
+        actors = self._actors(self.env.unwrapped)
+        positions = _stack([actor.pose.p for actor in actors], like=obs["extra"]["tcp_pose"])
         visible = positions[..., 2] < HIDDEN_Z
         positions = positions * visible[..., None]
         return {
             "agent": {"qpos": obs["agent"]["qpos"], "qvel": obs["agent"]["qvel"]},
-            "extra": {"tcp_pose": obs["extra"]["tcp_pose"], "cube_positions": positions, "cube_visible": visible},
+            "extra": {"tcp_pose": obs["extra"]["tcp_pose"], f"{self.key}_positions": positions,
+                      f"{self.key}_visible": visible},
             "sensor_data": {
                 cam: {"rgb": data["rgb"]} for cam, data in obs.get("sensor_data", {}).items() if "rgb" in data
             },
         }
+
+
+def _cubes(base: Any) -> list[Any]:
+    """MIKASA's candidate cubes by colour index (``base.cubes`` is keyed 0..n-1)."""
+    return [base.cubes[i] for i in range(len(base.cubes))]
+
+
+class ControllerObservation(DetectorObservation):
+    """A RememberColor observation cut to a controller's view: ``extra/cube_positions`` (B, n_colours, 3)
+    and ``extra/cube_visible`` (B, n_colours) by colour index, as a colour detector would report them.
+    Note that the cue cube itself is in sight during the cue phase, as it is to the camera."""
+
+    def __init__(self, env: gym.Env):
+        super().__init__(env, _cubes, "cube")
+        self.n_colours = self.n_objects
 
 
 def _stack(items: list[Any], like: Any) -> Any:
@@ -145,4 +159,5 @@ def _stack(items: list[Any], like: Any) -> Any:
     return np.stack([p.detach().cpu().numpy() if hasattr(p, "detach") else np.asarray(p) for p in items], axis=1)
 
 
-__all__ = ["COLOUR_NAMES", "CUE_MEAN_RGB", "ControllerObservation", "cube_mask", "read_cue_colour"]
+__all__ = ["COLOUR_NAMES", "CUE_MEAN_RGB", "ControllerObservation", "DetectorObservation", "cube_mask",
+           "read_cue_colour"]

@@ -38,8 +38,8 @@ from sb3_memret.prompts import PromptTemplate, build_prompt
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates, Task, check_render_backend
 from sb3_memret.tasks.mikasa import demo_layout
 from sb3_memret.tasks.mikasa.remember_color import EPISODE_STEPS, EVAL_SEED, RENDERER_NEEDED
+from sb3_memret.tasks.mikasa.expert import ScriptedTouchController
 from sb3_memret.tasks.mikasa.shape_perception import SHAPE_NAMES, ShapeControllerObservation, read_cue_shape
-from sb3_memret.tasks.mikasa.touch import TouchController
 
 CUE_ENTITY = "cue object"
 CUE_RELATION = "was_a"  # linearised "was a": "the cue object was a cube."
@@ -60,9 +60,10 @@ def shape_prompt(shape: str | None) -> str:
     return build_prompt(INSTRUCTION, facts, PROMPT_TEMPLATE)
 
 
-def shape_expert(n_shapes: int = 3, chunk_len: int = 8) -> TouchController:
+def shape_expert(n_shapes: int = 3, chunk_len: int = 8) -> ScriptedTouchController:
     """The scripted expert: touches the object whose shape the prompt's fact names; holds still without one."""
-    return TouchController(SHAPE_NAMES[:n_shapes], "shape", PROMPT_TEMPLATE, key="shape", chunk_len=chunk_len)
+    return ScriptedTouchController(chunk_len, vocabulary=SHAPE_NAMES[:n_shapes], field="shape",
+                                   prompt_template=PROMPT_TEMPLATE, key="shape")
 
 
 class ShapeCueWriter:
@@ -162,7 +163,7 @@ class RememberShapeTask(Task):
         other = self.shapes[(self.shapes.index(episode.group) + 1) % self.n_shapes]
         return [CUE_FACT.format(shape=other)]
 
-    def expert(self) -> TouchController:
+    def expert(self) -> ScriptedTouchController:
         return shape_expert(self.n_shapes)
 
     def demo_features(self, with_images: bool) -> dict[str, dict[str, Any]]:

@@ -29,21 +29,19 @@ shape cut by the frame). Calibrated for the first three shapes of MIKASA's SHAPE
 
 from __future__ import annotations
 
-from typing import Any, Callable, Sequence
+from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from gymnasium import spaces
 from scipy import ndimage
 
 from sb3_memret.tasks.mikasa.perception import (
     CUE_PIXEL,
     CUE_RADIUS,
     FACE_LEVELS,
-    HIDDEN_Z,
+    DetectorObservation,
     MIN_BLOB_PIXELS,
     REFERENCE_SIZE,
-    _stack,
     cube_mask,
 )
 
@@ -115,53 +113,6 @@ def read_cue_shape(rgb: np.ndarray, n_shapes: int = 3) -> str | None:
     distances = shape_distances(shape_features(rgb, blob), n_shapes)
     best = int(distances.argmin())
     return SHAPE_NAMES[best] if distances[best] <= MAX_DISTANCE else None
-
-
-class DetectorObservation(gym.ObservationWrapper):
-    """A MIKASA observation cut to what a frozen controller with an object detector may see.
-
-    A controller gets its joints (``agent/qpos``, ``qvel``), its hand (``extra/tcp_pose``), the
-    cameras' ``rgb``, and every candidate object's position by index (``extra/{key}_positions``,
-    (B, n, 3)) and whether it is in sight (``extra/{key}_visible``, (B, n)); hidden objects (parked
-    at z = 1000 by MIKASA) read as invisible and at zero. Everything else is dropped (``oracle_info``,
-    ``task_cue``, the ``goal_{i}_pose`` keys of state modes): the cue's answer must reach a
-    controller only through its prompt. The env's ``info`` is passed on untouched (metrics only).
-    ``actors(base_env)`` lists the candidate objects in index order.
-    """
-
-    def __init__(self, env: gym.Env, actors: Callable[[Any], Sequence[Any]], key: str):
-        super().__init__(env)
-        self._actors, self.key = actors, key
-        self.n_objects = len(actors(env.unwrapped))
-        batch = int(getattr(env.unwrapped, "num_envs", 1))
-        space = env.observation_space
-        self.observation_space = spaces.Dict({
-            "agent": spaces.Dict({k: space["agent"][k] for k in ("qpos", "qvel")}),
-            "extra": spaces.Dict({
-                "tcp_pose": space["extra"]["tcp_pose"],
-                f"{key}_positions": spaces.Box(-np.inf, np.inf, (batch, self.n_objects, 3), np.float32),
-                f"{key}_visible": spaces.Box(0, 1, (batch, self.n_objects), np.bool_),
-            }),
-            "sensor_data": spaces.Dict({
-                cam: spaces.Dict({"rgb": data["rgb"]})
-                for cam, data in space.spaces.get("sensor_data", spaces.Dict()).items() if "rgb" in data
-            }),
-        })
-
-    def observation(self, obs: dict[str, Any]) -> dict[str, Any]:
-        """Whitelist the controller's keys and add the detections."""
-        actors = self._actors(self.env.unwrapped)
-        positions = _stack([actor.pose.p for actor in actors], like=obs["extra"]["tcp_pose"])
-        visible = positions[..., 2] < HIDDEN_Z
-        positions = positions * visible[..., None]
-        return {
-            "agent": {"qpos": obs["agent"]["qpos"], "qvel": obs["agent"]["qvel"]},
-            "extra": {"tcp_pose": obs["extra"]["tcp_pose"], f"{self.key}_positions": positions,
-                      f"{self.key}_visible": visible},
-            "sensor_data": {
-                cam: {"rgb": data["rgb"]} for cam, data in obs.get("sensor_data", {}).items() if "rgb" in data
-            },
-        }
 
 
 def _shape_actors(base: Any) -> list[Any]:
