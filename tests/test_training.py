@@ -102,7 +102,7 @@ def test_plot_trace_ablate_and_report_of_a_run(run):
     assert before["label"] == "initial_model.zip (round 0)" and after["label"].startswith("final_model.zip (round ")
     for trace in (before, after):
         (true_row,) = [row for row in trace["rows"] if row["true"]]
-        assert true_row["text"] == f"the cube is in drawer layer {trace['target_layer']}."
+        assert true_row["text"] == f"the cube is in drawer layer {trace['group']}."
     assert sorted(r["text"] for r in before["rows"]) == sorted(r["text"] for r in after["rows"])  # the same bank
     text = cli("trace", out).output
     assert "C the cube is in drawer layer" in text and "retriever top-1 =" in text
