@@ -26,18 +26,13 @@ its prompt.
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from typing import ClassVar
 
-import gymnasium as gym
 import numpy as np
 
-from sb3_memret.controllers.base import as_numpy
-from sb3_memret.memory.schema import MemoryEntry, MemoryType
-from sb3_memret.memory.seeding import SeedingConfig
+from sb3_memret.memory.schema import MemoryType
 from sb3_memret.prompts import PromptTemplate, build_prompt
-from sb3_memret.tasks.base import EnvFrame, Episode, Predicates, Task, check_render_backend
-from sb3_memret.tasks.mikasa import demo_layout
-from sb3_memret.tasks.mikasa.remember_color import EPISODE_STEPS, EVAL_SEED, RENDERER_NEEDED
+from sb3_memret.tasks.mikasa.cue_task import MikasaCueTask
 from sb3_memret.tasks.mikasa.expert import ScriptedTouchController
 from sb3_memret.tasks.mikasa.shape_perception import SHAPE_NAMES, ShapeControllerObservation, read_cue_shape
 
@@ -66,112 +61,31 @@ def shape_expert(n_shapes: int = 3, chunk_len: int = 8) -> ScriptedTouchControll
                                    prompt_template=PROMPT_TEMPLATE, key="shape")
 
 
-class ShapeCueWriter:
-    """Writes ``the cue object was a {shape}.`` at the control step the base camera showed the cue alone."""
-
-    relations = {"cue": (MemoryType.OTHER, CUE_RELATION)}
-
-    def read(self, frame: EnvFrame) -> list[tuple[int, Predicates]]:
-        return [(step, {("cue", CUE_ENTITY): shape}) for step, shape in frame.timed_percepts() if shape is not None]
-
-
-class RememberShapeTask(Task):
+class RememberShapeTask(MikasaCueTask):
     """MIKASA-Robo-VLA's RememberShape3-VLA-v0: touch the object of the shape shown once, earlier."""
 
-    zoo_config = "memret_ppo_mikasa.yml"
-    perceives_every_step = True
-    default_render_backend = "cpu"
-    max_control_steps = EPISODE_STEPS
+    field, detector_key, truth_attribute = "shape", "shape", "true_shape_indices"
+    cue_entity, cue_relation, cue_fact = CUE_ENTITY, CUE_RELATION, CUE_FACT
+    instruction_text, template, vocabulary = INSTRUCTION, PROMPT_TEMPLATE, SHAPE_NAMES
+    observation_wrapper: ClassVar = ShapeControllerObservation
 
     def __init__(self, env_id: str = "RememberShape3-VLA-v0"):
         if env_id not in SHAPE_TASKS:
             raise ValueError(f"unknown or uncalibrated RememberShape task {env_id!r}; expected one of "
                              f"{sorted(SHAPE_TASKS)}")
-        self.name, self.n_shapes = env_id, SHAPE_TASKS[env_id]
+        super().__init__(env_id, SHAPE_TASKS[env_id])
 
-    def evaluation_seeds(self, n_episodes: int) -> list[int]:
-        return [EVAL_SEED + i for i in range(n_episodes)]
+    @property
+    def n_shapes(self) -> int:
+        return self.n_words
 
     @property
     def shapes(self) -> tuple[str, ...]:
-        return SHAPE_NAMES[: self.n_shapes]
+        return self.words
 
-    # ------------------------------------------------------------ simulation
-    def make_env(self, *, max_episode_steps: int | None = None, num_envs: int = 1, obs_mode: str = "rgb",
-                 render_backend: str = "cpu", **kwargs: Any) -> gym.Env:
-        if render_backend in ("cpu", "sapien_cpu"):
-            from sb3_memret.rendering import use_cpu_renderer
-
-            use_cpu_renderer()
-        import mikasa_robo_suite.vla.memory_envs  # noqa: F401  (registers the *-VLA-v0 ids)
-        from mikasa_robo_suite.vla.utils.wrappers import CurriculumPhaseNoopActionWrapper
-
-        if max_episode_steps is not None:
-            kwargs["max_episode_steps"] = max_episode_steps
-        env = gym.make(self.name, num_envs=num_envs, obs_mode=obs_mode, control_mode="pd_ee_delta_pose",
-                       render_backend=render_backend, reward_mode="normalized_dense", **kwargs)
-        return ShapeControllerObservation(CurriculumPhaseNoopActionWrapper(env))
-
-    def env_kwargs(self, needs_images: bool, render_backend: str) -> dict[str, Any]:
-        """Both of MIKASA's cameras for a controller that reads images; otherwise the base camera alone (the
-        writer's; ``robot_uids="panda"``, the same arm without the wrist camera)."""
-        if check_render_backend(render_backend) == "none":
-            raise ValueError(f"(task {self.name}) {RENDERER_NEEDED}")
-        return {"obs_mode": "rgb", "render_backend": render_backend,
-                "robot_uids": "panda_wristcam" if needs_images else "panda"}
-
-    def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
-        from sb3_memret.envs.physics import select_obs, to_numpy
-
-        obs = to_numpy(obs)
-        shapes = as_numpy(env.unwrapped.true_shape_indices).reshape(-1)  # privileged: for metrics only
-        success = as_numpy(info["success"]).reshape(-1)
-        return [EnvFrame(select_obs(obs, i), {"shape": self.shapes[int(shapes[i])]}, None, bool(success[i]))
-                for i in range(len(success))]
-
-    def perceive(self, env: gym.Env, obs: Any) -> str | None:
-        return read_cue_shape(as_numpy(obs["sensor_data"]["base_camera"]["rgb"])[0], self.n_shapes)
-
-    # ------------------------------------------------------------ memory
-    def writer(self, source: str = "seeded") -> ShapeCueWriter:
-        return ShapeCueWriter()
-
-    def episode(self, frame: EnvFrame) -> Episode:
-        shape = frame.state["shape"]
-        return Episode(CUE_ENTITY, shape, ((CUE_KEY, shape),), {"cue_shape": shape})
-
-    def seed_memories(self, frame: EnvFrame, episode: Episode, rng: np.random.Generator, seeding: SeedingConfig,
-                      facts: bool = True) -> list[MemoryEntry]:
-        """``seeding.location_decoys`` facts worded as the cue's about other things (``the key was a sphere.``);
-        the cue's own fact comes only from what the camera saw, whatever ``facts`` says."""
-        vocab = sorted(set(seeding.vocabulary))
-        return [MemoryEntry.create(MemoryType.OTHER, str(word), CUE_RELATION, str(rng.choice(self.shapes)), 0)
-                for word in rng.choice(vocab, size=seeding.location_decoys, replace=False)]
-
-    # ------------------------------------------------------------ prompts and controllers
-    @property
-    def prompt_template(self) -> PromptTemplate:
-        return PROMPT_TEMPLATE
-
-    def instruction(self, episode: Episode) -> str:
-        return INSTRUCTION
-
-    def oracle_facts(self, episode: Episode) -> list[str]:
-        return [CUE_FACT.format(shape=episode.group)]
-
-    def wrong_facts(self, episode: Episode) -> list[str]:
-        other = self.shapes[(self.shapes.index(episode.group) + 1) % self.n_shapes]
-        return [CUE_FACT.format(shape=other)]
-
-    def expert(self) -> ScriptedTouchController:
-        return shape_expert(self.n_shapes)
-
-    def demo_features(self, with_images: bool) -> dict[str, dict[str, Any]]:
-        return demo_layout.demo_features(self.shapes, with_images, key="shape")
-
-    def demo_frame(self, obs: Any, with_images: bool) -> dict[str, np.ndarray]:
-        return demo_layout.demo_frame(obs, with_images, key="shape")
+    def read_cue(self, rgb: np.ndarray) -> str | None:
+        return read_cue_shape(rgb, self.n_shapes)
 
 
-__all__ = ["CUE_ENTITY", "CUE_FACT", "FACT_TEMPLATE", "INSTRUCTION", "PROMPT_TEMPLATE", "RememberShapeTask",
-           "ShapeCueWriter", "shape_expert", "shape_prompt"]
+__all__ = ["CUE_ENTITY", "CUE_FACT", "CUE_KEY", "FACT_TEMPLATE", "INSTRUCTION", "PROMPT_TEMPLATE", "RememberShapeTask",
+           "shape_expert", "shape_prompt"]

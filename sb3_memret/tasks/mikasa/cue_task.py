@@ -1,0 +1,160 @@
+"""What MIKASA-Robo-VLA's "remember the cue, touch its match" tasks share (RememberColor, RememberShape).
+
+MIKASA's env with its protocol (``pd_ee_delta_pose``, ``CurriculumPhaseNoopActionWrapper``, the
+``normalized_dense`` reward, success once, evaluation at seeds 4242424242 + i); a writer that reads
+the cue from the base camera at every control step and writes one fact about the cue; decoys worded
+like it about other things; the touch expert reading the cue's word from its prompt. A subclass
+names the word (colour, shape), its vocabulary, the fact's wording, the reader and the detector view.
+"""
+
+from __future__ import annotations
+
+from typing import Any, Callable, ClassVar, Mapping
+
+import gymnasium as gym
+import numpy as np
+
+from sb3_memret.controllers.base import as_numpy
+from sb3_memret.memory.schema import Key, MemoryEntry, MemoryType
+from sb3_memret.memory.seeding import SeedingConfig
+from sb3_memret.prompts import PromptTemplate
+from sb3_memret.tasks.base import EnvFrame, Episode, Predicates, Task, check_render_backend
+from sb3_memret.tasks.mikasa import demo_layout
+from sb3_memret.tasks.mikasa.expert import ScriptedTouchController
+
+EVAL_SEED = 4242424242  # MIKASA-Robo-VLA's first evaluation seed; episode i plays EVAL_SEED + i
+EPISODE_STEPS = 25
+RENDERER_NEEDED = ("MIKASA's envs need a renderer even without cameras, and this task's writer reads the cue from "
+                   "the base camera: pass --render-backend cpu (the software renderer of `make renderer`) or gpu")
+
+
+class CueWriter:
+    """Writes the cue's fact (``the cue cube was red.``) at the control step the base camera showed it alone."""
+
+    def __init__(self, entity: str, relation: str):
+        self.entity = entity
+        self.relations = {"cue": (MemoryType.OTHER, relation)}
+
+    def read(self, frame: EnvFrame) -> list[tuple[int, Predicates]]:
+        return [(step, {("cue", self.entity): word}) for step, word in frame.timed_percepts() if word is not None]
+
+
+class MikasaCueTask(Task):
+    """A MIKASA task whose memory is one word about a cue shown once (its colour, its shape)."""
+
+    zoo_config = "memret_ppo_mikasa.yml"
+    perceives_every_step = True
+    default_render_backend = "cpu"
+    max_control_steps = EPISODE_STEPS
+
+    #: the fact's field (``colour``), the detector's observation key (``cube``) and MIKASA's truth attribute
+    field: ClassVar[str]
+    detector_key: ClassVar[str]
+    truth_attribute: ClassVar[str]
+    #: the cue's entity and relation in memory, and the fact about it (a template with ``{field}``)
+    cue_entity: ClassVar[str]
+    cue_relation: ClassVar[str]
+    cue_fact: ClassVar[str]
+    instruction_text: ClassVar[str]
+    template: ClassVar[PromptTemplate]
+    #: the task's words, index i naming MIKASA's candidate i; the first ``n_words`` are in play
+    vocabulary: ClassVar[tuple[str, ...]]
+    observation_wrapper: ClassVar[Callable[[gym.Env], gym.Env]]
+
+    def __init__(self, env_id: str, n_words: int):
+        self.name, self.n_words = env_id, n_words
+
+    @property
+    def words(self) -> tuple[str, ...]:
+        return self.vocabulary[: self.n_words]
+
+    @property
+    def cue_key(self) -> Key:
+        return (MemoryType.OTHER, self.cue_entity, self.cue_relation)
+
+    def read_cue(self, rgb: np.ndarray) -> str | None:
+        """The cue's word in one base-camera frame (H, W, 3), or None when no cue shows alone."""
+        raise NotImplementedError
+
+    def evaluation_seeds(self, n_episodes: int) -> list[int]:
+        return [EVAL_SEED + i for i in range(n_episodes)]
+
+    # ------------------------------------------------------------ simulation
+    def make_env(self, *, max_episode_steps: int | None = None, num_envs: int = 1, obs_mode: str = "rgb",
+                 render_backend: str = "cpu", **kwargs: Any) -> gym.Env:
+        if render_backend in ("cpu", "sapien_cpu"):
+            from sb3_memret.rendering import use_cpu_renderer
+
+            use_cpu_renderer()
+        import mikasa_robo_suite.vla.memory_envs  # noqa: F401  (registers the *-VLA-v0 ids)
+        from mikasa_robo_suite.vla.utils.wrappers import CurriculumPhaseNoopActionWrapper
+
+        if max_episode_steps is not None:
+            kwargs["max_episode_steps"] = max_episode_steps
+        env = gym.make(self.name, num_envs=num_envs, obs_mode=obs_mode, control_mode="pd_ee_delta_pose",
+                       render_backend=render_backend, reward_mode="normalized_dense", **kwargs)
+        return type(self).observation_wrapper(CurriculumPhaseNoopActionWrapper(env))
+
+    def env_kwargs(self, needs_images: bool, render_backend: str) -> dict[str, Any]:
+        """Both of MIKASA's cameras for a controller that reads images; otherwise the base camera alone (the
+        writer's; ``robot_uids="panda"``, the same arm without the wrist camera), a third of the render cost."""
+        if check_render_backend(render_backend) == "none":
+            raise ValueError(f"(task {self.name}) {RENDERER_NEEDED}")
+        return {"obs_mode": "rgb", "render_backend": render_backend,
+                "robot_uids": "panda_wristcam" if needs_images else "panda"}
+
+    def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
+        from sb3_memret.envs.physics import select_obs, to_numpy
+
+        obs = to_numpy(obs)
+        truth = as_numpy(getattr(env.unwrapped, self.truth_attribute)).reshape(-1)  # privileged: for metrics only
+        success = as_numpy(info["success"]).reshape(-1)
+        return [EnvFrame(select_obs(obs, i), {self.field: self.words[int(truth[i])]}, None, bool(success[i]))
+                for i in range(len(success))]
+
+    def perceive(self, env: gym.Env, obs: Any) -> str | None:
+        return self.read_cue(as_numpy(obs["sensor_data"]["base_camera"]["rgb"])[0])
+
+    # ------------------------------------------------------------ memory
+    def writer(self, source: str = "seeded") -> CueWriter:
+        return CueWriter(self.cue_entity, self.cue_relation)
+
+    def episode(self, frame: EnvFrame) -> Episode:
+        word = frame.state[self.field]
+        return Episode(self.cue_entity, word, ((self.cue_key, word),), {f"cue_{self.field}": word})
+
+    def seed_memories(self, frame: EnvFrame, episode: Episode, rng: np.random.Generator, seeding: SeedingConfig,
+                      facts: bool = True) -> list[MemoryEntry]:
+        """``seeding.location_decoys`` facts worded as the cue's about other things (``the key was red.``);
+        the cue's own fact comes only from what the camera saw, whatever ``facts`` says."""
+        vocab = sorted(set(seeding.vocabulary))
+        return [MemoryEntry.create(MemoryType.OTHER, str(word), self.cue_relation, str(rng.choice(self.words)), 0)
+                for word in rng.choice(vocab, size=seeding.location_decoys, replace=False)]
+
+    # ------------------------------------------------------------ prompts and controllers
+    @property
+    def prompt_template(self) -> PromptTemplate:
+        return self.template
+
+    def instruction(self, episode: Episode) -> str:
+        return self.instruction_text
+
+    def oracle_facts(self, episode: Episode) -> list[str]:
+        return [self.cue_fact.format(**{self.field: episode.group})]
+
+    def wrong_facts(self, episode: Episode) -> list[str]:
+        other = self.words[(self.words.index(episode.group) + 1) % self.n_words]
+        return [self.cue_fact.format(**{self.field: other})]
+
+    def expert(self) -> ScriptedTouchController:
+        return ScriptedTouchController(vocabulary=self.words, field=self.field, prompt_template=self.template,
+                                       key=self.detector_key)
+
+    def demo_features(self, with_images: bool) -> dict[str, dict[str, Any]]:
+        return demo_layout.demo_features(self.words, with_images, key=self.detector_key)
+
+    def demo_frame(self, obs: Any, with_images: bool) -> dict[str, np.ndarray]:
+        return demo_layout.demo_frame(obs, with_images, key=self.detector_key)
+
+
+__all__ = ["CueWriter", "EPISODE_STEPS", "EVAL_SEED", "MikasaCueTask", "RENDERER_NEEDED"]
