@@ -58,6 +58,22 @@ def cube_mask(rgb: np.ndarray) -> np.ndarray:
     return (rgb.min(axis=-1) <= CUBE_MAX_MIN_CHANNEL) & (rgb.max(axis=-1) >= CUBE_MIN_MAX_CHANNEL)
 
 
+def cue_blob(rgb: np.ndarray) -> np.ndarray | None:
+    """The mask of the one coloured object at the table centre, or None when none or several are in view."""
+    rgb = np.asarray(rgb)
+    if rgb.ndim != 3 or rgb.shape[-1] != 3:
+        raise ValueError(f"expected one (H, W, 3) frame, got shape {rgb.shape}")
+    labels, n_blobs = ndimage.label(cube_mask(rgb), structure=np.ones((3, 3)))
+    sizes = np.bincount(labels.ravel(), minlength=n_blobs + 1)[1:]
+    scale = np.array(rgb.shape[:2]) / REFERENCE_SIZE
+    blobs = [i + 1 for i, s in enumerate(sizes) if s >= MIN_BLOB_PIXELS * scale.prod()]
+    if len(blobs) != 1:
+        return None
+    blob = labels == blobs[0]
+    centre = np.argwhere(blob).mean(axis=0) / scale
+    return blob if np.hypot(*(centre - CUE_PIXEL)) <= CUE_RADIUS else None
+
+
 def read_cue_colour(rgb: np.ndarray, n_colours: int) -> str | None:
     """The colour of the one cube at the table centre, or None when no cube or several are in view.
 
@@ -68,21 +84,11 @@ def read_cue_colour(rgb: np.ndarray, n_colours: int) -> str | None:
     """
     if not 1 <= n_colours <= len(COLOUR_NAMES):
         raise ValueError(f"n_colours must be in 1..{len(COLOUR_NAMES)}, got {n_colours}")
-    rgb = np.asarray(rgb)
-    if rgb.ndim != 3 or rgb.shape[-1] != 3:
-        raise ValueError(f"expected one (H, W, 3) frame, got shape {rgb.shape}")
-    labels, n_blobs = ndimage.label(cube_mask(rgb), structure=np.ones((3, 3)))
-    sizes = np.bincount(labels.ravel(), minlength=n_blobs + 1)[1:]
-    scale = np.array(rgb.shape[:2]) / REFERENCE_SIZE
-    cubes = [i + 1 for i, s in enumerate(sizes) if s >= MIN_BLOB_PIXELS * scale.prod()]
-    if len(cubes) != 1:
-        return None
-    blob = labels == cubes[0]
-    centre = np.argwhere(blob).mean(axis=0) / scale
-    if np.hypot(*(centre - CUE_PIXEL)) > CUE_RADIUS:
+    blob = cue_blob(rgb)
+    if blob is None:
         return None
     shades, owner = _palette(n_colours)
-    pixels = rgb[blob].astype(np.float32)
+    pixels = np.asarray(rgb)[blob].astype(np.float32)
     votes = np.bincount(owner[np.argmin(((pixels[:, None] - shades[None]) ** 2).sum(-1), axis=1)], minlength=n_colours)
     best = int(votes.argmax())
     return COLOUR_NAMES[best] if votes[best] >= MIN_VOTE_SHARE * votes.sum() else None
@@ -159,5 +165,5 @@ def _stack(items: list[Any], like: Any) -> Any:
     return np.stack([p.detach().cpu().numpy() if hasattr(p, "detach") else np.asarray(p) for p in items], axis=1)
 
 
-__all__ = ["COLOUR_NAMES", "CUE_MEAN_RGB", "ControllerObservation", "DetectorObservation", "cube_mask",
+__all__ = ["COLOUR_NAMES", "CUE_MEAN_RGB", "ControllerObservation", "DetectorObservation", "cue_blob", "cube_mask",
            "read_cue_colour"]

@@ -33,17 +33,8 @@ from typing import Any
 
 import gymnasium as gym
 import numpy as np
-from scipy import ndimage
 
-from sb3_memret.tasks.mikasa.perception import (
-    CUE_PIXEL,
-    CUE_RADIUS,
-    FACE_LEVELS,
-    DetectorObservation,
-    MIN_BLOB_PIXELS,
-    REFERENCE_SIZE,
-    cube_mask,
-)
+from sb3_memret.tasks.mikasa.perception import FACE_LEVELS, REFERENCE_SIZE, DetectorObservation, cue_blob
 
 # MIKASA's RememberShapeVLABaseEnv.SHAPE_MAPPING, in order: index i is actor ``shape_actors[i]``.
 SHAPE_NAMES: tuple[str, ...] = ("cube", "sphere", "cylinder", "cross", "torus", "star", "pyramide", "t_shape",
@@ -61,22 +52,6 @@ PROTOTYPES: dict[str, tuple[float, float, float, float]] = {
 # How far a feature may stray, per prototype distance unit: pixels in log-ratio, aspect, fill, flat share.
 FEATURE_SCALE = np.array([0.12, 0.15, 0.08, 0.25])
 MAX_DISTANCE = 1.0  # a blob farther than this from every prototype is not read (the prototypes are >= 3.1 apart)
-
-
-def cue_blob(rgb: np.ndarray) -> np.ndarray | None:
-    """The mask of the one coloured object at the table centre, or None when none or several are in view."""
-    rgb = np.asarray(rgb)
-    if rgb.ndim != 3 or rgb.shape[-1] != 3:
-        raise ValueError(f"expected one (H, W, 3) frame, got shape {rgb.shape}")
-    labels, n_blobs = ndimage.label(cube_mask(rgb), structure=np.ones((3, 3)))
-    sizes = np.bincount(labels.ravel(), minlength=n_blobs + 1)[1:]
-    scale = np.array(rgb.shape[:2]) / REFERENCE_SIZE
-    blobs = [i + 1 for i, s in enumerate(sizes) if s >= MIN_BLOB_PIXELS * scale.prod()]
-    if len(blobs) != 1:
-        return None
-    blob = labels == blobs[0]
-    centre = np.argwhere(blob).mean(axis=0) / scale
-    return blob if np.hypot(*(centre - CUE_PIXEL)) <= CUE_RADIUS else None
 
 
 def shape_features(rgb: np.ndarray, blob: np.ndarray) -> np.ndarray:
@@ -129,4 +104,4 @@ class ShapeControllerObservation(DetectorObservation):
 
 
 __all__ = ["CALIBRATED_SHAPES", "DetectorObservation", "PROTOTYPES", "SHAPE_NAMES", "ShapeControllerObservation",
-           "cue_blob", "read_cue_shape", "shape_distances", "shape_features"]
+           "read_cue_shape", "shape_distances", "shape_features"]
