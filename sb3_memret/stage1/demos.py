@@ -30,7 +30,7 @@ from __future__ import annotations
 import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
@@ -184,6 +184,38 @@ def _record(episode: DemoEpisode) -> EpisodeFrames:
     return _recorder.record(episode)
 
 
+class DemoDatasetWriter:
+    """A new LeRobotDataset (v3.0, images as PNGs) at ``out`` and the per-episode log beside it. Closing
+    finalises it, so an interrupted run keeps every episode saved so far."""
+
+    def __init__(self, out: str | Path, features: dict[str, dict[str, Any]]):
+        from datasets.utils import logging as datasets_logging
+        from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+        self.out = Path(out)
+        if self.out.exists():
+            raise FileExistsError(f"{self.out} already exists; demonstrations are written to a new folder")
+        self.dataset = LeRobotDataset.create(repo_id=f"sb3_memret/{self.out.name}", fps=FPS, root=self.out,
+                                             robot_type="panda", features=features, use_videos=False,
+                                             video_backend="pyav")  # images are PNGs: no video decoder to probe
+        self._logging = datasets_logging
+        self._bars = datasets_logging.is_progress_bar_enabled()
+        datasets_logging.disable_progress_bar()  # a "Map" bar per saved episode would bury the run's own
+
+    def add_episode(self, frames: Iterable[dict[str, Any]], record: dict[str, Any]) -> None:
+        """Save one episode's frames and append ``record`` (how it was played) to the episode log."""
+        for frame in frames:
+            self.dataset.add_frame(frame)
+        self.dataset.save_episode()
+        with open(self.out / EPISODES_FILE, "a") as f:
+            f.write(json.dumps(record) + "\n")
+
+    def close(self) -> None:
+        self.dataset.finalize()
+        if self._bars:
+            self._logging.enable_progress_bar()
+
+
 def record_demos(
     out: str | Path,
     episodes: Sequence[DemoEpisode],
@@ -206,51 +238,33 @@ def record_demos(
     strangers = sorted({e.target for e in episodes} - set(names))
     if strangers:
         raise ValueError(f"episodes target {strangers}, which are not among the objects {list(names)}")
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
-    out = Path(out)
     if render_backend not in RENDER_BACKENDS:
         raise ValueError(f"unknown render backend {render_backend!r}; expected one of {list(RENDER_BACKENDS)}")
-    if out.exists():
-        raise FileExistsError(f"{out} already exists; demonstrations are written to a new folder")
     if learner is not None:
         make_controller(learner)  # a bad spec fails here, before any worker starts
-    with_images = render_backend != "none"
-    dataset = LeRobotDataset.create(repo_id=f"sb3_memret/{out.name}", fps=FPS, root=out, robot_type="panda",
-                                    features=dataset_features(with_images), use_videos=False,
-                                    video_backend="pyav")  # images are PNGs: no video decoder to probe
+    writer = DemoDatasetWriter(out, dataset_features(render_backend != "none"))
 
     def save(_: DemoEpisode, frames: EpisodeFrames) -> None:
-        for t in range(len(frames.actions)):
-            frame = {STATE_KEY: frames.states[t], ACTION_KEY: frames.actions[t], TASK_KEY: frames.episode.prompt}
-            frame.update({key: images[t] for key, images in frames.images.items()})
-            dataset.add_frame(frame)
-        dataset.save_episode()
-        record = {**asdict(frames.episode), "frames": len(frames.actions), "success": frames.success,
-                  "learner": learner}
-        with open(out / EPISODES_FILE, "a") as f:
-            f.write(json.dumps(record) + "\n")
+        writer.add_episode(
+            ({STATE_KEY: frames.states[t], ACTION_KEY: frames.actions[t], TASK_KEY: frames.episode.prompt,
+              **{key: images[t] for key, images in frames.images.items()}} for t in range(len(frames.actions))),
+            {**asdict(frames.episode), "frames": len(frames.actions), "success": frames.success, "learner": learner})
         if on_episode is not None:
             on_episode(frames)
-
-    from datasets.utils import logging as datasets_logging
 
     from sb3_memret.parallel_rollout import map_in_workers
 
     global _recorder
-    bars = datasets_logging.is_progress_bar_enabled()
-    datasets_logging.disable_progress_bar()  # a "Map" bar per saved episode would bury the run's own
     try:
         map_in_workers(_init_recorder, (render_backend, learner, replan_every, max_steps, names, n_objects), _record,
                        list(episodes), n_workers, save)
     finally:
-        dataset.finalize()  # an interrupted run keeps every episode saved so far
-        if bars:
-            datasets_logging.enable_progress_bar()
+        writer.close()
         if _recorder is not None:
             _recorder.env.close()
             _recorder = None
-    return out
+    return Path(out)
 
 
 def read_episode_log(root: str | Path) -> list[dict]:
@@ -259,5 +273,5 @@ def read_episode_log(root: str | Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
 
 
-__all__ = ["DemoEpisode", "EpisodeFrames", "FPS", "PromptMix", "plan_episodes", "read_episode_log", "record_demos",
+__all__ = ["DemoDatasetWriter", "DemoEpisode", "EpisodeFrames", "FPS", "PromptMix", "plan_episodes", "read_episode_log", "record_demos",
            "record_episode"]

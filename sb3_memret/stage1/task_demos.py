@@ -12,10 +12,9 @@ Episodes are written as they finish; an interrupted run keeps every episode save
 
 from __future__ import annotations
 
-import json
 from dataclasses import asdict, dataclass
 from pathlib import Path
-from typing import Any, Callable, Sequence
+from typing import Callable, Sequence
 
 import numpy as np
 
@@ -23,7 +22,7 @@ from sb3_memret.controllers.base import as_numpy
 from sb3_memret.controllers.observation import ACTION_KEY, TASK_KEY
 from sb3_memret.prompts import build_prompt
 from sb3_memret.rollout import DEFAULT_REPLAN_EVERY
-from sb3_memret.stage1.demos import EPISODES_FILE, PromptMix
+from sb3_memret.stage1.demos import DemoDatasetWriter, PromptMix
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import check_render_backend
 
@@ -132,45 +131,29 @@ def record_task_demos(
     on_episode: Callable[[TaskEpisodeFrames], None] | None = None,
 ) -> Path:
     """Record ``episodes`` of ``task``'s expert into a new LeRobotDataset at ``out`` and return its folder."""
-    from datasets.utils import logging as datasets_logging
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
     from sb3_memret.parallel_rollout import map_in_workers
-    from sb3_memret.stage1.demos import FPS
 
-    out = Path(out)
-    if out.exists():
-        raise FileExistsError(f"{out} already exists; demonstrations are written to a new folder")
     the_task = make_task(task)
-    with_images = check_render_backend(render_backend) != "none"
-    features: dict[str, Any] = the_task.demo_features(with_images)
-    dataset = LeRobotDataset.create(repo_id=f"sb3_memret/{out.name}", fps=FPS, root=out, robot_type="panda",
-                                    features=features, use_videos=False, video_backend="pyav")
+    writer = DemoDatasetWriter(out, the_task.demo_features(check_render_backend(render_backend) != "none"))
 
     def save(_: TaskDemoEpisode, recorded: TaskEpisodeFrames) -> None:
-        for frame, action in zip(recorded.frames, recorded.actions):
-            dataset.add_frame({**frame, ACTION_KEY: action, TASK_KEY: recorded.prompt})
-        dataset.save_episode()
-        record = {**asdict(recorded.episode), "task": the_task.name, "prompt": recorded.prompt,
-                  "group": recorded.group, "frames": len(recorded.actions), "success": recorded.success}
-        with open(out / EPISODES_FILE, "a") as f:
-            f.write(json.dumps(record) + "\n")
+        writer.add_episode(
+            ({**frame, ACTION_KEY: action, TASK_KEY: recorded.prompt}
+             for frame, action in zip(recorded.frames, recorded.actions)),
+            {**asdict(recorded.episode), "task": the_task.name, "prompt": recorded.prompt, "group": recorded.group,
+             "frames": len(recorded.actions), "success": recorded.success})
         if on_episode is not None:
             on_episode(recorded)
 
     global _recorder
-    bars = datasets_logging.is_progress_bar_enabled()
-    datasets_logging.disable_progress_bar()
     try:
         map_in_workers(_init_recorder, (task, render_backend, replan_every), _record, list(episodes), n_workers, save)
     finally:
-        dataset.finalize()
-        if bars:
-            datasets_logging.enable_progress_bar()
+        writer.close()
         if _recorder is not None:
             _recorder.env.close()
             _recorder = None
-    return out
+    return Path(out)
 
 
 __all__ = ["PROMPT_KINDS", "TaskDemoEpisode", "TaskEpisodeFrames", "TaskRecorder", "plan_task_episodes",
