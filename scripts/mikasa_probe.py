@@ -1,13 +1,14 @@
-"""Probe MIKASA-Robo-VLA's RememberColor tasks: the scripted expert's success and the cue reader's accuracy.
+"""Probe MIKASA-Robo-VLA's cue tasks (RememberColor3/5/9, RememberShape3): the scripted expert's success
+and the cue reader's accuracy, through the Task interface.
 
 For each task, ``--episodes`` episodes at MIKASA's evaluation seeds (4242424242 + i) per prompt
-condition: ``oracle`` (instruction + the true cue colour; read from the env's ``oracle_info`` only
-to build this prompt), ``none`` (the bare instruction) and ``wrong`` (the next colour of the task).
-Success is MIKASA's success-once over the 25-step episode. The expert replans every ``--replan``
-control steps, executing the first actions of each 8-step chunk. At every step the base-camera frame
-goes through ``read_cue_colour``, scored against the episode's phase (cue / delay / manipulation).
+condition: ``oracle`` (the task's true fact; its truth is read from the simulator only to build this
+prompt), ``none`` (the bare instruction) and ``wrong`` (the task's wrong fact). Success is MIKASA's
+success-once over the 25-step episode. The expert replans every ``--replan`` control steps,
+executing the first actions of each 8-step chunk. At every step the base-camera frame goes through
+the task's reader (``Task.perceive``), scored against the episode's phase (cue / delay / manipulation).
 
-    .venv/bin/python scripts/mikasa_probe.py [--tasks RememberColor9-VLA-v0] [--episodes 50]
+    .venv/bin/python scripts/mikasa_probe.py [--tasks RememberColor9-VLA-v0 RememberShape3-VLA-v0] [--episodes 50]
 """
 
 from __future__ import annotations
@@ -19,25 +20,16 @@ from dataclasses import dataclass, field
 
 import torch
 
-from sb3_memret.rendering import use_cpu_renderer
 
 MIKASA_SEED = 4242424242
-TASKS = ("RememberColor3-VLA-v0", "RememberColor5-VLA-v0", "RememberColor9-VLA-v0")
+TASKS = ("RememberColor3-VLA-v0", "RememberColor5-VLA-v0", "RememberColor9-VLA-v0", "RememberShape3-VLA-v0")
 CONDITIONS = ("oracle", "none", "wrong")
 
 
-def make_env(env_id: str, obs_mode: str = "rgb"):
-    """A MIKASA env as the project runs it: CPU renderer, MIKASA's no-op wrapper, the controller's view."""
-    use_cpu_renderer()
-    import gymnasium as gym
-    import mikasa_robo_suite.vla.memory_envs  # noqa: F401  (registers the envs)
-    from mikasa_robo_suite.vla.utils.wrappers import CurriculumPhaseNoopActionWrapper
-
-    from sb3_memret.tasks.mikasa.perception import ControllerObservation
-
-    env = gym.make(env_id, num_envs=1, obs_mode=obs_mode, control_mode="pd_ee_delta_pose", render_backend="cpu",
-                   sim_backend="cpu", reward_mode="normalized_dense")
-    return ControllerObservation(CurriculumPhaseNoopActionWrapper(env))
+def make_env(task, obs_mode: str = "rgb", robot_uids: str = "panda"):
+    """The task's env as the project runs it (CPU renderer, MIKASA's no-op wrapper, the controller's view);
+    by default with the base camera only, the reader's."""
+    return task.make_env(obs_mode=obs_mode, render_backend="cpu", sim_backend="cpu", robot_uids=robot_uids)
 
 
 @dataclass
@@ -60,28 +52,27 @@ def phase_of(base, elapsed: int) -> str:
     return "cue" if elapsed < cue else "delay" if elapsed < cue + int(base.empty_steps_per_env[0]) else "manip"
 
 
-def run_episode(env, controller, seed: int, condition: str, replan: int, stats: CueStats) -> tuple[bool, int, float]:
+def run_episode(task, env, controller, seed: int, condition: str, replan: int,
+                stats: CueStats) -> tuple[bool, int, float]:
     """One episode; returns (success once, control steps, seconds spent in env.step)."""
-    from sb3_memret.tasks.mikasa.expert import colour_prompt
-    from sb3_memret.tasks.mikasa.perception import COLOUR_NAMES, read_cue_colour
+    from sb3_memret.prompts import build_prompt
 
     obs, info = env.reset(seed=seed)
     base = env.unwrapped
-    n = len(base.cubes)
-    true = int(info["oracle_info"][0])  # metrics and the oracle prompt only
-    colour = {"oracle": COLOUR_NAMES[true], "wrong": COLOUR_NAMES[(true + 1) % n], "none": None}[condition]
-    prompt = colour_prompt(colour)
+    episode = task.episode(task.frames(env, obs, info, reset=True)[0])  # metrics and the oracle prompt only
+    facts = {"oracle": task.oracle_facts, "wrong": task.wrong_facts}.get(condition, lambda _: [])(episode)
+    prompt = build_prompt(task.instruction(episode), facts, controller.spec.prompt_template)
     controller.reset([seed])
     success, steps, env_seconds, chunk, done = False, 0, 0.0, None, False
     while True:
         elapsed = int(info["elapsed_steps"][0])
         t0 = time.perf_counter()
-        reading = read_cue_colour(obs["sensor_data"]["base_camera"]["rgb"][0].cpu().numpy(), n)
+        reading = task.perceive(env, obs)
         stats.seconds += time.perf_counter() - t0
         phase = phase_of(base, elapsed)
         stats.frames[phase] += 1
         if phase == "cue":
-            stats.confusion[(COLOUR_NAMES[true], reading)] += 1
+            stats.confusion[(episode.group, reading)] += 1
         elif reading is not None:
             stats.false_readings[phase] += 1
         if done:
@@ -97,11 +88,11 @@ def run_episode(env, controller, seed: int, condition: str, replan: int, stats: 
     return success, steps, env_seconds
 
 
-def render_cost(env_id: str, steps: int = 50) -> dict[str, float]:
+def render_cost(task, steps: int = 50) -> dict[str, float]:
     """Seconds per env.step with zero actions in state_dict mode and in rgb mode (two 128x128 cameras)."""
     out = {}
     for mode in ("state_dict", "rgb"):
-        env = make_env(env_id, obs_mode=mode) if mode == "rgb" else _state_env(env_id)
+        env = make_env(task, obs_mode=mode, robot_uids="panda_wristcam")
         env.reset(seed=MIKASA_SEED)
         zero = torch.zeros(1, 7)
         t0 = time.perf_counter()
@@ -112,16 +103,6 @@ def render_cost(env_id: str, steps: int = 50) -> dict[str, float]:
         out[mode] = (time.perf_counter() - t0) / steps
         env.close()
     return out
-
-
-def _state_env(env_id: str):
-    import gymnasium as gym
-
-    use_cpu_renderer()
-    import mikasa_robo_suite.vla.memory_envs  # noqa: F401
-
-    return gym.make(env_id, num_envs=1, obs_mode="state_dict", control_mode="pd_ee_delta_pose", render_backend="cpu",
-                    sim_backend="cpu", reward_mode="normalized_dense")
 
 
 def report_cues(title: str, stats: CueStats) -> None:
@@ -148,17 +129,18 @@ def main() -> None:
                         help="also score the cue reader on N more oracle episodes per task, at seeds 0..N-1")
     args = parser.parse_args()
 
-    from sb3_memret.tasks.mikasa.expert import ScriptedTouchController
+    from sb3_memret.tasks import make_task
 
     for env_id in args.tasks:
-        env = make_env(env_id)
-        controller = ScriptedTouchController()
+        task = make_task(env_id)
+        env = make_env(task)
+        controller = task.expert()
         controller.check_env(env)
         stats = CueStats()
         for condition in args.conditions:
             wins, steps, seconds, t0 = 0, 0, 0.0, time.perf_counter()
             for i in range(args.episodes):
-                ok, n, s = run_episode(env, controller, MIKASA_SEED + i, condition, args.replan, stats)
+                ok, n, s = run_episode(task, env, controller, MIKASA_SEED + i, condition, args.replan, stats)
                 wins, steps, seconds = wins + ok, steps + n, seconds + s
             wall = time.perf_counter() - t0
             print(f"{env_id} {condition:6s} success_once {wins}/{args.episodes} = {wins / args.episodes:.0%}  "
@@ -168,12 +150,12 @@ def main() -> None:
         if args.cue_check:
             stats, wins = CueStats(), 0
             for seed in range(args.cue_check):
-                wins += run_episode(env, controller, seed, "oracle", args.replan, stats)[0]
+                wins += run_episode(task, env, controller, seed, "oracle", args.replan, stats)[0]
             report_cues(f"{env_id} cue reading (seeds 0..{args.cue_check - 1}, oracle success {wins}/{args.cue_check})",
                         stats)
         env.close()
     if not args.no_timing:
-        cost = render_cost(args.tasks[0])
+        cost = render_cost(make_task(args.tasks[0]))
         print(f"{args.tasks[0]} s/step: state_dict {cost['state_dict']:.4f}, rgb {cost['rgb']:.4f} "
               f"(render of 2 cameras ~{cost['rgb'] - cost['state_dict']:.4f} s/step)")
 
