@@ -8,7 +8,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 
 class RolloutRetrievalCallback(BaseCallback):
     """Logs, for the decisions PPO collected this round, how often the sampled selection held
-    the true memory (``rollout/sampled_fraction``), plus success, true-memory evictions and the
+    every memory the controller needs (``rollout/sampled_fraction``), plus success, true-memory evictions and the
     mean shaped reward of the episodes that ended in the round, and how many physics workers have
     died and been restarted so far (``RecallVecEnv.physics_restarts``)."""
 
@@ -29,7 +29,7 @@ class RolloutRetrievalCallback(BaseCallback):
         for info, reward, done in zip(self.locals["infos"], self.locals["rewards"], self.locals["dones"]):
             self.steps += 1
             self.reward += float(reward)
-            if int(info.get("decision_true_slot", -1)) >= 0:
+            if info.get("decision_true_slots"):  # every needed memory was in the bank
                 self.decisions += 1
                 self.hits += bool(info["retrieved_true"])
             if info.get("task_done", done):  # a household's learning episode spans several tasks

@@ -104,7 +104,8 @@ class TaskRunner:
         self.succeeded = self.succeeded or outcome.succeeded or frame.success
         frame.success, frame.steps, frame.reward, frame.percepts = self.succeeded, outcome.steps, outcome.reward, \
             outcome.percepts
-        frame.terminated, frame.truncated = outcome.terminated, outcome.truncated
+        frame.terminated = outcome.terminated or (self.task.ends_at_success and self.succeeded)
+        frame.truncated = outcome.truncated
         return frame
 
     def replay(self, seed: int, options: Mapping[str, Any], chunks: Sequence[np.ndarray]) -> EnvFrame:
@@ -332,7 +333,8 @@ class BatchedSimPhysics(PhysicsBackend):
                     running[i] = False
                     frame = batch[i]
                     frame.success, frame.steps, frame.reward = bool(self.succeeded[i]), step + 1, float(rewards[i])
-                    frame.terminated, frame.truncated = bool(term[i]), bool(trunc[i]) and not bool(term[i])
+                    ended = bool(term[i]) or (self.task.ends_at_success and bool(self.succeeded[i]))
+                    frame.terminated, frame.truncated = ended, bool(trunc[i]) and not ended
                     frames[i] = frame
             if not running.any():
                 break

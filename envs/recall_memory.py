@@ -244,11 +244,22 @@ class EpisodeMemory:
     def is_true(self, entry: MemoryEntry) -> bool:
         return self.truth.is_true(entry)
 
+    def true_slots(self) -> list[int]:
+        """The slots that hold one of the memories the controller needs (a sequence task needs several)."""
+        return [i for i, e in enumerate(self.slot_entries()) if e is not None and self.is_true(e)]
+
+    def facts_in_bank(self) -> bool:
+        """Whether every memory the controller needs is in the bank (only then can a retrieval be right)."""
+        return len(self.true_slots()) == len(self.truth.true_facts)
+
     def true_slot(self) -> int:
-        return next((i for i, e in enumerate(self.slot_entries()) if e is not None and self.is_true(e)), -1)
+        """The first true slot once every needed memory is in the bank, else -1."""
+        slots = self.true_slots()
+        return slots[0] if slots and self.facts_in_bank() else -1
 
     def retrieved_true(self, chosen: list[MemoryEntry]) -> bool:
-        return any(self.is_true(e) for e in chosen)
+        """Whether ``chosen`` holds every memory the controller needs (a hit)."""
+        return {(e.key, e.value) for e in chosen if self.is_true(e)} == set(self.truth.true_facts)
 
     def observation(self) -> dict[str, np.ndarray]:
         views = [store.view(self.ages(store.entries)) for store in self.stores]
@@ -264,6 +275,7 @@ class EpisodeMemory:
     def info(self, success: bool) -> dict[str, Any]:
         info = {
             "true_slot": self.true_slot(),
+            "true_slots": self.true_slots(),
             "true_evicted": self.true_evicted,
             "success": success,
             "group": self.truth.group,

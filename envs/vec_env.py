@@ -269,7 +269,7 @@ class RecallVecEnv(VecEnv):
             raise RuntimeError("reset the envs before stepping them")
         true_slots, chosen, prompts = [], [], []
         for memory, slots in zip(self.memories, actions):
-            true_slots.append(memory.true_slot())
+            true_slots.append(memory.true_slots() if memory.facts_in_bank() else [])
             chosen.append(memory.choose(slots))
             prompts.append(memory.prompt(chosen[-1]))
         with torch_threads(1 if self.physics.shares_cores else None):
@@ -286,7 +286,7 @@ class RecallVecEnv(VecEnv):
             terminated[i], truncated[i] = frame.terminated, frame.truncated and not frame.terminated
             memory.observe(frame)
             info = memory.info(frame.success)
-            info.update(prompt=prompts[i], decision_true_slot=true_slots[i], task_seed=self.episode_task_seeds[i],
+            info.update(prompt=prompts[i], decision_true_slots=true_slots[i], task_seed=self.episode_task_seeds[i],
                         retrieved_true=memory.retrieved_true(chosen[i]), empty_slots=int(self.k - len(chosen[i])))
             observations.append(self._observation(i))
             infos.append(info)

@@ -1,12 +1,14 @@
-"""Probe MIKASA-Robo-VLA's cue tasks (RememberColor3/5/9, RememberShape3): the scripted expert's success
-and the cue reader's accuracy, through the Task interface.
+"""Probe MIKASA-Robo-VLA's cue tasks (RememberColor3/5/9, RememberShape3, SeqOfColors3): the scripted
+expert's success and the cue reader's accuracy, through the Task interface.
 
 For each task, ``--episodes`` episodes at MIKASA's evaluation seeds (4242424242 + i) per prompt
-condition: ``oracle`` (the task's true fact; its truth is read from the simulator only to build this
-prompt), ``none`` (the bare instruction) and ``wrong`` (the task's wrong fact). Success is MIKASA's
-success-once over the 25-step episode. The expert replans every ``--replan`` control steps,
-executing the first actions of each 8-step chunk. At every step the base-camera frame goes through
-the task's reader (``Task.perceive``), scored against the episode's phase (cue / delay / manipulation).
+condition: ``oracle`` (the task's true facts; its truth is read from the simulator only to build this
+prompt), ``none`` (the bare instruction), ``wrong`` (the task's wrong facts) and, for a task that needs
+several facts, ``missing`` (the oracle's facts without the last one). Success is MIKASA's success-once
+over the episode (25 steps; SeqOfColors' 400, ended at success as the toolkit ends it). The expert
+replans every ``--replan`` control steps, executing the first actions of each 8-step chunk. At every
+step the base-camera frame goes through the task's reader (``Task.perceive``), scored against the
+episode's phase (cue / delay / manipulation) and, in the cue, the item on show.
 
     .venv/bin/python scripts/mikasa_probe.py [--tasks RememberColor9-VLA-v0 RememberShape3-VLA-v0] [--episodes 50]
 """
@@ -22,8 +24,9 @@ import torch
 
 
 MIKASA_SEED = 4242424242
-TASKS = ("RememberColor3-VLA-v0", "RememberColor5-VLA-v0", "RememberColor9-VLA-v0", "RememberShape3-VLA-v0")
-CONDITIONS = ("oracle", "none", "wrong")
+TASKS = ("RememberColor3-VLA-v0", "RememberColor5-VLA-v0", "RememberColor9-VLA-v0", "RememberShape3-VLA-v0",
+         "SeqOfColors3-VLA-v0")
+CONDITIONS = ("oracle", "none", "wrong", "missing")
 
 
 def make_env(task, obs_mode: str = "rgb", robot_uids: str = "panda"):
@@ -52,6 +55,21 @@ def phase_of(base, elapsed: int) -> str:
     return "cue" if elapsed < cue else "delay" if elapsed < cue + int(base.empty_steps_per_env[0]) else "manip"
 
 
+def shown_word(base, episode, elapsed: int) -> str:
+    """The word the cue shows at ``elapsed`` (ground truth): a sequence's item on show, else the one cue's."""
+    if len(episode.true_facts) == 1:
+        return episode.group
+    item = min(elapsed // int(base.cue_step_duration_per_env[0]), len(episode.true_facts) - 1)
+    return episode.true_facts[item][1]
+
+
+def condition_facts(task, episode, condition: str) -> list[str]:
+    """The facts a condition's prompt carries."""
+    if condition == "missing":
+        return task.oracle_facts(episode)[:-1]
+    return {"oracle": task.oracle_facts, "wrong": task.wrong_facts}.get(condition, lambda _: [])(episode)
+
+
 def run_episode(task, env, controller, seed: int, condition: str, replan: int,
                 stats: CueStats) -> tuple[bool, int, float]:
     """One episode; returns (success once, control steps, seconds spent in env.step)."""
@@ -60,7 +78,7 @@ def run_episode(task, env, controller, seed: int, condition: str, replan: int,
     obs, info = env.reset(seed=seed)
     base = env.unwrapped
     episode = task.episode(task.frames(env, obs, info, reset=True)[0])  # metrics and the oracle prompt only
-    facts = {"oracle": task.oracle_facts, "wrong": task.wrong_facts}.get(condition, lambda _: [])(episode)
+    facts = condition_facts(task, episode, condition)
     prompt = build_prompt(task.instruction(episode), facts, controller.spec.prompt_template)
     controller.reset([seed])
     success, steps, env_seconds, chunk, done = False, 0, 0.0, None, False
@@ -72,7 +90,7 @@ def run_episode(task, env, controller, seed: int, condition: str, replan: int,
         phase = phase_of(base, elapsed)
         stats.frames[phase] += 1
         if phase == "cue":
-            stats.confusion[(episode.group, reading)] += 1
+            stats.confusion[(shown_word(base, episode, elapsed), reading)] += 1
         elif reading is not None:
             stats.false_readings[phase] += 1
         if done:
@@ -84,7 +102,7 @@ def run_episode(task, env, controller, seed: int, condition: str, replan: int,
         env_seconds += time.perf_counter() - t0
         steps += 1
         success |= bool(info["success"][0])
-        done = bool(terminated[0]) or bool(truncated[0])
+        done = bool(terminated[0]) or bool(truncated[0]) or (success and task.ends_at_success)
     return success, steps, env_seconds
 
 
@@ -137,7 +155,8 @@ def main() -> None:
         controller = task.expert()
         controller.check_env(env)
         stats = CueStats()
-        for condition in args.conditions:
+        several = len(task.oracle_facts(task.episode(task.frames(env, *env.reset(seed=MIKASA_SEED), reset=True)[0]))) > 1
+        for condition in [c for c in args.conditions if c != "missing" or several]:
             wins, steps, seconds, t0 = 0, 0, 0.0, time.perf_counter()
             for i in range(args.episodes):
                 ok, n, s = run_episode(task, env, controller, MIKASA_SEED + i, condition, args.replan, stats)

@@ -59,7 +59,7 @@ def test_uniform_policy_metrics():
     for _ in range(60):
         action, _ = model.predict(obs, deterministic=True)
         obs, _, _, infos = venv.step(action)
-        hits.append(int(action[0, 0]) == infos[0]["decision_true_slot"])
+        hits.append([int(action[0, 0])] == infos[0]["decision_true_slots"])
     assert report.greedy_accuracy == pytest.approx(np.mean(hits))
     assert report.success["overall"] == report.greedy_accuracy  # the toy succeeds exactly on a hit
     assert report.mean_return == pytest.approx(report.greedy_accuracy)

@@ -232,3 +232,113 @@ def test_the_cli_runs_a_task_class_named_by_module_path():
     assert summary["success"]["overall"] == 1.0 and set(summary["success"]) <= {"overall", *COLOURS}
     result = runner.invoke(main, ["rollout", "--task", f"{__name__}:Missing"])
     assert result.exit_code == 2 and f"cannot import 'Missing' from module '{__name__}'" in result.output
+
+
+class PairDoorsEnv(DoorsEnv):
+    """Two lights, shown at steps 0 and 1; the door to stop at is the one ``(first + second) % 3`` counts to,
+    so both facts are needed."""
+
+    def reset(self, *, seed: int | None = None, options: dict | None = None):
+        gym.Env.reset(self, seed=seed)
+        self.colour, self.second, self.x, self.t = *(int(c) for c in self.np_random.integers(3, size=2)), 0.0, 0
+        return self._obs(), self._info()
+
+    @property
+    def door(self) -> int:
+        return (self.colour + self.second) % 3
+
+    def _obs(self) -> dict[str, np.ndarray]:
+        shown = {0: self.colour, 1: self.second}.get(self.t)
+        light = np.eye(3, dtype=np.float32)[shown] if shown is not None else np.zeros(3, np.float32)
+        return {"x": np.array([self.x], np.float32), "light": light, "which": np.array([float(self.t)], np.float32)}
+
+    def _info(self) -> dict[str, Any]:
+        return {"success": abs(self.x - DOORS[self.door]) < 0.05 and self.t > 2}
+
+
+class PairWriter:
+    relations = {"light": (MemoryType.OTHER, "was")}
+
+    def read(self, frame: EnvFrame) -> list[tuple[int, Predicates]]:
+        return [(step, {("light", entity): c}) for step, (entity, c) in frame.timed_percepts() if c is not None]
+
+
+class PairDoorsExpert(DoorsExpert):
+    """Goes to door ``(first + second) % 3`` of the prompt's two light facts; holds still without both."""
+
+    def _act(self, obs, prompts, parsed) -> np.ndarray:
+        chunks = np.zeros((len(prompts), 4, 1), np.float32)
+        for i, prompt in enumerate(parsed):
+            seen = {dict(f.fields)["entity"]: dict(f.fields)["colour"] for f in prompt.facts}
+            if {"first light", "second light"} <= set(seen) and {seen["first light"], seen["second light"]} <= set(COLOURS):
+                goal = DOORS[(COLOURS.index(seen["first light"]) + COLOURS.index(seen["second light"])) % 3]
+                chunks[i, :, 0] = np.clip((goal - float(obs["x"][i, 0])) / 0.25, -1, 1)
+        return chunks
+
+
+class PairDoorsTask(DoorsTask):
+    """The doors with two facts to remember: a retrieval is right only with both (K = 2)."""
+
+    name = "pair-doors-test"
+
+    def make_env(self, *, max_episode_steps: int | None = None, num_envs: int = 1, **kwargs: Any) -> gym.Env:
+        return PairDoorsEnv(max_episode_steps or self.max_control_steps)
+
+    def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
+        batched = {key: np.asarray(value)[None] for key, value in obs.items()}
+        colours = (COLOURS[env.unwrapped.colour], COLOURS[env.unwrapped.second])
+        return [EnvFrame(batched, {"colours": colours}, None, bool(info["success"]))]
+
+    def perceive(self, env: gym.Env, obs: Any) -> tuple[str, str | None]:
+        entity = "first light" if obs["which"][0] == 0 else "second light"
+        return entity, COLOURS[int(np.argmax(obs["light"]))] if obs["light"].any() else None
+
+    def writer(self, source: str = "seeded") -> PairWriter:
+        return PairWriter()
+
+    def episode(self, frame: EnvFrame) -> Episode:
+        first, second = frame.state["colours"]
+        keys = [(MemoryType.OTHER, f"{which} light", "was") for which in ("first", "second")]
+        return Episode("light", first, ((keys[0], first), (keys[1], second)))
+
+    def oracle_facts(self, episode: Episode) -> list[str]:
+        return [FACT.format(entity=f"{which} light", colour=value)
+                for which, (_, value) in zip(("first", "second"), episode.true_facts)]
+
+    def expert(self) -> PairDoorsExpert:
+        return PairDoorsExpert()
+
+
+def test_a_retrieval_counts_only_with_every_needed_fact_in_the_bank_and_hits_only_with_all(encoder):
+    """Two facts needed: the reset decision is not scored (the second light is not yet seen), later ones are, and
+    a hit needs both facts among the K = 2 retrieved; one of them and a decoy is a miss, and the expert holds still."""
+    venv = make_recall_vec_env(1, {"task": PairDoorsTask(), "controller": "scripted", "encoder": encoder,
+                                   "replan_every": 4, "location_decoys": 2, "capacity": 4, "k": 2}, seed=0)
+    venv.reset()
+    memory = venv.venv.memories[0]
+    assert len(memory.true_slots()) == 1 and not memory.facts_in_bank() and memory.true_slot() == -1
+    decoy = next(i for i, e in enumerate(memory.slot_entries()) if not memory.is_true(e))
+    _, _, _, infos = venv.step(np.array([[memory.true_slots()[0], decoy]]))
+    assert infos[0]["decision_true_slots"] == [] and not infos[0]["retrieved_true"]
+    both = memory.true_slots()
+    assert len(both) == 2 and memory.facts_in_bank() and memory.true_slot() == both[0]
+    _, _, _, infos = venv.step(np.array([[both[0], decoy]]))
+    assert sorted(infos[0]["decision_true_slots"]) == sorted(both) and not infos[0]["retrieved_true"]
+    _, _, _, infos = venv.step(np.array([both[::-1]]))
+    assert infos[0]["retrieved_true"] and infos[0]["true_slots"] == sorted(both)
+    venv.close()
+
+
+def test_the_memory_learner_learns_to_retrieve_every_needed_fact(encoder):
+    """K = 2 over 2 facts and 2 decoys: a uniform draw holds both 1 time in 6; PPO learns to hold both."""
+    from sb3_memret.analysis.evaluation import evaluate_retrieval
+
+    venv = make_recall_vec_env(1, {"task": PairDoorsTask(), "controller": "scripted", "encoder": encoder,
+                                   "replan_every": 4, "location_decoys": 2, "capacity": 4, "k": 2}, seed=0)
+    model = MemRetPPO(env=venv, n_steps=64, batch_size=32, gae_lambda=0.7, learning_rate=3e-3, seed=0)
+    before = evaluate_retrieval(model, venv, 20, seed=1000, samples=200)
+    assert before.sampled_fraction == pytest.approx(1 / 6, abs=0.1)
+    model.learn(2048)
+    after = evaluate_retrieval(model, venv, 20, seed=1000)
+    venv.close()
+    assert after.greedy_accuracy >= 0.9 > before.greedy_accuracy and after.success["overall"] >= 0.9

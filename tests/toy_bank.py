@@ -45,6 +45,6 @@ class ToyBankEnv(gym.Env):
 
     def step(self, action):
         hit = int(action[0]) == self.true
-        info = {"true_slot": self.true, "decision_true_slot": self.true, "retrieved_true": hit, "success": hit,
+        info = {"true_slot": self.true, "decision_true_slots": [self.true], "retrieved_true": hit, "success": hit,
                 "group": str(self.layer), "true_evicted": False}
         return self.obs, float(hit), True, False, info

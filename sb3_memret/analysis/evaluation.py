@@ -1,9 +1,10 @@
 """Held-out evaluation of a memory policy: retrieval quality and task success in one pass.
 
-Retrieval is scored at every decision where the true cube memory is in the bank:
-greedy accuracy (the acted top-K contains it), the sampled fraction (how often a
-Plackett-Luce draw at the training temperature would contain it, estimated from
-``samples`` draws per state), and the policy entropy. Task success is reported per layer.
+Retrieval is scored at every decision where every memory the controller needs (the drawer's
+one, a sequence's several) is in the bank: greedy accuracy (the acted top-K contains them all),
+the sampled fraction (how often a Plackett-Luce draw at the training temperature would contain
+them all, estimated from ``samples`` draws per state), and the policy entropy. Task success is
+reported per group (the drawer's layer, a cue's word).
 """
 
 from __future__ import annotations
@@ -26,7 +27,7 @@ class RetrievalReport:
     """What one held-out evaluation measured; ``as_metrics`` flattens it for a logger."""
 
     episodes: int
-    decisions: int  # decisions with the true memory in the bank
+    decisions: int  # decisions with every needed memory in the bank
     greedy_accuracy: float
     sampled_fraction: float
     entropy: float
@@ -126,11 +127,12 @@ def evaluate_retrieval(
                 lengths[i] += 1
                 rewards_total, steps_total = rewards_total + float(rewards[i]), steps_total + 1
                 evicted[i] |= bool(info["true_evicted"])
-                true = int(info["decision_true_slot"])
-                if true >= 0:
+                true = list(info["decision_true_slots"])
+                if true:  # every needed memory was in the bank
                     decisions += 1
                     hits += bool(info["retrieved_true"])
-                    sampled += float((draws[i] == true).any(-1).float().mean())
+                    held = torch.stack([(draws[i] == slot).any(-1) for slot in true]).all(0)  # (S,) all retrieved
+                    sampled += float(held.float().mean())
                     entropy += float(ent[i])
                 if info.get("task_done", dones[i]):  # a household's learning episode spans several tasks
                     episode = dict(group=str(info["group"]), success=bool(info["success"]),

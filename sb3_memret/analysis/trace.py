@@ -84,7 +84,7 @@ def trace_first_retrieval(model: BaseAlgorithm, env: gym.Env, seed: int, label: 
     probs /= probs.sum()
     texts = info["memory_texts"]
     rows = [TraceRow(int(slot), texts[slot], float(scores[slot]), float(p), int(slot) in sampled,
-                     int(slot) == int(info["true_slot"])) for slot, p in zip(valid, probs)]
+                     int(slot) in info["true_slots"]) for slot, p in zip(valid, probs)]
     rows.sort(key=lambda row: -row.score)
     instruction = env.unwrapped.instruction()
     return RetrievalTrace(label, instruction, seed, str(info["group"]), float(policy.temperature), tuple(rows))

@@ -60,6 +60,9 @@ class MikasaCueTask(Task):
     #: the task's words, index i naming MIKASA's candidate i; the first ``n_words`` are in play
     vocabulary: ClassVar[tuple[str, ...]]
     observation_wrapper: ClassVar[Callable[[gym.Env], gym.Env]]
+    #: whether MIKASA's wrapper table gives the task its ``CurriculumPhaseNoopActionWrapper`` (no-op actions
+    #: during the cue and delay phases)
+    noop_before_manipulation: ClassVar[bool] = True
 
     def __init__(self, env_id: str, n_words: int):
         self.name, self.n_words = env_id, n_words
@@ -93,7 +96,9 @@ class MikasaCueTask(Task):
             kwargs["max_episode_steps"] = max_episode_steps
         env = gym.make(self.name, num_envs=num_envs, obs_mode=obs_mode, control_mode="pd_ee_delta_pose",
                        render_backend=render_backend, reward_mode="normalized_dense", **kwargs)
-        return type(self).observation_wrapper(CurriculumPhaseNoopActionWrapper(env))
+        if self.noop_before_manipulation:
+            env = CurriculumPhaseNoopActionWrapper(env)
+        return type(self).observation_wrapper(env)
 
     def env_kwargs(self, needs_images: bool, render_backend: str) -> dict[str, Any]:
         """Both of MIKASA's cameras for a controller that reads images; otherwise the base camera alone (the
