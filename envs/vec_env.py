@@ -7,6 +7,10 @@ processes on the CPU, one batched ManiSkill env on the GPU, or Ray actors. One d
     slots (N, K) ──banks──▶ N prompts ──controller.act(obs[N], prompts[N])──▶ chunks (N, H, 7)
       ──physics: replan_every steps in every env──▶ frames ──writers──▶ banks, rewards, infos
 
+With ``replans_per_decision`` R > 1 the controller replans R times (each from the new observation,
+with the same prompt) before the retriever decides again: memory is consulted less often than the
+controller acts, so one retrieval's effect on the episode is larger and easier to credit.
+
 Episodes that end are reset at once (SB3's auto-reset: ``info["terminal_observation"]``), each
 env drawing its next episode from its own generator, seeded by ``seed(s)`` as ``s + i``.
 """
@@ -57,9 +61,12 @@ class RecallVecEnv(VecEnv):
     with the gamma PPO discounts decisions by, telescopes exactly, so it cannot change which
     retrieval policy is optimal (Ng et al., 1999).
 
+    With ``replans_per_decision`` R, a decision holds its prompt for R replans (R * replan_every steps);
+    its reward sums the env's reward over them (or shapes from the first state to the last).
+
     ``backend`` picks where the physics runs (``sb3_memret.envs.physics.BACKENDS``; ``auto``:
     in-process for one env, worker processes for several); ``ray_address`` a Ray cluster.
-    ``controller_calls`` counts ``controller.act`` calls: one per decision round.
+    ``controller_calls`` counts ``controller.act`` calls: one per replan round (R per decision round).
 
     ``objects`` (a named set of ``sb3_memret.envs.objects.OBJECT_SETS`` or a list of objects) and
     ``n_objects`` hide several objects in the drawers; the instruction names one, the target, and
@@ -95,6 +102,7 @@ class RecallVecEnv(VecEnv):
         capacity: int = 6,
         k: int = 1,
         replan_every: int = 8,
+        replans_per_decision: int = 1,
         gamma: float = 0.97,
         success_bonus: float = 0.0,
         max_control_steps: int | None = None,
@@ -138,6 +146,9 @@ class RecallVecEnv(VecEnv):
         self.controller = make_controller(controller, self.task) if isinstance(controller, str) else controller
         if not 1 <= replan_every <= self.controller.spec.chunk_len:
             raise ValueError(f"replan_every must be in [1, {self.controller.spec.chunk_len}], got {replan_every}")
+        if replans_per_decision < 1:
+            raise ValueError(f"replans_per_decision must be >= 1, got {replans_per_decision}")
+        self.replans_per_decision = replans_per_decision
         objects_kwargs = {"objects": object_set(objects), "n_objects": n_objects} if "objects" in self.task.features else {}
         task_kwargs = {**task_env_kwargs(self.controller, render_backend, self.task), **objects_kwargs,
                        **(task_kwargs or {})}
@@ -272,19 +283,26 @@ class RecallVecEnv(VecEnv):
             true_slots.append(memory.true_slots() if memory.facts_in_bank() else [])
             chosen.append(memory.choose(slots))
             prompts.append(memory.prompt(chosen[-1]))
-        with torch_threads(1 if self.physics.shares_cores else None):
-            chunks = self.controller.act(stack_obs([frame.obs for frame in self.frames]), prompts)
-        self.controller_calls += 1
-        frames = self.physics.execute({i: chunks[i, : self.replan_every] for i in range(self.num_envs)})
-        rewards = np.zeros(self.num_envs, dtype=np.float32)
+        starts, rewards = list(self.frames), np.zeros(self.num_envs, dtype=np.float32)
+        running = list(range(self.num_envs))
+        for _ in range(self.replans_per_decision):  # the same prompts, each replan from the newest observation
+            with torch_threads(1 if self.physics.shares_cores else None):
+                chunks = self.controller.act(stack_obs([frame.obs for frame in self.frames]), prompts)
+            self.controller_calls += 1
+            frames = self.physics.execute({i: chunks[i, : self.replan_every] for i in running})
+            for i in running:
+                self.frames[i] = frames[i]
+                self.memories[i].observe(frames[i])
+                rewards[i] += frames[i].reward
+            running = [i for i in running if not (frames[i].terminated or frames[i].truncated)]
+            if not running:
+                break
         terminated, truncated = np.zeros(self.num_envs, bool), np.zeros(self.num_envs, bool)
         observations, infos = [], []
         for i, memory in enumerate(self.memories):
-            before, frame = self.frames[i], frames[i]
-            self.frames[i] = frame
-            rewards[i] = self._reward(before, frame)
+            frame = dataclasses.replace(self.frames[i], reward=float(rewards[i]))
+            rewards[i] = self._reward(starts[i], frame)
             terminated[i], truncated[i] = frame.terminated, frame.truncated and not frame.terminated
-            memory.observe(frame)
             info = memory.info(frame.success)
             info.update(prompt=prompts[i], decision_true_slots=true_slots[i], task_seed=self.episode_task_seeds[i],
                         retrieved_true=memory.retrieved_true(chosen[i]), empty_slots=int(self.k - len(chosen[i])))

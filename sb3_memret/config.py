@@ -49,6 +49,7 @@ ENV_KEYS: dict[str, Check] = {
     "capacity": _positive_int(),
     "k": _positive_int(),
     "replan_every": _positive_int(),
+    "replans_per_decision": _positive_int(),
     "max_control_steps": _positive_int(),
     "success_bonus": ((int, float), lambda v: v >= 0, "a number >= 0"),
     "objects": (str, lambda v: v in OBJECT_SETS, f"one of the object sets {sorted(OBJECT_SETS)}"),

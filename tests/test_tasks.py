@@ -342,3 +342,30 @@ def test_the_memory_learner_learns_to_retrieve_every_needed_fact(encoder):
     after = evaluate_retrieval(model, venv, 20, seed=1000)
     venv.close()
     assert after.greedy_accuracy >= 0.9 > before.greedy_accuracy and after.success["overall"] >= 0.9
+
+
+def test_a_decision_can_hold_its_prompt_for_several_replans(encoder):
+    """``replans_per_decision`` R: each decision executes R replans (R controller calls) with one prompt, sums the
+    env's reward over them, and a decision cut short by the episode's end stops there."""
+    kwargs = {"task": DoorsTask(), "controller": "scripted", "encoder": encoder, "replan_every": 2,
+              "location_decoys": 3, "capacity": 4}
+    one = make_recall_vec_env(1, kwargs, seed=0)
+    three = make_recall_vec_env(1, {**kwargs, "replans_per_decision": 3}, seed=0)
+    with pytest.raises(ValueError, match="replans_per_decision must be >= 1, got 0"):
+        make_recall_vec_env(1, {**kwargs, "replans_per_decision": 0})
+    one.reset(), three.reset()
+    decoy = next(i for i, e in enumerate(one.venv.memories[0].slot_entries()) if not one.venv.memories[0].is_true(e))
+    rewards_one = [float(one.step(np.array([[decoy]]))[1][0]) for _ in range(3)]  # the decoy: the expert goes astray
+    _, reward_three, _, infos = three.step(np.array([[decoy]]))
+    assert three.unwrapped.controller_calls == 3 and one.unwrapped.controller_calls == 3
+    assert three.venv.memories[0].t == one.venv.memories[0].t == 6
+    assert float(reward_three[0]) == pytest.approx(sum(rewards_one), rel=1e-5)
+    five = make_recall_vec_env(1, {**kwargs, "replans_per_decision": 5}, seed=0)  # 10 steps a decision
+    five.reset()
+    memory = five.venv.memories[0]
+    astray = next(i for i, e in enumerate(memory.slot_entries()) if e.value != memory.truth.group)
+    dones = [bool(five.step(np.array([[astray]]))[2][0]) for _ in range(3)]
+    assert dones == [False, False, True]  # the 24-step episode ends 4 steps (2 replans) into the third decision
+    assert five.unwrapped.controller_calls == 5 + 5 + 2
+    five.close()
+    one.close(), three.close()
