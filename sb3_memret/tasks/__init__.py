@@ -1,7 +1,8 @@
 """Memory tasks behind one interface (``Task``), and the registry that ``--task`` names them by.
 
 Built in: ``drawer`` (DrawerCubeTakeOut-v1, the seed's task) and MIKASA-Robo-VLA's memory tasks
-(``RememberColor3-VLA-v0`` ..., ``RememberShape3-VLA-v0``, ``SeqOfColors3-VLA-v0``; the ``mikasa-robo-suite`` package, installed by ``make install``).
+(``RememberColor3-VLA-v0`` ..., ``RememberShape3-VLA-v0``, ``SeqOfColors3-VLA-v0``, ``TakeItBack-VLA-v0``; the
+``mikasa-robo-suite`` package, installed by ``make install``).
 A task of your own is one module: subclass ``Task`` and ``register_task("name", MyTask)``; see the
 README's "Adding a task". Task modules import only when a task is made, so listing names is cheap.
 """
@@ -84,6 +85,7 @@ register_task("RememberShape3-VLA-v0",
               _lazy("sb3_memret.tasks.mikasa.remember_shape", "RememberShapeTask", "RememberShape3-VLA-v0"))
 register_task("SeqOfColors3-VLA-v0",
               _lazy("sb3_memret.tasks.mikasa.seq_of_colors", "SeqOfColorsTask", "SeqOfColors3-VLA-v0"))
+register_task("TakeItBack-VLA-v0", _lazy("sb3_memret.tasks.mikasa.take_it_back", "TakeItBackTask", "TakeItBack-VLA-v0"))
 
 __all__ = ["DEFAULT_TASK", "EnvFrame", "Episode", "Predicates", "Task", "UNAVAILABLE", "Writer", "check_task_name",
            "make_task", "register_task", "task_names"]

@@ -101,6 +101,9 @@ class TouchGains:
     funnel_slope: float = 1.2  # the lowest the TCP may be above the touch point, per metre sideways
     grip: float = 0.6  # gripper command: fingers 3 cm either side of the TCP, 1 cm clear of a 4 cm cube
     ready: tuple[float, float, float] = (-0.08, 0.0, 0.10)  # where to wait while the named cube is out of sight
+    # the farthest x (world) a step may command the TCP to: pd_ee_delta_pose solves IK for the TCP's pose plus the
+    # commanded delta, and a target beyond the arm's reach fails to solve, so the arm stops short instead
+    max_x: float = np.inf
 
 
 class ScriptedTouchController(FrozenController):
@@ -156,23 +159,28 @@ class ScriptedTouchController(FrozenController):
         floor = touch + min(g.hover_height, g.funnel_slope * float(np.linalg.norm(cube[:2] - pos[:2])))
         return np.array([cube[0], cube[1], max(touch, min(pos[2], floor))])
 
-    def _chunk(self, tcp_pose: np.ndarray, step: np.ndarray, cube: np.ndarray | None) -> np.ndarray:
+    def _grip(self, pos: np.ndarray, goal: Any) -> float:
+        """The gripper command at a step whose TCP is predicted at ``pos`` (touching: half open throughout)."""
+        return self.gains.grip
+
+    def _chunk(self, tcp_pose: np.ndarray, step: np.ndarray, goal: Any) -> np.ndarray:
         """Actions that steer the predicted TCP to the waypoints, braking for its coasting, then hold it there."""
         g = self.gains
         pos = tcp_pose[:3].copy()
         rot = Rotation.from_quat(tcp_pose[[4, 5, 6, 3]])  # ManiSkill poses are (x, y, z, qw, qx, qy, qz)
         chunk = np.zeros((self.spec.chunk_len, self.spec.action_dim))
         for k in range(self.spec.chunk_len):
-            error = self._waypoint(pos, cube) - pos
+            error = self._waypoint(pos, goal) - pos
             moving = bool(np.linalg.norm(error) > g.arrive_tol)
             want = g.approach_gain * error if moving else np.zeros(3)
             want *= min(1.0, g.max_step / max(np.abs(want).max(), 1e-9))
             a_pos = np.clip((want - COAST_GAIN * step) / (DRIVE_GAIN * POS_SCALE), -1.0, 1.0)
+            a_pos[0] = min(a_pos[0], max(0.0, (g.max_x - pos[0]) / POS_SCALE))
             dr = (R_DOWN * rot.inv()).as_rotvec() if moving else np.zeros(3)  # arrived: no turning either
             dr *= min(1.0, g.turn_speed / max(np.linalg.norm(dr), 1e-9))
             a_rot = dr / (TURN_GAIN * ROT_SCALE)
             a_rot /= max(1.0, np.linalg.norm(a_rot))
-            chunk[k] = [*a_pos, *a_rot, g.grip]
+            chunk[k] = [*a_pos, *a_rot, self._grip(pos, goal)]
             step = DRIVE_GAIN * POS_SCALE * a_pos + COAST_GAIN * step
             pos = pos + step
             rot = Rotation.from_rotvec(a_rot * TURN_GAIN * ROT_SCALE) * rot
