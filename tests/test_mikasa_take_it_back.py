@@ -198,3 +198,26 @@ def test_expert_and_reader_over_mikasas_50_evaluation_seeds(rgb_env, task):
         for condition, side in (("oracle", episode.group), ("none", None), ("wrong", wrong)):
             wins[condition] += _run(rgb_env, expert, EVAL_SEED + i, side)
     assert wins["oracle"] >= 45 and wins["wrong"] <= 2 and 5 <= wins["none"] <= 30, wins
+
+
+def test_the_start_fact_is_written_at_reset_and_retrieved(encoder):
+    """Recall with the true slot on one episode: the fact is in the bank from the first decision, names the
+    episode's side, and the expert succeeds through it."""
+    from sb3_memret.envs.vec_env import make_recall_vec_env
+
+    venv = make_recall_vec_env(1, {"task": TASK, "controller": "scripted", "encoder": encoder, "replan_every": 4,
+                                   "capacity": 6, "location_decoys": 5, "render_backend": "cpu"}, seed=0)
+    try:
+        venv.set_task_seeds([[EVAL_SEED + 2]])  # a start on the left
+        venv.reset()
+        memory = venv.venv.memories[0]
+        side = memory.truth.group
+        assert f"the cube started on the {side}." in [e.text for e in memory.bank.entries]
+        done, success, decisions = False, False, 0
+        while not done:
+            obs, _, dones, infos = venv.step(np.array([[memory.true_slot()]]))
+            done, success, decisions = bool(dones[0]), bool(infos[0]["success"]), decisions + 1
+            assert infos[0]["retrieved_true"]
+        assert side == "left" and success and infos[0]["group"] == side and decisions <= 15
+    finally:
+        venv.close()

@@ -1,10 +1,11 @@
-"""What MIKASA-Robo-VLA's "remember the cue, touch its match" tasks share (RememberColor, RememberShape).
+"""What MIKASA-Robo-VLA's "remember what was shown once, act on it later" tasks share (RememberColor,
+RememberShape, SeqOfColors, TakeItBack).
 
-MIKASA's env with its protocol (``pd_ee_delta_pose``, ``CurriculumPhaseNoopActionWrapper``, the
-``normalized_dense`` reward, success once, evaluation at seeds 4242424242 + i); a writer that reads
-the cue from the base camera at every control step and writes one fact about the cue; decoys worded
-like it about other things; the touch expert reading the cue's word from its prompt. A subclass
-names the word (colour, shape), its vocabulary, the fact's wording, the reader and the detector view.
+MIKASA's env with its protocol (``pd_ee_delta_pose``, ``CurriculumPhaseNoopActionWrapper`` where MIKASA
+applies it, the ``normalized_dense`` reward, success once, evaluation at seeds 4242424242 + i); a writer
+that reads the cue from the base camera at every control step and writes one fact about the cue; decoys
+worded like it about other things; the expert reading the cue's word from its prompt. A subclass names the
+word (colour, shape, side), its vocabulary, the fact's wording, the reader and the detector view.
 """
 
 from __future__ import annotations
