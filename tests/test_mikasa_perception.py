@@ -4,11 +4,9 @@ import numpy as np
 import pytest
 import torch
 
-pytest.importorskip(
-    "mikasa_robo_suite.vla.memory_envs",
-    reason="mikasa-robo-suite is not installed "
-    "(pip install --no-deps --ignore-requires-python mikasa-robo-suite==1.0.0)",
-)
+from mikasa_support import MIKASA_MISSING, leaked_keys
+
+pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
 from sb3_memret.prompts import parse_prompt  # noqa: E402
 from sb3_memret.tasks.mikasa.expert import (  # noqa: E402
@@ -52,13 +50,6 @@ def state_env():
     env.close()
 
 
-def _keys(tree, prefix=""):
-    if isinstance(tree, dict):
-        for k, v in tree.items():
-            yield f"{prefix}/{k}"
-            yield from _keys(v, f"{prefix}/{k}")
-
-
 def _phase(base, elapsed: int) -> str:
     cue = int(base.cue_steps_per_env[0])
     return "cue" if elapsed < cue else "delay" if elapsed < cue + int(base.empty_steps_per_env[0]) else "manip"
@@ -99,7 +90,7 @@ def test_wrapper_exposes_only_the_controllers_view(state_env):
     assert set(obs) == {"agent", "extra", "sensor_data"}
     assert set(obs["agent"]) == {"qpos", "qvel"}
     assert set(obs["extra"]) == {"tcp_pose", "cube_positions", "cube_visible"}
-    assert not [k for k in _keys(obs) if any(bad in k for bad in FORBIDDEN)]
+    assert not leaked_keys(obs, FORBIDDEN)
     assert tuple(obs["extra"]["cube_positions"].shape) == (1, 9, 3)
     visible = obs["extra"]["cube_visible"][0].numpy()
     assert visible.sum() == 1  # the cue phase: the target alone, at the table centre
@@ -109,7 +100,7 @@ def test_wrapper_exposes_only_the_controllers_view(state_env):
 
 def test_wrapper_drops_oracle_keys_of_rgb_mode_too(rgb_env):
     obs, _ = rgb_env.reset(seed=SEEDS[1])
-    assert not [k for k in _keys(obs) if any(bad in k for bad in FORBIDDEN)]
+    assert not leaked_keys(obs, FORBIDDEN)
     assert set(obs["sensor_data"]["base_camera"]) == {"rgb"}
 
 

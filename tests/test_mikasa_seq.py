@@ -5,11 +5,9 @@ import numpy as np
 import pytest
 import torch
 
-pytest.importorskip(
-    "mikasa_robo_suite.vla.memory_envs",
-    reason="mikasa-robo-suite is not installed "
-    "(pip install --no-deps --ignore-requires-python mikasa-robo-suite==1.0.0)",
-)
+from mikasa_support import MIKASA_MISSING, leaked_keys
+
+pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
 from sb3_memret.memory.schema import MemoryType  # noqa: E402
 from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
@@ -53,13 +51,6 @@ def state_env():
     env = _make("state_dict")
     yield env
     env.close()
-
-
-def _keys(tree, prefix=""):
-    if isinstance(tree, dict):
-        for k, v in tree.items():
-            yield f"{prefix}/{k}"
-            yield from _keys(v, f"{prefix}/{k}")
 
 
 def _phase(base, elapsed: int) -> str:
@@ -130,7 +121,7 @@ def test_wrapper_exposes_only_the_controllers_view_with_the_button(state_env, rg
     obs, _ = state_env.reset(seed=EVAL_SEED)
     assert set(obs) == {"agent", "extra", "sensor_data"} and set(obs["agent"]) == {"qpos", "qvel"}
     assert set(obs["extra"]) == {"tcp_pose", "cube_positions", "cube_visible", "button_position"}
-    assert not [k for k in _keys(obs) if any(bad in k for bad in FORBIDDEN)]
+    assert not leaked_keys(obs, FORBIDDEN)
     assert obs["extra"]["cube_visible"][0].numpy().tolist() == [c == "maroon" for c in COLOUR_NAMES]  # the 1st item
     button = obs["extra"]["button_position"][0].numpy()
     assert np.allclose(button[:2], state_env.unwrapped.button_xy[0].numpy()) and abs(button[2] - 0.015) < 1e-4
@@ -138,7 +129,7 @@ def test_wrapper_exposes_only_the_controllers_view_with_the_button(state_env, rg
         obs, *_ = state_env.step(torch.zeros(1, 7))
     assert bool(obs["extra"]["cube_visible"].all())
     obs, _ = rgb_env.reset(seed=EVAL_SEED + 1)
-    assert not [k for k in _keys(obs) if any(bad in k for bad in FORBIDDEN)]
+    assert not leaked_keys(obs, FORBIDDEN)
     assert set(obs["sensor_data"]) == {"base_camera"} and tuple(obs["extra"]["button_position"].shape) == (1, 3)
 
 

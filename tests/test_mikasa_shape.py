@@ -4,11 +4,9 @@ import numpy as np
 import pytest
 import torch
 
-pytest.importorskip(
-    "mikasa_robo_suite.vla.memory_envs",
-    reason="mikasa-robo-suite is not installed "
-    "(pip install --no-deps --ignore-requires-python mikasa-robo-suite==1.0.0)",
-)
+from mikasa_support import MIKASA_MISSING, leaked_keys
+
+pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
 from sb3_memret.memory.schema import MemoryType  # noqa: E402
 from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
@@ -53,13 +51,6 @@ def state_env():
     env = _make("state_dict")
     yield env
     env.close()
-
-
-def _keys(tree, prefix=""):
-    if isinstance(tree, dict):
-        for k, v in tree.items():
-            yield f"{prefix}/{k}"
-            yield from _keys(v, f"{prefix}/{k}")
 
 
 def _phase(base, elapsed: int) -> str:
@@ -113,14 +104,14 @@ def test_wrapper_exposes_only_the_controllers_view(state_env, rgb_env):
     assert set(obs) == {"agent", "extra", "sensor_data"}
     assert set(obs["agent"]) == {"qpos", "qvel"}
     assert set(obs["extra"]) == {"tcp_pose", "shape_positions", "shape_visible"}
-    assert not [k for k in _keys(obs) if any(bad in k for bad in FORBIDDEN)]
+    assert not leaked_keys(obs, FORBIDDEN)
     assert tuple(obs["extra"]["shape_positions"].shape) == (1, 3, 3)
     visible = obs["extra"]["shape_visible"][0].numpy()
     assert visible.tolist() == [True, False, False]  # the cue phase: the cube alone (this seed's cue)
     assert np.allclose(obs["extra"]["shape_positions"][0, 0].numpy()[:2], 0, atol=1e-3)  # at the table centre
     assert np.all(obs["extra"]["shape_positions"][0].numpy()[~visible] == 0)  # parked: neither seen nor located
     obs, _ = rgb_env.reset(seed=SEEDS[1])
-    assert not [k for k in _keys(obs) if any(bad in k for bad in FORBIDDEN)]
+    assert not leaked_keys(obs, FORBIDDEN)
     assert set(obs["sensor_data"]) == {"base_camera"} and set(obs["sensor_data"]["base_camera"]) == {"rgb"}
 
 

@@ -5,11 +5,9 @@ import numpy as np
 import pytest
 import torch
 
-pytest.importorskip(
-    "mikasa_robo_suite.vla.memory_envs",
-    reason="mikasa-robo-suite is not installed "
-    "(pip install --no-deps --ignore-requires-python mikasa-robo-suite==1.0.0)",
-)
+from mikasa_support import MIKASA_MISSING, leaked_keys
+
+pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
 from sb3_memret.memory.schema import MemoryType  # noqa: E402
 from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
@@ -51,13 +49,6 @@ def state_env(task):
     env.close()
 
 
-def _keys(tree, prefix=""):
-    if isinstance(tree, dict):
-        for k, v in tree.items():
-            yield f"{prefix}/{k}"
-            yield from _keys(v, f"{prefix}/{k}")
-
-
 def _prompt(side):
     return build_prompt(INSTRUCTION, [] if side is None else [f"the cube started on the {side}."], PROMPT_TEMPLATE)
 
@@ -95,11 +86,11 @@ def test_wrapper_exposes_only_the_controllers_view(state_env, rgb_env):
     obs, _ = state_env.reset(seed=EVAL_SEED)
     assert set(obs) == {"agent", "extra", "sensor_data"}
     assert set(obs["extra"]) == {"tcp_pose", "cube_position", "target_positions", "target_visible"}
-    assert not [k for k in _keys(obs) if any(bad in k for bad in FORBIDDEN)]
+    assert not leaked_keys(obs, FORBIDDEN)
     assert obs["extra"]["target_visible"][0].tolist() == [True, False]  # the red target; the purple is not out yet
     assert np.all(obs["extra"]["target_positions"][0, 1].numpy() == 0)
     obs, _ = rgb_env.reset(seed=EVAL_SEED + 1)
-    assert not [k for k in _keys(obs) if any(bad in k for bad in FORBIDDEN)]
+    assert not leaked_keys(obs, FORBIDDEN)
     assert set(obs["sensor_data"]) == {"base_camera"}
 
 
@@ -186,7 +177,8 @@ def test_expert_takes_the_cube_there_and_back_with_the_true_start_only(rgb_env, 
 
 @pytest.mark.slow
 def test_expert_and_reader_over_mikasas_50_evaluation_seeds(rgb_env, task):
-    """The start read right at every seed; oracle >= 90 %, wrong <= 5 %, none near chance (1/3)."""
+    """The start read right at every seed; oracle >= 90 %, wrong <= 5 %; none only where the middle start lies within
+    MIKASA's 8 cm of the true one (every middle start and the nearer left and right ones: 26/50 measured)."""
     expert = task.expert()
     wins = {"oracle": 0, "none": 0, "wrong": 0}
     for i in range(50):
@@ -197,7 +189,7 @@ def test_expert_and_reader_over_mikasas_50_evaluation_seeds(rgb_env, task):
         wrong = task.wrong_facts(episode)[0].split()[-1].rstrip(".")
         for condition, side in (("oracle", episode.group), ("none", None), ("wrong", wrong)):
             wins[condition] += _run(rgb_env, expert, EVAL_SEED + i, side)
-    assert wins["oracle"] >= 45 and wins["wrong"] <= 2 and 5 <= wins["none"] <= 30, wins
+    assert wins["oracle"] >= 45 and wins["wrong"] <= 2 and 10 <= wins["none"] <= 35, wins
 
 
 def test_the_start_fact_is_written_at_reset_and_retrieved(encoder):
@@ -215,7 +207,7 @@ def test_the_start_fact_is_written_at_reset_and_retrieved(encoder):
         assert f"the cube started on the {side}." in [e.text for e in memory.bank.entries]
         done, success, decisions = False, False, 0
         while not done:
-            obs, _, dones, infos = venv.step(np.array([[memory.true_slot()]]))
+            _, _, dones, infos = venv.step(np.array([[memory.true_slot()]]))
             done, success, decisions = bool(dones[0]), bool(infos[0]["success"]), decisions + 1
             assert infos[0]["retrieved_true"]
         assert side == "left" and success and infos[0]["group"] == side and decisions <= 15

@@ -1,0 +1,15 @@
+"""What the MIKASA test modules share: the skip reason when the package is missing, and the leak check."""
+
+MIKASA_MISSING = ("mikasa-robo-suite is not installed "
+                  "(pip install --no-deps --ignore-requires-python mikasa-robo-suite==1.0.0)")
+
+
+def leaked_keys(tree, forbidden, prefix=""):
+    """The paths (``/extra/oracle_info``) of a nested observation whose names contain a forbidden word."""
+    out = []
+    if isinstance(tree, dict):
+        for k, v in tree.items():
+            path = f"{prefix}/{k}"
+            out += [path] if any(bad in path for bad in forbidden) else []
+            out += leaked_keys(v, forbidden, path)
+    return out
