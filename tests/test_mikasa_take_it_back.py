@@ -50,7 +50,7 @@ def state_env(task):
 
 
 def _prompt(side):
-    return build_prompt(INSTRUCTION, [] if side is None else [f"the cube started on the {side}."], PROMPT_TEMPLATE)
+    return build_prompt(INSTRUCTION, [] if side is None else [f"the cube started at the {side}."], PROMPT_TEMPLATE)
 
 
 def test_sides_cover_mikasas_starts_within_its_radius():
@@ -134,9 +134,9 @@ def test_task_contract(rgb_env, task):
     (frame,) = task.frames(rgb_env, obs, info, reset=True)
     episode = task.episode(frame)
     side = episode.group
-    key = (MemoryType.OTHER, "cube", "started_on_the")
+    key = (MemoryType.OTHER, "cube", "started_at_the")
     assert episode.true_facts == ((key, side),)
-    assert task.oracle_facts(episode) == [f"the cube started on the {side}."]
+    assert task.oracle_facts(episode) == [f"the cube started at the {side}."]
     assert task.wrong_facts(episode) != task.oracle_facts(episode)
     for fact in task.oracle_facts(episode) + task.wrong_facts(episode):
         parse_prompt(f"{task.instruction(episode)} {fact}", task.prompt_template)
@@ -146,7 +146,7 @@ def test_task_contract(rgb_env, task):
     assert task.writer().read(later) == []
     decoys = task.seed_memories(frame, episode, np.random.default_rng(0), SeedingConfig())
     for entry in decoys:
-        assert entry.value in SIDES and entry.text == f"the {entry.entity} started on the {entry.value}."
+        assert entry.value in SIDES and entry.text == f"the {entry.entity} started at the {entry.value}."
         parse_prompt(f"{INSTRUCTION} {entry.text}", PROMPT_TEMPLATE)
     names = task.demo_features(with_images=False)["observation.state"]["names"]
     assert "target_red_visible" in names and names[-3:] == ["cube_x", "cube_y", "cube_z"]
@@ -204,7 +204,7 @@ def test_the_start_fact_is_written_at_reset_and_retrieved(encoder):
         venv.reset()
         memory = venv.venv.memories[0]
         side = memory.truth.group
-        assert f"the cube started on the {side}." in [e.text for e in memory.bank.entries]
+        assert f"the cube started at the {side}." in [e.text for e in memory.bank.entries]
         done, success, decisions = False, False, 0
         while not done:
             _, _, dones, infos = venv.step(np.array([[memory.true_slot()]]))

@@ -2,12 +2,13 @@
 where the prompt says it started.
 
 It stands in for a VLA finetuned on TakeItBack with the start written into its prompt (``the cube
-started on the left.``). It reads only what ``TakeItBackObservation`` gives (joints, hand pose, the
+started at the left.``). It reads only what ``TakeItBackObservation`` gives (joints, hand pose, the
 cube's position, which target is in sight and where), never the simulator, and keeps no state: every
 ``act`` re-reads the observation and the prompt. The start comes only from the prompt's first fact
-that names a side, whatever the fact is about (a decoy, ``the key started on the right.``, misleads
+that names a side, whatever the fact is about (a decoy, ``the key started at the right.``, misleads
 it as a wrong fact would); with none it takes the cube back to the middle start, where a policy that
-averages the starts would put it, so without memory it succeeds about one time in three.
+averages the starts would put it (MIKASA's 8 cm radius also counts that for the nearer left and right starts:
+without memory it succeeds about half the time).
 
 Plan, each call: while the cube is not in its fingers, come down a funnel over it with the gripper
 open and close it at the cube's centre; holding it (fingers closed on a 4 cm gap, the TCP at the

@@ -21,7 +21,7 @@ earlier in the episode, and its xy is now within 8 cm of its start.
 **Facts:** one, read from the base camera's first frame: the green cube's pixels are cast onto the
 table through the camera's calibration (``cube_on_table``) and its y names the side, ``the cube started
 on the left.`` (the robot's left: +y); each side's centre is within 5.6 cm of every start it names,
-inside MIKASA's 8 cm. Decoys are worded alike about other things (``the key started on the right.``).
+inside MIKASA's 8 cm. Decoys are worded alike about other things (``the key started at the right.``).
 The controller sees ``TakeItBackObservation`` only (never ``oracle_info``), so the start reaches it only
 through its prompt.
 """
@@ -46,10 +46,10 @@ from sb3_memret.tasks.mikasa.perception import DetectorObservation, _stack
 # MIKASA's LANGUAGE_INSTRUCTION in the prompt contract's form (lowercase; it parses as is).
 INSTRUCTION = ("push the cube onto the red target, and when the target changes color, return the cube to its "
                "original position.")
-FACT_TEMPLATE = "the {entity} started on the {side}."
+FACT_TEMPLATE = "the {entity} started at the {side}."
 CUE_ENTITY = "cube"
-CUE_RELATION = "started_on_the"  # OTHER's template, "the {entity} {relation} {value}.", reads FACT_TEMPLATE
-CUE_FACT = "the cube started on the {side}."
+CUE_RELATION = "started_at_the"  # OTHER's template, "the {entity} {relation} {value}.", reads FACT_TEMPLATE
+CUE_FACT = "the cube started at the {side}."
 PROMPT_TEMPLATE = PromptTemplate(instructions=(INSTRUCTION,), fact_templates=(FACT_TEMPLATE,))
 
 # MIKASA's starts: y = k * 0.1 + U(0, 0.05) for k = -1, 0, 1 and x = U(-0.05, 0.05); side k names the centre
@@ -95,7 +95,7 @@ def cube_on_table(rgb: np.ndarray, intrinsic: np.ndarray, extrinsic: np.ndarray,
 
 
 class StartWriter:
-    """Writes ``the cube started on the {side}.`` from the reset frame's sighting of the cube (``seen_start``,
+    """Writes ``the cube started at the {side}.`` from the reset frame's sighting of the cube (``seen_start``,
     what the base camera showed); later frames change nothing (the cube moves, its start does not)."""
 
     relations = {"start": (MemoryType.OTHER, CUE_RELATION)}
