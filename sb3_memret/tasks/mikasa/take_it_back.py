@@ -163,6 +163,14 @@ class TakeItBackTask(MikasaCueTask):
         x, y = (float(v) for v in frame.state["start"])
         return Episode(self.cue_entity, side, ((self.cue_key, side),), {"start_x": x, "start_y": y})
 
+    def wrong_facts(self, episode: Episode) -> list[str]:
+        """The side farthest from the start: MIKASA's 8 cm also counts a neighbouring side's centre for the starts
+        near it, so a neighbour is not always wrong; the far side (right for left, left for right, and for a
+        middle start the side away from it) is 10 cm or more off."""
+        y = float(episode.details["start_y"])
+        far = max(SIDES, key=lambda side: abs(SIDE_CENTRES[side][1] - y))
+        return [self.cue_fact.format(side=far)]
+
     def expert(self) -> CarryBackController:
         return CarryBackController(SIDE_CENTRES, DEFAULT_SIDE, PROMPT_TEMPLATE)
 
