@@ -163,3 +163,20 @@ def test_expert_touches_the_named_cube(env_id):
             wins[condition] += success
     env.close()
     assert wins["oracle"] >= 9 and wins["none"] == 0, wins
+
+
+def test_an_expert_with_a_default_guesses_it_without_a_fact():
+    """The task's expert touches its default colour (red) when the prompt names none it knows, as a finetuned
+    policy would guess; a default outside the vocabulary is refused."""
+    expert = ScriptedTouchController(vocabulary=COLOUR_NAMES[:3], default="red")
+    expert.reset([1, 2])
+    obs = {
+        "agent": {"qpos": np.tile([0, 0, 0, -2.09, 0, 2.09, 0.79, 0.04, 0.04], (2, 1)), "qvel": np.zeros((2, 9))},
+        "extra": {"tcp_pose": np.tile([-0.07, 0, 0.32, 0, 1, 0, 0], (2, 1)),
+                  "cube_positions": np.tile([[-0.1, 0.1, 0.02], [0.0, -0.1, 0.02], [0, 0, 0]], (2, 1, 1)),
+                  "cube_visible": np.tile([True, True, False], (2, 1))},
+    }
+    guessed, named = expert.act(obs, [colour_prompt(None), colour_prompt("lime")])
+    assert guessed[0, 1] > 0 and named[0, 1] < 0  # red at +y, lime at -y
+    with pytest.raises(ValueError, match="default colour 'teal' is not one of"):
+        ScriptedTouchController(vocabulary=COLOUR_NAMES[:3], default="teal")

@@ -153,8 +153,9 @@ class MikasaCueTask(Task):
         return [self.cue_fact.format(**{self.field: other})]
 
     def expert(self) -> ScriptedTouchController:
+        """The touch expert; without a fact it touches the first word's object, a guess (success at chance)."""
         return ScriptedTouchController(vocabulary=self.words, field=self.field, prompt_template=self.template,
-                                       key=self.detector_key)
+                                       key=self.detector_key, default=self.words[0])
 
     def demo_features(self, with_images: bool) -> dict[str, dict[str, Any]]:
         return demo_layout.demo_features(self.words, with_images, key=self.detector_key)

@@ -1,8 +1,10 @@
 """A scripted frozen controller for MIKASA's RememberColor tasks: touch the cube the prompt names.
 
 It stands in for a VLA finetuned on RememberColor with the cue written into its prompt: the colour
-comes only from the prompt's fact (``the cue cube was red.``); with no fact, or a colour word it
-does not know, it holds still (zero actions). It reads only what ``ControllerObservation`` gives
+comes only from the prompt's fact (``the cue cube was red.``). With no fact, or a colour word it
+does not know, it touches its ``default`` colour, a fixed guess (as the drawer's controller opens the
+top drawer when its prompt names none), so without memory it succeeds at chance; with no default it
+holds still (zero actions). It reads only what ``ControllerObservation`` gives
 (joints, hand pose, the colour detector's cube positions), never the simulator, and keeps no state
 between calls: every ``act`` re-reads the observation and the prompt.
 
@@ -110,15 +112,18 @@ class ScriptedTouchController(FrozenController):
     """Moves the TCP onto the object whose word (by default its colour) the prompt's fact names, then
     holds still. ``vocabulary[i]`` names candidate i of the detector (``extra/{key}_positions``,
     ``extra/{key}_visible``) and ``field`` is the fact's field that names it; RememberShape's expert
-    is this controller with shapes."""
+    is this controller with shapes. ``default``: the word it acts on when the prompt names none it knows
+    (None: it holds still)."""
 
     stateful = False
 
     def __init__(self, chunk_len: int = 8, gains: TouchGains | None = None,
                  vocabulary: Sequence[str] = COLOUR_NAMES, field: str = "colour",
-                 prompt_template: PromptTemplate = PROMPT_TEMPLATE, key: str = "cube"):
+                 prompt_template: PromptTemplate = PROMPT_TEMPLATE, key: str = "cube", default: str | None = None):
+        if default is not None and default not in vocabulary:
+            raise ValueError(f"default {field} {default!r} is not one of {list(vocabulary)}")
         self.gains = gains or TouchGains()
-        self.vocabulary, self.field, self.key = tuple(vocabulary), field, key
+        self.vocabulary, self.field, self.key, self.default = tuple(vocabulary), field, key, default
         self.spec = ControllerSpec(
             action_convention="pd_ee_delta_pose", chunk_len=chunk_len, action_dim=7, prompt_template=prompt_template
         )
@@ -134,8 +139,9 @@ class ScriptedTouchController(FrozenController):
         if len(prompts) != self._batch:
             raise RuntimeError(f"reset() was called for {self._batch} envs but act() got {len(prompts)} prompts")
         chunks = np.zeros((len(prompts), self.spec.chunk_len, self.spec.action_dim))
-        words = [named_word(p, self.field) for p in parsed]
-        if not any(w in self.vocabulary for w in words):
+        named = [named_word(p, self.field) for p in parsed]
+        words = [w if w in self.vocabulary else self.default for w in named]
+        if all(w is None for w in words):
             return chunks
         extra = obs["extra"]
         tcp = as_numpy(extra["tcp_pose"]).astype(np.float64)
@@ -143,8 +149,8 @@ class ScriptedTouchController(FrozenController):
         visible = as_numpy(extra[f"{self.key}_visible"]).astype(bool)
         velocity = tcp_velocity(as_numpy(obs["agent"]["qpos"]), as_numpy(obs["agent"]["qvel"]))
         for i, word in enumerate(words):
-            if word not in self.vocabulary:
-                continue  # no cue fact (or a word it was never trained on): hold still
+            if word is None:
+                continue  # no cue fact (or a word it was never trained on) and no default: hold still
             index = self.vocabulary.index(word)
             target = targets[i, index] if index < visible.shape[1] and visible[i, index] else None
             chunks[i] = self._chunk(tcp[i], velocity[i] * CONTROL_DT, target)
