@@ -1,14 +1,15 @@
-"""Probe MIKASA-Robo-VLA's cue tasks (RememberColor3/5/9, RememberShape3, SeqOfColors3): the scripted
-expert's success and the cue reader's accuracy, through the Task interface.
+"""Probe MIKASA-Robo-VLA's cue tasks (RememberColor3/5/9, RememberShape3, SeqOfColors3, TakeItBack): the
+scripted expert's success and the cue reader's accuracy, through the Task interface.
 
 For each task, ``--episodes`` episodes at MIKASA's evaluation seeds (4242424242 + i) per prompt
 condition: ``oracle`` (the task's true facts; its truth is read from the simulator only to build this
 prompt), ``none`` (the bare instruction), ``wrong`` (the task's wrong facts) and, for a task that needs
 several facts, ``missing`` (the oracle's facts without the last one). Success is MIKASA's success-once
-over the episode (25 steps; SeqOfColors' 400, ended at success as the toolkit ends it). The expert
+over the episode (25 steps; TakeItBack's 60; SeqOfColors' 400, ended at success as the toolkit ends it). The expert
 replans every ``--replan`` control steps, executing the first actions of each 8-step chunk. At every
 step the base-camera frame goes through the task's reader (``Task.perceive``), scored against the
-episode's phase (cue / delay / manipulation) and, in the cue, the item on show.
+episode's phase (cue / delay / manipulation) and, in the cue, the item on show; a task that reads its cue
+from the first frame alone (TakeItBack's start) has its writer's reading of that frame scored.
 
     .venv/bin/python scripts/mikasa_probe.py [--tasks RememberColor9-VLA-v0 RememberShape3-VLA-v0] [--episodes 50]
 """
@@ -25,7 +26,7 @@ import torch
 
 MIKASA_SEED = 4242424242
 TASKS = ("RememberColor3-VLA-v0", "RememberColor5-VLA-v0", "RememberColor9-VLA-v0", "RememberShape3-VLA-v0",
-         "SeqOfColors3-VLA-v0")
+         "SeqOfColors3-VLA-v0", "TakeItBack-VLA-v0")
 CONDITIONS = ("oracle", "none", "wrong", "missing")
 
 
@@ -76,23 +77,19 @@ def run_episode(task, env, controller, seed: int, condition: str, replan: int,
     from sb3_memret.prompts import build_prompt
 
     obs, info = env.reset(seed=seed)
-    base = env.unwrapped
-    episode = task.episode(task.frames(env, obs, info, reset=True)[0])  # metrics and the oracle prompt only
+    frame = task.frames(env, obs, info, reset=True)[0]
+    episode = task.episode(frame)  # metrics and the oracle prompt only
+    if not task.perceives_every_step:  # the cue is the first frame (TakeItBack's start): score the writer's reading
+        read = [value for _, predicates in task.writer().read(frame) for value in predicates.values()]
+        stats.frames["cue"] += 1
+        stats.confusion[(episode.group, read[0] if read else None)] += 1
     facts = condition_facts(task, episode, condition)
     prompt = build_prompt(task.instruction(episode), facts, controller.spec.prompt_template)
     controller.reset([seed])
     success, steps, env_seconds, chunk, done = False, 0, 0.0, None, False
     while True:
-        elapsed = int(info["elapsed_steps"][0])
-        t0 = time.perf_counter()
-        reading = task.perceive(env, obs)
-        stats.seconds += time.perf_counter() - t0
-        phase = phase_of(base, elapsed)
-        stats.frames[phase] += 1
-        if phase == "cue":
-            stats.confusion[(shown_word(base, episode, elapsed), reading)] += 1
-        elif reading is not None:
-            stats.false_readings[phase] += 1
+        if task.perceives_every_step:
+            score_reading(task, env, obs, episode, int(info["elapsed_steps"][0]), stats)
         if done:
             break
         if steps % replan == 0:
@@ -104,6 +101,19 @@ def run_episode(task, env, controller, seed: int, condition: str, replan: int,
         success |= bool(info["success"][0])
         done = bool(terminated[0]) or bool(truncated[0]) or (success and task.ends_at_success)
     return success, steps, env_seconds
+
+
+def score_reading(task, env, obs, episode, elapsed: int, stats: CueStats) -> None:
+    """Read one control step's frame as the writer would and score it against the episode's phase."""
+    t0 = time.perf_counter()
+    reading = task.perceive(env, obs)
+    stats.seconds += time.perf_counter() - t0
+    phase = phase_of(env.unwrapped, elapsed)
+    stats.frames[phase] += 1
+    if phase == "cue":
+        stats.confusion[(shown_word(env.unwrapped, episode, elapsed), reading)] += 1
+    elif reading is not None:
+        stats.false_readings[phase] += 1
 
 
 def render_cost(task, steps: int = 50) -> dict[str, float]:
