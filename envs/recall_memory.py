@@ -194,19 +194,25 @@ class EpisodeMemory:
             return build_prompt(instruction, [], self.template)
         return build_prompt(instruction, [e.text for e in chosen], self.template)
 
-    def observe(self, frame: EnvFrame) -> None:
-        """After an executed chunk: write the facts that changed, each at the control step it was read."""
-        self._read(frame)
+    def observe(self, frame: EnvFrame) -> int:
+        """After an executed chunk: write the facts that changed, each at the control step it was read; returns
+        how many were written."""
+        written = self._read(frame)
         self.t += frame.steps
+        return written
 
-    def _read(self, frame: EnvFrame) -> None:
+    def _read(self, frame: EnvFrame) -> int:
         """Compile what the writer reads from ``frame``, the clock set to each reading's control step
-        (counted from the chunk's start), so ages and evictions see the time it was read."""
-        start = self.t
+        (counted from the chunk's start), so ages and evictions see the time it was read; returns how many
+        facts changed."""
+        start, written = self.t, 0
         for step, predicates in self.writer.read(frame):
             self.t = start + step
-            self._write(self.compiler.update(predicates, self.now))
+            entries = self.compiler.update(predicates, self.now)
+            self._write(entries)
+            written += len(entries)
         self.t = start
+        return written
 
     def _encoded(self, entries: list[MemoryEntry]) -> list[MemoryEntry]:
         vectors = self.encoder.encode([e.text for e in entries]) if entries else []

@@ -9,7 +9,9 @@ processes on the CPU, one batched ManiSkill env on the GPU, or Ray actors. One d
 
 With ``replans_per_decision`` R > 1 the controller replans R times (each from the new observation,
 with the same prompt) before the retriever decides again: memory is consulted less often than the
-controller acts, so one retrieval's effect on the episode is larger and easier to credit.
+controller acts, so one retrieval's effect on the episode is larger and easier to credit. With
+``retrieve_on_write`` a decision also ends at the replan in which its env's writer added a fact: the
+bank changed, so the retriever chooses again (a prompt chosen before a cue was seen does not outlive it).
 
 Episodes that end are reset at once (SB3's auto-reset: ``info["terminal_observation"]``), each
 env drawing its next episode from its own generator, seeded by ``seed(s)`` as ``s + i``.
@@ -62,7 +64,8 @@ class RecallVecEnv(VecEnv):
     retrieval policy is optimal (Ng et al., 1999).
 
     With ``replans_per_decision`` R, a decision holds its prompt for R replans (R * replan_every steps);
-    its reward sums the env's reward over them (or shapes from the first state to the last).
+    its reward sums the env's reward over them (or shapes from the first state to the last). With
+    ``retrieve_on_write`` an env's decision ends early at the replan whose frames wrote a fact to its bank.
 
     ``backend`` picks where the physics runs (``sb3_memret.envs.physics.BACKENDS``; ``auto``:
     in-process for one env, worker processes for several); ``ray_address`` a Ray cluster.
@@ -103,6 +106,7 @@ class RecallVecEnv(VecEnv):
         k: int = 1,
         replan_every: int = 8,
         replans_per_decision: int = 1,
+        retrieve_on_write: bool = False,
         gamma: float = 0.97,
         success_bonus: float = 0.0,
         max_control_steps: int | None = None,
@@ -148,7 +152,7 @@ class RecallVecEnv(VecEnv):
             raise ValueError(f"replan_every must be in [1, {self.controller.spec.chunk_len}], got {replan_every}")
         if replans_per_decision < 1:
             raise ValueError(f"replans_per_decision must be >= 1, got {replans_per_decision}")
-        self.replans_per_decision = replans_per_decision
+        self.replans_per_decision, self.retrieve_on_write = replans_per_decision, bool(retrieve_on_write)
         objects_kwargs = {"objects": object_set(objects), "n_objects": n_objects} if "objects" in self.task.features else {}
         task_kwargs = {**task_env_kwargs(self.controller, render_backend, self.task), **objects_kwargs,
                        **(task_kwargs or {})}
@@ -290,11 +294,14 @@ class RecallVecEnv(VecEnv):
                 chunks = self.controller.act(stack_obs([frame.obs for frame in self.frames]), prompts)
             self.controller_calls += 1
             frames = self.physics.execute({i: chunks[i, : self.replan_every] for i in running})
+            wrote = set()
             for i in running:
                 self.frames[i] = frames[i]
-                self.memories[i].observe(frames[i])
+                if self.memories[i].observe(frames[i]):
+                    wrote.add(i)
                 rewards[i] += frames[i].reward
-            running = [i for i in running if not (frames[i].terminated or frames[i].truncated)]
+            running = [i for i in running if not (frames[i].terminated or frames[i].truncated
+                                                  or (self.retrieve_on_write and i in wrote))]
             if not running:
                 break
         terminated, truncated = np.zeros(self.num_envs, bool), np.zeros(self.num_envs, bool)

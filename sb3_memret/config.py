@@ -50,6 +50,7 @@ ENV_KEYS: dict[str, Check] = {
     "k": _positive_int(),
     "replan_every": _positive_int(),
     "replans_per_decision": _positive_int(),
+    "retrieve_on_write": (bool, lambda v: True, "true or false (a decision ends when its writer adds a fact)"),
     "max_control_steps": _positive_int(),
     "success_bonus": ((int, float), lambda v: v >= 0, "a number >= 0"),
     "objects": (str, lambda v: v in OBJECT_SETS, f"one of the object sets {sorted(OBJECT_SETS)}"),

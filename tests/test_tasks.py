@@ -369,3 +369,35 @@ def test_a_decision_can_hold_its_prompt_for_several_replans(encoder):
     assert five.unwrapped.controller_calls == 5 + 5 + 2
     five.close()
     one.close(), three.close()
+
+
+class LateLightEnv(DoorsEnv):
+    """The light flashes at step 3, in the middle of a decision, instead of at the reset."""
+
+    def _obs(self) -> dict[str, np.ndarray]:
+        light = np.eye(3, dtype=np.float32)[self.colour] if self.t == 3 else np.zeros(3, np.float32)
+        return {"x": np.array([self.x], np.float32), "light": light}
+
+
+class LateLightTask(DoorsTask):
+    def make_env(self, *, max_episode_steps: int | None = None, num_envs: int = 1, **kwargs: Any) -> gym.Env:
+        return LateLightEnv(max_episode_steps or self.max_control_steps)
+
+
+@pytest.mark.parametrize("on_write", [False, True])
+def test_a_decision_ends_when_its_writer_adds_a_fact_if_asked(encoder, on_write):
+    """``retrieve_on_write``: a decision of up to 5 replans (of 2 steps) ends after the replan in which the light was
+    seen (steps 3-4), so the next retrieval can pick the new fact; without it the decision runs its 10 steps."""
+    venv = make_recall_vec_env(1, {"task": LateLightTask(), "controller": "scripted", "encoder": encoder,
+                                   "replan_every": 2, "replans_per_decision": 5, "retrieve_on_write": on_write,
+                                   "location_decoys": 3, "capacity": 4}, seed=0)
+    venv.reset()
+    memory = venv.venv.memories[0]
+    assert memory.true_slot() < 0  # nothing seen yet
+    venv.step(np.array([[0]]))
+    assert memory.true_slot() >= 0
+    assert (venv.unwrapped.controller_calls, memory.t) == ((2, 4) if on_write else (5, 10))
+    astray = next(i for i, e in enumerate(memory.slot_entries()) if e is not None and e.value != memory.truth.group)
+    venv.step(np.array([[astray]]))  # no new fact (and no success to end the episode): the whole decision
+    assert (venv.unwrapped.controller_calls, memory.t) == ((7, 14) if on_write else (10, 20))
+    venv.close()
