@@ -283,8 +283,12 @@ class BatchedSimPhysics(PhysicsBackend):
         if self.task.perceives_every_step:
             raise ValueError(f"task {self.task.name!r} perceives every control step, which the batched simulation "
                              "does not yet do: use --backend process")
-        self.env = self.task.make_env(max_episode_steps=max_control_steps, num_envs=num_envs,
-                                      **{"sim_backend": "gpu", **task_kwargs})
+        task_kwargs = {"sim_backend": "gpu", **task_kwargs}
+        if task_kwargs["sim_backend"] in ("gpu", "physx_cuda"):
+            from sb3_memret.devices import check_cuda
+
+            check_cuda()
+        self.env = self.task.make_env(max_episode_steps=max_control_steps, num_envs=num_envs, **task_kwargs)
         self.env_info = TaskEnvInfo.of(self.env)
         self.action_dim = int(self.env.action_space.shape[-1])
         self.succeeded = np.zeros(num_envs, dtype=bool)

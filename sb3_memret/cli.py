@@ -147,6 +147,7 @@ class _Cli(click.Group):
 
     def main(self, *args, **kwargs):  # type: ignore[override]
         from sb3_memret.controllers.weights import WeightsNotLoadedError
+        from sb3_memret.devices import CudaNotFoundError
         from sb3_memret.rendering import RendererNotFoundError
         from sb3_memret.workers import StopRequested, WorkerDiedError, exit_status, stop_signals_interrupt
 
@@ -162,7 +163,7 @@ class _Cli(click.Group):
             hint = f"  (see: {ctx.command_path} --help)" if isinstance(err, click.UsageError) and ctx else ""
             click.echo(f"Error: {err.format_message()}{hint}".replace("\n", " "), err=True)
             sys.exit(err.exit_code)
-        except (WorkerDiedError, RendererNotFoundError, WeightsNotLoadedError) as err:
+        except (WorkerDiedError, RendererNotFoundError, WeightsNotLoadedError, CudaNotFoundError) as err:
             click.echo(f"Error: {err}", err=True)
             sys.exit(1)
 

@@ -86,3 +86,16 @@ def test_mistakes_are_one_line_without_a_traceback(tmp_path, monkeypatch):
         assert result.exit_code == 2 and len(lines) == 1 and lines[0].startswith("Error: "), result.output
         assert expected in lines[0] and f"(see: sb3-memret {args[0]} --help)" in lines[0], lines[0]
         assert result.exception is None or isinstance(result.exception, SystemExit)
+
+
+def test_gpu_physics_without_a_cuda_device_is_one_line(tmp_path, monkeypatch):
+    """``--backend gpu`` where torch finds no CUDA device: one line naming what is missing and what to use, no
+    traceback (the machine's own CUDA is hidden, so the test means the same everywhere)."""
+    import torch
+
+    monkeypatch.setattr(torch.cuda, "is_available", lambda: False)
+    result = CliRunner().invoke(main, ["train", "recall", "--controller", "scripted", "--backend", "gpu", "--n-envs", "2",
+                                       "--timesteps", "8", "--no-progress", "--out", str(tmp_path / "run")])
+    assert result.exit_code == 1, result.output
+    assert "needs a CUDA GPU" in result.output and "--backend process" in result.output
+    assert "Traceback" not in result.output
