@@ -127,15 +127,20 @@ def test_expert_holds_still_without_a_fact_and_moves_with_one(state_env):
     assert chunk.shape == (1, 8, 7) and np.abs(chunk[0, 0, :3]).max() > 0.5
 
 
-def test_expert_is_batched():
-    expert = ScriptedTouchController()
-    expert.reset([1, 2])
-    obs = {
+def _two_envs_obs() -> dict:
+    """Two envs at the reset pose: red at +y, lime at -y, blue out of sight."""
+    return {
         "agent": {"qpos": np.tile([0, 0, 0, -2.09, 0, 2.09, 0.79, 0.04, 0.04], (2, 1)), "qvel": np.zeros((2, 9))},
         "extra": {"tcp_pose": np.tile([-0.07, 0, 0.32, 0, 1, 0, 0], (2, 1)),
                   "cube_positions": np.tile([[-0.1, 0.1, 0.02], [0.0, -0.1, 0.02], [0, 0, 0]], (2, 1, 1)),
                   "cube_visible": np.tile([True, True, False], (2, 1))},
     }
+
+
+def test_expert_is_batched():
+    expert = ScriptedTouchController()
+    expert.reset([1, 2])
+    obs = _two_envs_obs()
     chunks = expert.act(obs, [colour_prompt("red"), colour_prompt(None)])
     assert chunks.shape == (2, 8, 7)
     assert chunks[0, 0, 1] > 0 and np.all(chunks[1] == 0)  # env 0 heads for red (+y), env 1 holds still
@@ -170,12 +175,7 @@ def test_an_expert_with_a_default_guesses_it_without_a_fact():
     policy would guess; a default outside the vocabulary is refused."""
     expert = ScriptedTouchController(vocabulary=COLOUR_NAMES[:3], default="red")
     expert.reset([1, 2])
-    obs = {
-        "agent": {"qpos": np.tile([0, 0, 0, -2.09, 0, 2.09, 0.79, 0.04, 0.04], (2, 1)), "qvel": np.zeros((2, 9))},
-        "extra": {"tcp_pose": np.tile([-0.07, 0, 0.32, 0, 1, 0, 0], (2, 1)),
-                  "cube_positions": np.tile([[-0.1, 0.1, 0.02], [0.0, -0.1, 0.02], [0, 0, 0]], (2, 1, 1)),
-                  "cube_visible": np.tile([True, True, False], (2, 1))},
-    }
+    obs = _two_envs_obs()
     guessed, named = expert.act(obs, [colour_prompt(None), colour_prompt("lime")])
     assert guessed[0, 1] > 0 and named[0, 1] < 0  # red at +y, lime at -y
     with pytest.raises(ValueError, match="default colour 'teal' is not one of"):
