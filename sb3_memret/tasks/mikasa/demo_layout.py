@@ -59,4 +59,17 @@ def demo_frame(obs: Obs, with_images: bool, key: str = "cube") -> dict[str, np.n
     return frame
 
 
-__all__ = ["MIKASA_IMAGE_SHAPE", "demo_features", "demo_frame", "state_names"]
+def with_state_extra(features: dict[str, dict[str, Any]], name: str) -> dict[str, dict[str, Any]]:
+    """``features`` whose state ends with one more detected point, ``{name}_x``, ``{name}_y``, ``{name}_z``
+    (a task's detector beyond the candidates: SeqOfColors' button, TakeItBack's cube)."""
+    names = list(features[STATE_KEY]["names"]) + [f"{name}_{axis}" for axis in "xyz"]
+    return {**features, STATE_KEY: {**features[STATE_KEY], "shape": (len(names),), "names": names}}
+
+
+def append_state(frame: dict[str, np.ndarray], point: Any) -> dict[str, np.ndarray]:
+    """``frame`` whose state ends with ``point`` (a batch-1 (1, 3) detection), as ``with_state_extra`` names it."""
+    point = as_numpy(point).reshape(1, -1).astype(np.float32)[0]
+    return {**frame, STATE_KEY: np.concatenate([frame[STATE_KEY], point])}
+
+
+__all__ = ["MIKASA_IMAGE_SHAPE", "append_state", "demo_features", "demo_frame", "state_names", "with_state_extra"]

@@ -51,6 +51,7 @@ from sb3_memret.controllers.base import Obs, as_numpy
 from sb3_memret.memory.schema import Key, MemoryType
 from sb3_memret.prompts import PromptTemplate, build_prompt
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates
+from sb3_memret.tasks.mikasa import demo_layout
 from sb3_memret.tasks.mikasa.cue_task import MikasaCueTask
 from sb3_memret.tasks.mikasa.expert import FACT_TEMPLATE
 from sb3_memret.tasks.mikasa.perception import COLOUR_NAMES, ControllerObservation, _stack, read_cue_colour
@@ -197,16 +198,10 @@ class SeqOfColorsTask(MikasaCueTask):
         return sequence_expert()
 
     def demo_features(self, with_images: bool) -> dict[str, dict[str, Any]]:
-        features = super().demo_features(with_images)
-        names = list(features["observation.state"]["names"]) + ["button_x", "button_y", "button_z"]
-        features["observation.state"] = {**features["observation.state"], "shape": (len(names),), "names": names}
-        return features
+        return demo_layout.with_state_extra(super().demo_features(with_images), "button")
 
     def demo_frame(self, obs: Obs, with_images: bool) -> dict[str, np.ndarray]:
-        frame = super().demo_frame(obs, with_images)
-        button = as_numpy(obs["extra"]["button_position"]).reshape(1, -1).astype(np.float32)[0]
-        frame["observation.state"] = np.concatenate([frame["observation.state"], button])
-        return frame
+        return demo_layout.append_state(super().demo_frame(obs, with_images), obs["extra"]["button_position"])
 
 
 __all__ = ["CUE_FACT", "EPISODE_STEPS", "INSTRUCTION", "PROMPT_TEMPLATE", "SEQ_TASKS", "SeqControllerObservation",

@@ -20,7 +20,7 @@ earlier in the episode, and its xy is now within 8 cm of its start.
 
 **Facts:** one, read from the base camera's first frame: the green cube's pixels are cast onto the
 table through the camera's calibration (``cube_on_table``) and its y names the side, ``the cube started
-on the left.`` (the robot's left: +y); each side's centre is within 5.6 cm of every start it names,
+at the left.`` (the robot's left: +y); each side's centre is within 5.6 cm of every start it names,
 inside MIKASA's 8 cm. Decoys are worded alike about other things (``the key started at the right.``).
 The controller sees ``TakeItBackObservation`` only (never ``oracle_info``), so the start reaches it only
 through its prompt.
@@ -175,16 +175,12 @@ class TakeItBackTask(MikasaCueTask):
         return CarryBackController(SIDE_CENTRES, DEFAULT_SIDE, PROMPT_TEMPLATE)
 
     def demo_features(self, with_images: bool) -> dict[str, dict[str, Any]]:
-        features = demo_layout.demo_features(("red", "purple"), with_images, key="target")
-        names = list(features["observation.state"]["names"]) + ["cube_x", "cube_y", "cube_z"]
-        features["observation.state"] = {**features["observation.state"], "shape": (len(names),), "names": names}
-        return features
+        return demo_layout.with_state_extra(demo_layout.demo_features(("red", "purple"), with_images, key="target"),
+                                            "cube")
 
     def demo_frame(self, obs: Obs, with_images: bool) -> dict[str, np.ndarray]:
-        frame = demo_layout.demo_frame(obs, with_images, key="target")
-        cube = as_numpy(obs["extra"]["cube_position"]).reshape(1, -1).astype(np.float32)[0]
-        frame["observation.state"] = np.concatenate([frame["observation.state"], cube])
-        return frame
+        return demo_layout.append_state(demo_layout.demo_frame(obs, with_images, key="target"),
+                                        obs["extra"]["cube_position"])
 
 
 __all__ = ["CUE_FACT", "DEFAULT_SIDE", "EPISODE_STEPS", "INSTRUCTION", "PROMPT_TEMPLATE", "SIDES", "SIDE_CENTRES",
