@@ -1,11 +1,11 @@
-"""Simulated tasks; importing this package registers them with ManiSkill and gymnasium."""
+"""Simulated tasks and the decision env. Light on purpose: importing the package registers only the
+decision env's gymnasium id; ``import sb3_memret.envs.drawer_cube`` registers DrawerCubeTakeOut-v1 with
+ManiSkill (as importing a ManiSkill task module does), so constants such as the drawer's ``LAYERS``
+load without ManiSkill or torch."""
 
 import gymnasium
 
-from sb3_memret.envs.cabinet import LAYERS, CabinetLayout
-from sb3_memret.envs.drawer_cube import DrawerCubeState, DrawerCubeTakeOutEnv
-
-__all__ = ["RECALL_ENV_ID", "LAYERS", "CabinetLayout", "DrawerCubeState", "DrawerCubeTakeOutEnv"]
+__all__ = ["RECALL_ENV_ID"]
 
 RECALL_ENV_ID = "sb3_memret/DrawerRecall-v0"
 if RECALL_ENV_ID not in gymnasium.registry:

@@ -146,9 +146,7 @@ class _Cli(click.Group):
     exit status and no traceback; SIGTERM (a scheduler's stop) is handled as Ctrl-C."""
 
     def main(self, *args, **kwargs):  # type: ignore[override]
-        from sb3_memret.controllers.weights import WeightsNotLoadedError
-        from sb3_memret.devices import CudaNotFoundError
-        from sb3_memret.rendering import RendererNotFoundError
+        from sb3_memret.errors import CudaNotFoundError, RendererNotFoundError, WeightsNotLoadedError
         from sb3_memret.workers import StopRequested, WorkerDiedError, exit_status, stop_signals_interrupt
 
         kwargs["standalone_mode"] = False  # errors come back here instead of click's usage block

@@ -6,9 +6,7 @@ check names what is missing and what to use instead, in one line.
 
 from __future__ import annotations
 
-
-class CudaNotFoundError(RuntimeError):
-    """GPU simulation was asked for on a machine where torch finds no CUDA device."""
+from sb3_memret.errors import CudaNotFoundError
 
 
 def check_cuda(what: str = "the gpu physics backend (ManiSkill's GPU simulation)") -> None:

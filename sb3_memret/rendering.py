@@ -14,15 +14,13 @@ import ctypes
 import os
 from pathlib import Path
 
+from sb3_memret.errors import RendererNotFoundError
+
 RENDERER_DIR_ENV = "SB3_MEMRET_RENDERER_DIR"
 DEFAULT_RENDERER_DIR = Path(__file__).resolve().parents[1] / ".renderer"
 INSTALL_COMMAND = f"make renderer  (or: bash scripts/install_lavapipe.sh {DEFAULT_RENDERER_DIR})"
 # Loaded before the driver in this order, so its DT_NEEDED entries find them by soname.
 PRELOAD = ("libLLVM-15.so.1", "libdrm.so.2", "libdrm_amdgpu.so.1")
-
-
-class RendererNotFoundError(RuntimeError):
-    """No software Vulkan driver SAPIEN can use, with the command that installs one."""
 
 
 def renderer_dir() -> Path:

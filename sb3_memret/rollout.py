@@ -9,7 +9,7 @@ from typing import Any, Callable, Iterable, Sequence
 import gymnasium as gym
 import numpy as np
 
-import sb3_memret.envs  # noqa: F401  (registers DrawerCubeTakeOut-v1)
+import sb3_memret.envs.drawer_cube  # noqa: F401  (registers DrawerCubeTakeOut-v1)
 from sb3_memret.controllers.base import FrozenController, as_numpy
 from sb3_memret.envs.cabinet import LAYERS, check_layer
 from sb3_memret.prompts import CONDITIONS, build_prompt, condition_prompt

@@ -42,7 +42,7 @@ SEED = 1_000_000
 
 def _recall_env(controller: str) -> Callable[[], gym.Env]:
     def make() -> gym.Env:
-        import sb3_memret.envs  # noqa: F401
+        import sb3_memret.envs.drawer_cube  # noqa: F401  (registers DrawerCubeTakeOut-v1)
 
         init_worker_process()
         return gym.make(RECALL_ENV_ID, controller=controller)

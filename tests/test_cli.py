@@ -12,6 +12,24 @@ def test_every_command_has_help():
         assert result.exit_code == 0 and "Usage" in result.output
 
 
+def test_help_and_argument_errors_load_no_heavy_library():
+    """--help and a one-line argument error answer before torch, ManiSkill or lerobot load (they take seconds)."""
+    import subprocess
+    import sys
+
+    code = ("import sys\n"
+            "from sb3_memret.cli import main\n"
+            "for args in (['--help'], ['train', '--help'], ['train', 'recall', '--n-envs', '0'], ['rollout', '--episodes', '0']):\n"
+            "    try:\n"
+            "        main(args)\n"
+            "    except SystemExit:\n"
+            "        pass\n"
+            "print(sorted(m for m in ('torch', 'mani_skill', 'lerobot', 'sentence_transformers') if m in sys.modules))\n")
+    out = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120)
+    assert out.returncode == 0, out.stderr[-2000:]
+    assert out.stdout.strip().splitlines()[-1] == "[]"
+
+
 def test_rollout_json():
     result = CliRunner().invoke(main, ["rollout", "--controller", "scripted", "--episodes", "1", "--layer", "1", "--json"])
     assert result.exit_code == 0, result.output

@@ -6,7 +6,7 @@ import pytest
 import torch
 from mani_skill.utils.structs.pose import Pose
 
-import sb3_memret.envs  # noqa: F401
+import sb3_memret.envs.drawer_cube  # noqa: F401  (registers DrawerCubeTakeOut-v1)
 from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.drawer_cube import layer_containing
 from sb3_memret.envs.objects import OBJECT_SETS

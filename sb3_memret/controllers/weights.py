@@ -13,11 +13,9 @@ from typing import Mapping
 
 import torch
 
+from sb3_memret.errors import WeightsNotLoadedError
+
 SHOWN = 8  # names listed per kind of difference in an error
-
-
-class WeightsNotLoadedError(RuntimeError):
-    """A model does not hold the tensors its checkpoint or adapter files hold."""
 
 
 @dataclass(frozen=True)

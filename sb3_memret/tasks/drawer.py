@@ -52,7 +52,7 @@ class DrawerTask(Task):
 
     def make_env(self, *, max_episode_steps: int | None = None, num_envs: int = 1, obs_mode: str = "state_dict",
                  render_backend: str = "none", **kwargs: Any) -> gym.Env:
-        import sb3_memret.envs  # noqa: F401  (registers DrawerCubeTakeOut-v1)
+        import sb3_memret.envs.drawer_cube  # noqa: F401  (registers DrawerCubeTakeOut-v1)
 
         if max_episode_steps is not None:
             kwargs["max_episode_steps"] = max_episode_steps
