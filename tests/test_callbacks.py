@@ -45,6 +45,18 @@ def test_every_round_logs_rollout_and_eval_metrics(tmp_path):
     assert any(p.name.startswith("events.out.tfevents") for p in (tmp_path / "tensorboard").iterdir())
 
 
+def test_rollout_metrics_say_what_each_round_teaches_the_retriever(tmp_path):
+    """Retrieving the true memory earns the toy's only reward, so its advantage gap is positive, and the
+    true memory's logit margin over the best decoy grows round by round as the retriever learns it."""
+    train_toy(tmp_path, rounds=6)
+    rows = [row for row in read_csv(tmp_path / "progress.csv") if row.get("rollout/advantage_gap")]
+    assert len(rows) == 6
+    assert all(float(row["rollout/advantage_gap"]) > 1 and float(row["rollout/advantage_gap_t"]) > 10 for row in rows)
+    margins = [float(row["rollout/score_margin"]) for row in rows]
+    assert margins == sorted(margins) and margins[0] < 0.05 < 0.3 < margins[-1]
+    assert float(rows[0]["rollout/greedy_accuracy"]) < 0.5 and float(rows[-1]["rollout/greedy_accuracy"]) == 1.0
+
+
 def test_history_best_model_and_pruned_checkpoints(tmp_path):
     model, evaluator = train_toy(tmp_path, rounds=3, keep=2)
     history = [json.loads(line) for line in (tmp_path / "evaluations.jsonl").read_text().splitlines()]
