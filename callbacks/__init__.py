@@ -1,9 +1,11 @@
 """Stable-baselines3 callbacks for training memory policies: rollout retrieval statistics,
-held-out evaluation with best-model saving, and per-round checkpoints."""
+held-out evaluation with best-model saving, per-round checkpoints, and one progress bar for the run."""
 
 from sb3_memret.callbacks.checkpoint import RoundCheckpointCallback, checkpoint_path, latest_checkpoint
 from sb3_memret.callbacks.evaluation import RetrievalEvalCallback
+from sb3_memret.callbacks.progress import RunProgressCallback
 from sb3_memret.callbacks.rollout_metrics import RolloutRetrievalCallback
 
-__all__ = ["RetrievalEvalCallback", "RolloutRetrievalCallback", "RoundCheckpointCallback", "checkpoint_path",
+__all__ = ["RetrievalEvalCallback", "RolloutRetrievalCallback", "RoundCheckpointCallback", "RunProgressCallback",
+           "checkpoint_path",
            "latest_checkpoint"]

@@ -3,8 +3,10 @@
 from __future__ import annotations
 
 import json
+import math
 import time
 from pathlib import Path
+from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
@@ -37,6 +39,7 @@ class RetrievalEvalCallback(BaseCallback):
         self.best_key: tuple[float, float, float] | None = None
         self.last_report: RetrievalReport | None = None
         self._evaluated_round = -1
+        self.listeners: list[Any] = []  # told when an evaluation starts, finishes an episode, ends (a progress bar)
 
     @property
     def round(self) -> int:
@@ -65,9 +68,24 @@ class RetrievalEvalCallback(BaseCallback):
             self.evaluate()
             self.logger.dump(self.num_timesteps)
 
+    def episodes_left(self, final_timesteps: int) -> int:
+        """Held-out episodes still to play before training reaches ``final_timesteps`` (the evaluation under
+        way, if any, not counted): one evaluation every ``eval_every`` rounds still to start, and the last."""
+        round_size = self.model.n_steps * self.model.get_env().num_envs
+        last = math.ceil(final_timesteps / round_size)  # the round training ends at
+        later = sum(1 for r in range(self.round + 1, last) if r % self.eval_every == 0)
+        return (later + 1) * self.n_eval_episodes
+
     def evaluate(self) -> RetrievalReport:
         start = time.perf_counter()
-        report = evaluate_retrieval(self.model, self.eval_env, self.n_eval_episodes, seed=self.eval_seed)
+        for listener in self.listeners:
+            listener.evaluation_started(self.round, self.n_eval_episodes)
+        try:
+            report = evaluate_retrieval(self.model, self.eval_env, self.n_eval_episodes, seed=self.eval_seed,
+                                        on_episode=lambda _: [listener.evaluation_episode() for listener in self.listeners])
+        finally:
+            for listener in self.listeners:
+                listener.evaluation_finished()
         self._evaluated_round, self.last_report = self.round, report
         for key, value in report.as_metrics().items():
             self.logger.record(f"eval/{key}", value)

@@ -25,7 +25,8 @@ from typing import Any
 import yaml
 from stable_baselines3.common.save_util import load_from_zip_file
 
-from sb3_memret.callbacks import RetrievalEvalCallback, RolloutRetrievalCallback, RoundCheckpointCallback, latest_checkpoint
+from sb3_memret.callbacks import (RetrievalEvalCallback, RolloutRetrievalCallback, RoundCheckpointCallback,
+                                  RunProgressCallback, latest_checkpoint)
 from sb3_memret.callbacks.checkpoint import checkpoints as list_checkpoints
 from sb3_memret.config import TrainConfig, parse_section
 from sb3_memret.controllers import FrozenController, make_controller
@@ -193,8 +194,10 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
         try:
             with stop_signals_interrupt():
                 if remaining > 0:
-                    model.learn(remaining, callback=[RolloutRetrievalCallback(), evaluator, checkpointer],
-                                reset_num_timesteps=not options.resume, progress_bar=options.progress_bar)
+                    callbacks = [RolloutRetrievalCallback(), evaluator, checkpointer]
+                    if options.progress_bar:  # SB3's own bar stalls during evaluations and leaves them out of its time left
+                        callbacks.append(RunProgressCallback(evaluator))
+                    model.learn(remaining, callback=callbacks, reset_num_timesteps=not options.resume)
         except (KeyboardInterrupt, WorkerDiedError) as err:
             checkpointer.save()
             stopped_by = stop_reason(err)

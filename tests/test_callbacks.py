@@ -99,3 +99,30 @@ def test_bad_arguments_are_named():
         RoundCheckpointCallback("/tmp", every=0)
     with pytest.raises(ValueError, match="n_eval_episodes"):
         RetrievalEvalCallback(DummyVecEnv([ToyBankEnv]), n_eval_episodes=0)
+
+
+def test_the_progress_bar_follows_evaluations_and_counts_them_in_the_time_left(tmp_path):
+    import io
+
+    from sb3_memret.callbacks import RunProgressCallback
+
+    model = MemRetPPO(MemoryRetrievalPolicy, DummyVecEnv([ToyBankEnv]), n_steps=ROUND, batch_size=ROUND, seed=0)
+    evaluator = RetrievalEvalCallback(DummyVecEnv([ToyBankEnv]), n_eval_episodes=8, eval_every=2)
+    stream = io.StringIO()
+    progress = RunProgressCallback(evaluator, file=stream, mininterval=0)
+    seen = []
+    listener = type("Listener", (), {"evaluation_started": lambda self, r, n: seen.append(("start", r, n)),
+                                     "evaluation_episode": lambda self: seen.append("episode"),
+                                     "evaluation_finished": lambda self: seen.append("end")})()
+    evaluator.listeners.append(listener)
+    model.learn(ROUND * 5, callback=[evaluator, progress])
+    # rounds 0, 2, 4 and the final one are evaluated, each told as it starts, episode by episode, and as it ends
+    assert [event for event in seen if event not in ("episode", "end")] == [("start", r, 8) for r in (0, 2, 4, 5)]
+    assert seen.count("episode") == 4 * 8 and seen.count("end") == 4
+    text = stream.getvalue()
+    assert "evaluating round 2" in text and "8/8 episodes" in text and "decisions/s" in text and "left" in text
+    assert progress.eval_episodes_done == 32 and progress.trained == ROUND * 5
+    assert progress.bar.n == ROUND * 5
+    # after round 2's evaluation, the rounds 4 and 5 evaluations are still to come
+    model.num_timesteps, model._n_updates = ROUND * 2 + 1, 2 * model.n_epochs
+    assert evaluator.episodes_left(ROUND * 5) == 2 * 8
