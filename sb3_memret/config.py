@@ -42,6 +42,8 @@ POLICY_KEYS: dict[str, Check] = {
     "temperature": ((int, float), lambda v: v > 0, "a number > 0"),
     "hidden": _positive_int(),
     "retriever": (str, lambda v: v in ("mlp", "set"), "one of 'mlp' (per memory), 'set' (attention over the bank)"),
+    "exploration": (str, lambda v: v in ("decision", "episode"), "one of 'decision' (fresh Plackett-Luce noise at "
+                    "every decision), 'episode' (one draw per episode)"),
 }
 ENV_KEYS: dict[str, Check] = {
     "task": (str, lambda v: v in task_names(), f"one of the registered tasks {task_names()}"),

@@ -1,8 +1,17 @@
-"""Compare training runs that differ only in their seed: when retrieval was learned and where it ended.
+"""Compare training runs that differ only in their seed: when retrieval was learned, whether it held, and
+where it ended against the oracle.
 
 Reads each run folder's evaluations.jsonl and summary.json (``sb3-memret train recall --seed S
---out runs/recall-seedS``) and prints one row per run plus the mean and standard deviation.
-Usage: ``python scripts/seed_sweep.py runs/recall-seed0 runs/recall-seed1 ...``.
+--out runs/recall-seedS``) and prints one row per run plus the mean and standard deviation:
+
+- the first evaluated round whose held-out greedy accuracy reached 95%, and whether every later
+  evaluation stayed at or above it ("held");
+- the final evaluation's greedy accuracy, success and entropy;
+- with ``--oracle-episodes N``, the oracle condition (the true fact in the prompt, retrieval unused) on the
+  runs' held-out episodes, played once since it does not depend on the retriever, and each run's final
+  recall success over it.
+
+Usage: ``python scripts/seed_sweep.py runs/recall-seed0 runs/recall-seed1 ... [--oracle-episodes 50]``.
 """
 
 from __future__ import annotations
@@ -10,6 +19,7 @@ from __future__ import annotations
 import argparse
 import json
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -17,18 +27,37 @@ from sb3_memret.analysis.report import MASTERY, first_mastered
 from sb3_memret.training import read_history
 
 
-def run_row(run: Path) -> dict[str, float]:
+def run_row(run: Path) -> dict[str, Any]:
     """The figures of one run; ``first_mastered`` (an evaluated round) is NaN when greedy accuracy never
-    reached MASTERY."""
+    reached MASTERY, and ``held`` says whether every evaluation after it stayed at MASTERY or above."""
     history = read_history(run)
     if not history:
         raise SystemExit(f"{run}: no evaluations.jsonl, so not a training run")
     summary = json.loads((run / "summary.json").read_text()) if (run / "summary.json").exists() else {}
-    mastered = row["round"] if (row := first_mastered(history)) else float("nan")
+    first = first_mastered(history)
+    held = first is not None and all(row["greedy_accuracy"] >= MASTERY for row in history if row["round"] >= first["round"])
     last = history[-1]
-    return {"seed": summary.get("seed", "?"), "first_mastered": mastered, "round": last["round"],
-            "greedy": last["greedy_accuracy"], "sampled": last["sampled_fraction"], "entropy": last["entropy"],
-            "success": last["success"]["overall"], "minutes": summary.get("wall_seconds", float("nan")) / 60}
+    return {"seed": summary.get("seed", "?"), "first_mastered": first["round"] if first else float("nan"),
+            "held": held, "round": last["round"], "episodes": last["episodes"], "greedy": last["greedy_accuracy"],
+            "sampled": last["sampled_fraction"], "entropy": last["entropy"], "success": last["success"]["overall"],
+            "minutes": summary.get("wall_seconds", float("nan")) / 60}
+
+
+def oracle_success(run: Path, episodes: int, n_envs: int) -> float:
+    """Success of the oracle prompt on the run's held-out episodes, with the run's controller."""
+    from sb3_memret.analysis.evaluation import evaluate_retrieval
+    from sb3_memret.envs.vec_env import make_recall_vec_env
+    from sb3_memret.policy.ppo import load_model
+    from sb3_memret.training import eval_env_kwargs
+
+    summary = json.loads((run / "summary.json").read_text())
+    path = run / "final_model.zip"
+    model = load_model(path)
+    venv = make_recall_vec_env(n_envs, eval_env_kwargs(model, path, "oracle", summary["controller"]))
+    try:
+        return evaluate_retrieval(model, venv, episodes, seed=summary["eval_seed"]).success["overall"]
+    finally:
+        venv.close()
 
 
 def _mean_std(values: list[float]) -> tuple[float, float]:
@@ -40,22 +69,32 @@ def _mean_std(values: list[float]) -> tuple[float, float]:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", type=Path)
-    runs = parser.parse_args().runs
-    rows = [run_row(run) for run in runs]
-    keys = ["first_mastered", "greedy", "sampled", "entropy", "success", "minutes"]
-    print(f"| run | seed | first round with greedy ≥ {MASTERY:.0%} | last round | greedy | sampled | entropy | "
-          "success | minutes |")
-    print("|---|---|---|---|---|---|---|---|---|")
-    for run, row in zip(runs, rows):
-        print(f"| {run.name} | {row['seed']} | {row['first_mastered']} | {row['round']} | {row['greedy']:.0%} | "
-              f"{row['sampled']:.0%} | {row['entropy']:.2f} | {row['success']:.0%} | {row['minutes']:.1f} |")
-    stats = {k: _mean_std([r[k] for r in rows]) for k in keys}
+    parser.add_argument("--oracle-episodes", type=int, default=0,
+                        help="play the oracle condition on this many held-out episodes (0: skip)")
+    parser.add_argument("--n-envs", type=int, default=2, help="envs for the oracle episodes")
+    args = parser.parse_args()
+    rows = [run_row(run) for run in args.runs]
+    oracle = oracle_success(args.runs[0], args.oracle_episodes, args.n_envs) if args.oracle_episodes else None
+    print(f"| run | seed | first round with greedy ≥ {MASTERY:.0%} | held after | last round | episodes | greedy | "
+          "sampled | entropy | success | " + ("recall / oracle | " if oracle is not None else "") + "minutes |")
+    print("|---|---|---|---|---|---|---|---|---|---|" + ("---|" if oracle is not None else "") + "---|")
+    for run, row in zip(args.runs, rows):
+        ratio = f"{row['success'] / oracle:.2f} | " if oracle else ("– | " if oracle is not None else "")
+        print(f"| {run.name} | {row['seed']} | {row['first_mastered']} | {'yes' if row['held'] else 'no'} | "
+              f"{row['round']} | {row['episodes']} | {row['greedy']:.0%} | {row['sampled']:.0%} | {row['entropy']:.2f} | "
+              f"{row['success']:.0%} | {ratio}{row['minutes']:.1f} |")
+    stats = {k: _mean_std([r[k] for r in rows]) for k in ("first_mastered", "greedy", "sampled", "entropy", "success",
+                                                          "minutes")}
     mastered = sum(not np.isnan(r["first_mastered"]) for r in rows)
+    held = sum(r["held"] for r in rows)
+    ratio = (f"{stats['success'][0] / oracle:.2f} | " if oracle else "– | ") if oracle is not None else ""
     print(f"| mean ± std | | {stats['first_mastered'][0]:.1f} ± {stats['first_mastered'][1]:.1f} "
-          f"({mastered} of {len(rows)} runs reached it) | | "
+          f"({mastered} of {len(rows)} runs reached it) | {held} of {len(rows)} | | | "
           f"{stats['greedy'][0]:.0%} ± {stats['greedy'][1]:.0%} | {stats['sampled'][0]:.0%} ± {stats['sampled'][1]:.0%} | "
           f"{stats['entropy'][0]:.2f} ± {stats['entropy'][1]:.2f} | {stats['success'][0]:.0%} ± {stats['success'][1]:.0%} | "
-          f"{stats['minutes'][0]:.1f} |")
+          f"{ratio}{stats['minutes'][0]:.1f} |")
+    if oracle is not None:
+        print(f"\noracle success on the held-out episodes ({args.oracle_episodes}): {oracle:.0%}")
 
 
 if __name__ == "__main__":

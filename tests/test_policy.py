@@ -123,3 +123,65 @@ def test_a_saved_retriever_is_read_whole_and_another_kind_or_size_is_refused(tmp
         saved_retriever(tmp_path / "trained.zip", kind="set")
     with pytest.raises(ValueError, match=r"this run's is 'mlp' of hidden size 64"):
         saved_retriever(tmp_path / "trained.zip", hidden=64)
+
+
+class LongBankEnv(ToyBankEnv):
+    """The toy bank held for ``length`` decisions per episode; it records each episode's retrievals."""
+
+    def __init__(self, length=4):
+        super().__init__()
+        self.length, self.episodes = length, []
+
+    def reset(self, *, seed=None, options=None):
+        self.t = 0
+        self.episodes.append([])
+        return super().reset(seed=seed, options=options)
+
+    def step(self, action):
+        obs, reward, _, truncated, info = super().step(action)
+        self.t += 1
+        self.episodes[-1].append(int(action[0]))
+        return obs, reward, self.t >= self.length, truncated, info
+
+
+@pytest.mark.parametrize("exploration", ["episode", "decision"])
+def test_episode_exploration_keeps_an_episodes_retrievals_and_draws_anew_for_the_next(exploration):
+    envs = DummyVecEnv([LongBankEnv, LongBankEnv])
+    model = MemRetPPO(MemoryRetrievalPolicy, envs, n_steps=8, batch_size=16, seed=0, learning_rate=1e-9,
+                      policy_kwargs={"exploration": exploration})
+    model.learn(8 * 2 * 6)
+    episodes = [e for env in envs.envs for e in env.unwrapped.episodes if len(e) == 4]
+    assert len(episodes) >= 20
+    constant = sum(len(set(e)) == 1 for e in episodes)
+    if exploration == "episode":  # the scores barely move (lr 1e-9), so each episode keeps its draw
+        assert constant == len(episodes)
+        assert len({e[0] for e in episodes}) > 2  # ... and the next episode draws again
+    else:  # near-uniform fresh draws: 4 in a row agree 1/6**3 of the time
+        assert constant <= 2
+    assert model.policy.episode_noise is None  # outside collection every draw is fresh
+
+
+def test_an_episode_draw_is_exactly_plackett_luce():
+    model = make_model(policy_kwargs={"exploration": "episode"})
+    obs, _ = ToyBankEnv().reset(seed=3)
+    obs_t, _ = model.policy.obs_to_tensor(obs)
+    with torch.no_grad():
+        model.policy.retriever.net[-1].bias.zero_()
+        model.policy.retriever.net[-1].weight.mul_(200.0)  # a peaked distribution, so a wrong sampler shows
+        probs = torch.softmax(model.policy.get_distribution(obs_t).logits, -1)[0]
+        counts = torch.zeros(6)
+        for _ in range(4000):
+            model.policy.redraw_noise(1)
+            counts[model.policy(obs_t)[0].item()] += 1
+    model.policy.episode_noise = None
+    assert torch.allclose(counts / 4000, probs, atol=0.03), (counts / 4000, probs)
+    assert 0.3 < probs.max() < 0.8  # neither uniform nor argmax: the check above has teeth
+
+
+def test_exploration_survives_save_and_load_and_unknown_kinds_are_refused(tmp_path):
+    model = make_model(policy_kwargs={"exploration": "episode"})
+    model.learn(64)
+    model.save(tmp_path / "m.zip")
+    assert PPO.load(tmp_path / "m.zip").policy.exploration == "episode"
+    with pytest.raises(ValueError, match="unknown exploration 'sticky'"):
+        make_model(policy_kwargs={"exploration": "sticky"})

@@ -3,7 +3,9 @@
 An ordered selection (a_1, ..., a_K) of distinct valid slots has probability
 prod_k exp(s_{a_k}/tau) / sum_{j in R_k} exp(s_j/tau), R_k the valid slots not yet chosen.
 Sampling uses the Gumbel-top-K trick, which draws exactly from this distribution; the
-log-probability is recomputed on the stored ordered selection, at the same temperature.
+log-probability is recomputed on the stored ordered selection, at the same temperature. The Gumbel
+noise may be given (``sample(noise)``): noise drawn once per episode and reused keeps each decision's
+draw exactly Plackett-Luce while an episode's draws agree (``MemoryRetrievalPolicy(exploration="episode")``).
 """
 
 from __future__ import annotations
@@ -15,6 +17,13 @@ from stable_baselines3.common.distributions import Distribution
 from torch import nn
 
 NEG_INF = -1e9
+
+
+def gumbel_noise(shape: tuple[int, ...] | torch.Size, device: torch.device | str = "cpu",
+                 generator: torch.Generator | None = None) -> torch.Tensor:
+    """Standard Gumbel noise: adding it to logits and taking the top K draws a Plackett-Luce selection."""
+    uniform = torch.rand(shape, device=device, generator=generator).clamp_(1e-10, 1 - 1e-10)
+    return -torch.log(-torch.log(uniform))
 
 
 class PlackettLuceDistribution(Distribution):
@@ -70,10 +79,14 @@ class PlackettLuceDistribution(Distribution):
                 total = total + log_p_prefix.exp() * step_entropy
         return total
 
-    def sample(self) -> torch.Tensor:
-        uniform = torch.rand_like(self.logits).clamp_(1e-10, 1 - 1e-10)
-        gumbel = -torch.log(-torch.log(uniform))
-        return torch.topk(self.logits + gumbel, self.k, dim=-1).indices
+    def sample(self, noise: torch.Tensor | None = None) -> torch.Tensor:
+        """An ordered top-K draw: the K largest of logits + Gumbel noise (``noise``: that noise, (B, N); default
+        fresh standard Gumbel)."""
+        if noise is None:
+            noise = gumbel_noise(self.logits.shape, self.logits.device)
+        elif noise.shape != self.logits.shape:
+            raise ValueError(f"noise of shape {tuple(noise.shape)} for logits of shape {tuple(self.logits.shape)}")
+        return torch.topk(self.logits + noise, self.k, dim=-1).indices
 
     def mode(self) -> torch.Tensor:
         return torch.topk(self.logits, self.k, dim=-1).indices

@@ -14,10 +14,11 @@ from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
 from sb3_memret.memory.encoder import EMBEDDING_DIM
 from sb3_memret.memory.schema import check_age_unit
-from sb3_memret.policy.distributions import PlackettLuceDistribution
+from sb3_memret.policy.distributions import PlackettLuceDistribution, gumbel_noise
 from sb3_memret.policy.networks import HIDDEN, RETRIEVERS, RelevanceMLP, RetentionScorer, SetRetriever
 
 BANK_KEYS = ("instruction", "memories", "mask", "type_ids", "age", "usage")
+EXPLORATION = ("decision", "episode")
 
 
 class BankExtractor(BaseFeaturesExtractor):
@@ -44,16 +45,28 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
     the unit of the memories' ages the env observes (``RecallVecEnv(age_unit=...)``).
 
     ``predict(obs, deterministic=True)`` is greedy retrieval (top-K by score).
+
+    ``exploration``: how PPO's collection draws the Plackett-Luce noise. ``"decision"`` (the seed's) draws
+    fresh Gumbel noise at every decision, so a near-uniform retriever hands the controller a different
+    memory every 8 steps and no episode follows any memory long enough to show what it is worth.
+    ``"episode"`` draws one Gumbel vector per env and episode (``redraw_noise`` at each episode end), so
+    an episode's retrievals agree while the scores do: each decision is still exactly a Plackett-Luce
+    draw, and PPO's ratios use its probability, as SB3's gSDE does for Gaussian noise. Outside collection
+    (``predict``) every draw is fresh.
     """
 
     def __init__(self, observation_space: spaces.Dict, action_space: spaces.MultiDiscrete, lr_schedule,
                  temperature: float = 0.5, hidden: int = HIDDEN, retriever: str = "mlp", age_unit: str = "steps",
-                 **kwargs: Any):
+                 exploration: str = "decision", **kwargs: Any):
         if not isinstance(action_space, spaces.MultiDiscrete):
             raise ValueError(f"MemoryRetrievalPolicy needs a MultiDiscrete action space of slot indices, got {action_space}")
         if retriever not in RETRIEVERS:
             raise ValueError(f"unknown retriever {retriever!r}; expected one of {list(RETRIEVERS)}")
+        if exploration not in EXPLORATION:
+            raise ValueError(f"unknown exploration {exploration!r}; expected one of {list(EXPLORATION)}")
         self.temperature = temperature
+        self.exploration = exploration
+        self.episode_noise: torch.Tensor | None = None  # (n_envs, N) while PPO collects with exploration="episode"
         self.hidden = hidden
         self.retriever_kind = retriever
         self.age_unit = check_age_unit(age_unit)
@@ -89,8 +102,20 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
     def forward(self, obs, deterministic: bool = False):
         f = self.extract_features(obs)
         dist = self._distribution(f)
-        actions = dist.get_actions(deterministic=deterministic)
+        if deterministic or self.episode_noise is None:
+            actions = dist.get_actions(deterministic=deterministic)
+        else:
+            actions = dist.sample(self.episode_noise)
         return actions, self._value(f), dist.log_prob(actions)
+
+    def redraw_noise(self, n_envs: int, env_ids: Any = None) -> None:
+        """Episode exploration: new Gumbel noise for ``env_ids`` (default every env), whose episodes start
+        now; a change in ``n_envs`` draws for every env."""
+        slots = int(self.action_space.nvec[0])
+        if self.episode_noise is None or self.episode_noise.shape[0] != n_envs or env_ids is None:
+            self.episode_noise = gumbel_noise((n_envs, slots), self.device)
+        elif len(env_ids):
+            self.episode_noise[env_ids] = gumbel_noise((len(env_ids), slots), self.device)
 
     def evaluate_actions(self, obs, actions: torch.Tensor):
         f = self.extract_features(obs)
@@ -110,7 +135,7 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
         data.update(temperature=self.temperature, hidden=self.hidden, retriever=self.retriever_kind,
-                    age_unit=self.age_unit)
+                    age_unit=self.age_unit, exploration=self.exploration)
         return data
 
 

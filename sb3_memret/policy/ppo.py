@@ -5,6 +5,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from stable_baselines3 import PPO
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
@@ -23,18 +24,44 @@ class MemRetPPO(PPO):
     * Advantages are normalised once over the whole round (the rollout), not per minibatch.
     * At the start of every rollout the retention network's weights are pushed to every env
       (``set_retention_weights``), so eviction during collection uses the current critic.
+    * With the policy's ``exploration="episode"`` each env keeps its Plackett-Luce noise for a whole
+      episode, across rounds, and draws a new one when its episode ends.
     """
 
     def __init__(self, policy: type | str = MemoryRetrievalPolicy, env: Any = None, **kwargs: Any):
         for key, value in PAPER_HYPERPARAMS.items():
             kwargs.setdefault(key, value)
         kwargs["normalize_advantage"] = False  # done per round in train()
+        self._episode_noise = None  # exploration="episode": each env's Plackett-Luce noise, kept between rounds
         super().__init__(policy, env, **kwargs)
 
     def collect_rollouts(self, env: VecEnv, callback: BaseCallback, rollout_buffer: RolloutBuffer,
                          n_rollout_steps: int) -> bool:
         env.env_method("set_retention_weights", self.policy.retention_state_dict(), age_unit=self.policy.age_unit)
-        return super().collect_rollouts(env, callback, rollout_buffer, n_rollout_steps)
+        if getattr(self.policy, "exploration", "decision") != "episode":
+            return super().collect_rollouts(env, callback, rollout_buffer, n_rollout_steps)
+        self.policy.episode_noise = self._episode_noise  # the noise of the episodes under way
+        if self._episode_noise is None or self._episode_noise.shape[0] != env.num_envs:
+            self.policy.redraw_noise(env.num_envs)
+        try:
+            return super().collect_rollouts(env, callback, rollout_buffer, n_rollout_steps)
+        finally:  # outside collection (predict, evaluation) every draw is fresh
+            self._episode_noise, self.policy.episode_noise = self.policy.episode_noise, None
+
+    def _update_info_buffer(self, infos: list[dict[str, Any]], dones: np.ndarray | None = None) -> None:
+        """SB3 calls this after every collection step: envs whose episode ended draw new episode noise."""
+        super()._update_info_buffer(infos, dones)
+        if self.policy.episode_noise is not None and dones is not None and np.any(dones):
+            self.policy.redraw_noise(len(dones), np.flatnonzero(dones))
+
+    def _setup_learn(self, total_timesteps: int, callback: Any = None, reset_num_timesteps: bool = True,
+                     tb_log_name: str = "run", progress_bar: bool = False):
+        if reset_num_timesteps or self._last_obs is None:  # SB3 resets the envs: every episode starts anew
+            self._episode_noise = None
+        return super()._setup_learn(total_timesteps, callback, reset_num_timesteps, tb_log_name, progress_bar)
+
+    def _excluded_save_params(self) -> list[str]:
+        return [*super()._excluded_save_params(), "_episode_noise"]
 
     def train(self) -> None:
         adv = self.rollout_buffer.advantages
