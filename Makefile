@@ -16,7 +16,7 @@ $(VENV)/.installed: setup.cfg pyproject.toml constraints.txt
 	$(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	# torch 2.11.0 from the package index: the same build runs on the CPU and on CUDA 13 GPUs
-	$(PY) -m pip install --quiet -c constraints.txt torch==2.11.0 -e ".[test,openpi,ray]"
+	$(PY) -m pip install --quiet -c constraints.txt torch==2.11.0 -e ".[test,openpi,ray,tune]"
 	# openpi-client (and openpi-server, which needs it) pin numpy<2 but work with numpy 2: install them without their pins
 	$(PY) -m pip install --quiet --no-deps openpi-client==0.1.2 openpi-server==0.1.0
 	# MIKASA-Robo-VLA pins Python < 3.12 and mani_skill 3.0.0b15 but runs on this stack: install it without its pins

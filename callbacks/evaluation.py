@@ -39,7 +39,9 @@ class RetrievalEvalCallback(BaseCallback):
         self.best_key: tuple[float, float, float] | None = None
         self.last_report: RetrievalReport | None = None
         self._evaluated_round = -1
-        self.listeners: list[Any] = []  # told when an evaluation starts, finishes an episode, ends (a progress bar)
+        # told when an evaluation starts, finishes an episode, and ends with its report (None if it failed):
+        # a progress bar, a hyperparameter search that prunes on the reports
+        self.listeners: list[Any] = []
 
     @property
     def round(self) -> int:
@@ -83,9 +85,10 @@ class RetrievalEvalCallback(BaseCallback):
         try:
             report = evaluate_retrieval(self.model, self.eval_env, self.n_eval_episodes, seed=self.eval_seed,
                                         on_episode=lambda _: [listener.evaluation_episode() for listener in self.listeners])
-        finally:
+        except BaseException:
             for listener in self.listeners:
-                listener.evaluation_finished()
+                listener.evaluation_finished(None)
+            raise
         self._evaluated_round, self.last_report = self.round, report
         for key, value in report.as_metrics().items():
             self.logger.record(f"eval/{key}", value)
@@ -99,6 +102,8 @@ class RetrievalEvalCallback(BaseCallback):
             self.best_key = _key(row)
             if self.best_model_save_path:
                 save_whole(self.model, self.best_model_save_path / "best_model.zip")
+        for listener in self.listeners:  # after the history and best model are saved: a listener may stop the run
+            listener.evaluation_finished(report)
         if self.verbose:
             print(f"round {self.round}: greedy {report.greedy_accuracy:.0%}, sampled {report.sampled_fraction:.0%}, "
                   f"entropy {report.entropy:.2f}, success {report.success['overall']:.0%}")

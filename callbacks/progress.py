@@ -10,7 +10,7 @@ from __future__ import annotations
 
 import sys
 import time
-from typing import TextIO
+from typing import Any, TextIO
 
 from stable_baselines3.common.callbacks import BaseCallback
 from tqdm import tqdm
@@ -74,7 +74,7 @@ class RunProgressCallback(BaseCallback):
         self.eval_episodes_done += 1
         self._describe(f"evaluating: {self._eval_done}/{self._eval_total} episodes")
 
-    def evaluation_finished(self) -> None:
+    def evaluation_finished(self, report: Any = None) -> None:
         self.eval_seconds += time.perf_counter() - self._eval_started
         self._describe("training")
 

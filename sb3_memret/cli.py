@@ -495,6 +495,79 @@ def train(ctx: click.Context, experiment: str, task: str | None, config_path: Pa
     click.echo(f"report: sb3-memret report {result.out}")
 
 
+@main.command()
+@click.argument("experiment", type=click.Choice(list(EXPERIMENTS)), metavar="EXPERIMENT")
+@_task_option()
+@click.option("--config", "config_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Zoo config whose section is the starting point (everything the search does not vary)  "
+                   "[default: the task's file in zoo_configs/]")
+@click.option("--controller", default=DEFAULT_CONTROLLER, show_default=True,
+              help="Frozen controller the memory serves ('scripted': the task's expert).")
+@click.option("--trials", type=click.IntRange(min=1), default=20, show_default=True,
+              help="Trials to run now (a study in --out continues with more).")
+@click.option("--timesteps", type=click.IntRange(min=1), default=None, help="Decisions per trial  [default: config]")
+@click.option("--n-envs", type=click.IntRange(min=1), default=None, help="Parallel envs  [default: config]")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Training seed of every trial, and the sampler's.")
+@click.option("--eval-episodes", type=click.IntRange(min=1), default=20, show_default=True,
+              help="Held-out episodes per evaluation (what the trials are compared and pruned on).")
+@click.option("--eval-every", type=click.IntRange(min=1), default=2, show_default=True, help="Evaluate every N rounds.")
+@click.option("--startup-trials", type=click.IntRange(min=0), default=5, show_default=True,
+              help="Random trials before the TPE sampler models the space and the median pruner may prune.")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Study folder: study.db, trial-N/ run folders, trials.csv, best_config.yml  "
+                   "[default: runs/tune-<experiment>-<task>]")
+@_render_backend_option
+@click.pass_context
+def tune(ctx: click.Context, experiment: str, task: str, config_path: Path | None, controller: str, trials: int,
+         timesteps: int | None, n_envs: int | None, seed: int, eval_episodes: int, eval_every: int, startup_trials: int,
+         out: Path | None, render_backend: str) -> None:
+    """Search the learner's hyperparameters on EXPERIMENT with Optuna, as rl-zoo does: TPE sampling, a median
+    pruner on the held-out evaluations, and the best trial written as a zoo config (OUT/best_config.yml,
+    ready for `train --config`). Trials are compared on their mean held-out greedy accuracy over the run
+    (retrieval learned early and kept). An interrupted search continues when the same command runs again."""
+    try:
+        import optuna  # noqa: F401
+    except ImportError:
+        raise click.UsageError("tune needs Optuna: pip install 'sb3-memret[tune]' (or optuna)") from None
+    from sb3_memret.tuning import BEST_CONFIG, TRIALS_FILE, TuneOptions, tune as run_tune
+    from sb3_memret.workers import exit_status
+
+    try:
+        config = load_task_config(task, config_path)
+    except (FileNotFoundError, ValueError) as err:
+        raise click.BadParameter(str(err), param_hint="--config") from err
+    config.env_kwargs["task"] = task
+    if n_envs is not None:
+        config.ppo["n_envs"] = n_envs
+    if timesteps is not None:
+        config.ppo["n_timesteps"] = timesteps
+    out = out or Path("runs") / f"tune-{experiment}-{task}"
+    built = _controller(ctx, None, controller, task)
+    options = TuneOptions(out=out, trials=trials, controller=controller, seed=seed, eval_episodes=eval_episodes,
+                          eval_every=eval_every, eval_seed=HELD_OUT_SEED, startup_trials=startup_trials,
+                          render_backend=render_backend)
+
+    def on_trial(trial) -> None:
+        value = "-" if trial.value is None else f"{trial.value:.3f}"
+        click.echo(f"trial {trial.number}: {trial.state.name.lower()}, mean greedy accuracy {value}, {trial.params}",
+                   err=True)
+
+    try:
+        study = run_tune(config, options, built, on_trial=on_trial)
+    except KeyboardInterrupt as err:
+        click.echo(f"stopped ({err or 'Ctrl-C'}); the study in {out} continues when the same command runs again",
+                   err=True)
+        sys.exit(exit_status(str(err) or "Ctrl-C"))
+    best = out / BEST_CONFIG
+    click.echo(f"{len(study.trials)} trials in {out / TRIALS_FILE}")
+    if best.exists():
+        click.echo(f"best: trial {study.best_trial.number}, mean greedy accuracy {study.best_value:.3f}; "
+                   f"config {best} (sb3-memret train {experiment} --task {task} --config {best})")
+    else:
+        click.echo("no trial completed yet, so no best config", err=True)
+
+
 @main.command("eval")
 @click.argument("model_path", type=click.Path(exists=True, dir_okay=False, path_type=Path))
 @_task_option(default=None)

@@ -61,6 +61,7 @@ class RunOptions:
     backend: str = "auto"  # where the physics runs (sb3_memret.envs.physics.BACKENDS)
     ray_address: str | None = None  # a Ray cluster for backend "ray"
     retriever_from: Path | None = None  # a new run's retriever starts from this model file's
+    evaluation_listeners: tuple[Any, ...] = ()  # told of every held-out evaluation (RetrievalEvalCallback.listeners)
     verbose: int = 0
 
 
@@ -177,6 +178,7 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
     evaluator = RetrievalEvalCallback(eval_env, options.eval_episodes, options.eval_seed, options.eval_every,
                                       best_model_save_path=out, history_path=out / HISTORY_FILE,
                                       verbose=options.verbose)
+    evaluator.listeners.extend(options.evaluation_listeners)
     start, stopped_by = time.perf_counter(), None
     try:
         if options.resume:

@@ -113,7 +113,7 @@ def test_the_progress_bar_follows_evaluations_and_counts_them_in_the_time_left(t
     seen = []
     listener = type("Listener", (), {"evaluation_started": lambda self, r, n: seen.append(("start", r, n)),
                                      "evaluation_episode": lambda self: seen.append("episode"),
-                                     "evaluation_finished": lambda self: seen.append("end")})()
+                                     "evaluation_finished": lambda self, report: seen.append("end")})()
     evaluator.listeners.append(listener)
     model.learn(ROUND * 5, callback=[evaluator, progress])
     # rounds 0, 2, 4 and the final one are evaluated, each told as it starts, episode by episode, and as it ends

@@ -7,7 +7,8 @@ from sb3_memret.cli import main
 
 def test_every_command_has_help():
     runner = CliRunner()
-    for args in ([], ["rollout"], ["train"], ["eval"], ["ablate"], ["plot"], ["trace"], ["report"], ["demos"], ["finetune"]):
+    for args in ([], ["rollout"], ["train"], ["tune"], ["eval"], ["ablate"], ["plot"], ["trace"], ["report"], ["demos"],
+                 ["finetune"]):
         result = runner.invoke(main, [*args, "--help"])
         assert result.exit_code == 0 and "Usage" in result.output
 
