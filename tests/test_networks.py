@@ -47,6 +47,7 @@ def test_set_retriever_scores_depend_on_the_other_valid_memories_only():
     """Unlike the per-memory MLP, a memory's score changes with its rivals; empty slots change nothing."""
     torch.manual_seed(1)
     retriever = SetRetriever()
+    torch.nn.init.normal_(retriever.context.weight)  # a trained context head (it starts at zero)
     g, memories = torch.randn(1, 384), torch.randn(1, 6, 384)
     mask = torch.tensor([[True, True, True, True, False, False]])
     scores = retriever(g, memories, mask)
@@ -58,3 +59,15 @@ def test_set_retriever_scores_depend_on_the_other_valid_memories_only():
     assert not torch.allclose(retriever(g, rival, mask)[0, :3], scores[0, :3])
     empty = retriever(g, memories, torch.zeros(1, 6, dtype=torch.bool))
     assert torch.isfinite(empty).all()
+
+
+def test_set_retriever_starts_as_the_per_memory_mlp():
+    """Its context head starts at zero: with the MLP's weights in its per-memory path it scores as the MLP."""
+    torch.manual_seed(2)
+    mlp, retriever = RelevanceMLP(), SetRetriever()
+    retriever.pair[0].load_state_dict(mlp.net[0].state_dict())
+    retriever.pair[2].load_state_dict(mlp.net[2].state_dict())
+    retriever.score.load_state_dict(mlp.net[4].state_dict())
+    g, memories = torch.randn(3, 384), torch.randn(3, 6, 384)
+    mask = torch.tensor([[True] * 6, [True] * 3 + [False] * 3, [True] + [False] * 5])
+    torch.testing.assert_close(retriever(g, memories, mask), mlp(g, memories))

@@ -33,21 +33,28 @@ class RelevanceMLP(nn.Module):
 
 
 class SetRetriever(nn.Module):
-    """Set-structured retriever: each memory's score also depends on the rest of the bank.
+    """Set-structured retriever: the seed's per-memory score plus a correction read from the whole bank.
 
-    Every slot starts from the seed's pair features [h_g, h_m, |h_g-h_m|, h_g*h_m] (the
-    instruction g is in every token), then ``layers`` rounds of self-attention over the valid
-    slots only (no positions: permuting the slots permutes the scores, and any bank size
-    works), then a score head. So a memory can be scored against its rivals, e.g. the one
-    fact among several that names the instructed object, or a newer fact over a stale one.
+    Each slot's features are the seed MLP's hidden layers over [h_g, h_m, |h_g-h_m|, h_g*h_m] (the
+    instruction g is in every token); its score is the MLP's head on them plus a context term: ``layers``
+    rounds of pre-norm self-attention over the valid slots only (no positions: permuting the slots permutes
+    the scores, and any bank size works), then a head that starts at zero. So at initialisation it scores
+    exactly as the per-memory MLP and learns at its pace, and attention adds what only the rivals tell:
+    the one fact among several that names the instructed object, or a newer fact over a stale one.
+    (Attention alone, with the score read off its output, averaged the slots' features at the start and
+    learned slower than the MLP.)
     """
 
     def __init__(self, embedding_dim: int = EMBEDDING_DIM, hidden: int = HIDDEN, layers: int = 2, heads: int = 4):
         super().__init__()
-        self.pair = nn.Sequential(nn.Linear(4 * embedding_dim, hidden), nn.ReLU())
-        layer = nn.TransformerEncoderLayer(hidden, heads, dim_feedforward=2 * hidden, dropout=0.0, batch_first=True)
+        self.pair = nn.Sequential(nn.Linear(4 * embedding_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU())
+        self.score = nn.Linear(hidden, 1)
+        layer = nn.TransformerEncoderLayer(hidden, heads, dim_feedforward=2 * hidden, dropout=0.0, batch_first=True,
+                                           norm_first=True)
         self.attention = nn.TransformerEncoder(layer, layers, enable_nested_tensor=False)
-        self.head = nn.Linear(hidden, 1)
+        self.context = nn.Linear(hidden, 1)
+        nn.init.zeros_(self.context.weight)
+        nn.init.zeros_(self.context.bias)
 
     def forward(self, instruction: torch.Tensor, memories: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """instruction (B, D), memories (B, N, D), mask (B, N) of valid slots -> scores (B, N).
@@ -56,9 +63,10 @@ class SetRetriever(nn.Module):
         all (its scores are masked by the distribution anyway).
         """
         g = instruction.unsqueeze(1).expand_as(memories)
-        x = self.pair(torch.cat([g, memories, (g - memories).abs(), g * memories], dim=-1))
+        h = self.pair(torch.cat([g, memories, (g - memories).abs(), g * memories], dim=-1))
         valid = mask.bool() | ~mask.bool().any(-1, keepdim=True)
-        return self.head(self.attention(x, src_key_padding_mask=~valid)).squeeze(-1)
+        context = self.attention(h, src_key_padding_mask=~valid)
+        return (self.score(h) + self.context(context)).squeeze(-1)
 
 
 RETRIEVERS = ("mlp", "set")
