@@ -37,11 +37,14 @@ PPO_KEYS: dict[str, Check] = {
     "clip_range": ((int, float), lambda v: 0 < v < 1, "a number in (0, 1)"),
     "ent_coef": ((int, float), lambda v: v >= 0, "a number >= 0"),
     "vf_coef": ((int, float), lambda v: v >= 0, "a number >= 0"),
+    "calibration_coef": ((int, float), lambda v: v >= 0, "a number >= 0 (0: keep-scores learn from the value loss only)"),
 }
 POLICY_KEYS: dict[str, Check] = {
     "temperature": ((int, float), lambda v: v > 0, "a number > 0"),
     "hidden": _positive_int(),
     "retriever": (str, lambda v: v in ("mlp", "set"), "one of 'mlp' (per memory), 'set' (attention over the bank)"),
+    "retriever_lr_scale": ((int, float), lambda v: v >= 0, "a number >= 0 (the retriever's learning rate over the "
+                           "critic's; 0 freezes it)"),
     "exploration": (str, lambda v: v in ("decision", "episode"), "one of 'decision' (fresh Plackett-Luce noise at "
                     "every decision), 'episode' (one draw per episode)"),
 }

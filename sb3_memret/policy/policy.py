@@ -53,15 +53,21 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
     an episode's retrievals agree while the scores do: each decision is still exactly a Plackett-Luce
     draw, and PPO's ratios use its probability, as SB3's gSDE does for Gaussian noise. Outside collection
     (``predict``) every draw is fresh.
+
+    ``retriever_lr_scale`` scales the retriever's learning rate against the critic's (0 freezes it: a
+    warm-started retriever that must not drift while the retention critic learns).
     """
 
     def __init__(self, observation_space: spaces.Dict, action_space: spaces.MultiDiscrete, lr_schedule,
                  temperature: float = 0.5, hidden: int = HIDDEN, retriever: str = "mlp", age_unit: str = "steps",
-                 exploration: str = "decision", **kwargs: Any):
+                 exploration: str = "decision", retriever_lr_scale: float = 1.0, **kwargs: Any):
         if not isinstance(action_space, spaces.MultiDiscrete):
             raise ValueError(f"MemoryRetrievalPolicy needs a MultiDiscrete action space of slot indices, got {action_space}")
         if retriever not in RETRIEVERS:
             raise ValueError(f"unknown retriever {retriever!r}; expected one of {list(RETRIEVERS)}")
+        if retriever_lr_scale < 0:
+            raise ValueError(f"retriever_lr_scale must be >= 0 (0 freezes the retriever), got {retriever_lr_scale}")
+        self.retriever_lr_scale = retriever_lr_scale
         if exploration not in EXPLORATION:
             raise ValueError(f"unknown exploration {exploration!r}; expected one of {list(EXPLORATION)}")
         self.temperature = temperature
@@ -79,7 +85,12 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
         self.action_dist = PlackettLuceDistribution(len(self.action_space.nvec), self.temperature)
         self.retriever = SetRetriever(hidden=self.hidden) if self.retriever_kind == "set" else RelevanceMLP(hidden=self.hidden)
         self.retention = RetentionScorer(hidden=self.hidden, age_unit=self.age_unit)
-        self.optimizer = self.optimizer_class(self.parameters(), lr=lr_schedule(1), **self.optimizer_kwargs)
+        retriever = list(self.retriever.parameters())
+        others = [p for p in self.parameters() if all(p is not q for q in retriever)]
+        lr = lr_schedule(1)
+        self.optimizer = self.optimizer_class(
+            [{"params": retriever, "lr": lr * self.retriever_lr_scale, "lr_scale": self.retriever_lr_scale},
+             {"params": others, "lr": lr, "lr_scale": 1.0}], lr=lr, **self.optimizer_kwargs)
 
     def scores(self, features: dict[str, torch.Tensor]) -> torch.Tensor:
         """(B, N) retriever scores of every slot (empty slots included, they are masked later)."""
@@ -135,7 +146,7 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
     def _get_constructor_parameters(self) -> dict[str, Any]:
         data = super()._get_constructor_parameters()
         data.update(temperature=self.temperature, hidden=self.hidden, retriever=self.retriever_kind,
-                    age_unit=self.age_unit, exploration=self.exploration)
+                    age_unit=self.age_unit, exploration=self.exploration, retriever_lr_scale=self.retriever_lr_scale)
         return data
 
 

@@ -6,11 +6,13 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 from stable_baselines3 import PPO
 from stable_baselines3.common.buffers import RolloutBuffer
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_memret.policy.credit import calibration_loss, retrieval_credit
 from sb3_memret.policy.policy import MemoryRetrievalPolicy
 
 # The paper's PPO settings (appendix A).
@@ -26,9 +28,18 @@ class MemRetPPO(PPO):
       (``set_retention_weights``), so eviction during collection uses the current critic.
     * With the policy's ``exploration="episode"`` each env keeps its Plackett-Luce noise for a whole
       episode, across rounds, and draws a new one when its episode ends.
+    * ``calibration_coef > 0``: after each PPO update, ``n_epochs`` passes of the retention critic alone on
+      the calibration loss (``sb3_memret.policy.credit``): keep-scores ranked by what each memory was
+      worth to the retrievals that followed, which is what eviction reads; the value loss fits only their mean.
+    * The policy's ``retriever_lr_scale`` (its optimizer's parameter groups) survives SB3's learning-rate
+      schedule: a warm-started retriever can learn slower than the critic, or not at all (0).
     """
 
-    def __init__(self, policy: type | str = MemoryRetrievalPolicy, env: Any = None, **kwargs: Any):
+    def __init__(self, policy: type | str = MemoryRetrievalPolicy, env: Any = None, calibration_coef: float = 0.0,
+                 **kwargs: Any):
+        if calibration_coef < 0:
+            raise ValueError(f"calibration_coef must be >= 0, got {calibration_coef}")
+        self.calibration_coef = calibration_coef
         for key, value in PAPER_HYPERPARAMS.items():
             kwargs.setdefault(key, value)
         kwargs["normalize_advantage"] = False  # done per round in train()
@@ -63,11 +74,49 @@ class MemRetPPO(PPO):
     def _excluded_save_params(self) -> list[str]:
         return [*super()._excluded_save_params(), "_episode_noise"]
 
+    def _update_learning_rate(self, optimizers: Any) -> None:
+        """SB3 sets one learning rate on every parameter group; each group keeps its ``lr_scale`` of it."""
+        super()._update_learning_rate(optimizers)
+        for optimizer in optimizers if isinstance(optimizers, list) else [optimizers]:
+            for group in optimizer.param_groups:
+                group["lr"] *= group.get("lr_scale", 1.0)
+
     def train(self) -> None:
         adv = self.rollout_buffer.advantages
         self.rollout_buffer.advantages = (adv - adv.mean()) / (adv.std() + 1e-8)
         self.logger.record("train/raw_advantage_std", float(adv.std()))
+        calibration = self._calibration_data() if self.calibration_coef > 0 else None  # before SB3 flattens the buffer
         super().train()
+        if calibration is not None:
+            self._calibrate_retention(*calibration)
+
+    def _calibration_data(self) -> tuple[dict[str, torch.Tensor], np.ndarray]:
+        """The round's bank observations, one row per decision, and each memory's retrieval credit."""
+        buffer = self.rollout_buffer
+        obs = buffer.observations
+        credit = retrieval_credit(obs["memories"], obs["mask"], buffer.actions, buffer.advantages,
+                                  buffer.episode_starts, self.gamma * self.gae_lambda)
+        flat = {key: torch.as_tensor(obs[key].reshape(-1, *obs[key].shape[2:]), device=self.device)
+                for key in ("memories", "mask", "type_ids", "age", "usage")}
+        return flat, credit
+
+    def _calibrate_retention(self, flat: dict[str, torch.Tensor], credit: np.ndarray) -> None:
+        """Fit the keep-scores' ranking to each memory's retrieval credit (``sb3_memret.policy.credit``)."""
+        credit_t = torch.as_tensor(credit.reshape(-1, credit.shape[-1]), device=self.device)
+        retention, optimizer = self.policy.retention, self.policy.optimizer
+        losses = []
+        for _ in range(self.n_epochs):
+            for batch in torch.randperm(len(credit_t), device=self.device).split(self.batch_size):
+                keep = retention(flat["memories"][batch], flat["type_ids"][batch], flat["age"][batch],
+                                 flat["usage"][batch])
+                loss = self.calibration_coef * calibration_loss(keep, credit_t[batch], flat["mask"][batch] > 0.5)
+                optimizer.zero_grad()
+                loss.backward()
+                torch.nn.utils.clip_grad_norm_(retention.parameters(), self.max_grad_norm)
+                optimizer.step()
+                losses.append(float(loss.detach()))
+        self.logger.record("train/calibration_loss", float(np.mean(losses)))
+        self.logger.record("train/credited_banks", float((credit.sum(-1) > 0).mean()))
 
 
 def load_model(path: str | Path, device: str = "cpu", **kwargs: Any) -> MemRetPPO:
