@@ -13,18 +13,9 @@ from sb3_memret.callbacks import RolloutRetrievalCallback, latest_checkpoint
 from sb3_memret.cli import main
 from sb3_memret.config import parse_section
 from sb3_memret.training import RunOptions, read_history, train
+from tiny_run import TINY
 
 ZOO = Path(__file__).resolve().parents[1] / "zoo_configs"
-# Rounds of 16 decisions; episodes of 48 control steps (6 decisions) keep the run short.
-TINY = """sb3_memret/DrawerRecall-v0:
-  n_timesteps: 32
-  n_envs: 1
-  n_steps: 16
-  batch_size: 8
-  n_epochs: 2
-  env_kwargs:
-    max_control_steps: 48
-"""
 METRICS = ["eval/greedy_accuracy", "eval/sampled_fraction", "eval/entropy", "eval/success", "eval/mean_return",
            "eval/mean_reward", "eval/true_evicted_rate", "rollout/sampled_fraction", "rollout/success",
            "rollout/true_evicted_rate", "rollout/mean_reward", "train/raw_advantage_std", "train/entropy_loss"]

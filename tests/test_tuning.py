@@ -11,18 +11,11 @@ from sb3_memret.analysis.evaluation import RetrievalReport
 from sb3_memret.cli import main
 from sb3_memret.config import load_config, parse_section
 from sb3_memret.tuning import TrialReporter, apply_hyperparameters, sample_hyperparameters
+from tiny_run import TINY as TINY_RUN
 
 BASE = parse_section({"n_timesteps": 64, "n_envs": 2, "n_steps": 16, "policy_kwargs": {"hidden": 64},
                       "env_kwargs": {"capacity": 6}}, "sb3_memret/DrawerRecall-v0")
-TINY = """sb3_memret/DrawerRecall-v0:
-  n_timesteps: 16
-  n_envs: 1
-  n_steps: 16
-  batch_size: 8
-  n_epochs: 2
-  env_kwargs:
-    max_control_steps: 48
-"""
+TINY = TINY_RUN.replace("n_timesteps: 32", "n_timesteps: 16")  # one round a trial
 
 
 def test_a_sampled_point_is_a_valid_zoo_section_that_keeps_what_the_search_does_not_vary():
