@@ -58,7 +58,9 @@ class RunProgressCallback(BaseCallback):
 
     def _on_training_end(self) -> None:
         if self.bar is not None:
-            self._describe("done")
+            self.bar.set_description_str("done", refresh=False)
+            rate = self.trained / max(self.train_seconds + self._running(), 1e-9)
+            self.bar.set_postfix_str(f"{rate:.1f} decisions/s", refresh=False)
             self.bar.close()
 
     # ------------------------------------------------------------------ evaluations (RetrievalEvalCallback calls these)
