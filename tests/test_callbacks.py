@@ -126,3 +126,18 @@ def test_the_progress_bar_follows_evaluations_and_counts_them_in_the_time_left(t
     # after round 2's evaluation, the rounds 4 and 5 evaluations are still to come
     model.num_timesteps, model._n_updates = ROUND * 2 + 1, 2 * model.n_epochs
     assert evaluator.episodes_left(ROUND * 5) == 2 * 8
+
+
+def test_evaluations_leave_training_as_it_was():
+    """Held-out evaluations draw from a generator of their own: how often a run evaluates does not change
+    what it learns (with episode exploration, whose noise comes from torch's global generator)."""
+    import torch
+
+    params = []
+    for eval_every in (1, 100):
+        model = MemRetPPO(MemoryRetrievalPolicy, DummyVecEnv([ToyBankEnv]), n_steps=ROUND, batch_size=ROUND, seed=0,
+                          policy_kwargs={"exploration": "episode"})
+        evaluator = RetrievalEvalCallback(DummyVecEnv([ToyBankEnv]), n_eval_episodes=8, eval_every=eval_every)
+        model.learn(ROUND * 3, callback=evaluator)
+        params.append(model.policy.state_dict())
+    assert all(torch.equal(value, params[1][key]) for key, value in params[0].items())

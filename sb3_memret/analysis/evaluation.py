@@ -17,6 +17,8 @@ import torch
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.vec_env import VecEnv
 
+from sb3_memret.policy.distributions import gumbel_noise
+
 
 # what a household's long-term store held before each task (``EpisodeMemory.info``)
 HOUSEHOLD_FLAGS = ("needed_fact_gone", "target_fact_kept", "stale_fact_kept")
@@ -87,7 +89,9 @@ def evaluate_retrieval(
     score retrieval and success. ``seed`` reseeds the envs first so the episodes are reproducible.
     The task envs start at ``task_seeds`` (default: the task's protocol seeds, e.g. MIKASA's
     4242424242 + i, where it has them), each seed played once, in contiguous blocks per env.
-    The model's retention critic is pushed to the envs first, so it evicts as it did in training."""
+    The model's retention critic is pushed to the envs first, so it evicts as it did in training.
+    Its random draws (the sampled-fraction estimate, stochastic actions) come from a generator of its own,
+    seeded by ``seed``: an evaluation leaves torch's global random state, and so training, as it found it."""
     if n_episodes < 1:
         raise ValueError(f"n_episodes must be >= 1, got {n_episodes}")
     policy = model.policy
@@ -112,12 +116,15 @@ def evaluate_retrieval(
     if seed is not None:
         venv.seed(seed)
     obs = venv.reset()
+    generator = torch.Generator(device=policy.device).manual_seed(seed or 0)
     try:
         while (counts < targets).any():
             obs_t, _ = policy.obs_to_tensor(obs)
             dist = policy.get_distribution(obs_t)
-            actions = dist.get_actions(deterministic=deterministic)
-            draws = torch.stack([dist.sample() for _ in range(samples)], dim=1)  # (B, S, K)
+            shape = dist.logits.shape
+            actions = dist.mode() if deterministic else dist.sample(gumbel_noise(shape, policy.device, generator))
+            draws = torch.stack([dist.sample(gumbel_noise(shape, policy.device, generator)) for _ in range(samples)],
+                                dim=1)  # (B, S, K)
             ent = dist.entropy()
             obs, rewards, dones, infos = venv.step(actions.cpu().numpy())
             for i, info in enumerate(infos):
