@@ -52,15 +52,15 @@ class RunProgressCallback(BaseCallback):
         if self._since is None:
             self._since = time.perf_counter()
         self.trained += self.training_env.num_envs
+        self._postfix(refresh=False)  # update() redraws at most every mininterval
         self.bar.update(self.training_env.num_envs)
-        self._postfix()
         return True
 
     def _on_training_end(self) -> None:
         if self.bar is not None:
             self.bar.set_description_str("done", refresh=False)
-            rate = self.trained / max(self.train_seconds + self._running(), 1e-9)
-            self.bar.set_postfix_str(f"{rate:.1f} decisions/s", refresh=False)
+            rate = self.rate()
+            self.bar.set_postfix_str(f"{rate:.1f} decisions/s" if rate else "", refresh=False)
             self.bar.close()
 
     # ------------------------------------------------------------------ evaluations (RetrievalEvalCallback calls these)
@@ -86,12 +86,17 @@ class RunProgressCallback(BaseCallback):
             self.bar.set_description_str(text, refresh=False)
             self._postfix()
 
+    def rate(self) -> float | None:
+        """Training decisions per second, evaluations left out (None before the first decision)."""
+        seconds = self.train_seconds + self._running()
+        return self.trained / seconds if self.trained and seconds > 0 else None
+
     def seconds_left(self) -> float | None:
         """Training decisions left at the measured rate, plus the evaluations still to come at the measured
         seconds per episode (None until both rates are known)."""
-        if self.bar is None or not self.trained or self.train_seconds + self._running() <= 0:
+        rate = self.rate()
+        if self.bar is None or rate is None:
             return None
-        rate = self.trained / (self.train_seconds + self._running())
         left = (self.total - self.bar.n) / rate
         if self.evaluator is not None:
             if not self.eval_episodes_done:
@@ -103,13 +108,11 @@ class RunProgressCallback(BaseCallback):
     def _running(self) -> float:
         return time.perf_counter() - self._since if self._since is not None else 0.0
 
-    def _postfix(self) -> None:
-        parts = []
-        if self.trained and self.train_seconds + self._running() > 0:
-            parts.append(f"{self.trained / (self.train_seconds + self._running()):.1f} decisions/s")
-        left = self.seconds_left()
+    def _postfix(self, refresh: bool = True) -> None:
+        rate, left = self.rate(), self.seconds_left()
+        parts = [f"{rate:.1f} decisions/s"] if rate is not None else []
         parts.append(f"~{tqdm.format_interval(left)} left" if left is not None else "time left: after an evaluation")
-        self.bar.set_postfix_str(", ".join(parts), refresh=True)
+        self.bar.set_postfix_str(", ".join(parts), refresh=refresh)
 
 
 __all__ = ["RunProgressCallback"]

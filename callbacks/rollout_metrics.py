@@ -31,20 +31,18 @@ class RolloutRetrievalCallback(BaseCallback):
         self.reward = 0.0
         self.successes: list[bool] = []
         self.evicted: list[bool] = []
-        self.counted: list[list[bool]] = []  # per collected step, per env: every needed memory was in the bank
-        self.retrieved: list[list[bool]] = []
-        self.true_slots: list[list[list[int]]] = []
+        self.retrieved: list[list[bool]] = []  # per collected step, per env
+        self.true_slots: list[list[list[int]]] = []  # empty where some needed memory was not in the bank
 
     def _on_rollout_start(self) -> None:
         self._reset_counts()
 
     def _on_step(self) -> bool:
-        counted, retrieved, true_slots = [], [], []
+        retrieved, true_slots = [], []
         for info, reward, done in zip(self.locals["infos"], self.locals["rewards"], self.locals["dones"]):
             self.steps += 1
             self.reward += float(reward)
             true = list(info.get("decision_true_slots") or [])
-            counted.append(bool(true))
             retrieved.append(bool(info.get("retrieved_true", False)))
             true_slots.append(true)
             if true:  # every needed memory was in the bank
@@ -53,7 +51,6 @@ class RolloutRetrievalCallback(BaseCallback):
             if info.get("task_done", done):  # a household's learning episode spans several tasks
                 self.successes.append(bool(info["success"]))
                 self.evicted.append(bool(info["true_evicted"]))
-        self.counted.append(counted)
         self.retrieved.append(retrieved)
         self.true_slots.append(true_slots)
         return True
@@ -70,13 +67,14 @@ class RolloutRetrievalCallback(BaseCallback):
             record("rollout/success", float(np.mean(self.successes)))
             record("rollout/true_evicted_rate", float(np.mean(self.evicted)))
         buffer = getattr(self.model, "rollout_buffer", None)
-        if buffer is not None and buffer.full and len(self.counted) == buffer.buffer_size:
+        if buffer is not None and buffer.full and len(self.true_slots) == buffer.buffer_size:
             for key, value in {**self._advantage_gap(buffer.advantages), **self._score_margins(buffer)}.items():
                 record(f"rollout/{key}", value)
 
     def _advantage_gap(self, advantages: np.ndarray) -> dict[str, float]:
         """How far the round's advantages separate decisions that retrieved every needed memory from the rest."""
-        counted, retrieved = np.array(self.counted), np.array(self.retrieved)
+        counted = np.array([[bool(true) for true in per_env] for per_env in self.true_slots])
+        retrieved = np.array(self.retrieved)
         hit, miss = advantages[counted & retrieved], advantages[counted & ~retrieved]
         if len(hit) < 2 or len(miss) < 2:
             return {}
@@ -91,7 +89,7 @@ class RolloutRetrievalCallback(BaseCallback):
         policy = self.model.policy
         if not hasattr(policy, "scores"):
             return {}
-        rows = [(step, env) for step, per_env in enumerate(self.counted) for env, c in enumerate(per_env) if c]
+        rows = [(step, env) for step, per_env in enumerate(self.true_slots) for env, true in enumerate(per_env) if true]
         if not rows:
             return {}
         steps, envs = map(np.array, zip(*rows))

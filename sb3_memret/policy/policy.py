@@ -86,7 +86,8 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
         self.retriever = SetRetriever(hidden=self.hidden) if self.retriever_kind == "set" else RelevanceMLP(hidden=self.hidden)
         self.retention = RetentionScorer(hidden=self.hidden, age_unit=self.age_unit)
         retriever = list(self.retriever.parameters())
-        others = [p for p in self.parameters() if all(p is not q for q in retriever)]
+        in_retriever = {id(p) for p in retriever}
+        others = [p for p in self.parameters() if id(p) not in in_retriever]
         lr = lr_schedule(1)
         self.optimizer = self.optimizer_class(
             [{"params": retriever, "lr": lr * self.retriever_lr_scale, "lr_scale": self.retriever_lr_scale},
