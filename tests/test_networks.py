@@ -61,13 +61,16 @@ def test_set_retriever_scores_depend_on_the_other_valid_memories_only():
     assert torch.isfinite(empty).all()
 
 
-def test_set_retriever_starts_as_the_per_memory_mlp():
-    """Its context head starts at zero: with the MLP's weights in its per-memory path it scores as the MLP."""
+def test_set_retriever_starts_as_the_per_memory_mlp_of_the_same_seed():
+    """Its context head starts at zero and its attention draws from its own stream: built after the same
+    seed, it scores as the MLP and leaves the global random stream where the MLP leaves it."""
     torch.manual_seed(2)
-    mlp, retriever = RelevanceMLP(), SetRetriever()
-    retriever.pair[0].load_state_dict(mlp.net[0].state_dict())
-    retriever.pair[2].load_state_dict(mlp.net[2].state_dict())
-    retriever.score.load_state_dict(mlp.net[4].state_dict())
+    mlp, after_mlp = RelevanceMLP(), torch.rand(3)
+    torch.manual_seed(2)
+    retriever, after_set = SetRetriever(), torch.rand(3)
+    torch.testing.assert_close(after_set, after_mlp)
     g, memories = torch.randn(3, 384), torch.randn(3, 6, 384)
     mask = torch.tensor([[True] * 6, [True] * 3 + [False] * 3, [True] + [False] * 5])
     torch.testing.assert_close(retriever(g, memories, mask), mlp(g, memories))
+    torch.manual_seed(3)
+    assert not torch.equal(SetRetriever().attention.layers[0].linear1.weight, retriever.attention.layers[0].linear1.weight)

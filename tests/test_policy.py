@@ -105,6 +105,21 @@ def test_retrieval_is_learned_from_reward_alone(retriever):
     assert after >= 0.9, (before, after)
 
 
+def test_set_and_mlp_runs_of_one_seed_share_critic_and_first_rollout():
+    """A paired comparison: same seed, same critic weights, and the same first rollout (the context head is
+    zero until the first update)."""
+    critics, actions = [], []
+    for kind in ("mlp", "set"):  # each built and run in turn: both draw from the global stream
+        model = make_model(seed=5, policy_kwargs={"retriever": kind})
+        critics.append([p.detach().clone() for p in model.policy.retention.parameters()])
+        model.learn(64)  # one rollout, then an update
+        actions.append(model.rollout_buffer.actions.copy())
+    for a, b in zip(*critics):
+        torch.testing.assert_close(a, b)
+    np.testing.assert_array_equal(*actions)
+    assert len(np.unique(actions[0])) > 1  # the rollout explored, so matching draws mean something
+
+
 def test_an_unknown_retriever_is_refused():
     with pytest.raises(ValueError, match=r"unknown retriever 'gnn'; expected one of \['mlp', 'set'\]"):
         make_model(policy_kwargs={"retriever": "gnn"})

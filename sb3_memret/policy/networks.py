@@ -12,6 +12,7 @@ HIDDEN = 128
 TYPE_EMBEDDING_DIM = 32
 AGE_SCALES: dict[str, float] = {"steps": 100.0, "tasks": 1.0}  # per unit of AGE_UNITS
 USAGE_SCALE = 10.0
+CONTEXT_SEED_OFFSET = 7919  # the set retriever's attention draws its initial weights from seed + this
 
 
 def mlp(in_dim: int, hidden: int = HIDDEN) -> nn.Sequential:
@@ -42,17 +43,21 @@ class SetRetriever(nn.Module):
     exactly as the per-memory MLP and learns at its pace, and attention adds what only the rivals tell:
     the one fact among several that names the instructed object, or a newer fact over a stale one.
     (Attention alone, with the score read off its output, averaged the slots' features at the start and
-    learned slower than the MLP.)
+    learned slower than the MLP.) The attention is initialised from its own random stream, so the global
+    one advances as the MLP's does: a set run and an MLP run of the same seed start from the same weights
+    (critic included) and draw the same exploration until the context head first moves, a paired comparison.
     """
 
     def __init__(self, embedding_dim: int = EMBEDDING_DIM, hidden: int = HIDDEN, layers: int = 2, heads: int = 4):
         super().__init__()
         self.pair = nn.Sequential(nn.Linear(4 * embedding_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU())
         self.score = nn.Linear(hidden, 1)
-        layer = nn.TransformerEncoderLayer(hidden, heads, dim_feedforward=2 * hidden, dropout=0.0, batch_first=True,
-                                           norm_first=True)
-        self.attention = nn.TransformerEncoder(layer, layers, enable_nested_tensor=False)
-        self.context = nn.Linear(hidden, 1)
+        with torch.random.fork_rng(devices=[]):  # the context branch draws from its own stream (see above)
+            torch.default_generator.manual_seed((torch.initial_seed() + CONTEXT_SEED_OFFSET) % 2**63)
+            layer = nn.TransformerEncoderLayer(hidden, heads, dim_feedforward=2 * hidden, dropout=0.0,
+                                               batch_first=True, norm_first=True)
+            self.attention = nn.TransformerEncoder(layer, layers, enable_nested_tensor=False)
+            self.context = nn.Linear(hidden, 1)
         nn.init.zeros_(self.context.weight)
         nn.init.zeros_(self.context.bias)
 
