@@ -45,6 +45,8 @@ POLICY_KEYS: dict[str, Check] = {
     "retriever": (str, lambda v: v in ("mlp", "set"), "one of 'mlp' (per memory), 'set' (attention over the bank)"),
     "retriever_lr_scale": ((int, float), lambda v: v >= 0, "a number >= 0 (the retriever's learning rate over the "
                            "critic's; 0 freezes it)"),
+    "context_lr_scale": ((int, float), lambda v: v >= 0, "a number >= 0 (the set retriever's attention rate over "
+                         "its per-memory path's; 0 freezes it)"),
     "exploration": (str, lambda v: v in ("decision", "episode"), "one of 'decision' (fresh Plackett-Luce noise at "
                     "every decision), 'episode' (one draw per episode)"),
 }

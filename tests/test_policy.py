@@ -120,6 +120,31 @@ def test_set_and_mlp_runs_of_one_seed_share_critic_and_first_rollout():
     assert len(np.unique(actions[0])) > 1  # the rollout explored, so matching draws mean something
 
 
+def test_the_set_retrievers_attention_learns_at_its_own_rate_through_schedules_and_save(tmp_path):
+    """Per-memory path at the retriever's rate, attention and context head at CONTEXT_LR_SCALE of it (or the
+    given scale), the critic at the full rate; a learning-rate schedule keeps the ratios and a saved model
+    keeps the scale."""
+    model = make_model(policy_kwargs={"retriever": "set", "retriever_lr_scale": 0.5}, learning_rate=lambda p: 1e-3 * (1 + p))
+    groups = model.policy.optimizer.param_groups
+    context = {id(p) for p in model.policy.retriever.context_parameters()}
+    assert [{id(p) for p in group["params"]} == context for group in groups] == [False, True, False]
+    model.learn(128)  # two rollouts: the schedule has moved the rate
+    base = groups[2]["lr"]
+    assert 1e-3 <= base < 2e-3  # the schedule moved it from 2e-3
+    assert [group["lr"] for group in groups] == pytest.approx([0.5 * base, 0.05 * base, base])
+    path = tmp_path / "set.zip"
+    model.save(path)
+    assert PPO.load(path).policy.context_lr_scale is None
+    scaled = make_model(policy_kwargs={"retriever": "set", "context_lr_scale": 0.0})
+    assert scaled.policy.optimizer.param_groups[1]["lr"] == 0.0
+    scaled.save(path)
+    assert PPO.load(path).policy.context_lr_scale == 0.0
+    with pytest.raises(ValueError, match="context_lr_scale=0.2 applies to the set retriever's attention only"):
+        make_model(policy_kwargs={"context_lr_scale": 0.2})
+    with pytest.raises(ValueError, match="context_lr_scale must be >= 0"):
+        make_model(policy_kwargs={"retriever": "set", "context_lr_scale": -1})
+
+
 def test_an_unknown_retriever_is_refused():
     with pytest.raises(ValueError, match=r"unknown retriever 'gnn'; expected one of \['mlp', 'set'\]"):
         make_model(policy_kwargs={"retriever": "gnn"})

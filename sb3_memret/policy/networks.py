@@ -61,6 +61,10 @@ class SetRetriever(nn.Module):
         nn.init.zeros_(self.context.weight)
         nn.init.zeros_(self.context.bias)
 
+    def context_parameters(self) -> list[nn.Parameter]:
+        """The attention's and the context head's parameters (the policy gives them their own learning rate)."""
+        return [*self.attention.parameters(), *self.context.parameters()]
+
     def forward(self, instruction: torch.Tensor, memories: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
         """instruction (B, D), memories (B, N, D), mask (B, N) of valid slots -> scores (B, N).
 
@@ -75,6 +79,7 @@ class SetRetriever(nn.Module):
 
 
 RETRIEVERS = ("mlp", "set")
+CONTEXT_LR_SCALE = 0.1  # the set retriever's attention learns at this fraction of its per-memory path's rate
 
 
 class RetentionScorer(nn.Module):
