@@ -11,7 +11,12 @@ Reads each run folder's evaluations.jsonl and summary.json (``sb3-memret train r
   runs' held-out episodes, played once since it does not depend on the retriever, and each run's final
   recall success over it.
 
-Usage: ``python scripts/seed_sweep.py runs/recall-seed0 runs/recall-seed1 ... [--oracle-episodes 50]``.
+With ``--against RUN ...`` (runs of another configuration, say the MLP beside the set retriever), a second
+table pairs the runs by seed: each side's first mastered round and final success, and how many seeds the
+first configuration mastered no later and ended no worse on.
+
+Usage: ``python scripts/seed_sweep.py runs/recall-seed0 runs/recall-seed1 ... [--oracle-episodes 50]
+[--against runs/mlp-seed0 ...]``.
 """
 
 from __future__ import annotations
@@ -66,12 +71,33 @@ def _mean_std(values: list[float]) -> tuple[float, float]:
     return (float(np.mean(present)), float(np.std(present))) if present else (float("nan"), float("nan"))
 
 
+def print_paired(rows: list[dict[str, Any]], against: list[dict[str, Any]]) -> None:
+    """Both configurations side by side, seed by seed (seeds run by only one side are left out)."""
+    by_seed = {row["seed"]: row for row in against}
+    pairs = [(row, by_seed[row["seed"]]) for row in rows if row["seed"] in by_seed]
+    if not pairs:
+        raise SystemExit("--against: no run shares a seed with the runs compared")
+    print("\n| seed | first mastered: these / against | final success: these / against | final greedy: these / against |")
+    print("|---|---|---|---|")
+    never = float("inf")  # a run that never mastered is later than any that did
+    no_later = no_worse = 0
+    for mine, theirs in pairs:
+        first = [never if np.isnan(r["first_mastered"]) else r["first_mastered"] for r in (mine, theirs)]
+        no_later += first[0] <= first[1]
+        no_worse += mine["success"] >= theirs["success"]
+        print(f"| {mine['seed']} | {mine['first_mastered']} / {theirs['first_mastered']} | {mine['success']:.0%} / "
+              f"{theirs['success']:.0%} | {mine['greedy']:.0%} / {theirs['greedy']:.0%} |")
+    print(f"\nmastered no later on {no_later} of {len(pairs)} seeds; final success no lower on {no_worse} of {len(pairs)}")
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("runs", nargs="+", type=Path)
     parser.add_argument("--oracle-episodes", type=int, default=0,
                         help="play the oracle condition on this many held-out episodes (0: skip)")
     parser.add_argument("--n-envs", type=int, default=2, help="envs for the oracle episodes")
+    parser.add_argument("--against", nargs="+", type=Path, default=[],
+                        help="runs of another configuration to pair with these by seed")
     args = parser.parse_args()
     rows = [run_row(run) for run in args.runs]
     oracle = oracle_success(args.runs[0], args.oracle_episodes, args.n_envs) if args.oracle_episodes else None
@@ -95,6 +121,8 @@ def main() -> None:
           f"{ratio}{stats['minutes'][0]:.1f} |")
     if oracle is not None:
         print(f"\noracle success on the held-out episodes ({args.oracle_episodes}): {oracle:.0%}")
+    if args.against:
+        print_paired(rows, [run_row(run) for run in args.against])
 
 
 if __name__ == "__main__":
