@@ -12,6 +12,7 @@ HIDDEN = 128
 TYPE_EMBEDDING_DIM = 32
 AGE_SCALES: dict[str, float] = {"steps": 100.0, "tasks": 1.0}  # per unit of AGE_UNITS
 USAGE_SCALE = 10.0
+CONTEXT_LR_SCALE = 0.1  # the set retriever's attention learns at this fraction of its per-memory path's rate
 CONTEXT_SEED_OFFSET = 7919  # the set retriever's attention draws its initial weights from seed + this
 
 
@@ -31,6 +32,10 @@ class RelevanceMLP(nn.Module):
         g = instruction.unsqueeze(1).expand_as(memories)
         x = torch.cat([g, memories, (g - memories).abs(), g * memories], dim=-1)
         return self.net(x).squeeze(-1)
+
+    def context_parameters(self) -> list[nn.Parameter]:
+        """None: each memory is scored alone (the set retriever's attention is what has its own rate)."""
+        return []
 
 
 class SetRetriever(nn.Module):
@@ -79,7 +84,6 @@ class SetRetriever(nn.Module):
 
 
 RETRIEVERS = ("mlp", "set")
-CONTEXT_LR_SCALE = 0.1  # the set retriever's attention learns at this fraction of its per-memory path's rate
 
 
 class RetentionScorer(nn.Module):

@@ -97,10 +97,10 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
         self.action_dist = PlackettLuceDistribution(len(self.action_space.nvec), self.temperature)
         self.retriever = SetRetriever(hidden=self.hidden) if self.retriever_kind == "set" else RelevanceMLP(hidden=self.hidden)
         self.retention = RetentionScorer(hidden=self.hidden, age_unit=self.age_unit)
-        context = self.retriever.context_parameters() if isinstance(self.retriever, SetRetriever) else []
+        context = self.retriever.context_parameters()
         in_context = {id(p) for p in context}
         per_memory = [p for p in self.retriever.parameters() if id(p) not in in_context]
-        in_retriever = in_context | {id(p) for p in per_memory}
+        in_retriever = {id(p) for p in self.retriever.parameters()}
         others = [p for p in self.parameters() if id(p) not in in_retriever]
         context_scale = self.retriever_lr_scale * (CONTEXT_LR_SCALE if self.context_lr_scale is None else self.context_lr_scale)
         lr = lr_schedule(1)
