@@ -71,6 +71,21 @@ def test_a_calibrated_critic_keeps_the_memory_retrievals_earn_from(calibration_c
     assert (true_first_rate(model) > 0.8) == (calibration_coef > 0)
 
 
+def test_calibration_trains_the_ranking_head_and_never_the_value():
+    """With the value loss off, the value head (the advantages' baseline) ends where it ends without
+    calibration (only the optimizer's weight decay moves it), while calibration reorders the keep-scores."""
+    heads = {}
+    for calibration_coef in (0.0, 1.0):
+        model = MemRetPPO(MemoryRetrievalPolicy, DummyVecEnv([ToyBankEnv]), n_steps=64, batch_size=32, seed=0,
+                          calibration_coef=calibration_coef, vf_coef=0.0)
+        model.learn(64 * 3)
+        heads[calibration_coef] = {k: v.clone() for k, v in model.policy.retention.state_dict().items()}
+    value_keys = [k for k in heads[0.0] if not k.startswith("ranking.")]
+    assert all(torch.equal(heads[0.0][k], heads[1.0][k]) for k in value_keys)
+    assert all(not heads[0.0][k].any() for k in ("ranking.4.weight", "ranking.4.bias"))  # no calibration: still zero
+    assert heads[1.0]["ranking.4.weight"].any()
+
+
 def test_a_frozen_retriever_stays_put_while_the_critic_learns():
     model = MemRetPPO(MemoryRetrievalPolicy, DummyVecEnv([ToyBankEnv]), n_steps=32, batch_size=32, seed=0,
                       calibration_coef=1.0, policy_kwargs={"retriever_lr_scale": 0.0})

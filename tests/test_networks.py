@@ -32,6 +32,38 @@ def test_retention_shapes_sizes_and_masked_value():
     torch.testing.assert_close(value, torch.stack([scores[0].mean(), scores[1, :2].mean(), scores[2, 0]]))
 
 
+def test_retention_ranking_head_reorders_eviction_without_moving_the_value():
+    """Keep-scores are the value head plus the ranking head (zero at the start); the value reads the value
+    head only, and the calibration scores let gradient reach the ranking head only."""
+    torch.manual_seed(0)
+    net = RetentionScorer()
+    mem, types, age, usage = torch.randn(2, 6, 384), torch.randint(0, 6, (2, 6)), torch.rand(2, 6), torch.rand(2, 6)
+    mask = torch.ones(2, 6, dtype=torch.bool)
+    value_before = net.value(mem, types, age, usage, mask).detach()
+    torch.nn.init.normal_(net.ranking[-1].weight)
+    torch.testing.assert_close(net.value(mem, types, age, usage, mask), value_before)
+    assert not torch.allclose(net(mem, types, age, usage).mean(-1), value_before)
+    net.calibration_scores(mem, types, age, usage).sum().backward()
+    assert all(p.grad is None for p in [*net.net.parameters(), *net.type_embedding.parameters()])
+    assert all(p.grad is not None for p in net.ranking.parameters())
+
+
+def test_retention_ranking_head_draws_nothing_from_the_global_stream_and_old_models_load():
+    """Runs of one seed start as they did before the ranking head existed, and a state saved without it
+    loads with the head at its zero start (keep-scores exactly the value head's)."""
+    torch.manual_seed(2)
+    net, after = RetentionScorer(), torch.rand(3)
+    torch.manual_seed(2)
+    torch.nn.Embedding(6, 32), torch.nn.Linear(418, 128), torch.nn.Linear(128, 128), torch.nn.Linear(128, 1)
+    torch.testing.assert_close(after, torch.rand(3))
+    saved = {k: v for k, v in net.state_dict().items() if not k.startswith("ranking.")}
+    torch.manual_seed(5)
+    loaded = RetentionScorer()
+    loaded.load_state_dict(saved)
+    mem, types, age, usage = torch.randn(1, 6, 384), torch.randint(0, 6, (1, 6)), torch.rand(1, 6), torch.rand(1, 6)
+    torch.testing.assert_close(loaded(mem, types, age, usage), net(mem, types, age, usage))
+
+
 def test_set_retriever_is_permutation_equivariant_over_any_bank_size():
     torch.manual_seed(0)
     retriever = SetRetriever()

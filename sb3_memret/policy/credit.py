@@ -10,8 +10,9 @@ discounted by (gamma * lambda) per decision, as GAE discounts TD errors:
 
 No label says which memory is right: only what the retriever chose and how that turned out. The
 calibration loss is a cross-entropy between the keep-scores' softmax over a bank's valid slots and the
-credits normalised over them. It is blind to a shift of every keep-score, so it shapes the ranking that
-eviction reads and leaves the mean to the value loss. Memories are told apart by their embeddings (a
+credits normalised over them. It is blind to a shift of every keep-score and trains only the critic's
+ranking head (``RetentionScorer``): the ranking that eviction reads moves, the value that PPO's
+advantages read stays the value loss's. Memories are told apart by their embeddings (a
 memory keeps its embedding while it stays in the bank, whichever slot it sits in).
 """
 

@@ -14,6 +14,7 @@ AGE_SCALES: dict[str, float] = {"steps": 100.0, "tasks": 1.0}  # per unit of AGE
 USAGE_SCALE = 10.0
 CONTEXT_LR_SCALE = 0.1  # the set retriever's attention learns at this fraction of its per-memory path's rate
 CONTEXT_SEED_OFFSET = 7919  # the set retriever's attention draws its initial weights from seed + this
+RANKING_SEED_OFFSET = 104729  # the retention critic's ranking head draws its initial weights from seed + this
 
 
 def mlp(in_dim: int, hidden: int = HIDDEN) -> nn.Sequential:
@@ -89,8 +90,13 @@ RETRIEVERS = ("mlp", "set")
 class RetentionScorer(nn.Module):
     """Task-agnostic keep-score of each memory from [h_m, type embedding, age/scale, usage/10].
 
-    It never sees the instruction: it judges how valuable a memory is in general. Its mean
-    over valid slots is the PPO value; its argmin is evicted when the bank is full. ``age_unit``:
+    It never sees the instruction: it judges how valuable a memory is in general. A keep-score is the sum
+    of two heads over the same features: the value head, whose mean over valid slots is the PPO value
+    (fit by the value loss alone), and the ranking head, zero at the start and trained only by the
+    calibration loss (``sb3_memret.policy.credit``). The argmin of their sum is evicted. Kept apart
+    because a calibrated ranking must not move the value: keep-scores stretched to rank memories grow
+    with usage, so a retrieval would raise the next state's value and earn an advantage the reward
+    never paid (measured: the set retriever collapsed on the drawer with one shared head). ``age_unit``:
     ages in control steps (scale 100, the seed's) or in tasks (scale 1: episodes of a household,
     between which objects may move, so a fact's chance of being stale grows with its age in tasks).
     """
@@ -101,17 +107,39 @@ class RetentionScorer(nn.Module):
         self.age_scale = AGE_SCALES[age_unit]
         self.type_embedding = nn.Embedding(len(MemoryType), TYPE_EMBEDDING_DIM)
         self.net = mlp(embedding_dim + TYPE_EMBEDDING_DIM + 2, hidden)
+        with torch.random.fork_rng(devices=[]):  # its own stream: a run's other weights and draws stay as they were
+            torch.default_generator.manual_seed((torch.initial_seed() + RANKING_SEED_OFFSET) % 2**63)
+            self.ranking = mlp(embedding_dim + TYPE_EMBEDDING_DIM + 2, hidden)
+        nn.init.zeros_(self.ranking[-1].weight)
+        nn.init.zeros_(self.ranking[-1].bias)
 
-    def forward(self, memories: torch.Tensor, type_ids: torch.Tensor, age: torch.Tensor, usage: torch.Tensor) -> torch.Tensor:
-        """memories (B, N, D), type_ids/age/usage (B, N) -> keep-scores (B, N)."""
-        x = torch.cat(
+    def _features(self, memories: torch.Tensor, type_ids: torch.Tensor, age: torch.Tensor, usage: torch.Tensor) -> torch.Tensor:
+        return torch.cat(
             [memories, self.type_embedding(type_ids.long()), (age / self.age_scale).unsqueeze(-1), (usage / USAGE_SCALE).unsqueeze(-1)],
             dim=-1,
         )
-        return self.net(x).squeeze(-1)
+
+    def forward(self, memories: torch.Tensor, type_ids: torch.Tensor, age: torch.Tensor, usage: torch.Tensor) -> torch.Tensor:
+        """memories (B, N, D), type_ids/age/usage (B, N) -> keep-scores (B, N), the order eviction reads."""
+        x = self._features(memories, type_ids, age, usage)
+        return (self.net(x) + self.ranking(x)).squeeze(-1)
+
+    def calibration_scores(self, memories: torch.Tensor, type_ids: torch.Tensor, age: torch.Tensor,
+                           usage: torch.Tensor) -> torch.Tensor:
+        """The keep-scores with the value head and the shared features detached: what the calibration loss
+        trains, so that only the ranking head learns from it."""
+        x = self._features(memories, type_ids, age, usage).detach()
+        return (self.net(x).detach() + self.ranking(x)).squeeze(-1)
 
     def value(self, memories, type_ids, age, usage, mask: torch.Tensor) -> torch.Tensor:
-        """(B,) mean keep-score over the valid slots: the critic's V(s)."""
-        scores = self.forward(memories, type_ids, age, usage)
+        """(B,) mean value-head score over the valid slots: the critic's V(s)."""
+        scores = self.net(self._features(memories, type_ids, age, usage)).squeeze(-1)
         mask = mask.float()
         return (scores * mask).sum(-1) / mask.sum(-1).clamp(min=1.0)
+
+    def _load_from_state_dict(self, state_dict, prefix, *args, **kwargs) -> None:
+        """A model saved before the ranking head existed loads with the head at its zero start, which
+        leaves its keep-scores exactly as saved."""
+        if not any(key.startswith(prefix + "ranking.") for key in state_dict):
+            state_dict.update({prefix + "ranking." + k: v for k, v in self.ranking.state_dict().items()})
+        super()._load_from_state_dict(state_dict, prefix, *args, **kwargs)

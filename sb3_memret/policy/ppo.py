@@ -28,9 +28,10 @@ class MemRetPPO(PPO):
       (``set_retention_weights``), so eviction during collection uses the current critic.
     * With the policy's ``exploration="episode"`` each env keeps its Plackett-Luce noise for a whole
       episode, across rounds, and draws a new one when its episode ends.
-    * ``calibration_coef > 0``: after each PPO update, ``n_epochs`` passes of the retention critic alone on
-      the calibration loss (``sb3_memret.policy.credit``): keep-scores ranked by what each memory was
-      worth to the retrievals that followed, which is what eviction reads; the value loss fits only their mean.
+    * ``calibration_coef > 0``: after each PPO update, ``n_epochs`` passes of the retention critic's ranking
+      head alone on the calibration loss (``sb3_memret.policy.credit``): keep-scores ranked by what each
+      memory was worth to the retrievals that followed, which is what eviction reads; the value head, and so
+      the advantages, stay the value loss's alone.
     * The policy's ``retriever_lr_scale`` (its optimizer's parameter groups) survives SB3's learning-rate
       schedule: a warm-started retriever can learn slower than the critic, or not at all (0).
     """
@@ -107,8 +108,8 @@ class MemRetPPO(PPO):
         losses = []
         for _ in range(self.n_epochs):
             for batch in torch.randperm(len(credit_t), device=self.device).split(self.batch_size):
-                keep = retention(flat["memories"][batch], flat["type_ids"][batch], flat["age"][batch],
-                                 flat["usage"][batch])
+                keep = retention.calibration_scores(flat["memories"][batch], flat["type_ids"][batch],
+                                                    flat["age"][batch], flat["usage"][batch])
                 loss = self.calibration_coef * calibration_loss(keep, credit_t[batch], flat["mask"][batch] > 0.5)
                 optimizer.zero_grad()
                 loss.backward()
