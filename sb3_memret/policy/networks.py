@@ -2,6 +2,9 @@
 
 from __future__ import annotations
 
+from collections.abc import Iterator
+from contextlib import contextmanager
+
 import torch
 from torch import nn
 
@@ -15,6 +18,15 @@ USAGE_SCALE = 10.0
 CONTEXT_LR_SCALE = 0.1  # the set retriever's attention learns at this fraction of its per-memory path's rate
 CONTEXT_SEED_OFFSET = 7919  # the set retriever's attention draws its initial weights from seed + this
 RANKING_SEED_OFFSET = 104729  # the retention critic's ranking head draws its initial weights from seed + this
+
+
+@contextmanager
+def own_random_stream(offset: int) -> Iterator[None]:
+    """Draw initial weights from the run's seed + ``offset`` and leave the global stream untouched, so a
+    module added beside the others leaves every other weight and draw of a run of that seed as it was."""
+    with torch.random.fork_rng(devices=[]):
+        torch.default_generator.manual_seed((torch.initial_seed() + offset) % 2**63)
+        yield
 
 
 def mlp(in_dim: int, hidden: int = HIDDEN) -> nn.Sequential:
@@ -58,8 +70,7 @@ class SetRetriever(nn.Module):
         super().__init__()
         self.pair = nn.Sequential(nn.Linear(4 * embedding_dim, hidden), nn.ReLU(), nn.Linear(hidden, hidden), nn.ReLU())
         self.score = nn.Linear(hidden, 1)
-        with torch.random.fork_rng(devices=[]):  # the context branch draws from its own stream (see above)
-            torch.default_generator.manual_seed((torch.initial_seed() + CONTEXT_SEED_OFFSET) % 2**63)
+        with own_random_stream(CONTEXT_SEED_OFFSET):  # the context branch (see above)
             layer = nn.TransformerEncoderLayer(hidden, heads, dim_feedforward=2 * hidden, dropout=0.0,
                                                batch_first=True, norm_first=True)
             self.attention = nn.TransformerEncoder(layer, layers, enable_nested_tensor=False)
@@ -107,8 +118,7 @@ class RetentionScorer(nn.Module):
         self.age_scale = AGE_SCALES[age_unit]
         self.type_embedding = nn.Embedding(len(MemoryType), TYPE_EMBEDDING_DIM)
         self.net = mlp(embedding_dim + TYPE_EMBEDDING_DIM + 2, hidden)
-        with torch.random.fork_rng(devices=[]):  # its own stream: a run's other weights and draws stay as they were
-            torch.default_generator.manual_seed((torch.initial_seed() + RANKING_SEED_OFFSET) % 2**63)
+        with own_random_stream(RANKING_SEED_OFFSET):
             self.ranking = mlp(embedding_dim + TYPE_EMBEDDING_DIM + 2, hidden)
         nn.init.zeros_(self.ranking[-1].weight)
         nn.init.zeros_(self.ranking[-1].bias)
