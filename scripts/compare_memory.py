@@ -43,7 +43,7 @@ def compare_objects(args: argparse.Namespace) -> None:
     print("| run | objects | greedy accuracy | success | decisions |")
     print("|---|---|---|---|---|")
     for run in args.runs:
-        for objects in ("train", "heldout"):
+        for objects in args.object_sets:
             report = evaluate(run / args.model, args, objects=objects)
             print(f"| {run.name} | {objects} | {report.greedy_accuracy:.1%} | {report.success['overall']:.0%} | "
                   f"{report.decisions} |")
@@ -95,6 +95,8 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=HELD_OUT_SEED)
     parser.add_argument("--rules", nargs="+", choices=RETENTION_RULES, default=list(RETENTION_RULES),
                         help="retention: the eviction rules to compare.")
+    parser.add_argument("--object-sets", nargs="+", choices=["train", "heldout"], default=["train", "heldout"],
+                        help="objects: which object sets to evaluate on.")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="Change one of the run's env settings (a YAML value).")
     args = parser.parse_args()

@@ -4,8 +4,9 @@ where it ended against the oracle.
 Reads each run folder's evaluations.jsonl and summary.json (``sb3-memret train recall --seed S
 --out runs/recall-seedS``) and prints one row per run plus the mean and standard deviation:
 
-- the first evaluated round whose held-out greedy accuracy reached 95%, and whether every later
-  evaluation stayed at or above it ("held");
+- the first evaluated round whose held-out greedy accuracy reached 95% (and the decisions trained by then,
+  which compare runs whose rounds differ in size), and whether every later evaluation stayed at or above
+  it ("held");
 - the final evaluation's greedy accuracy, success and entropy;
 - with ``--oracle-episodes N``, the oracle condition (the true fact in the prompt, retrieval unused) on the
   runs' held-out episodes, played once since it does not depend on the retriever, and each run's final
@@ -13,7 +14,7 @@ Reads each run folder's evaluations.jsonl and summary.json (``sb3-memret train r
 
 With ``--against RUN ...`` (runs of another configuration, say the MLP beside the set retriever), a second
 table pairs the runs by seed: each side's first mastered round and final success, and how many seeds the
-first configuration mastered no later and ended no worse on.
+first configuration mastered no later (in decisions trained) and ended no worse on.
 
 Usage: ``python scripts/seed_sweep.py runs/recall-seed0 runs/recall-seed1 ... [--oracle-episodes 50]
 [--against runs/mlp-seed0 ...]``.
@@ -33,8 +34,9 @@ from sb3_memret.training import read_history
 
 
 def run_row(run: Path) -> dict[str, Any]:
-    """The figures of one run; ``first_mastered`` (an evaluated round) is NaN when greedy accuracy never
-    reached MASTERY, and ``held`` says whether every evaluation after it stayed at MASTERY or above."""
+    """The figures of one run; ``first_mastered`` (an evaluated round) and ``mastered_decisions`` (the decisions
+    trained by then) are NaN when greedy accuracy never reached MASTERY, and ``held`` says whether every
+    evaluation after it stayed at MASTERY or above."""
     history = read_history(run)
     if not history:
         raise SystemExit(f"{run}: no evaluations.jsonl, so not a training run")
@@ -43,6 +45,7 @@ def run_row(run: Path) -> dict[str, Any]:
     held = first is not None and all(row["greedy_accuracy"] >= MASTERY for row in history if row["round"] >= first["round"])
     last = history[-1]
     return {"seed": summary.get("seed", "?"), "first_mastered": first["round"] if first else float("nan"),
+            "mastered_decisions": first["timesteps"] if first else float("nan"),
             "held": held, "round": last["round"], "episodes": last["episodes"], "greedy": last["greedy_accuracy"],
             "sampled": last["sampled_fraction"], "entropy": last["entropy"], "success": last["success"]["overall"],
             "minutes": summary.get("wall_seconds", float("nan")) / 60}
@@ -71,21 +74,27 @@ def _mean_std(values: list[float]) -> tuple[float, float]:
     return (float(np.mean(present)), float(np.std(present))) if present else (float("nan"), float("nan"))
 
 
+def _mastered(row: dict[str, Any]) -> str:
+    """'round (decisions)' of a run's first mastered evaluation, or 'never'."""
+    return "never" if np.isnan(row["first_mastered"]) else f"{row['first_mastered']} ({row['mastered_decisions']})"
+
+
 def print_paired(rows: list[dict[str, Any]], against: list[dict[str, Any]]) -> None:
     """Both configurations side by side, seed by seed (seeds run by only one side are left out)."""
     by_seed = {row["seed"]: row for row in against}
     pairs = [(row, by_seed[row["seed"]]) for row in rows if row["seed"] in by_seed]
     if not pairs:
         raise SystemExit("--against: no run shares a seed with the runs compared")
-    print("\n| seed | first mastered: these / against | final success: these / against | final greedy: these / against |")
+    print("\n| seed | first mastered, round (decisions): these / against | final success: these / against | "
+          "final greedy: these / against |")
     print("|---|---|---|---|")
     never = float("inf")  # a run that never mastered is later than any that did
     no_later = no_worse = 0
     for mine, theirs in pairs:
-        first = [never if np.isnan(r["first_mastered"]) else r["first_mastered"] for r in (mine, theirs)]
+        first = [never if np.isnan(r["mastered_decisions"]) else r["mastered_decisions"] for r in (mine, theirs)]
         no_later += first[0] <= first[1]
         no_worse += mine["success"] >= theirs["success"]
-        print(f"| {mine['seed']} | {mine['first_mastered']} / {theirs['first_mastered']} | {mine['success']:.0%} / "
+        print(f"| {mine['seed']} | {_mastered(mine)} / {_mastered(theirs)} | {mine['success']:.0%} / "
               f"{theirs['success']:.0%} | {mine['greedy']:.0%} / {theirs['greedy']:.0%} |")
     print(f"\nmastered no later on {no_later} of {len(pairs)} seeds; final success no lower on {no_worse} of {len(pairs)}")
 
@@ -101,21 +110,22 @@ def main() -> None:
     args = parser.parse_args()
     rows = [run_row(run) for run in args.runs]
     oracle = oracle_success(args.runs[0], args.oracle_episodes, args.n_envs) if args.oracle_episodes else None
-    print(f"| run | seed | first round with greedy ≥ {MASTERY:.0%} | held after | last round | episodes | greedy | "
+    print(f"| run | seed | first round with greedy ≥ {MASTERY:.0%} | decisions by then | held after | last round | episodes | greedy | "
           "sampled | entropy | success | " + ("recall / oracle | " if oracle is not None else "") + "minutes |")
-    print("|---|---|---|---|---|---|---|---|---|---|" + ("---|" if oracle is not None else "") + "---|")
+    print("|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if oracle is not None else "") + "---|")
     for run, row in zip(args.runs, rows):
         ratio = f"{row['success'] / oracle:.2f} | " if oracle else ("– | " if oracle is not None else "")
-        print(f"| {run.name} | {row['seed']} | {row['first_mastered']} | {'yes' if row['held'] else 'no'} | "
+        print(f"| {run.name} | {row['seed']} | {row['first_mastered']} | {row['mastered_decisions']} | {'yes' if row['held'] else 'no'} | "
               f"{row['round']} | {row['episodes']} | {row['greedy']:.0%} | {row['sampled']:.0%} | {row['entropy']:.2f} | "
               f"{row['success']:.0%} | {ratio}{row['minutes']:.1f} |")
-    stats = {k: _mean_std([r[k] for r in rows]) for k in ("first_mastered", "greedy", "sampled", "entropy", "success",
+    stats = {k: _mean_std([r[k] for r in rows]) for k in ("first_mastered", "mastered_decisions", "greedy", "sampled", "entropy", "success",
                                                           "minutes")}
     mastered = sum(not np.isnan(r["first_mastered"]) for r in rows)
     held = sum(r["held"] for r in rows)
     ratio = (f"{stats['success'][0] / oracle:.2f} | " if oracle else "– | ") if oracle is not None else ""
     print(f"| mean ± std | | {stats['first_mastered'][0]:.1f} ± {stats['first_mastered'][1]:.1f} "
-          f"({mastered} of {len(rows)} runs reached it) | {held} of {len(rows)} | | | "
+          f"({mastered} of {len(rows)} runs reached it) | {stats['mastered_decisions'][0]:.0f} ± "
+          f"{stats['mastered_decisions'][1]:.0f} | {held} of {len(rows)} | | | "
           f"{stats['greedy'][0]:.0%} ± {stats['greedy'][1]:.0%} | {stats['sampled'][0]:.0%} ± {stats['sampled'][1]:.0%} | "
           f"{stats['entropy'][0]:.2f} ± {stats['entropy'][1]:.2f} | {stats['success'][0]:.0%} ± {stats['success'][1]:.0%} | "
           f"{ratio}{stats['minutes'][0]:.1f} |")
