@@ -25,6 +25,7 @@ from stable_baselines3 import PPO
 from sb3_memret.analysis.evaluation import RetrievalReport, evaluate_retrieval
 from sb3_memret.cli import HELD_OUT_SEED
 from sb3_memret.envs.cabinet import LAYERS
+from sb3_memret.envs.objects import OBJECT_SETS
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.memory.retention import RETENTION_RULES
 from sb3_memret.training import eval_env_kwargs
@@ -95,7 +96,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=HELD_OUT_SEED)
     parser.add_argument("--rules", nargs="+", choices=RETENTION_RULES, default=list(RETENTION_RULES),
                         help="retention: the eviction rules to compare.")
-    parser.add_argument("--object-sets", nargs="+", choices=["train", "heldout"], default=["train", "heldout"],
+    parser.add_argument("--object-sets", nargs="+", choices=sorted(OBJECT_SETS), default=["train", "heldout"],
                         help="objects: which object sets to evaluate on.")
     parser.add_argument("--set", action="append", default=[], metavar="KEY=VALUE",
                         help="Change one of the run's env settings (a YAML value).")

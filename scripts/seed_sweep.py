@@ -110,16 +110,17 @@ def main() -> None:
     args = parser.parse_args()
     rows = [run_row(run) for run in args.runs]
     oracle = oracle_success(args.runs[0], args.oracle_episodes, args.n_envs) if args.oracle_episodes else None
-    print(f"| run | seed | first round with greedy ≥ {MASTERY:.0%} | decisions by then | held after | last round | episodes | greedy | "
-          "sampled | entropy | success | " + ("recall / oracle | " if oracle is not None else "") + "minutes |")
+    print(f"| run | seed | first round with greedy ≥ {MASTERY:.0%} | decisions by then | held after | last round | "
+          "episodes | greedy | sampled | entropy | success | " + ("recall / oracle | " if oracle is not None else "") + "minutes |")
     print("|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if oracle is not None else "") + "---|")
     for run, row in zip(args.runs, rows):
         ratio = f"{row['success'] / oracle:.2f} | " if oracle else ("– | " if oracle is not None else "")
-        print(f"| {run.name} | {row['seed']} | {row['first_mastered']} | {row['mastered_decisions']} | {'yes' if row['held'] else 'no'} | "
+        print(f"| {run.name} | {row['seed']} | {row['first_mastered']} | {row['mastered_decisions']} | "
+              f"{'yes' if row['held'] else 'no'} | "
               f"{row['round']} | {row['episodes']} | {row['greedy']:.0%} | {row['sampled']:.0%} | {row['entropy']:.2f} | "
               f"{row['success']:.0%} | {ratio}{row['minutes']:.1f} |")
-    stats = {k: _mean_std([r[k] for r in rows]) for k in ("first_mastered", "mastered_decisions", "greedy", "sampled", "entropy", "success",
-                                                          "minutes")}
+    stats = {k: _mean_std([r[k] for r in rows]) for k in ("first_mastered", "mastered_decisions", "greedy", "sampled",
+                                                          "entropy", "success", "minutes")}
     mastered = sum(not np.isnan(r["first_mastered"]) for r in rows)
     held = sum(r["held"] for r in rows)
     ratio = (f"{stats['success'][0] / oracle:.2f} | " if oracle else "– | ") if oracle is not None else ""
