@@ -17,7 +17,7 @@ EXPERIMENTS = ("recall",)
 ZOO_CONFIGS = Path(__file__).resolve().parents[1] / "zoo_configs"
 DEFAULT_TASK = "drawer"  # sb3_memret.tasks.DEFAULT_TASK
 HELD_OUT_SEED = 1_000_000
-DEFAULT_CONTROLLER = "learned"  # sb3_memret.controllers.DEFAULT_CONTROLLER, without importing torch for --help
+DEFAULT_CONTROLLER = "learned-state"  # sb3_memret.controllers.DEFAULT_CONTROLLER, without importing torch for --help
 DEMO_SEED = 100_000  # demonstrations never share a placement with rollout (0..) or held-out (1e6..) episodes
 
 
@@ -246,11 +246,17 @@ def rollout(task: str, controller, condition: str, episodes: int, layer: int | N
               help="Objects per episode, one per drawer.")
 @click.option("--replan-every", type=click.IntRange(min=1), default=None,
               help="Control steps executed from each expert chunk  [default: 8; 4 for MIKASA's short episodes]")
+@click.option("--frames", type=click.Choice(["every", "decisions"]), default=None,
+              help="Keep every control step (pi05 finetuning reads chunks from consecutive frames) or only the "
+                   "decision steps, each with its chunk of labels, rendering the cameras only there  "
+                   "[default: decisions with a render backend, else every]")
+@click.option("--image-size", type=click.IntRange(min=16, max=224), default=None,
+              help="Store camera images resized to this square size  [default: 224 drawer, 128 MIKASA]")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
 @_render_backend_option
 def demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fraction: float, learner: str | None,
-          n_envs: int, objects: str, n_objects: int, replan_every: int | None, progress: bool,
-          render_backend: str) -> None:
+          n_envs: int, objects: str, n_objects: int, replan_every: int | None, frames: str | None,
+          image_size: int | None, progress: bool, render_backend: str) -> None:
     """Record the task's scripted expert as a LeRobotDataset (v3.0) for finetuning.
 
     \b
@@ -276,14 +282,17 @@ def demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fr
 
     if out.exists():
         raise click.BadParameter(f"{str(out)!r} already exists; demonstrations go to a new folder", param_hint="--out")
+    frames = frames or ("every" if render_backend == "none" else "decisions")
     if task != DEFAULT_TASK:
+        if image_size not in (None, 128):
+            raise click.BadParameter(f"MIKASA's cameras are 128x128; got {image_size}", param_hint="--image-size")
         for name, used in (("--learner", learner is not None), ("--objects", objects != "cube"),
                            ("--n-objects", n_objects != 1)):
             if used:
                 raise click.BadParameter(f"{name} applies to the drawer's demonstrations only, not task {task!r}",
                                          param_hint=name)
         _task_demos(task, episodes, out, seed, noise, noisy_fraction, n_envs, replan_every or 4, progress,
-                    render_backend)
+                    render_backend, frames)
         return
     from sb3_memret.stage1.demos import plan_episodes, record_demos
 
@@ -299,12 +308,13 @@ def demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fr
             bar.set_postfix(success=f"{wins}/{bar.n}")
 
         record_demos(out, planned, render_backend, learner, n_envs, replan_every=replan_every or 8,
-                     on_episode=on_episode, objects=objects, n_objects=n_objects)
+                     on_episode=on_episode, objects=objects, n_objects=n_objects, frames=frames,
+                     image_size=image_size or 224)
     click.echo(f"{episodes} episodes ({wins} successful) written to {out}")
 
 
 def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fraction: float, n_envs: int,
-                replan_every: int, progress: bool, render_backend: str) -> None:
+                replan_every: int, progress: bool, render_backend: str, frames: str) -> None:
     """``demos`` for a task other than the drawer, through the Task interface."""
     from tqdm import tqdm
 
@@ -320,7 +330,7 @@ def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, no
 
         try:
             record_task_demos(out, task, plan_task_episodes(episodes, seed, noise, noisy_fraction), render_backend,
-                              n_envs, replan_every, on_episode=on_episode)
+                              n_envs, replan_every, on_episode=on_episode, frames=frames)
         except (NotImplementedError, ValueError) as err:
             raise click.UsageError(str(err)) from err
     click.echo(f"{episodes} episodes ({wins} successful) written to {out}")
@@ -343,14 +353,22 @@ def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, no
               help="pi05: a local PaliGemma tokenizer folder.")
 @click.option("--lora-rank", type=click.IntRange(min=1), default=16, show_default=True, help="pi05: LoRA rank.")
 @click.option("--device", default="cpu", show_default=True, help="pi05: torch device.")
+@_task_option()
+@click.option("--state", type=click.Choice(["full", "proprio"]), default=None,
+              help="learned: the state entries read: the task's whole layout (with the simulator's object "
+                   "detection), or what a robot reads of itself (with cameras only)  [default: proprio when the "
+                   "datasets have cameras, else full]")
+@click.option("--image-encoder", type=click.Choice(["cnn", "efficientnet_lite0"]), default="efficientnet_lite0",
+              show_default=True, help="learned: a CNN trained from pixels, or ImageNet EfficientNet-Lite0 frozen "
+                                      "with trainable heads.")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
 def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | None, batch_size: int | None,
              learning_rate: float | None, seed: int, pretrained: Path | None, tokenizer: Path | None, lora_rank: int,
-             device: str, progress: bool) -> None:
+             device: str, task: str, state: str | None, image_encoder: str, progress: bool) -> None:
     """Train a frozen controller from DATASETS (LeRobotDatasets written by `sb3-memret demos`).
 
-    The learned policy reads the prompt as frozen MiniLM per-token features, the 19-D state (and
-    the cameras when the datasets have them) and predicts a 32 x 7 action chunk; the checkpoint
+    The learned policy reads the prompt as frozen MiniLM per-token features, the state (and the
+    cameras when the datasets have them) and predicts a 32 x 7 action chunk; the checkpoint
     (config.json + model.safetensors) loads as --controller learned:OUT. pi05 writes OUT/checkpoint
     and OUT/adapter, which load as --controller 'lerobot:OUT/checkpoint?adapter=OUT/adapter'.
     """
@@ -374,11 +392,20 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
         return
     if pretrained is not None or tokenizer is not None:
         raise click.BadParameter("--pretrained and --tokenizer apply to --policy pi05 only", param_hint="--policy")
-    from sb3_memret.stage1.finetune import FinetuneSettings
+    from sb3_memret.controllers.learned import LearnedPolicyConfig
+    from sb3_memret.stage1.finetune import FinetuneSettings, has_cameras
     from sb3_memret.stage1.finetune import finetune as train_policy
+    from sb3_memret.tasks import make_task
 
     settings = FinetuneSettings(steps=steps or 8000, batch_size=batch_size or 256,
                                 learning_rate=learning_rate or 1e-3, seed=seed)
+    template = make_task(task).prompt_template
+    config = LearnedPolicyConfig(instructions=template.instructions, fact_templates=template.fact_templates,
+                                 image_encoder=image_encoder)
+    try:
+        state = state or ("proprio" if has_cameras(datasets) else "full")
+    except (FileNotFoundError, ValueError) as err:
+        raise click.UsageError(str(err)) from err
     with tqdm(total=settings.steps, desc="finetune learned", disable=not progress) as bar:
         def on_step(step: int, loss: float) -> None:
             bar.update(1)
@@ -386,7 +413,7 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
                 bar.set_postfix(loss=f"{loss:.4f}")
 
         try:
-            train_policy(datasets, out, settings=settings, on_step=on_step)
+            train_policy(datasets, out, config, settings=settings, on_step=on_step, task=task, state=state)
         except (FileNotFoundError, ValueError) as err:
             raise click.UsageError(str(err)) from err
     click.echo(f"checkpoint written: --controller learned:{out}")

@@ -31,7 +31,7 @@ import numpy as np
 import torch
 
 from sb3_memret.controllers import FrozenController, make_controller
-from sb3_memret.controllers.learned import LearnedController
+from sb3_memret.controllers.learned import LearnedController, default_checkpoint
 from sb3_memret.envs.physics import stack_obs, to_numpy
 from sb3_memret.envs.vec_env import RecallVecEnv, make_recall_vec_env
 from sb3_memret.prompts import condition_prompt
@@ -73,8 +73,10 @@ class Result:
 
 
 def build_controller(name: str, device: str) -> FrozenController:
-    """The controller ``name`` names; ``learned`` is the shipped checkpoint on ``device``."""
-    return LearnedController(device=device) if name == "learned" else make_controller(name)
+    """The controller ``name`` names; the drawer's shipped learned checkpoints run on ``device``."""
+    if name in ("learned", "learned-state"):
+        return LearnedController(default_checkpoint(name), device=device)
+    return make_controller(name)
 
 
 def batched_venv(n: int, controller: FrozenController, sim_backend: str, mode: str = "recall") -> RecallVecEnv:

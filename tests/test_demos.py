@@ -102,3 +102,32 @@ def test_cameras_are_recorded_under_the_libero_keys(tmp_path):
     frame = read_dataset(out)[8]
     for key in IMAGE_KEYS:
         assert frame[key].shape == (3, 224, 224) and float(frame[key].std()) > 0.01
+
+
+def test_decision_frames_carry_the_labels_of_their_chunk(task_env):
+    episode = DemoEpisode(3, 2, condition_prompt("oracle", 2))
+    every = record_episode(task_env, ScriptedDrawerController(), episode)
+    decisions = record_episode(task_env, ScriptedDrawerController(), episode, frames="decisions")
+    assert len(decisions.actions) == len(every.actions)  # the same episode, labelled at every step
+    np.testing.assert_allclose(decisions.actions, every.actions, atol=1e-3)  # (contacts differ in the last bits)
+    assert list(decisions.frame_steps) == list(range(0, len(every.actions), 8))
+    np.testing.assert_allclose(decisions.states, every.states[::8], atol=1e-2)
+    chunks, pad = decisions.chunks(32)
+    np.testing.assert_array_equal(chunks[1], decisions.actions[8:40])
+    left = len(decisions.actions) - decisions.frame_steps[-1]
+    assert not pad[-1, :left].any() and pad[-1, left:].all()
+    with pytest.raises(ValueError, match="unknown frames 'some'"):
+        record_episode(task_env, ScriptedDrawerController(), episode, frames="some")
+
+
+def test_decision_frames_render_only_where_a_controller_acts(tmp_path):
+    from sb3_memret.controllers.observation import ACTION_CHUNK_KEY, CHUNK_PAD_KEY
+
+    out = record_demos(tmp_path / "demos", [DemoEpisode(30, 2, condition_prompt("oracle", 2))], render_backend="cpu",
+                       max_steps=17, frames="decisions", image_size=48)
+    dataset = read_dataset(out)
+    assert len(dataset) == 3 and read_episode_log(out)[0]["steps"] == 17  # steps 0, 8 and 16 of 17
+    frame = dataset[2]
+    assert frame[ACTION_CHUNK_KEY].shape == (32, 7) and int(frame[CHUNK_PAD_KEY].sum()) == 31
+    for key in IMAGE_KEYS:
+        assert frame[key].shape == (3, 48, 48) and float(frame[key].std()) > 0.01

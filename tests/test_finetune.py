@@ -8,6 +8,7 @@ import pytest
 
 from sb3_memret.controllers import make_controller
 from sb3_memret.controllers.learned import LearnedPolicyConfig
+from sb3_memret.controllers.observation import PROPRIO_NAMES
 from sb3_memret.prompts import INSTRUCTION, condition_prompt
 from sb3_memret.stage1.demos import DemoEpisode, record_demos
 from sb3_memret.stage1.finetune import Demonstrations, FinetuneSettings, finetune, load_demonstrations, read_log
@@ -81,3 +82,29 @@ def test_demos_finetune_rollout_through_the_cli(tmp_path):
     assert result.exit_code == 2 and "already exists" in result.output
     result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "p"), "--policy", "pi05"])
     assert result.exit_code == 2 and "--policy pi05 needs --pretrained" in result.output
+
+
+@pytest.fixture(scope="module")
+def camera_demos(tmp_path_factory):
+    root = tmp_path_factory.mktemp("finetune") / "camera-demos"
+    episodes = [DemoEpisode(43, 1, condition_prompt("oracle", 1)), DemoEpisode(44, 2, condition_prompt("oracle", 2))]
+    return record_demos(root, episodes, render_backend="cpu", max_steps=40, frames="decisions", image_size=32)
+
+
+def test_a_camera_policy_learns_from_decision_frames_and_sees_only_the_hand(camera_demos, demos, tmp_path, rgb_task_env):
+    config = LearnedPolicyConfig(hidden_dim=64, n_layers=2, text_dim=32, text_heads=2, image_encoder="cnn", image_dim=16)
+    out = finetune([camera_demos], tmp_path / "ckpt", config, FinetuneSettings(steps=150, batch_size=10,
+                                                                                 validation_fraction=0.0),
+                   state="proprio")
+    losses = [float(row["train_loss"]) for row in read_log(out)]
+    assert losses[-1] < 0.7 * losses[0], losses
+    controller = make_controller(f"learned:{out}")
+    config = controller.policy.config
+    assert config.state_names == PROPRIO_NAMES and config.image_size == 32 and controller.spec.needs_images
+    obs, _ = rgb_task_env.reset(seed=43, options={"target_layer": 1})
+    controller.reset([43])
+    assert controller.act(obs, [condition_prompt("oracle", 1)]).shape == (1, 32, 7)
+    with pytest.raises(ValueError, match="cannot see where anything is"):
+        finetune([demos], tmp_path / "blind", SMALL, FinetuneSettings(steps=1), state="proprio")
+    with pytest.raises(ValueError, match="recorded with the same render backend"):
+        load_demonstrations([camera_demos, demos])

@@ -12,7 +12,7 @@ from safetensors.torch import load_file, save_file
 
 from sb3_memret.controllers import make_controller
 from sb3_memret.controllers.learned import LearnedController, LearnedPolicy, LearnedPolicyConfig, default_checkpoint
-from sb3_memret.controllers.observation import IMAGE_KEYS, STATE_DIM
+from sb3_memret.controllers.observation import IMAGE_KEYS, PROPRIO_NAMES, STATE_DIM
 from sb3_memret.controllers.weights import WeightsNotLoadedError
 from sb3_memret.envs.objects import OBJECT_SETS
 from sb3_memret.prompts import condition_prompt
@@ -106,11 +106,11 @@ def test_image_policy_reads_both_cameras(tmp_path):
 
 @pytest.fixture(scope="module")
 def shipped() -> LearnedController:
-    return make_controller("learned")
+    return make_controller("learned-state")
 
 
-def test_shipped_checkpoint_is_the_default(shipped):
-    assert shipped.checkpoint == default_checkpoint()
+def test_shipped_state_checkpoint(shipped):
+    assert shipped.checkpoint == default_checkpoint("learned-state")
     assert shipped.spec.chunk_len == 32 and shipped.spec.action_convention == "pd_ee_delta_pose"
     assert not shipped.spec.needs_images
     assert set(shipped.policy.config.training_prompts) == {condition_prompt("none", 1)} | {
@@ -157,5 +157,55 @@ def test_the_shipped_objects_policy_takes_any_named_object_out_of_its_drawer():
     assert success
     with pytest.raises(ValueError, match="starts with 'pick up the soap.'"):
         controller.act(obs, ["pick up the soap."])
-    with pytest.raises(ValueError, match="no shipped learned controller 'learned-tiny'"):
+    with pytest.raises(ValueError, match="no shipped learned controller 'learned-tiny' for task 'drawer'"):
         default_checkpoint("learned-tiny")
+
+
+def test_a_checkpoint_runs_only_on_its_task_and_state_layout(tmp_path):
+    saved_policy(tmp_path)
+    config = json.loads((tmp_path / "config.json").read_text())
+    with pytest.raises(ValueError, match="trained on task 'drawer', not 'RememberColor3-VLA-v0'"):
+        LearnedController(tmp_path, task="RememberColor3-VLA-v0")
+    (tmp_path / "config.json").write_text(json.dumps({**config, "state_names": ["tcp_x", *config["state_names"][1:-1],
+                                                                                  "cube_speed"]}))
+    with pytest.raises(ValueError, match=r"no state entries \['cube_speed'\]"):
+        LearnedController(tmp_path)
+
+
+def test_a_camera_policy_reads_the_hands_state_and_both_cameras(tmp_path):
+    """A camera-reading policy takes only the end-effector state: the simulator's detection can change
+    without changing its action, while the images do change it."""
+    torch.manual_seed(0)
+    policy = LearnedPolicy(LearnedPolicyConfig(**SMALL, state_names=PROPRIO_NAMES, state_dim=len(PROPRIO_NAMES),
+                                               image_features=tuple(IMAGE_KEYS), image_size=32))
+    policy.save_pretrained(tmp_path)
+    controller = LearnedController(tmp_path)
+    controller.reset([0])
+    rng = np.random.default_rng(1)
+    obs = state_obs(1, rng)
+    obs["sensor_data"] = {cam: {"rgb": rng.integers(0, 255, (1, 224, 224, 3), dtype=np.uint8)}
+                          for cam in IMAGE_KEYS.values()}
+    prompt = [condition_prompt("oracle", 2)]
+    first = controller.act(obs, prompt)
+    obs["extra"]["target_detection"] = np.ones((1, 8), np.float32)
+    np.testing.assert_array_equal(first, controller.act(obs, prompt))
+    obs["sensor_data"]["base_camera"]["rgb"] = np.zeros((1, 224, 224, 3), np.uint8)
+    assert not np.allclose(first, controller.act(obs, prompt))
+
+
+def test_a_frozen_trunk_stays_out_of_the_checkpoint_and_is_checked(tmp_path):
+    policy = LearnedPolicy(LearnedPolicyConfig(**SMALL, image_features=tuple(IMAGE_KEYS), image_size=32,
+                                               image_encoder="efficientnet_lite0"))
+    assert len(policy.config.trunk_sha256) == 64
+    policy.save_pretrained(tmp_path)
+    assert not any(name.startswith("trunk.") for name in load_file(tmp_path / "model.safetensors"))
+    loaded = LearnedPolicy.from_pretrained(tmp_path)
+    images = [torch.rand(2, 3, 32, 32) for _ in IMAGE_KEYS]
+    state, prompt = torch.randn(2, STATE_DIM), torch.randn(2, SMALL["text_dim"])
+    with torch.no_grad():
+        np.testing.assert_array_equal(policy.eval()(state, prompt, policy.camera_features(images)),
+                                      loaded(state, prompt, loaded.camera_features(images)))
+    config = json.loads((tmp_path / "config.json").read_text())
+    (tmp_path / "config.json").write_text(json.dumps({**config, "trunk_sha256": "0" * 64}))
+    with pytest.raises(WeightsNotLoadedError, match="a different trunk"):
+        LearnedPolicy.from_pretrained(tmp_path)

@@ -152,8 +152,8 @@ def test_the_server_refuses_drift_and_missing_keys(scripted_server, task_env):
 
 
 def test_a_stateless_learned_controller_over_the_wire(task_env):
-    port = serve_in_thread("learned")
-    remote, local = make_controller(f"openpi://127.0.0.1:{port}"), make_controller("learned")
+    port = serve_in_thread("learned-state")
+    remote, local = make_controller(f"openpi://127.0.0.1:{port}"), make_controller("learned-state")
     assert remote.spec == local.spec
     obs, _ = task_env.reset(seed=3, options={"target_layer": 1})
     batch = {k: {kk: np.repeat(np.asarray(vv), 2, axis=0) for kk, vv in v.items()} for k, v in obs.items()}

@@ -2,9 +2,11 @@
 
 Accepted values (``CONTROLLER_SPECS``):
 
-- ``learned``: the project's learned language-conditioned controller shipped with the package
-  (``make controller`` rebuilds it: expert demonstrations, DAgger, finetuning).
-- ``learned-objects``: the same policy trained with several objects in the drawers, the instruction
+- ``learned``: the task's shipped camera-reading learned controller (language + both cameras + the
+  hand's own state; ``make controller``, ``make controller-mikasa`` rebuild them).
+- ``learned-state``: the drawer's learned controller on the simulator's state (its cube detection is
+  perfect perception; ``make controller-state``).
+- ``learned-objects``: the state policy trained with several objects in the drawers, the instruction
   naming the target (``make controller-objects``).
 - ``learned:/PATH/TO/CHECKPOINT[?device=DEV]``: a checkpoint ``sb3-memret finetune`` wrote.
 - ``scripted``: the scripted expert (CPU); it obeys its prompt by construction.
@@ -28,9 +30,11 @@ from sb3_memret.controllers.scripted import ScriptedDrawerController
 if TYPE_CHECKING:
     from sb3_memret.tasks import Task
 
-DEFAULT_CONTROLLER = "learned"
+DEFAULT_CONTROLLER = "learned-state"
+SHIPPED_NAMES = ("learned", "learned-state", "learned-objects")
 CONTROLLER_SPECS = (
     "learned",
+    "learned-state",
     "learned-objects",
     "learned:/PATH/TO/CHECKPOINT[?device=DEV]",
     "scripted",
@@ -44,21 +48,21 @@ LEROBOT_OPTIONS: dict[str, Callable[[str], Any]] = {"adapter": str, "tokenizer":
 
 def make_controller(spec: str, task: "str | Task" = "drawer") -> FrozenController:
     """Build the controller a CLI ``--controller`` value names for ``task`` (a name or a ``Task``), or raise
-    a ValueError listing the forms. ``scripted`` is the task's expert, ``learned`` and ``learned-objects``
-    its shipped learned controllers."""
+    a ValueError listing the forms. ``scripted`` is the task's expert, ``learned``, ``learned-state`` and
+    ``learned-objects`` its shipped learned controllers."""
     from sb3_memret.tasks import make_task
 
     if spec == "scripted":
         return make_task(task).expert()
-    if spec in ("learned", "learned-objects"):
+    if spec in SHIPPED_NAMES:
         return make_task(task).learned_controller(spec)
     if spec.startswith("learned:"):
         from sb3_memret.controllers.learned import LearnedController
 
         path, _, query = spec.removeprefix("learned:").partition("?")
         if not path:
-            raise ValueError(f"malformed learned controller {spec!r}; expected 'learned' or {CONTROLLER_SPECS[2]!r}")
-        return LearnedController(path, **_options(spec, query, LEARNED_OPTIONS))
+            raise ValueError(f"malformed learned controller {spec!r}; expected 'learned' or {CONTROLLER_SPECS[3]!r}")
+        return LearnedController(path, task=task, **_options(spec, query, LEARNED_OPTIONS))
     if spec.startswith("openpi:"):
         host, port, options = parse_openpi_spec(spec)
         from sb3_memret.controllers.openpi import OpenPIController, ServerLimits
@@ -76,7 +80,7 @@ def make_controller(spec: str, task: "str | Task" = "drawer") -> FrozenControlle
 
 def parse_openpi_spec(spec: str) -> tuple[str, int, dict[str, Any]]:
     """``openpi://HOST:PORT[?k=v...]`` -> (host, port, options), or a ValueError naming the problem."""
-    form = CONTROLLER_SPECS[4]
+    form = CONTROLLER_SPECS[5]
     parts = urlsplit(spec)
     try:
         port = parts.port
@@ -91,7 +95,7 @@ def parse_lerobot_spec(spec: str) -> tuple[str, dict[str, Any]]:
     """``lerobot:PATH[?k=v...]`` -> (checkpoint path, options), or a ValueError naming the problem."""
     path, _, query = spec.removeprefix("lerobot:").partition("?")
     if not path:
-        raise ValueError(f"malformed lerobot controller {spec!r}; expected {CONTROLLER_SPECS[5]!r}")
+        raise ValueError(f"malformed lerobot controller {spec!r}; expected {CONTROLLER_SPECS[6]!r}")
     return path, _options(spec, query, LEROBOT_OPTIONS)
 
 

@@ -17,6 +17,8 @@ import numpy as np
 from sb3_memret.controllers.base import RENDER_HINT, Obs, as_numpy
 
 STATE_KEY, ACTION_KEY, TASK_KEY = "observation.state", "action", "task"
+# decision-frame datasets: each frame's labels for its next chunk_len control steps, and the steps past the episode
+ACTION_CHUNK_KEY, CHUNK_PAD_KEY = "action_chunk", "action_chunk_is_pad"
 # lerobot's LIBERO feature names for the two cameras, mapped to the task's cameras.
 IMAGE_KEYS: Mapping[str, str] = {"observation.images.image": "base_camera",
                                  "observation.images.wrist_image": "hand_camera"}
@@ -29,6 +31,8 @@ STATE_PARTS: tuple[tuple[str, str, tuple[str, ...]], ...] = (
 )
 STATE_NAMES: tuple[str, ...] = tuple(name for _, _, names in STATE_PARTS for name in names)
 STATE_DIM = len(STATE_NAMES)
+# what a real robot reads of itself: the end-effector state; a camera-reading controller gets only these
+PROPRIO_NAMES: tuple[str, ...] = STATE_PARTS[0][2]
 ACTION_NAMES = ("dx", "dy", "dz", "drx", "dry", "drz", "gripper")
 ACTION_DIM = len(ACTION_NAMES)
 
@@ -64,17 +68,40 @@ def camera_images(obs: Obs) -> dict[str, np.ndarray]:
     return images
 
 
-def dataset_features(with_images: bool) -> dict[str, dict[str, Any]]:
-    """The LeRobotDataset feature spec of a demonstration frame (``task`` is added by lerobot)."""
+def resize_images(images: np.ndarray, size: int) -> np.ndarray:
+    """(B, H, W, 3) uint8 -> (B, size, size, 3) uint8 by area averaging (unchanged when already that size)."""
+    if images.shape[1:3] == (size, size):
+        return images
+    import torch
+    from torch.nn import functional as F
+
+    x = torch.from_numpy(np.ascontiguousarray(images)).permute(0, 3, 1, 2).float()
+    return F.interpolate(x, size=(size, size), mode="area").round().clamp(0, 255).to(torch.uint8).permute(0, 2, 3, 1).numpy()
+
+
+def dataset_features(with_images: bool, image_size: int = IMAGE_SHAPE[0],
+                     chunk_len: int | None = None) -> dict[str, dict[str, Any]]:
+    """The LeRobotDataset feature spec of a demonstration frame (``task`` is added by lerobot): with
+    ``chunk_len``, a decision frame carrying its chunk of labels (``action_chunk``, ``action_chunk_is_pad``)."""
     features: dict[str, dict[str, Any]] = {
         STATE_KEY: {"dtype": "float32", "shape": (STATE_DIM,), "names": list(STATE_NAMES)},
         ACTION_KEY: {"dtype": "float32", "shape": (ACTION_DIM,), "names": list(ACTION_NAMES)},
     }
+    if chunk_len is not None:
+        features.update(chunk_features(chunk_len))
     if with_images:
         for feature in IMAGE_KEYS:
-            features[feature] = {"dtype": "image", "shape": IMAGE_SHAPE, "names": ["height", "width", "channel"]}
+            features[feature] = {"dtype": "image", "shape": (image_size, image_size, 3),
+                                 "names": ["height", "width", "channel"]}
     return features
 
 
-__all__ = ["ACTION_DIM", "ACTION_KEY", "IMAGE_KEYS", "IMAGE_SHAPE", "STATE_DIM", "STATE_KEY", "STATE_NAMES", "TASK_KEY",
-           "camera_images", "dataset_features", "observation_state"]
+def chunk_features(chunk_len: int) -> dict[str, dict[str, Any]]:
+    """The features of a decision frame's label chunk."""
+    return {ACTION_CHUNK_KEY: {"dtype": "float32", "shape": (chunk_len, ACTION_DIM), "names": None},
+            CHUNK_PAD_KEY: {"dtype": "bool", "shape": (chunk_len,), "names": None}}
+
+
+__all__ = ["ACTION_CHUNK_KEY", "ACTION_DIM", "ACTION_KEY", "CHUNK_PAD_KEY", "IMAGE_KEYS", "IMAGE_SHAPE", "PROPRIO_NAMES",
+           "STATE_DIM", "STATE_KEY", "STATE_NAMES", "TASK_KEY", "camera_images", "chunk_features", "dataset_features",
+           "observation_state", "resize_images"]

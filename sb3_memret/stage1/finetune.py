@@ -2,9 +2,15 @@
 
 Every frame of every episode is a sample: its state (and camera images, when the datasets have
 them), its prompt as frozen MiniLM token features, and as target the expert's labels for the
-next ``chunk_len`` frames of the same episode (steps past the episode's end are padding, left
-out of the L1 loss, as lerobot's ``action_is_pad``). Several datasets (the expert's, then DAgger
-rounds) train one policy together.
+next ``chunk_len`` control steps of the same episode (steps past the episode's end are padding, left
+out of the L1 loss, as lerobot's ``action_is_pad``): read from the following frames of a dataset
+that keeps every step, or from each frame's ``action_chunk`` in one that keeps decision frames only.
+Several datasets (the expert's, then DAgger rounds) train one policy together.
+
+Cameras: a frozen pretrained trunk's features are computed once per frame before training (the
+trainable heads then cost little per step); a network trained from pixels sees each batch with
+random shifts (``image_shift``). The state the policy reads is picked by name from the task's
+layout: all of it, or with ``state="proprio"`` only what a robot reads of itself.
 """
 
 from __future__ import annotations
@@ -21,11 +27,15 @@ import torch
 
 from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig
 from sb3_memret.controllers.learned.modeling import LearnedPolicy, chunk_loss
-from sb3_memret.controllers.learned.processing import PromptTokenizer, image_tensor
-from sb3_memret.controllers.observation import ACTION_DIM, ACTION_KEY, IMAGE_KEYS, STATE_DIM, STATE_KEY
+from sb3_memret.controllers.learned.processing import PromptTokenizer, state_columns
+from sb3_memret.controllers.learned.vision import shift_augment
+from sb3_memret.controllers.observation import ACTION_CHUNK_KEY, ACTION_DIM, ACTION_KEY, CHUNK_PAD_KEY, IMAGE_KEYS, STATE_KEY
 from sb3_memret.prompts import INSTRUCTION_TEMPLATE, PromptTemplate, parse_prompt
+from sb3_memret.tasks import DEFAULT_TASK, Task, make_task
 
 LOG_FILE = "train_log.csv"
+STATE_CHOICES = ("full", "proprio")  # the whole state layout, or what a robot reads of itself
+FEATURE_BATCH = 64  # frames per batch when a frozen trunk's features are computed
 
 
 @dataclass(frozen=True)
@@ -38,10 +48,11 @@ class FinetuneSettings:
     weight_decay: float = 1e-4
     validation_fraction: float = 0.1
     seed: int = 0
+    image_shift: int = 4  # pixels of random shift on camera images, for encoders trained from pixels
 
     def __post_init__(self) -> None:
-        if self.steps < 1 or self.batch_size < 1 or self.learning_rate <= 0:
-            raise ValueError(f"steps and batch_size must be >= 1 and learning_rate > 0: {self}")
+        if self.steps < 1 or self.batch_size < 1 or self.learning_rate <= 0 or self.image_shift < 0:
+            raise ValueError(f"steps and batch_size must be >= 1, learning_rate > 0, image_shift >= 0: {self}")
         if not 0 <= self.validation_fraction < 1:
             raise ValueError(f"validation_fraction must lie in [0, 1), got {self.validation_fraction}")
 
@@ -50,12 +61,25 @@ class FinetuneSettings:
 class Demonstrations:
     """All frames of one or more datasets as arrays, with each frame's chunk of target indices."""
 
-    states: np.ndarray  # (N, 19) float32
+    states: np.ndarray  # (N, D) float32, in the task's layout (state_names)
     actions: np.ndarray  # (N, 7) float32
     episodes: np.ndarray  # (N,) a global episode id
     task_ids: np.ndarray  # (N,) index into tasks
     tasks: list[str]
-    images: dict[str, np.ndarray]  # feature -> (N, 3, S, S) uint8, empty for state-only data
+    images: dict[str, np.ndarray]  # feature -> (N, S, S, 3) uint8, empty for state-only data
+    state_names: tuple[str, ...] = ()
+    chunks: np.ndarray | None = None  # (N, H, 7): decision frames' label chunks; None when every step is a frame
+    chunk_pad: np.ndarray | None = None  # (N, H) steps of a chunk past the episode's end
+
+    def targets(self, chunk_len: int) -> tuple[np.ndarray, np.ndarray]:
+        """(N, chunk_len, 7) target labels of every frame and their (N, chunk_len) pad mask."""
+        if self.chunks is None:
+            index, pad = self.chunk_indices(chunk_len)
+            return self.actions[index], pad
+        if self.chunks.shape[1] < chunk_len:
+            raise ValueError(f"the datasets hold chunks of {self.chunks.shape[1]} labels; the policy predicts "
+                             f"{chunk_len}: lower chunk_len or record longer chunks")
+        return self.chunks[:, :chunk_len], self.chunk_pad[:, :chunk_len]
 
     def chunk_indices(self, chunk_len: int) -> tuple[np.ndarray, np.ndarray]:
         """(N, chunk_len) frame indices of each frame's target chunk and the mask of steps past its episode."""
@@ -69,13 +93,16 @@ class Demonstrations:
         return np.minimum(raw, ends[:, None]), raw > ends[:, None]
 
 
-def load_demonstrations(roots: Sequence[str | Path], image_size: int | None = None) -> Demonstrations:
-    """Read LeRobotDatasets written by ``sb3-memret demos`` (lerobot's reader), checking their features."""
+def load_demonstrations(roots: Sequence[str | Path], task: str | Task = DEFAULT_TASK) -> Demonstrations:
+    """Read LeRobotDatasets written by ``sb3-memret demos`` for ``task`` (lerobot's reader), checking their
+    features against the task's layout."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     if not roots:
         raise ValueError("no dataset given")
-    parts, tasks, offset, image_keys = [], [], 0, None
+    task = make_task(task)
+    names = task.state_names()
+    parts, tasks, offset, image_keys, chunked = [], [], 0, None, None
     for root in roots:
         root = Path(root)
         if not (root / "meta" / "info.json").is_file():
@@ -83,13 +110,20 @@ def load_demonstrations(roots: Sequence[str | Path], image_size: int | None = No
                                     "`sb3-memret demos --out DIR`")
         dataset = LeRobotDataset(f"local/{root.name}", root=root, video_backend="pyav")  # no videos to decode
         features = dataset.meta.features
-        _check_feature(features, STATE_KEY, (STATE_DIM,), root)
-        _check_feature(features, ACTION_KEY, (ACTION_DIM,), root)
+        _check_feature(features, STATE_KEY, (len(names),), root, task.name)
+        _check_feature(features, ACTION_KEY, (ACTION_DIM,), root, task.name)
+        if tuple(features[STATE_KEY].get("names") or names) != names:
+            raise ValueError(f"{root}: its state entries {features[STATE_KEY]['names']} are not task "
+                             f"{task.name!r}'s layout {list(names)}")
         keys = tuple(k for k in IMAGE_KEYS if k in features)
         if image_keys is not None and keys != image_keys:
             raise ValueError(f"{root} has cameras {list(keys)} but an earlier dataset has {list(image_keys)}; "
                              "train on datasets recorded with the same render backend")
-        image_keys = keys
+        has_chunks = ACTION_CHUNK_KEY in features
+        if chunked is not None and has_chunks != chunked:
+            raise ValueError(f"{root} keeps {'decision' if has_chunks else 'every'} frames but an earlier dataset "
+                             "does not; train on datasets recorded with the same --frames")
+        image_keys, chunked = keys, has_chunks
         columns = dataset.hf_dataset.with_format("numpy")
         local = dataset.meta.tasks["task_index"]
         task_map = np.zeros(int(local.max()) + 1, dtype=np.int64)
@@ -100,10 +134,16 @@ def load_demonstrations(roots: Sequence[str | Path], image_size: int | None = No
             "actions": np.asarray(columns[ACTION_KEY], dtype=np.float32),
             "episodes": episode_index + offset,
             "task_ids": task_map[np.asarray(columns["task_index"])],
-            "images": {k: _load_images(dataset, k, image_size) for k in keys},
+            "images": {k: np.asarray(columns[k], dtype=np.uint8) for k in keys},
         }
+        if has_chunks:
+            part["chunks"] = np.asarray(columns[ACTION_CHUNK_KEY], dtype=np.float32)
+            part["chunk_pad"] = np.asarray(columns[CHUNK_PAD_KEY], dtype=bool)
         offset = int(part["episodes"].max()) + 1
         parts.append(part)
+    sizes = {p["images"][k].shape[1:] for p in parts for k in p["images"]}
+    if len(sizes) > 1:
+        raise ValueError(f"the datasets' camera images differ in size {sorted(sizes)}; record them with one --image-size")
     return Demonstrations(
         states=np.concatenate([p["states"] for p in parts]),
         actions=np.concatenate([p["actions"] for p in parts]),
@@ -111,6 +151,9 @@ def load_demonstrations(roots: Sequence[str | Path], image_size: int | None = No
         task_ids=np.concatenate([p["task_ids"] for p in parts]),
         tasks=tasks,
         images={k: np.concatenate([p["images"][k] for p in parts]) for k in (image_keys or ())},
+        state_names=names,
+        chunks=np.concatenate([p["chunks"] for p in parts]) if chunked else None,
+        chunk_pad=np.concatenate([p["chunk_pad"] for p in parts]) if chunked else None,
     )
 
 
@@ -120,30 +163,47 @@ def _task_id(task: str, tasks: list[str]) -> int:
     return tasks.index(task)
 
 
-def _check_feature(features: dict, key: str, shape: tuple[int, ...], root: Path) -> None:
+def _check_feature(features: dict, key: str, shape: tuple[int, ...], root: Path, task: str) -> None:
     if key not in features or tuple(features[key]["shape"]) != shape:
         found = features.get(key, {}).get("shape")
-        raise ValueError(f"{root}: feature {key!r} has shape {found}, expected {shape} (the layout of "
-                         "sb3_memret.controllers.observation)")
+        raise ValueError(f"{root}: feature {key!r} has shape {found}, expected {shape} (task {task!r}'s "
+                         "demonstration layout)")
 
 
-def _load_images(dataset, key: str, image_size: int | None) -> np.ndarray:
-    """All frames of one camera, resized to the policy's input size, as (N, 3, S, S) uint8."""
-    if image_size is None:
-        raise ValueError("image_size is needed to load a dataset with camera images")
-    frames = []
-    for i in range(len(dataset)):
-        image = torch.as_tensor(np.asarray(dataset.hf_dataset[i][key]))[None]
-        frames.append((image_tensor(image, image_size)[0] * 255).round().to(torch.uint8).numpy())
-    return np.stack(frames)
+def has_cameras(roots: Sequence[str | Path]) -> bool:
+    """Whether the first dataset holds camera images (read from its metadata alone)."""
+    import json
+
+    info = Path(roots[0]) / "meta" / "info.json"
+    if not info.is_file():
+        raise FileNotFoundError(f"{roots[0]} is not a LeRobotDataset (no meta/info.json)")
+    return any(key in json.loads(info.read_text())["features"] for key in IMAGE_KEYS)
 
 
-def training_instructions(tasks: Sequence[str], fact_templates: Sequence[str]) -> tuple[str, ...]:
-    """The instructions a policy trained on ``tasks`` accepts: the one instruction they hold, or
-    ``pick out the {entity}.`` when they name several objects (the policy then takes any object word)."""
-    template = PromptTemplate((INSTRUCTION_TEMPLATE,), tuple(fact_templates))
-    instructions = sorted({parse_prompt(task, template).instruction for task in tasks})
-    return (INSTRUCTION_TEMPLATE,) if len(instructions) > 1 else tuple(instructions)
+def training_instructions(prompts: Sequence[str], instructions: Sequence[str],
+                          fact_templates: Sequence[str]) -> tuple[str, ...]:
+    """The instructions a policy trained on ``prompts`` accepts: the one instruction they hold, or
+    the templates ``instructions`` when they hold several (``pick out the {entity}.``: any object word)."""
+    template = PromptTemplate(tuple(instructions), tuple(fact_templates))
+    held = sorted({parse_prompt(prompt, template).instruction for prompt in prompts})
+    return tuple(instructions) if len(held) > 1 else tuple(held)
+
+
+def state_names_for(task: Task, state: str) -> tuple[str, ...]:
+    """The state entries a policy reads: ``full`` (the task's layout) or ``proprio`` (what a robot reads of itself)."""
+    if state not in STATE_CHOICES:
+        raise ValueError(f"unknown state {state!r}; expected one of {list(STATE_CHOICES)}")
+    return task.state_names() if state == "full" else task.proprio_names()
+
+
+def camera_inputs(model: LearnedPolicy, images: dict[str, np.ndarray], keys: Sequence[str]) -> list[torch.Tensor]:
+    """What the policy's camera heads read for every frame: a frozen trunk's features (computed here once, in
+    batches, kept as float16), or the uint8 images themselves (channels first) for encoders trained from pixels."""
+    frames = [torch.from_numpy(images[key]).permute(0, 3, 1, 2) for key in keys]
+    if model.trunk is None:
+        return frames
+    return [torch.cat([model.trunk(x[i: i + FEATURE_BATCH].float() / 255.0).half()
+                       for i in range(0, len(x), FEATURE_BATCH)]) for x in frames]
 
 
 def finetune(
@@ -153,23 +213,43 @@ def finetune(
     settings: FinetuneSettings | None = None,
     tokenizer: PromptTokenizer | None = None,
     on_step: Callable[[int, float], None] | None = None,
+    task: str | Task = DEFAULT_TASK,
+    state: str = "full",
+    cameras: bool = True,
 ) -> Path:
-    """Train a LearnedPolicy on ``datasets`` and save it to ``out`` (``save_pretrained``); returns ``out``."""
+    """Train a LearnedPolicy on ``datasets`` of ``task`` and save it to ``out`` (``save_pretrained``); returns
+    ``out``. ``state`` picks the state entries it reads (``full`` or ``proprio``); ``cameras=False`` leaves
+    the datasets' camera images out. The prompt contract is the config's fact templates for the drawer, the
+    task's own template for any other task."""
     settings = settings or FinetuneSettings()
-    config = config or LearnedPolicyConfig()
+    task = make_task(task)
+    if config is None:
+        template = task.prompt_template
+        config = LearnedPolicyConfig(fact_templates=template.fact_templates, instructions=template.instructions)
     torch.manual_seed(settings.seed)
     rng = np.random.default_rng(settings.seed)
-    demos = load_demonstrations(datasets, config.image_size)
-    config = replace(config, instructions=training_instructions(demos.tasks, config.fact_templates))
-    for task in demos.tasks:
-        parse_prompt(task, config.prompt_template)  # a dataset prompt outside the contract is refused
-    config = replace(config, image_features=tuple(demos.images), training_prompts=tuple(sorted(demos.tasks)))
+    demos = load_demonstrations(datasets, task)
+    instructions = (INSTRUCTION_TEMPLATE,) if task.name == DEFAULT_TASK else config.instructions
+    config = replace(config, instructions=training_instructions(demos.tasks, instructions, config.fact_templates))
+    for prompt in demos.tasks:
+        parse_prompt(prompt, config.prompt_template)  # a dataset prompt outside the contract is refused
+    names = state_names_for(task, state)
+    columns = state_columns(demos.state_names, names, "the datasets' state")
+    keys = tuple(demos.images) if cameras else ()
+    if state == "proprio" and not keys:
+        raise ValueError("a policy on proprioception alone cannot see where anything is: train it on datasets with "
+                         "camera images (sb3-memret demos --render-backend cpu), or use state='full'")
+    image_size = demos.images[keys[0]].shape[1] if keys else config.image_size
+    config = replace(config, task=task.name, state_names=names, state_dim=len(names), image_features=keys,
+                     image_size=image_size, training_prompts=tuple(sorted(demos.tasks)))
     tokenizer = tokenizer or PromptTokenizer()
     task_tokens, task_mask = tokenizer(demos.tasks)
 
     model = LearnedPolicy(config)
-    model.set_state_stats(torch.from_numpy(demos.states.mean(0)), torch.from_numpy(demos.states.std(0)))
-    targets, is_pad = demos.chunk_indices(config.chunk_len)
+    config = model.config  # the trunk's checksum is filled in
+    picked = demos.states[:, columns]
+    model.set_state_stats(torch.from_numpy(picked.mean(0)), torch.from_numpy(picked.std(0)))
+    targets, is_pad = demos.targets(config.chunk_len)
     episode_ids = np.unique(demos.episodes)
     n_val = int(round(len(episode_ids) * settings.validation_fraction))
     val_episodes = rng.choice(episode_ids, size=n_val, replace=False) if n_val else np.array([], dtype=np.int64)
@@ -178,16 +258,20 @@ def finetune(
     if len(train_idx) == 0:
         raise ValueError("no training frames left after the validation split")
 
-    states, actions = torch.from_numpy(demos.states), torch.from_numpy(demos.actions)
-    images = {k: torch.from_numpy(v) for k, v in demos.images.items()}
+    states = torch.from_numpy(np.ascontiguousarray(picked))
     targets_t, is_pad_t, task_ids = torch.from_numpy(targets), torch.from_numpy(is_pad), torch.from_numpy(demos.task_ids)
+    features = camera_inputs(model, demos.images, keys)
+    from_pixels = model.trunk is None
+    shifts = torch.Generator().manual_seed(settings.seed)
 
     def loss_on(idx: np.ndarray) -> torch.Tensor:
         index = torch.from_numpy(idx)
         tid = task_ids[index]
-        cams = [images[k][index].float() / 255.0 for k in config.image_features]
+        cams = [f[index].float() / 255.0 if from_pixels else f[index] for f in features]
+        if from_pixels and model.training:
+            cams = [shift_augment(c, settings.image_shift, shifts) for c in cams]
         predicted = model(states[index], model.encode_prompts(task_tokens, task_mask)[tid], cams)
-        return chunk_loss(predicted, actions[targets_t[index]], is_pad_t[index])
+        return chunk_loss(predicted, targets_t[index], is_pad_t[index])
 
     optimizer = torch.optim.AdamW(model.parameters(), lr=settings.learning_rate, weight_decay=settings.weight_decay)
     schedule = torch.optim.lr_scheduler.LambdaLR(
@@ -236,4 +320,5 @@ def read_log(out: str | Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
-__all__ = ["Demonstrations", "FinetuneSettings", "finetune", "load_demonstrations", "read_log"]
+__all__ = ["Demonstrations", "FinetuneSettings", "STATE_CHOICES", "finetune", "has_cameras", "load_demonstrations", "read_log",
+           "state_names_for"]

@@ -6,7 +6,9 @@ this one serves every other task through the ``Task`` interface alone. Each epis
 instruction with the task's true facts (``oracle_facts``: ``the cue cube was red.``), or with facts
 naming something else (``wrong_facts``), which the expert follows as a controller trained on them would.
 Per frame: ``Task.demo_frame`` (state, cameras with a renderer), the expert's action as label, the
-exact prompt as ``task``. A share of episodes runs with Gaussian noise on the arm (labels stay clean).
+exact prompt as ``task``; with ``frames="decisions"`` only the steps a controller acts at, each with its
+chunk of labels (as the drawer's recorder). A share of episodes runs with Gaussian noise on the arm
+(labels stay clean).
 Episodes are written as they finish; an interrupted run keeps every episode saved so far.
 """
 
@@ -19,10 +21,10 @@ from typing import Callable, Sequence
 import numpy as np
 
 from sb3_memret.controllers.base import as_numpy
-from sb3_memret.controllers.observation import ACTION_KEY, TASK_KEY
+from sb3_memret.controllers.observation import ACTION_CHUNK_KEY, ACTION_KEY, CHUNK_PAD_KEY, TASK_KEY, chunk_features
 from sb3_memret.prompts import build_prompt
 from sb3_memret.rollout import DEFAULT_REPLAN_EVERY
-from sb3_memret.stage1.demos import DemoDatasetWriter, PromptMix
+from sb3_memret.stage1.demos import DemoDatasetWriter, PromptMix, check_frames, label_chunks
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import check_render_backend
 
@@ -45,9 +47,10 @@ class TaskEpisodeFrames:
     episode: TaskDemoEpisode
     prompt: str
     group: str
-    frames: list[dict[str, np.ndarray]]
-    actions: np.ndarray  # (T, action_dim)
+    frames: list[dict[str, np.ndarray]]  # the kept frames (every step, or the decision steps)
+    actions: np.ndarray  # (T, action_dim): the expert's label at every control step
     success: bool
+    frame_steps: np.ndarray  # (F,) the control step of each kept frame
 
 
 def plan_task_episodes(n: int, seed: int = 0, noise: float = 0.0, noisy_fraction: float = 0.5,
@@ -68,8 +71,10 @@ def plan_task_episodes(n: int, seed: int = 0, noise: float = 0.0, noisy_fraction
 class TaskRecorder:
     """A task env and the task's expert, recording episodes one after another."""
 
-    def __init__(self, task: Task | str, render_backend: str, replan_every: int = DEFAULT_REPLAN_EVERY):
+    def __init__(self, task: Task | str, render_backend: str, replan_every: int = DEFAULT_REPLAN_EVERY,
+                 frames: str = "every"):
         self.task = make_task(task)
+        self.decisions_only = check_frames(frames) == "decisions"
         self.with_images = check_render_backend(render_backend) != "none"
         self.expert = self.task.expert()
         if not 1 <= replan_every <= self.expert.spec.chunk_len:
@@ -88,10 +93,12 @@ class TaskRecorder:
                  "mismatched": self.task.wrong_facts(truth)}[episode.prompt_kind]
         prompt = build_prompt(self.task.instruction(truth), facts, self.expert.spec.prompt_template)
         self.expert.reset([episode.seed])
-        frames, actions, success, done = [], [], False, False
+        frames, kept, actions, success, done = [], [], [], False, False
         while not done:
-            for label in self.expert.act(obs, [prompt])[0][: self.replan_every]:
-                frames.append(self.task.demo_frame(obs, self.with_images))
+            for i, label in enumerate(self.expert.act(obs, [prompt])[0][: self.replan_every]):
+                if i == 0 or not self.decisions_only:
+                    kept.append(len(actions))
+                    frames.append(self.task.demo_frame(obs, self.with_images))
                 actions.append(label)
                 action = label.copy()
                 if episode.noise:
@@ -101,19 +108,21 @@ class TaskRecorder:
                 done = bool(np.any(as_numpy(terminated)) or np.any(as_numpy(truncated)))
                 if done:
                     break
-        return TaskEpisodeFrames(episode, prompt, truth.group, frames, np.asarray(actions, np.float32), success)
+        return TaskEpisodeFrames(episode, prompt, truth.group, frames, np.asarray(actions, np.float32), success,
+                                 np.asarray(kept))
 
 
 _recorder: TaskRecorder | None = None
 
 
-def _init_recorder(task: Task | str, render_backend: str, replan_every: int, in_worker: bool = True) -> None:
+def _init_recorder(task: Task | str, render_backend: str, replan_every: int, frames: str = "every",
+                   in_worker: bool = True) -> None:
     global _recorder
     if in_worker:
         from sb3_memret.parallel_rollout import init_pool_worker
 
         init_pool_worker()
-    _recorder = TaskRecorder(task, render_backend, replan_every)
+    _recorder = TaskRecorder(task, render_backend, replan_every, frames)
 
 
 def _record(episode: TaskDemoEpisode) -> TaskEpisodeFrames:
@@ -129,25 +138,32 @@ def record_task_demos(
     n_workers: int = 1,
     replan_every: int = DEFAULT_REPLAN_EVERY,
     on_episode: Callable[[TaskEpisodeFrames], None] | None = None,
+    frames: str = "every",
 ) -> Path:
-    """Record ``episodes`` of ``task``'s expert into a new LeRobotDataset at ``out`` and return its folder."""
+    """Record ``episodes`` of ``task``'s expert into a new LeRobotDataset at ``out`` and return its folder;
+    ``frames`` (``every`` or ``decisions``) says which control steps it keeps."""
     from sb3_memret.parallel_rollout import map_in_workers
 
     the_task = make_task(task)
-    writer = DemoDatasetWriter(out, the_task.demo_features(check_render_backend(render_backend) != "none"))
+    features = the_task.demo_features(check_render_backend(render_backend) != "none")
+    chunk_len = the_task.expert().spec.chunk_len if check_frames(frames) == "decisions" else None
+    writer = DemoDatasetWriter(out, {**features, **(chunk_features(chunk_len) if chunk_len else {})})
 
     def save(_: TaskDemoEpisode, recorded: TaskEpisodeFrames) -> None:
+        chunks, pads = label_chunks(recorded.actions, recorded.frame_steps, chunk_len) if chunk_len else (None, None)
         writer.add_episode(
-            ({**frame, ACTION_KEY: action, TASK_KEY: recorded.prompt}
-             for frame, action in zip(recorded.frames, recorded.actions)),
+            ({**frame, ACTION_KEY: recorded.actions[step], TASK_KEY: recorded.prompt,
+              **({ACTION_CHUNK_KEY: chunks[i], CHUNK_PAD_KEY: pads[i]} if chunk_len else {})}
+             for i, (frame, step) in enumerate(zip(recorded.frames, recorded.frame_steps))),
             {**asdict(recorded.episode), "task": the_task.name, "prompt": recorded.prompt, "group": recorded.group,
-             "frames": len(recorded.actions), "success": recorded.success})
+             "frames": len(recorded.frames), "steps": len(recorded.actions), "success": recorded.success})
         if on_episode is not None:
             on_episode(recorded)
 
     global _recorder
     try:
-        map_in_workers(_init_recorder, (task, render_backend, replan_every), _record, list(episodes), n_workers, save)
+        map_in_workers(_init_recorder, (task, render_backend, replan_every, frames), _record, list(episodes), n_workers,
+                       save)
     finally:
         writer.close()
         if _recorder is not None:

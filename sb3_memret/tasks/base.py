@@ -190,10 +190,31 @@ class Task(ABC):
         """One frame of a batch-1 controller observation, in ``demo_features``' layout."""
         raise NotImplementedError(f"task {self.name!r} defines no demonstration layout (Task.demo_frame)")
 
+    def state_names(self) -> tuple[str, ...]:
+        """The names of ``demo_features``' state entries: the layout a learned controller's state comes from."""
+        from sb3_memret.controllers.observation import STATE_KEY
+
+        return tuple(self.demo_features(False)[STATE_KEY]["names"])
+
+    def proprio_names(self) -> tuple[str, ...]:
+        """The state entries a real robot reads of itself (joints, hand pose, gripper): all a camera-reading
+        controller may take besides its cameras; the rest (object detectors, drawer openings) is simulator state."""
+        raise NotImplementedError(f"task {self.name!r} does not say which of its state entries are proprioception "
+                                  "(Task.proprio_names)")
+
+    def controller_inputs(self, obs: Any, n_envs: int, with_images: bool) -> dict[str, np.ndarray]:
+        """``demo_frame`` of every env of a batched controller observation, stacked: (n_envs, ...) per feature."""
+        from sb3_memret.envs.physics import select_obs, to_numpy
+
+        obs = to_numpy(obs)
+        frames = [self.demo_frame(select_obs(obs, i), with_images) for i in range(n_envs)]
+        return {key: np.stack([frame[key] for frame in frames]) for key in frames[0]}
+
     def learned_controller(self, name: str) -> Any:
         """The shipped learned controller ``--controller NAME`` names for this task (``learned``, ...)."""
-        raise ValueError(f"task {self.name!r} has no shipped learned controller {name!r}; use --controller "
-                         "scripted (its expert) or learned:PATH (a checkpoint trained on it)")
+        from sb3_memret.controllers.learned import LearnedController, default_checkpoint
+
+        return LearnedController(default_checkpoint(name, self.name), task=self)
 
     def evaluation_seeds(self, n_episodes: int) -> list[int] | None:
         """The env seeds of the task's benchmark protocol for ``n_episodes`` held-out episodes, or None

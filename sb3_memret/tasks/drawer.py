@@ -109,9 +109,23 @@ class DrawerTask(Task):
 
         return ScriptedDrawerController()
 
-    def learned_controller(self, name: str):
-        from sb3_memret.controllers.learned import LearnedController, default_checkpoint
+    def demo_features(self, with_images: bool) -> dict[str, dict[str, Any]]:
+        from sb3_memret.controllers.observation import dataset_features
 
-        return LearnedController(default_checkpoint(name))
+        return dataset_features(with_images)
+
+    def demo_frame(self, obs: Any, with_images: bool) -> dict[str, np.ndarray]:
+        from sb3_memret.controllers.observation import STATE_KEY, camera_images, observation_state
+
+        frame = {STATE_KEY: observation_state(obs)[0]}
+        if with_images:
+            frame.update({key: images[0] for key, images in camera_images(obs).items()})
+        return frame
+
+    def proprio_names(self) -> tuple[str, ...]:
+        from sb3_memret.controllers.observation import PROPRIO_NAMES
+
+        return PROPRIO_NAMES
+
 
 __all__ = ["DrawerTask", "DrawerWriter", "ENV_ID"]

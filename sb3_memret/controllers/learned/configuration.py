@@ -7,7 +7,8 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from sb3_memret.controllers.observation import ACTION_DIM, IMAGE_KEYS, STATE_DIM
+from sb3_memret.controllers.learned.vision import IMAGE_ENCODERS
+from sb3_memret.controllers.observation import ACTION_DIM, IMAGE_KEYS, STATE_NAMES
 from sb3_memret.prompts import PromptTemplate
 
 CONFIG_FILE = "config.json"
@@ -20,10 +21,14 @@ class LearnedPolicyConfig:
 
     ``prompt_template`` lists the instruction and fact templates of the training prompts (every
     prompt is checked against it before the policy acts); ``training_prompts`` the exact prompts
-    the demonstrations held, for the record.
+    the demonstrations held, for the record. ``task`` is the task whose observation layout the policy
+    reads; ``state_names`` the entries of that layout's state it takes (a camera-reading controller takes
+    only what a robot reads of itself), by name, so a layout that moves them is refused, not misread.
     """
 
-    state_dim: int = STATE_DIM
+    task: str = "drawer"
+    state_names: tuple[str, ...] = STATE_NAMES
+    state_dim: int = len(STATE_NAMES)
     action_dim: int = ACTION_DIM
     chunk_len: int = 32
     token_dim: int = 384  # MiniLM hidden size
@@ -32,8 +37,10 @@ class LearnedPolicyConfig:
     hidden_dim: int = 512
     n_layers: int = 3
     image_features: tuple[str, ...] = ()  # camera features read, empty for a state-only policy
-    image_size: int = 64  # cameras are average-pooled to this size before the CNN
+    image_size: int = 128  # cameras are area-resized to this size (the demonstrations' stored size)
     image_dim: int = 64
+    image_encoder: str = "cnn"  # one of vision.IMAGE_ENCODERS
+    trunk_sha256: str = ""  # the frozen pretrained trunk's weights file, for encoders that have one
     action_convention: str = "pd_ee_delta_pose"
     instructions: tuple[str, ...] = field(default_factory=lambda: PromptTemplate().instructions)
     fact_templates: tuple[str, ...] = field(default_factory=lambda: PromptTemplate().fact_templates)
@@ -41,8 +48,12 @@ class LearnedPolicyConfig:
     type: str = POLICY_TYPE
 
     def __post_init__(self) -> None:
-        for name in ("image_features", "instructions", "fact_templates", "training_prompts"):
+        for name in ("state_names", "image_features", "instructions", "fact_templates", "training_prompts"):
             setattr(self, name, tuple(getattr(self, name)))
+        if self.state_dim != len(self.state_names):
+            raise ValueError(f"state_dim {self.state_dim} does not match the {len(self.state_names)} state_names")
+        if self.image_encoder not in IMAGE_ENCODERS:
+            raise ValueError(f"unknown image_encoder {self.image_encoder!r}; expected one of {list(IMAGE_ENCODERS)}")
         unknown = set(self.image_features) - set(IMAGE_KEYS)
         if unknown:
             raise ValueError(f"unknown image features {sorted(unknown)}; the task's cameras are {sorted(IMAGE_KEYS)}")

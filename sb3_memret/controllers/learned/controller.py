@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 import torch
@@ -13,23 +13,36 @@ from sb3_memret.controllers.learned.modeling import LearnedPolicy
 from sb3_memret.controllers.learned.processing import LearnedPolicyProcessor, PromptTokenizer
 from sb3_memret.prompts import ParsedPrompt
 
+if TYPE_CHECKING:
+    from sb3_memret.tasks import Task
+
 CHECKPOINTS = Path(__file__).resolve().parent.parent / "checkpoints"
-# shipped checkpoints by controller name, and the make target that rebuilds each
-SHIPPED: dict[str, tuple[Path, str]] = {
-    "learned": (CHECKPOINTS / "drawer-learned", "controller"),  # the seed's task: the cube alone
-    "learned-objects": (CHECKPOINTS / "drawer-objects-learned", "controller-objects"),  # any object the instruction names
+# shipped checkpoints by (task, controller name): the folder, and the make target that rebuilds it
+SHIPPED: dict[tuple[str, str], tuple[Path, str]] = {
+    ("drawer", "learned"): (CHECKPOINTS / "drawer-camera", "controller"),  # both cameras + the hand's state
+    ("drawer", "learned-state"): (CHECKPOINTS / "drawer-learned", "controller-state"),  # the simulator's cube detection
+    ("drawer", "learned-objects"): (CHECKPOINTS / "drawer-objects-learned", "controller-objects"),  # state, any object
+    **{(task, "learned"): (CHECKPOINTS / f"{task.removesuffix('-VLA-v0').lower()}-camera", "controller-mikasa")
+       for task in ("RememberColor3-VLA-v0", "RememberColor5-VLA-v0", "RememberColor9-VLA-v0",
+                    "RememberShape3-VLA-v0", "TakeItBack-VLA-v0")},
 }
 
 
-def default_checkpoint(name: str = "learned") -> Path:
-    """The checkpoint ``--controller NAME`` names: trained by ``make controller`` (or ``controller-objects``) and
-    shipped in the package."""
-    if name not in SHIPPED:
-        raise ValueError(f"no shipped learned controller {name!r}; shipped are {sorted(SHIPPED)}")
-    folder, target = SHIPPED[name]
+def shipped_names(task: str = "drawer") -> list[str]:
+    """The shipped learned controllers of ``task``, by ``--controller`` name."""
+    return sorted(name for t, name in SHIPPED if t == task)
+
+
+def default_checkpoint(name: str = "learned", task: str = "drawer") -> Path:
+    """The checkpoint ``--controller NAME`` names on ``task``: trained by its make target and shipped in the
+    package."""
+    if (task, name) not in SHIPPED:
+        raise ValueError(f"no shipped learned controller {name!r} for task {task!r}; shipped are "
+                         f"{shipped_names(task) or 'none'} (or train one: sb3-memret demos, then finetune)")
+    folder, target = SHIPPED[task, name]
     if not (folder / "model.safetensors").is_file():
-        raise FileNotFoundError(f"the shipped learned controller {name!r} is missing from {folder}; rebuild it "
-                                f"with `make {target}` (demos, then finetune)")
+        raise FileNotFoundError(f"the shipped learned controller {name!r} of task {task!r} is missing from {folder}; "
+                                f"rebuild it with `make {target}` (demos, then finetune)")
     return folder
 
 
@@ -42,12 +55,14 @@ class LearnedController(FrozenController):
     stateful = False
 
     def __init__(self, checkpoint: str | Path | None = None, device: str = "cpu",
-                 tokenizer: PromptTokenizer | None = None):
+                 tokenizer: PromptTokenizer | None = None, task: "str | Task | None" = None):
+        from sb3_memret.tasks import make_task
+
         self.checkpoint = Path(checkpoint) if checkpoint is not None else default_checkpoint()
         self.device = torch.device(device)
         self.policy = LearnedPolicy.from_pretrained(self.checkpoint, self.device)
         config = self.policy.config
-        self.processor = LearnedPolicyProcessor(config, tokenizer)
+        self.processor = LearnedPolicyProcessor(config, make_task(task if task is not None else config.task), tokenizer)
         self.spec = ControllerSpec(
             action_convention=config.action_convention,
             chunk_len=config.chunk_len,
@@ -69,6 +84,6 @@ class LearnedController(FrozenController):
             raise RuntimeError(f"reset() was called for {self._num_envs} envs but act() got {len(prompts)} prompts")
         inputs = self.processor(obs, prompts)
         prompt = self.policy.encode_prompts(inputs["tokens"].to(self.device), inputs["token_mask"].to(self.device))
-        chunks = self.policy(inputs["state"].to(self.device), prompt,
-                             [image.to(self.device) for image in inputs["images"]])
+        features = self.policy.camera_features([image.to(self.device) for image in inputs["images"]])
+        chunks = self.policy(inputs["state"].to(self.device), prompt, features)
         return chunks.cpu().numpy()

@@ -17,6 +17,7 @@ from torch import nn
 from torch.nn import functional as F
 
 from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig
+from sb3_memret.controllers.learned.vision import make_camera_encoder
 from sb3_memret.controllers.weights import WeightsNotLoadedError, check_loaded
 
 WEIGHTS_FILE = "model.safetensors"
@@ -43,24 +44,14 @@ class AttentionPool(nn.Module):
         return self.norm(torch.einsum("bht,bthd->bhd", weights, values).reshape(b, -1))
 
 
-class ImageEncoder(nn.Module):
-    """A small CNN for one camera: (B, 3, S, S) in [0, 1] -> (B, image_dim)."""
-
-    def __init__(self, image_dim: int):
-        super().__init__()
-        self.net = nn.Sequential(
-            nn.Conv2d(3, 32, 5, stride=2, padding=2), nn.ReLU(),
-            nn.Conv2d(32, 64, 3, stride=2, padding=1), nn.ReLU(),
-            nn.Conv2d(64, 64, 3, stride=2, padding=1), nn.ReLU(),
-            nn.AdaptiveAvgPool2d(1), nn.Flatten(), nn.Linear(64, image_dim), nn.ReLU(),
-        )
-
-    def forward(self, images: torch.Tensor) -> torch.Tensor:
-        return self.net(images)
-
-
 class LearnedPolicy(nn.Module):
-    """Predicts an action chunk (B, chunk_len, action_dim) from state, prompt tokens and optional images."""
+    """Predicts an action chunk (B, chunk_len, action_dim) from state, prompt tokens and optional images.
+
+    Each camera has its own trainable head; a frozen pretrained trunk (``image_encoder``), if any, is shared,
+    lives outside the checkpoint (its file's SHA-256 is in the config) and is checked when loaded.
+    """
+
+    TRUNK = "trunk."  # state-dict prefix of the frozen trunk's tensors, never saved
 
     def __init__(self, config: LearnedPolicyConfig):
         super().__init__()
@@ -68,7 +59,15 @@ class LearnedPolicy(nn.Module):
         self.register_buffer("state_mean", torch.zeros(config.state_dim))
         self.register_buffer("state_std", torch.ones(config.state_dim))
         self.text = AttentionPool(config.token_dim, config.text_dim, config.text_heads)
-        self.cameras = nn.ModuleList(ImageEncoder(config.image_dim) for _ in config.image_features)
+        self.trunk: nn.Module | None = None
+        heads = []
+        for _ in config.image_features:
+            trunk, head = make_camera_encoder(config.image_encoder, config.image_dim, config.trunk_sha256 or None)
+            heads.append(head)
+            if trunk is not None and self.trunk is None:
+                self.trunk = trunk
+                config.trunk_sha256 = trunk.sha256
+        self.cameras = nn.ModuleList(heads)
         width = config.state_dim + config.text_dim + config.image_dim * len(config.image_features)
         layers: list[nn.Module] = []
         for _ in range(config.n_layers):
@@ -86,14 +85,24 @@ class LearnedPolicy(nn.Module):
         """(P, T, 384) token features and (P, T) mask -> (P, text_dim): one vector per prompt."""
         return self.text(tokens, token_mask)
 
-    def forward(self, state: torch.Tensor, prompt: torch.Tensor, images: list[torch.Tensor] | None = None) -> torch.Tensor:
-        """(B, state_dim) states, (B, text_dim) ``encode_prompts`` vectors, per camera (B, 3, S, S) images."""
-        images = images or []
+    @torch.no_grad()
+    def camera_features(self, images: list[torch.Tensor]) -> list[torch.Tensor]:
+        """Per camera (B, 3, S, S) images in [0, 1] -> what the heads read: the frozen trunk's feature maps, or
+        the images themselves when the encoder is trained from pixels."""
         if len(images) != len(self.cameras):
             raise ValueError(f"the policy reads {len(self.cameras)} cameras {list(self.config.image_features)}, "
                              f"got {len(images)} image batches")
+        return [self.trunk(image) for image in images] if self.trunk is not None else list(images)
+
+    def forward(self, state: torch.Tensor, prompt: torch.Tensor,
+                camera_features: list[torch.Tensor] | None = None) -> torch.Tensor:
+        """(B, state_dim) states, (B, text_dim) ``encode_prompts`` vectors, per camera ``camera_features``."""
+        camera_features = camera_features or []
+        if len(camera_features) != len(self.cameras):
+            raise ValueError(f"the policy reads {len(self.cameras)} cameras {list(self.config.image_features)}, "
+                             f"got {len(camera_features)} feature batches")
         parts = [(state - self.state_mean) / self.state_std, prompt]
-        parts += [encoder(image) for encoder, image in zip(self.cameras, images)]
+        parts += [head(features.float()) for head, features in zip(self.cameras, camera_features)]
         out = self.head(torch.cat(parts, dim=-1))
         return out.view(-1, self.config.chunk_len, self.config.action_dim)
 
@@ -102,8 +111,12 @@ class LearnedPolicy(nn.Module):
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         self.config.save(folder)
-        save_file({k: v.detach().cpu().contiguous() for k, v in self.state_dict().items()}, folder / WEIGHTS_FILE)
+        save_file({k: v.detach().cpu().contiguous() for k, v in self.trainable_state().items()}, folder / WEIGHTS_FILE)
         return folder
+
+    def trainable_state(self) -> dict[str, torch.Tensor]:
+        """The state dict without the frozen trunk: what a checkpoint holds."""
+        return {k: v for k, v in self.state_dict().items() if not k.startswith(self.TRUNK)}
 
     @classmethod
     def from_pretrained(cls, folder: str | Path, device: str | torch.device = "cpu") -> "LearnedPolicy":
@@ -121,7 +134,7 @@ class LearnedPolicy(nn.Module):
             model.load_state_dict(saved, strict=False)
         except RuntimeError as err:  # a size mismatch
             raise WeightsNotLoadedError(f"checkpoint {folder} does not fit its config: {err}") from err
-        check_loaded(model.state_dict(), saved, f"learned controller checkpoint {folder}")
+        check_loaded(model.trainable_state(), saved, f"learned controller checkpoint {folder}")
         return model.to(device).eval()
 
 

@@ -1,17 +1,24 @@
-"""Observations and prompts to the learned policy's inputs, the same at training and at acting."""
+"""Observations and prompts to the learned policy's inputs, the same at training and at acting.
+
+The state comes from the task's demonstration layout (``Task.controller_inputs``), picked by name
+(``LearnedPolicyConfig.state_names``); camera images are area-resized to the policy's size with the
+same uint8 rounding the demonstrations were stored with.
+"""
 
 from __future__ import annotations
 
-from typing import Sequence
+from typing import TYPE_CHECKING, Sequence
 
 import numpy as np
 import torch
-from torch.nn import functional as F
 
 from sb3_memret.controllers.base import Obs
 from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig
-from sb3_memret.controllers.observation import camera_images, observation_state
+from sb3_memret.controllers.observation import STATE_KEY, resize_images
 from sb3_memret.memory.encoder import MiniLMEncoder
+
+if TYPE_CHECKING:
+    from sb3_memret.tasks import Task
 
 
 class PromptTokenizer:
@@ -30,31 +37,35 @@ class PromptTokenizer:
         return torch.from_numpy(tokens), torch.from_numpy(mask)
 
 
-def image_tensor(images: np.ndarray | torch.Tensor, size: int) -> torch.Tensor:
-    """(B, H, W, 3) uint8 or (B, 3, H, W) float in [0, 1] -> (B, 3, size, size) float in [0, 1]."""
-    x = torch.as_tensor(images)
-    if x.dtype == torch.uint8:
-        x = x.permute(0, 3, 1, 2).float() / 255.0
-    if x.ndim != 4 or x.shape[1] != 3:
-        raise ValueError(f"camera images must be (B, H, W, 3) uint8 or (B, 3, H, W) float, got {tuple(x.shape)}")
-    return F.interpolate(x, size=(size, size), mode="area")
+def image_tensor(images: np.ndarray, size: int) -> torch.Tensor:
+    """(B, H, W, 3) uint8 -> (B, 3, size, size) float in [0, 1], resized as the demonstrations were."""
+    images = np.asarray(images)
+    if images.ndim != 4 or images.shape[-1] != 3 or images.dtype != np.uint8:
+        raise ValueError(f"camera images must be (B, H, W, 3) uint8, got {images.dtype}{images.shape}")
+    return torch.from_numpy(resize_images(images, size)).permute(0, 3, 1, 2).float() / 255.0
+
+
+def state_columns(available: Sequence[str], wanted: Sequence[str], where: str) -> np.ndarray:
+    """Indices of ``wanted`` names in ``available``, or a ValueError naming the missing ones."""
+    missing = [name for name in wanted if name not in available]
+    if missing:
+        raise ValueError(f"{where} has no state entries {missing}; it has {list(available)}")
+    return np.array([list(available).index(name) for name in wanted], dtype=np.int64)
 
 
 class LearnedPolicyProcessor:
     """Builds the policy's inputs from a batched task observation and the prompts."""
 
-    def __init__(self, config: LearnedPolicyConfig, tokenizer: PromptTokenizer | None = None):
-        self.config = config
+    def __init__(self, config: LearnedPolicyConfig, task: "Task", tokenizer: PromptTokenizer | None = None):
+        if task.name != config.task:
+            raise ValueError(f"the learned controller was trained on task {config.task!r}, not {task.name!r}")
+        self.config, self.task = config, task
+        self.columns = state_columns(task.state_names(), config.state_names, f"task {task.name!r}'s observation layout")
         self.tokenizer = tokenizer or PromptTokenizer()
 
     def __call__(self, obs: Obs, prompts: Sequence[str]) -> dict[str, torch.Tensor | list[torch.Tensor]]:
-        state = torch.from_numpy(observation_state(obs))
-        if state.shape[1] != self.config.state_dim:
-            raise ValueError(f"the observation gives {state.shape[1]} state features, the policy takes "
-                             f"{self.config.state_dim}")
+        inputs = self.task.controller_inputs(obs, len(prompts), bool(self.config.image_features))
+        state = torch.from_numpy(inputs[STATE_KEY][:, self.columns].astype(np.float32))
         tokens, mask = self.tokenizer(prompts)
-        images = []
-        if self.config.image_features:
-            frames = camera_images(obs)
-            images = [image_tensor(frames[key], self.config.image_size) for key in self.config.image_features]
+        images = [image_tensor(inputs[key], self.config.image_size) for key in self.config.image_features]
         return {"state": state, "tokens": tokens, "token_mask": mask, "images": images}

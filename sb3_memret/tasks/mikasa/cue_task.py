@@ -163,5 +163,8 @@ class MikasaCueTask(Task):
     def demo_frame(self, obs: Any, with_images: bool) -> dict[str, np.ndarray]:
         return demo_layout.demo_frame(obs, with_images, key=self.detector_key)
 
+    def proprio_names(self) -> tuple[str, ...]:
+        return demo_layout.proprio_names()
+
 
 __all__ = ["CueWriter", "EPISODE_STEPS", "EVAL_SEED", "MikasaCueTask", "RENDERER_NEEDED"]

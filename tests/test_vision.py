@@ -1,0 +1,42 @@
+"""Camera encoders: keypoints land where a feature map peaks, shifts move pixels without inventing any, and a
+frozen trunk never trains."""
+
+from __future__ import annotations
+
+import torch
+
+from sb3_memret.controllers.learned.vision import EfficientNetLite0Trunk, SpatialSoftmax, make_camera_encoder, shift_augment
+
+
+def test_spatial_softmax_finds_a_peak():
+    maps = torch.full((1, 2, 9, 9), -50.0)
+    maps[0, 0, 0, 8] = 50.0  # top right
+    maps[0, 1, 8, 4] = 50.0  # bottom centre
+    xy = SpatialSoftmax()(maps)
+    torch.testing.assert_close(xy, torch.tensor([[1.0, 0.0, -1.0, 1.0]]), atol=1e-4, rtol=0)
+
+
+def test_shifts_keep_shape_and_only_move_pixels():
+    images = torch.arange(2 * 3 * 8 * 8, dtype=torch.float32).view(2, 3, 8, 8)
+    shifted = shift_augment(images, 2, torch.Generator().manual_seed(0))
+    assert shifted.shape == images.shape
+    for b in range(2):
+        values = set(images[b].flatten().tolist())
+        assert set(shifted[b].flatten().tolist()) <= values  # edge padding repeats pixels, never blends them
+    assert shift_augment(images, 0) is images
+
+
+def test_heads_map_images_or_features_to_vectors():
+    trunk, head = make_camera_encoder("cnn", 24)
+    assert trunk is None and head(torch.rand(3, 3, 64, 64)).shape == (3, 24)
+    trunk, head = make_camera_encoder("efficientnet_lite0", 24)
+    features = trunk(torch.rand(3, 3, 128, 128))
+    assert features.shape == (3, 112, 8, 8) and head(features).shape == (3, 24)
+
+
+def test_the_pretrained_trunk_is_frozen():
+    trunk = EfficientNetLite0Trunk()
+    trunk.train()
+    assert not trunk.training and not any(p.requires_grad for p in trunk.parameters())
+    x = torch.rand(2, 3, 64, 64)
+    torch.testing.assert_close(trunk(x), trunk(x))  # batch-norm statistics never move
