@@ -17,7 +17,7 @@ EXPERIMENTS = ("recall",)
 ZOO_CONFIGS = Path(__file__).resolve().parents[1] / "zoo_configs"
 DEFAULT_TASK = "drawer"  # sb3_memret.tasks.DEFAULT_TASK
 HELD_OUT_SEED = 1_000_000
-DEFAULT_CONTROLLER = "learned-state"  # sb3_memret.controllers.DEFAULT_CONTROLLER, without importing torch for --help
+DEFAULT_CONTROLLER = "learned"  # sb3_memret.controllers.DEFAULT_CONTROLLER, without importing torch for --help
 DEMO_SEED = 100_000  # demonstrations never share a placement with rollout (0..) or held-out (1e6..) episodes
 
 

@@ -83,7 +83,7 @@ def test_demos_of_a_mikasa_task_are_a_lerobot_dataset_whose_prompts_carry_the_fa
 
     out = tmp_path / "rc3"
     result = CliRunner().invoke(main, ["demos", "--task", TASK, "--episodes", "2", "--seed", "100005", "--n-envs", "1",
-                                       "--noisy-fraction", "0", "--out", str(out), "--no-progress"])
+                                       "--noisy-fraction", "0", "--frames", "every", "--out", str(out), "--no-progress"])
     assert result.exit_code == 0, result.output
     log = read_episode_log(out)
     assert [r["seed"] for r in log] == [100005, 100006] and {r["prompt_kind"] for r in log} == {"matching", "mismatched"} and all(r["frames"] == 25 for r in log)
@@ -104,3 +104,19 @@ def test_demos_of_a_mikasa_task_are_a_lerobot_dataset_whose_prompts_carry_the_fa
 def test_demos_refuse_drawer_options_on_a_mikasa_task(tmp_path):
     result = CliRunner().invoke(main, ["demos", "--task", TASK, "--objects", "train", "--out", str(tmp_path / "x")])
     assert result.exit_code == 2 and "--objects applies to the drawer's demonstrations only" in result.output
+
+
+def test_mikasa_demos_with_cameras_keep_the_decision_frames_and_their_chunks(tmp_path):
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from sb3_memret.controllers.observation import ACTION_CHUNK_KEY, CHUNK_PAD_KEY
+    from sb3_memret.stage1.demos import read_episode_log
+
+    out = tmp_path / "rc3"
+    result = CliRunner().invoke(main, ["demos", "--task", TASK, "--episodes", "1", "--seed", "100005", "--n-envs", "1",
+                                       "--out", str(out), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    assert {k: read_episode_log(out)[0][k] for k in ("frames", "steps")} == {"frames": 7, "steps": 25}  # every 4th step
+    dataset = LeRobotDataset("sb3_memret/rc3", root=out)
+    last = dataset[6]
+    assert last[ACTION_CHUNK_KEY].shape[1] == 7 and int((~last[CHUNK_PAD_KEY]).sum()) == 1  # step 24 is the last

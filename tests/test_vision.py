@@ -31,7 +31,7 @@ def test_heads_map_images_or_features_to_vectors():
     assert trunk is None and head(torch.rand(3, 3, 64, 64)).shape == (3, 24)
     trunk, head = make_camera_encoder("efficientnet_lite0", 24)
     features = trunk(torch.rand(3, 3, 128, 128))
-    assert features.shape == (3, 112, 8, 8) and head(features).shape == (3, 24)
+    assert features.shape == (3, 40, 16, 16) and head(features).shape == (3, 24)
 
 
 def test_the_pretrained_trunk_is_frozen():

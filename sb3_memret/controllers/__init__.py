@@ -2,10 +2,10 @@
 
 Accepted values (``CONTROLLER_SPECS``):
 
-- ``learned``: the task's shipped camera-reading learned controller (language + both cameras + the
-  hand's own state; ``make controller``, ``make controller-mikasa`` rebuild them).
+- ``learned``: the task's shipped learned controller; on the drawer for now the state policy below
+  (a camera-reading one, ``make controller-camera``, ships once it meets its targets).
 - ``learned-state``: the drawer's learned controller on the simulator's state (its cube detection is
-  perfect perception; ``make controller-state``).
+  perfect perception; ``make controller`` rebuilds it).
 - ``learned-objects``: the state policy trained with several objects in the drawers, the instruction
   naming the target (``make controller-objects``).
 - ``learned:/PATH/TO/CHECKPOINT[?device=DEV]``: a checkpoint ``sb3-memret finetune`` wrote.
@@ -30,7 +30,7 @@ from sb3_memret.controllers.scripted import ScriptedDrawerController
 if TYPE_CHECKING:
     from sb3_memret.tasks import Task
 
-DEFAULT_CONTROLLER = "learned-state"
+DEFAULT_CONTROLLER = "learned"
 SHIPPED_NAMES = ("learned", "learned-state", "learned-objects")
 CONTROLLER_SPECS = (
     "learned",

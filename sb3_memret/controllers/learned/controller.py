@@ -17,14 +17,13 @@ if TYPE_CHECKING:
     from sb3_memret.tasks import Task
 
 CHECKPOINTS = Path(__file__).resolve().parent.parent / "checkpoints"
-# shipped checkpoints by (task, controller name): the folder, and the make target that rebuilds it
+# shipped checkpoints by (task, controller name): the folder, and the make target that rebuilds it. ``learned``
+# names the state policy until a camera-reading checkpoint (``make controller-camera``) meets its targets
+# (issue 25: on the drawer it opens the named drawer but does not yet grasp the cube it must see).
 SHIPPED: dict[tuple[str, str], tuple[Path, str]] = {
-    ("drawer", "learned"): (CHECKPOINTS / "drawer-camera", "controller"),  # both cameras + the hand's state
-    ("drawer", "learned-state"): (CHECKPOINTS / "drawer-learned", "controller-state"),  # the simulator's cube detection
+    ("drawer", "learned"): (CHECKPOINTS / "drawer-learned", "controller"),
+    ("drawer", "learned-state"): (CHECKPOINTS / "drawer-learned", "controller"),  # the simulator's cube detection
     ("drawer", "learned-objects"): (CHECKPOINTS / "drawer-objects-learned", "controller-objects"),  # state, any object
-    **{(task, "learned"): (CHECKPOINTS / f"{task.removesuffix('-VLA-v0').lower()}-camera", "controller-mikasa")
-       for task in ("RememberColor3-VLA-v0", "RememberColor5-VLA-v0", "RememberColor9-VLA-v0",
-                    "RememberShape3-VLA-v0", "TakeItBack-VLA-v0")},
 }
 
 

