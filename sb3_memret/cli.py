@@ -399,9 +399,10 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
 
     settings = FinetuneSettings(steps=steps or 8000, batch_size=batch_size or 256,
                                 learning_rate=learning_rate or 1e-3, seed=seed)
-    template = make_task(task).prompt_template
+    the_task = make_task(task)
+    template = the_task.prompt_template
     config = LearnedPolicyConfig(instructions=template.instructions, fact_templates=template.fact_templates,
-                                 image_encoder=image_encoder)
+                                 image_encoder=image_encoder, chunk_len=the_task.expert().spec.chunk_len)
     try:
         state = state or ("proprio" if has_cameras(datasets) else "full")
     except (FileNotFoundError, ValueError) as err:

@@ -8,7 +8,7 @@ import pytest
 
 from sb3_memret.controllers import make_controller
 from sb3_memret.controllers.learned import LearnedPolicyConfig
-from sb3_memret.controllers.observation import PROPRIO_NAMES
+from sb3_memret.controllers.observation import PROPRIO_NAMES, STATE_NAMES
 from sb3_memret.prompts import INSTRUCTION, condition_prompt
 from sb3_memret.stage1.demos import DemoEpisode, record_demos
 from sb3_memret.stage1.finetune import Demonstrations, FinetuneSettings, finetune, load_demonstrations, read_log
@@ -94,13 +94,17 @@ def camera_demos(tmp_path_factory):
 def test_a_camera_policy_learns_from_decision_frames_and_sees_only_the_hand(camera_demos, demos, tmp_path, rgb_task_env):
     config = LearnedPolicyConfig(hidden_dim=64, n_layers=2, text_dim=32, text_heads=2, image_encoder="cnn", image_dim=16)
     out = finetune([camera_demos], tmp_path / "ckpt", config, FinetuneSettings(steps=150, batch_size=10,
-                                                                                 validation_fraction=0.0),
+                                                                                 validation_fraction=0.5),
                    state="proprio")
     losses = [float(row["train_loss"]) for row in read_log(out)]
     assert losses[-1] < 0.7 * losses[0], losses
     controller = make_controller(f"learned:{out}")
     config = controller.policy.config
     assert config.state_names == PROPRIO_NAMES and config.image_size == 32 and controller.spec.needs_images
+    # what the hand does not read of itself, the cameras estimate: the drawer openings and the cube's detection
+    assert config.perceived_names == STATE_NAMES[len(PROPRIO_NAMES):]
+    perception = [float(row["val_perception_mse"]) for row in read_log(out)]
+    assert perception[-1] < 0.7 * perception[0], perception
     obs, _ = rgb_task_env.reset(seed=43, options={"target_layer": 1})
     controller.reset([43])
     assert controller.act(obs, [condition_prompt("oracle", 1)]).shape == (1, 32, 7)
@@ -108,3 +112,9 @@ def test_a_camera_policy_learns_from_decision_frames_and_sees_only_the_hand(came
         finetune([demos], tmp_path / "blind", SMALL, FinetuneSettings(steps=1), state="proprio")
     with pytest.raises(ValueError, match="recorded with the same render backend"):
         load_demonstrations([camera_demos, demos])
+
+
+def test_a_policy_without_cameras_estimates_nothing(demos, tmp_path):
+    out = finetune([demos], tmp_path / "ckpt", SMALL, FinetuneSettings(steps=2, batch_size=8))
+    assert make_controller(f"learned:{out}").policy.config.perceived_names == ()
+    assert {row["val_perception_mse"] for row in read_log(out)} == {""}

@@ -12,7 +12,7 @@ from safetensors.torch import load_file, save_file
 
 from sb3_memret.controllers import make_controller
 from sb3_memret.controllers.learned import LearnedController, LearnedPolicy, LearnedPolicyConfig, default_checkpoint
-from sb3_memret.controllers.observation import IMAGE_KEYS, PROPRIO_NAMES, STATE_DIM
+from sb3_memret.controllers.observation import IMAGE_KEYS, PROPRIO_NAMES, STATE_DIM, STATE_NAMES
 from sb3_memret.controllers.weights import WeightsNotLoadedError
 from sb3_memret.envs.objects import OBJECT_SETS
 from sb3_memret.prompts import condition_prompt
@@ -174,11 +174,15 @@ def test_a_checkpoint_runs_only_on_its_task_and_state_layout(tmp_path):
 
 def test_a_camera_policy_reads_the_hands_state_and_both_cameras(tmp_path):
     """A camera-reading policy takes only the end-effector state: the simulator's detection can change
-    without changing its action, while the images do change it."""
+    without changing its action (it estimates the detection from its images), while the images do change it."""
     torch.manual_seed(0)
+    perceived = STATE_NAMES[len(PROPRIO_NAMES):]
     policy = LearnedPolicy(LearnedPolicyConfig(**SMALL, state_names=PROPRIO_NAMES, state_dim=len(PROPRIO_NAMES),
-                                               image_features=tuple(IMAGE_KEYS), image_size=32))
+                                               image_features=tuple(IMAGE_KEYS), image_size=32,
+                                               perceived_names=perceived))
+    policy.set_perceived_stats(torch.randn(len(perceived)), torch.rand(len(perceived)) + 0.5)
     policy.save_pretrained(tmp_path)
+    assert {"perceived_mean", "perceived_std", "perception.weight"} <= set(load_file(tmp_path / "model.safetensors"))
     controller = LearnedController(tmp_path)
     controller.reset([0])
     rng = np.random.default_rng(1)
@@ -191,6 +195,15 @@ def test_a_camera_policy_reads_the_hands_state_and_both_cameras(tmp_path):
     np.testing.assert_array_equal(first, controller.act(obs, prompt))
     obs["sensor_data"]["base_camera"]["rgb"] = np.zeros((1, 224, 224, 3), np.uint8)
     assert not np.allclose(first, controller.act(obs, prompt))
+
+
+def test_perceived_entries_need_cameras_and_stay_out_of_the_state():
+    with pytest.raises(ValueError, match="need cameras to be estimated from"):
+        LearnedPolicyConfig(**SMALL, perceived_names=("target_x",))
+    with pytest.raises(ValueError, match=r"entries \['target_x'\] are both read from the state and estimated"):
+        LearnedPolicyConfig(**SMALL, image_features=tuple(IMAGE_KEYS), perceived_names=("target_x",))
+    with pytest.raises(ValueError, match="estimates no perceived entries"):
+        LearnedPolicy(LearnedPolicyConfig(**SMALL)).set_perceived_stats(torch.zeros(1), torch.ones(1))
 
 
 def test_a_frozen_trunk_stays_out_of_the_checkpoint_and_is_checked(tmp_path):

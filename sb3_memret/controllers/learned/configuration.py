@@ -24,6 +24,8 @@ class LearnedPolicyConfig:
     the demonstrations held, for the record. ``task`` is the task whose observation layout the policy
     reads; ``state_names`` the entries of that layout's state it takes (a camera-reading controller takes
     only what a robot reads of itself), by name, so a layout that moves them is refused, not misread.
+    ``perceived_names``: the layout's entries a camera policy estimates from its images (the simulator's
+    detection, drawer openings), labelled by the simulator at training only; its action head reads the estimates.
     """
 
     task: str = "drawer"
@@ -37,6 +39,7 @@ class LearnedPolicyConfig:
     hidden_dim: int = 512
     n_layers: int = 3
     image_features: tuple[str, ...] = ()  # camera features read, empty for a state-only policy
+    perceived_names: tuple[str, ...] = ()  # state entries estimated from the cameras (never read from the state)
     image_size: int = 128  # cameras are area-resized to this size (the demonstrations' stored size)
     image_dim: int = 64
     image_encoder: str = "cnn"  # one of vision.IMAGE_ENCODERS
@@ -48,7 +51,8 @@ class LearnedPolicyConfig:
     type: str = POLICY_TYPE
 
     def __post_init__(self) -> None:
-        for name in ("state_names", "image_features", "instructions", "fact_templates", "training_prompts"):
+        for name in ("state_names", "image_features", "perceived_names", "instructions", "fact_templates",
+                     "training_prompts"):
             setattr(self, name, tuple(getattr(self, name)))
         if self.state_dim != len(self.state_names):
             raise ValueError(f"state_dim {self.state_dim} does not match the {len(self.state_names)} state_names")
@@ -57,6 +61,12 @@ class LearnedPolicyConfig:
         unknown = set(self.image_features) - set(IMAGE_KEYS)
         if unknown:
             raise ValueError(f"unknown image features {sorted(unknown)}; the task's cameras are {sorted(IMAGE_KEYS)}")
+        if self.perceived_names and not self.image_features:
+            raise ValueError(f"perceived_names {list(self.perceived_names)} need cameras to be estimated from; "
+                             "image_features is empty")
+        both = sorted(set(self.perceived_names) & set(self.state_names))
+        if both:
+            raise ValueError(f"entries {both} are both read from the state and estimated from the cameras")
         if min(self.chunk_len, self.hidden_dim, self.n_layers, self.text_dim, self.text_heads) < 1:
             raise ValueError(f"sizes must be positive: {self}")
         if self.text_dim % self.text_heads:

@@ -3,7 +3,10 @@
 The prompt arrives as frozen MiniLM per-token features; multi-head attention pooling with learned
 queries lets the network find the one token that matters (the layer digit), which a pooled
 sentence vector blurs. State is normalised with the demonstrations' statistics, kept as buffers
-so a checkpoint carries them. An MLP maps the concatenation to ``chunk_len`` x ``action_dim``.
+so a checkpoint carries them. A camera policy also estimates, from its image vectors alone, the state
+entries a robot does not read of itself (``perceived_names``: where the cube is, how far each drawer is
+open), trained on the simulator's labels: the action head reads those estimates, as a modular
+visuomotor policy reads its detector. An MLP maps the concatenation to ``chunk_len`` x ``action_dim``.
 """
 
 from __future__ import annotations
@@ -68,7 +71,14 @@ class LearnedPolicy(nn.Module):
                 self.trunk = trunk
                 config.trunk_sha256 = trunk.sha256
         self.cameras = nn.ModuleList(heads)
-        width = config.state_dim + config.text_dim + config.image_dim * len(config.image_features)
+        vision_dim = config.image_dim * len(config.image_features)
+        n_perceived = len(config.perceived_names)
+        self.perception: nn.Linear | None = None
+        if n_perceived:  # a policy without perceived entries holds none of these tensors (older checkpoints load)
+            self.register_buffer("perceived_mean", torch.zeros(n_perceived))
+            self.register_buffer("perceived_std", torch.ones(n_perceived))
+            self.perception = nn.Linear(vision_dim, n_perceived)
+        width = config.state_dim + config.text_dim + vision_dim + n_perceived
         layers: list[nn.Module] = []
         for _ in range(config.n_layers):
             layers += [nn.Linear(width, config.hidden_dim), nn.GELU()]
@@ -80,6 +90,13 @@ class LearnedPolicy(nn.Module):
         """Normalise states with the demonstrations' mean and std (std floored at MIN_STATE_STD)."""
         self.state_mean.copy_(torch.as_tensor(mean, dtype=torch.float32))
         self.state_std.copy_(torch.as_tensor(std, dtype=torch.float32).clamp(min=MIN_STATE_STD))
+
+    def set_perceived_stats(self, mean: torch.Tensor, std: torch.Tensor) -> None:
+        """Scale of the perceived entries' labels: the perception head estimates them normalised."""
+        if self.perception is None:
+            raise ValueError("the policy estimates no perceived entries (config.perceived_names is empty)")
+        self.perceived_mean.copy_(torch.as_tensor(mean, dtype=torch.float32))
+        self.perceived_std.copy_(torch.as_tensor(std, dtype=torch.float32).clamp(min=MIN_STATE_STD))
 
     def encode_prompts(self, tokens: torch.Tensor, token_mask: torch.Tensor) -> torch.Tensor:
         """(P, T, 384) token features and (P, T) mask -> (P, text_dim): one vector per prompt."""
@@ -94,17 +111,35 @@ class LearnedPolicy(nn.Module):
                              f"got {len(images)} image batches")
         return [self.trunk(image) for image in images] if self.trunk is not None else list(images)
 
-    def forward(self, state: torch.Tensor, prompt: torch.Tensor,
-                camera_features: list[torch.Tensor] | None = None) -> torch.Tensor:
-        """(B, state_dim) states, (B, text_dim) ``encode_prompts`` vectors, per camera ``camera_features``."""
+    def encode_cameras(self, camera_features: list[torch.Tensor] | None) -> torch.Tensor:
+        """Per camera ``camera_features`` -> (B, image_dim x cameras): what the action head sees of the images."""
         camera_features = camera_features or []
         if len(camera_features) != len(self.cameras):
             raise ValueError(f"the policy reads {len(self.cameras)} cameras {list(self.config.image_features)}, "
                              f"got {len(camera_features)} feature batches")
+        if not camera_features:
+            return self.state_mean.new_zeros((0, 0))
+        return torch.cat([head(features.float()) for head, features in zip(self.cameras, camera_features)], dim=-1)
+
+    def perceive(self, vision: torch.Tensor) -> torch.Tensor:
+        """``encode_cameras`` vectors -> (B, len(perceived_names)) normalised estimates of the perceived entries."""
+        if self.perception is None:
+            return vision.new_zeros((len(vision), 0))
+        return self.perception(vision)
+
+    def decode(self, state: torch.Tensor, prompt: torch.Tensor, vision: torch.Tensor) -> torch.Tensor:
+        """(B, state_dim) states, (B, text_dim) prompts and ``encode_cameras`` vectors -> action chunks. The action
+        head reads the perception estimates as they are: only their labels train them."""
         parts = [(state - self.state_mean) / self.state_std, prompt]
-        parts += [head(features.float()) for head, features in zip(self.cameras, camera_features)]
+        if self.cameras:
+            parts += [vision, self.perceive(vision).detach()]
         out = self.head(torch.cat(parts, dim=-1))
         return out.view(-1, self.config.chunk_len, self.config.action_dim)
+
+    def forward(self, state: torch.Tensor, prompt: torch.Tensor,
+                camera_features: list[torch.Tensor] | None = None) -> torch.Tensor:
+        """(B, state_dim) states, (B, text_dim) ``encode_prompts`` vectors, per camera ``camera_features``."""
+        return self.decode(state, prompt, self.encode_cameras(camera_features))
 
     def save_pretrained(self, folder: str | Path) -> Path:
         """Write ``config.json`` and ``model.safetensors`` into ``folder``."""
