@@ -8,7 +8,7 @@ RENDERER ?= .renderer
 is_py312 = $(shell $(1) -c 'import sys; assert sys.version_info[:2] == (3, 12)' >/dev/null 2>&1 && echo yes)
 PYTHON ?= $(firstword $(foreach p,python3.12 $(wildcard $(HOME)/.pyenv/versions/3.12*/bin/python3.12),$(if $(call is_py312,$(p)),$(p))))
 
-.PHONY: install renderer train test bench controller controller-objects controller-camera clean
+.PHONY: install renderer train test bench controller controller-objects controller-camera controller-mikasa clean
 
 $(VENV)/.installed: setup.cfg pyproject.toml constraints.txt
 	@test -n "$(PYTHON)" || { echo "error: no Python 3.12 found; install one (e.g. pyenv install 3.12) or pass PYTHON=/path/to/python3.12" >&2; exit 1; }
@@ -38,7 +38,7 @@ train: install
 test: install renderer
 	$(PY) -m pytest $(PYTEST_ARGS)
 
-# Rebuild the shipped learned controller (`--controller learned`): 240 expert episodes (half with action
+# Rebuild the drawer's shipped state controller (`--controller learned-state`): 240 expert episodes (half with action
 # noise, clean labels), then behaviour cloning; about 8 minutes on 2 CPU cores.
 STAGE1 ?= runs/stage1
 SHIPPED := sb3_memret/controllers/checkpoints/drawer-learned
@@ -60,13 +60,31 @@ controller-objects: install
 	cp $(STAGE1)-objects/policy/config.json $(STAGE1)-objects/policy/model.safetensors \
 		$(STAGE1)-objects/policy/train_log.csv $(SHIPPED_OBJECTS)/
 
-# A camera-reading learned controller of the drawer (`--controller learned:runs/stage1-camera/policy`): 480 expert
-# episodes rendered at their decision frames only (both cameras, stored at 128x128), then a policy on the hand's
-# state and the cameras through frozen EfficientNet-Lite0 features; ~20 + 8 minutes on 2 CPU cores.
+# The camera-reading learned controller of the drawer (`--controller learned`): 480 expert episodes rendered at their
+# decision frames only (both cameras, stored at 128x128), then a policy on the hand's state and the cameras through
+# frozen EfficientNet-Lite0 features, its perception head trained on the simulator's labels; ~13 + 20 min here.
+SHIPPED_CAMERA := sb3_memret/controllers/checkpoints/drawer-camera
 controller-camera: install renderer
 	rm -rf $(STAGE1)-camera
 	$(VENV)/bin/sb3-memret demos --episodes 480 --render-backend cpu --image-size 128 --out $(STAGE1)-camera/demos
 	$(VENV)/bin/sb3-memret finetune $(STAGE1)-camera/demos --steps 4000 --out $(STAGE1)-camera/policy
+	mkdir -p $(SHIPPED_CAMERA)
+	cp $(STAGE1)-camera/policy/config.json $(STAGE1)-camera/policy/model.safetensors \
+		$(STAGE1)-camera/policy/train_log.csv $(SHIPPED_CAMERA)/
+
+# The camera-reading learned controller of a MIKASA task (`--task $(MIKASA_TASK) --controller learned`): 480 expert
+# episodes with every control step kept (MIKASA renders its 128x128 cameras at every step anyway), then the same
+# policy on joints, hand pose and both cameras.
+MIKASA_TASK ?= RememberColor3-VLA-v0
+MIKASA_STEPS ?= 3000
+controller-mikasa: install renderer
+	rm -rf $(STAGE1)-$(MIKASA_TASK)
+	$(VENV)/bin/sb3-memret demos --task $(MIKASA_TASK) --episodes 480 --frames every --out $(STAGE1)-$(MIKASA_TASK)/demos
+	$(VENV)/bin/sb3-memret finetune $(STAGE1)-$(MIKASA_TASK)/demos --task $(MIKASA_TASK) --steps $(MIKASA_STEPS) \
+		--out $(STAGE1)-$(MIKASA_TASK)/policy
+	mkdir -p sb3_memret/controllers/checkpoints/$(MIKASA_TASK)-camera
+	cp $(STAGE1)-$(MIKASA_TASK)/policy/config.json $(STAGE1)-$(MIKASA_TASK)/policy/model.safetensors \
+		$(STAGE1)-$(MIKASA_TASK)/policy/train_log.csv sb3_memret/controllers/checkpoints/$(MIKASA_TASK)-camera/
 
 bench: install
 	$(PY) scripts/bench_env.py

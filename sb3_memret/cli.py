@@ -17,7 +17,9 @@ EXPERIMENTS = ("recall",)
 ZOO_CONFIGS = Path(__file__).resolve().parents[1] / "zoo_configs"
 DEFAULT_TASK = "drawer"  # sb3_memret.tasks.DEFAULT_TASK
 HELD_OUT_SEED = 1_000_000
-DEFAULT_CONTROLLER = "learned"  # sb3_memret.controllers.DEFAULT_CONTROLLER, without importing torch for --help
+TASK_CONTROLLER = ("  [default: the task's: learned-state on the drawer, the shipped camera-reading 'learned' on a task "
+                   "that has one, else scripted]")
+RUN_CONTROLLER = "  [default: the run's]"
 DEMO_SEED = 100_000  # demonstrations never share a placement with rollout (0..) or held-out (1e6..) episodes
 
 
@@ -30,12 +32,31 @@ def load_task_config(task: str = DEFAULT_TASK, path: Path | None = None):
     return load_config(path or ZOO_CONFIGS / the_task.zoo_config, the_task.config_key)
 
 
-def _controller(ctx: click.Context, param: click.Parameter | None, value: str, task: str | None = None):
-    """The controller ``value`` names for ``task`` (default: the command's ``--task``, else the drawer)."""
+def _default_controller(task: str | None) -> str:
+    """The controller a command runs on ``task`` when none is named (``Task.default_controller``)."""
+    from sb3_memret.tasks import make_task
+
+    return make_task(task or DEFAULT_TASK).default_controller
+
+
+def _run_controller(folder: Path, task: str) -> str:
+    """The controller the run in ``folder`` was trained with (its summary.json), else ``task``'s default."""
+    summary = folder / "summary.json"
+    if summary.is_file():
+        name = json.loads(summary.read_text()).get("controller")
+        if name:
+            return name
+    return _default_controller(task)
+
+
+def _controller(ctx: click.Context, param: click.Parameter | None, value: str | None, task: str | None = None):
+    """The controller ``value`` names for ``task`` (default: the command's ``--task``, else the drawer); None
+    names the task's default controller."""
     from sb3_memret.controllers import make_controller
 
+    task = task or ctx.params.get("task") or DEFAULT_TASK
     try:
-        return make_controller(value, task or ctx.params.get("task") or DEFAULT_TASK)
+        return make_controller(value or _default_controller(task), task)
     except (ValueError, OSError, ImportError, RuntimeError) as err:  # bad spec, server down, missing extra or weights
         raise click.BadParameter(str(err), ctx=ctx, param=param) from err
 
@@ -60,12 +81,21 @@ def _render_backend(ctx: click.Context, param: click.Parameter, value: str | Non
     return value
 
 
+def _camera_render_backend(ctx: click.Context, render_backend: str, controller) -> str:
+    """``render_backend``, or the software renderer where none was named and ``controller`` reads cameras."""
+    named = ctx.get_parameter_source("render_backend") is not click.core.ParameterSource.DEFAULT
+    if controller.spec.needs_images and render_backend == "none" and not named:
+        return _render_backend(ctx, None, "cpu")
+    return render_backend
+
+
 def _render_backend_option(command):
     return click.option("--render-backend", type=click.Choice(["none", "cpu", "gpu"]), default=None,
                         callback=_render_backend,
                         help="SAPIEN render backend; controllers that read camera images need cpu (the software "
-                             "renderer of `make renderer`) or gpu  [default: the task's: none for the drawer, cpu "
-                             "for MIKASA's tasks, whose writer reads the cameras]")(command)
+                             "renderer of `make renderer`) or gpu  [default: cpu for a controller that reads "
+                             "cameras, else the task's: none for the drawer, cpu for MIKASA's tasks, whose writer "
+                             "reads the cameras]")(command)
 
 
 class _TaskName(click.ParamType):
@@ -117,12 +147,24 @@ def _physics_options(command):
                              "every env whatever the backend.")(command)
 
 
-def _run_task(ctx: click.Context, task: str | None, run_task: str, where: Path, controller: str) -> str:
-    """The task of the run at ``where``: ``--task`` must match it if given; ``controller`` is checked on it."""
+def _run_task(ctx: click.Context, task: str | None, run_task: str, where: Path, controller: str,
+              render_backend: str | None) -> str | None:
+    """Check the run at ``where``: ``--task`` must match its task, and ``controller`` is built on it. Returns the
+    render backend: ``render_backend``, or cpu where none was named and the controller reads cameras (else None:
+    the run's task's)."""
     if task is not None and task != run_task:
         raise click.BadParameter(f"{str(where)!r} was trained on task {run_task!r}, not {task!r}", param_hint="--task")
-    _controller(ctx, None, controller, run_task)
-    return run_task
+    built = _controller(ctx, None, controller, run_task)
+    if render_backend is None and built.spec.needs_images:
+        return _render_backend(ctx, None, "cpu")
+    return render_backend
+
+
+def _model_run(model_path: Path) -> Path:
+    """The run folder a model file sits in (the folder itself, or its parent for checkpoints/)."""
+    parent = Path(model_path).parent
+    return parent.parent if not (parent / "summary.json").exists() and (parent.parent / "summary.json").exists() \
+        else parent
 
 
 def _load_models(paths: list[Path], param_hint: str) -> list:
@@ -134,9 +176,13 @@ def _load_models(paths: list[Path], param_hint: str) -> list:
         raise click.BadParameter(str(err), param_hint=param_hint) from None
 
 
-def _controller_spec(ctx: click.Context, param: click.Parameter, value: str) -> str:
+def _controller_spec(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
     """Check a controller spec in this process (kept in ``ctx.meta["controller"]``); envs built
-    elsewhere (workers) receive the string."""
+    elsewhere (workers) receive the string. None stays None in a command whose run decides (its task and
+    controller); elsewhere it becomes the task's default."""
+    if value is None and any(p.name == "task" and p.default is None for p in ctx.command.params):
+        return None
+    value = value or _default_controller(ctx.params.get("task"))
     ctx.meta["controller"] = _controller(ctx, param, value)
     return value
 
@@ -174,9 +220,10 @@ def main() -> None:
 
 @main.command()
 @_task_option()
-@click.option("--controller", "controller", default=DEFAULT_CONTROLLER, show_default=True, callback=_controller,
-              help="Frozen controller to run: 'learned' (the shipped learned policy), 'learned:PATH', 'scripted' "
-                   "(the task's expert), 'openpi://HOST:PORT' or 'lerobot:PATH'.")
+@click.option("--controller", "controller", default=None, callback=_controller,
+              help="Frozen controller to run: 'learned' (the task's shipped camera-reading policy), 'learned-state' "
+                   "(the drawer's policy on the simulator's state), 'learned:PATH', 'scripted' (the task's expert), "
+                   "'openpi://HOST:PORT' or 'lerobot:PATH'." + TASK_CONTROLLER)
 @click.option("--condition", type=click.Choice(["oracle", "none", "wrong"]), default="oracle", show_default=True,
               help="Prompt: oracle tells what must be remembered (the cube's layer, the cue's colour), wrong names "
                    "something else, none is the bare instruction.")
@@ -196,6 +243,7 @@ def rollout(task: str, controller, condition: str, episodes: int, layer: int | N
     drawer's layer, the cue's colour)."""
     from sb3_memret.rollout import evaluate_condition, evaluate_task_condition, summarize
 
+    render_backend = _camera_render_backend(click.get_current_context(), render_backend, controller)
     if task != DEFAULT_TASK and layer is not None:
         raise click.BadParameter(f"--layer chooses a drawer; task {task!r} has none", param_hint="--layer")
     layers = (layer,) if layer else LAYERS
@@ -443,8 +491,9 @@ def serve(controller: str, host: str, port: int) -> None:
 @click.option("--config", "config_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="rl-zoo-style YAML keyed by task  [default: the task's file in zoo_configs/ of the source tree: "
                    "memret_ppo.yml for the drawer, memret_ppo_mikasa.yml for MIKASA's tasks]")
-@click.option("--controller", default=DEFAULT_CONTROLLER, show_default=True,
-              help="Frozen controller the memory serves ('scripted': the task's expert).")
+@click.option("--controller", default=None,
+              help="Frozen controller the memory serves ('scripted': the task's expert; 'learned': its camera-reading "
+                   "policy, with --render-backend cpu)" + TASK_CONTROLLER + "; a resumed run keeps its own.")
 @click.option("--n-envs", type=click.IntRange(min=1), default=None, help="Parallel envs  [default: config]")
 @click.option("--timesteps", type=click.IntRange(min=1), default=None, help="Decisions in all  [default: config]")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
@@ -496,8 +545,11 @@ def train(ctx: click.Context, experiment: str, task: str | None, config_path: Pa
             config.ppo["n_envs"] = n_envs
         if timesteps is not None:
             config.ppo["n_timesteps"] = timesteps
+    controller = controller or (_run_controller(out, name) if resume else the_task.default_controller)
     built = _controller(ctx, None, controller, name)
-    render_backend = render_backend or _render_backend(ctx, None, the_task.default_render_backend)
+    # a controller that reads cameras gets the software renderer unless a backend is named
+    render_backend = render_backend or _render_backend(ctx, None, "cpu" if built.spec.needs_images
+                                                       else the_task.default_render_backend)
     options = RunOptions(out=out, controller=controller, seed=seed, resume=resume, retriever_from=retriever_from,
                          eval_episodes=eval_episodes, eval_every=eval_every, eval_seed=HELD_OUT_SEED, progress_bar=progress,
                          render_backend=render_backend, backend=backend, ray_address=ray_address,
@@ -529,8 +581,8 @@ def train(ctx: click.Context, experiment: str, task: str | None, config_path: Pa
 @click.option("--config", "config_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="Zoo config whose section is the starting point (everything the search does not vary)  "
                    "[default: the task's file in zoo_configs/]")
-@click.option("--controller", default=DEFAULT_CONTROLLER, show_default=True,
-              help="Frozen controller the memory serves ('scripted': the task's expert).")
+@click.option("--controller", default=None,
+              help="Frozen controller the memory serves ('scripted': the task's expert)." + TASK_CONTROLLER)
 @click.option("--trials", type=click.IntRange(min=1), default=20, show_default=True,
               help="Trials to run now (a study in --out continues with more).")
 @click.option("--timesteps", type=click.IntRange(min=1), default=None, help="Decisions per trial  [default: config]")
@@ -571,6 +623,7 @@ def tune(ctx: click.Context, experiment: str, task: str, config_path: Path | Non
     if timesteps is not None:
         config.ppo["n_timesteps"] = timesteps
     out = out or Path("runs") / f"tune-{experiment}-{task}"
+    controller = controller or _default_controller(task)
     built = _controller(ctx, None, controller, task)
     options = TuneOptions(out=out, trials=trials, controller=controller, seed=seed, eval_episodes=eval_episodes,
                           eval_every=eval_every, eval_seed=HELD_OUT_SEED, startup_trials=startup_trials,
@@ -602,8 +655,8 @@ def tune(ctx: click.Context, experiment: str, task: str, config_path: Path | Non
 @click.option("--condition", type=click.Choice(["recall", "oracle", "none"]), default="recall", show_default=True,
               help="recall: the layer only via retrieved memory; oracle: in the instruction; none: bare instruction.")
 @click.option("--episodes", type=click.IntRange(min=1), default=50, show_default=True, help="Held-out episodes.")
-@click.option("--controller", default=DEFAULT_CONTROLLER, show_default=True,
-              help="Frozen controller the memory serves ('scripted': the run's task's expert).")
+@click.option("--controller", default=None,
+              help="Frozen controller the memory serves ('scripted': the run's task's expert)." + RUN_CONTROLLER)
 @click.option("--n-envs", type=click.IntRange(min=1), default=1, show_default=True)
 @click.option("--seed", type=click.IntRange(min=0), default=HELD_OUT_SEED, show_default=True,
               help="Seed of the evaluation episodes (training never uses it).")
@@ -629,16 +682,18 @@ def evaluate(ctx: click.Context, model_path: Path, task: str | None, condition: 
 
     model, = _load_models([model_path], "MODEL_PATH")
     kwargs = eval_env_kwargs(model, model_path, condition, controller, render_backend)
+    if task is not None and task != kwargs.get("task", DEFAULT_TASK):
+        raise click.BadParameter(f"{str(model_path)!r} was trained on task {kwargs.get('task', DEFAULT_TASK)!r}, "
+                                 f"not {task!r}", param_hint="--task")
+    controller = controller or _run_controller(_model_run(model_path), kwargs.get("task", DEFAULT_TASK))
+    kwargs["controller"] = _controller(ctx, None, controller, kwargs.get("task"))
     kwargs["render_backend"] = render_backend or _render_backend(
-        ctx, None, make_task(kwargs.get("task", DEFAULT_TASK)).default_render_backend)
+        ctx, None, "cpu" if kwargs["controller"].spec.needs_images
+        else make_task(kwargs.get("task", DEFAULT_TASK)).default_render_backend)
     if objects is not None:
         kwargs["objects"] = objects
     if retention is not None:
         kwargs["retention"] = retention
-    if task is not None and task != kwargs.get("task", DEFAULT_TASK):
-        raise click.BadParameter(f"{str(model_path)!r} was trained on task {kwargs.get('task', DEFAULT_TASK)!r}, "
-                                 f"not {task!r}", param_hint="--task")
-    kwargs["controller"] = _controller(ctx, None, controller, kwargs.get("task"))
     venv = make_recall_vec_env(n_envs, kwargs, backend=backend, ray_address=ray_address)
     try:
         with click.progressbar(length=episodes, label=f"{condition} evaluation", file=sys.stderr) as bar:
@@ -669,8 +724,8 @@ def evaluate(ctx: click.Context, model_path: Path, task: str | None, condition: 
 @main.command()
 @click.argument("ablation", type=click.Choice(["replan", "prompt", "memcount", "wording"]))
 @_task_option()
-@click.option("--controller", default=DEFAULT_CONTROLLER, show_default=True, callback=_controller_spec,
-              help="Frozen controller to characterise.")
+@click.option("--controller", default=None, callback=_controller_spec,
+              help="Frozen controller to characterise." + TASK_CONTROLLER)
 @click.option("--episodes", type=click.IntRange(min=1), default=17, show_default=True, help="Episodes per cell.")
 @click.option("--seed", type=click.IntRange(min=0), default=HELD_OUT_SEED, show_default=True,
               help="First placement seed; every cell plays the same placements.")
@@ -705,6 +760,7 @@ def ablate(ctx: click.Context, ablation: str, task: str, controller: str, episod
                                       wording_ablation)
 
     chunk_len = ctx.meta["controller"].spec.chunk_len
+    render_backend = _camera_render_backend(ctx, render_backend, ctx.meta["controller"])
     if ablation == "replan":
         try:
             steps = [int(i) for i in intervals.split(",")]
@@ -761,8 +817,8 @@ def _trace_targets(paths: tuple[Path, ...]) -> list[Path]:
               help="Episode whose first decision is traced (the same bank for every model).")
 @click.option("--sample-seed", type=click.IntRange(min=0), default=0, show_default=True,
               help="Seed of the Plackett-Luce draw marked with '*'.")
-@click.option("--controller", default=DEFAULT_CONTROLLER, show_default=True, callback=_controller_spec,
-              help="Frozen controller the memory serves.")
+@click.option("--controller", default=None, callback=_controller_spec,
+              help="Frozen controller the memory serves." + RUN_CONTROLLER)
 @click.option("--json", "as_json", is_flag=True, help="Print the traces as JSON on stdout.")
 @_render_backend_option
 def trace(models: tuple[Path, ...], task: str | None, seed: int, sample_seed: int, controller: str, as_json: bool,
@@ -775,8 +831,10 @@ def trace(models: tuple[Path, ...], task: str | None, seed: int, sample_seed: in
 
     paths = _trace_targets(models)
     loaded = list(zip(paths, _load_models(paths, "MODELS")))
+    run_task = eval_env_kwargs(loaded[0][1], paths[0], "recall", controller).get("task", DEFAULT_TASK)
+    controller = controller or _run_controller(_model_run(paths[0]), run_task)
+    render_backend = _run_task(click.get_current_context(), task, run_task, paths[0], controller, render_backend)
     env_kwargs = eval_env_kwargs(loaded[0][1], paths[0], "recall", controller, render_backend)
-    _run_task(click.get_current_context(), task, env_kwargs.get("task", DEFAULT_TASK), paths[0], controller)
     traces = trace_models([(model_label(m, p), m) for p, m in loaded], env_kwargs, seed, sample_seed)
     if as_json:
         click.echo(json.dumps([t.to_dict() for t in traces]))
@@ -808,8 +866,8 @@ def plot(run: Path, out: Path | None) -> None:
 @main.command()
 @click.argument("run", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @_task_option(default=None)
-@click.option("--controller", default=DEFAULT_CONTROLLER, show_default=True, callback=_controller_spec,
-              help="Frozen controller for the baseline evaluations and the trace.")
+@click.option("--controller", default=None, callback=_controller_spec,
+              help="Frozen controller for the baseline evaluations and the trace." + RUN_CONTROLLER)
 @click.option("--baseline-episodes", type=click.IntRange(min=0), default=None,
               help="Episodes of the oracle and no-memory baselines (0 skips them)  [default: as the final evaluation]")
 @click.option("--n-envs", type=click.IntRange(min=1), default=os.cpu_count() or 1, show_default=True)
@@ -825,8 +883,10 @@ def report(run: Path, task: str | None, controller: str, baseline_episodes: int 
     from sb3_memret.training import load_run_config
 
     if (run / "config.yml").exists():
-        _run_task(click.get_current_context(), task, load_run_config(run).env_kwargs.get("task", DEFAULT_TASK), run,
-                  controller)
+        run_task = load_run_config(run).env_kwargs.get("task", DEFAULT_TASK)
+        controller = controller or _run_controller(run, run_task)
+        render_backend = _run_task(click.get_current_context(), task, run_task, run, controller, render_backend)
+    controller = controller or _default_controller(task)
 
     options = ReportOptions(controller, baseline_episodes, n_envs, trace_seed, render_backend, backend, ray_address)
     try:

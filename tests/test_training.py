@@ -54,6 +54,7 @@ def test_train_writes_a_complete_run(run):
     assert "| round | decisions | greedy acc." in output
     summary = json.loads((out / "summary.json").read_text())
     assert summary["num_timesteps"] == 32 and summary["rounds"] == 2 and not summary["interrupted"]
+    assert summary["controller"] == "learned-state"  # the drawer's default: its main job stays within budget
     model = PPO.load(out / "final_model.zip")  # plain SB3 restores it
     assert model.num_timesteps == 32
 

@@ -2,10 +2,10 @@
 
 Accepted values (``CONTROLLER_SPECS``):
 
-- ``learned``: the task's shipped learned controller; on the drawer for now the state policy below
-  (a camera-reading one, ``make controller-camera``, ships once it meets its targets).
+- ``learned``: the task's shipped camera-reading learned controller (both cameras and what the robot
+  reads of itself; the drawer's: ``make controller-camera``, RememberColor3's: ``make controller-mikasa``).
 - ``learned-state``: the drawer's learned controller on the simulator's state (its cube detection is
-  perfect perception; ``make controller`` rebuilds it).
+  perfect perception; ``make controller`` rebuilds it): the drawer's default (``Task.default_controller``).
 - ``learned-objects``: the state policy trained with several objects in the drawers, the instruction
   naming the target (``make controller-objects``).
 - ``learned:/PATH/TO/CHECKPOINT[?device=DEV]``: a checkpoint ``sb3-memret finetune`` wrote.
@@ -30,7 +30,6 @@ from sb3_memret.controllers.scripted import ScriptedDrawerController
 if TYPE_CHECKING:
     from sb3_memret.tasks import Task
 
-DEFAULT_CONTROLLER = "learned"
 SHIPPED_NAMES = ("learned", "learned-state", "learned-objects")
 CONTROLLER_SPECS = (
     "learned",
@@ -120,7 +119,6 @@ def _options(spec: str, query: str, accepted: dict[str, Callable[[str], Any]]) -
 
 __all__ = [
     "CONTROLLER_SPECS",
-    "DEFAULT_CONTROLLER",
     "ControllerSpec",
     "FrozenController",
     "ScriptedDrawerController",

@@ -210,6 +210,14 @@ class Task(ABC):
         frames = [self.demo_frame(select_obs(obs, i), with_images) for i in range(n_envs)]
         return {key: np.stack([frame[key] for frame in frames]) for key in frames[0]}
 
+    @property
+    def default_controller(self) -> str:
+        """The frozen controller a command runs on this task when none is named: the task's shipped camera-reading
+        ``learned`` controller where one ships, else its expert (``scripted``)."""
+        from sb3_memret.controllers.learned import shipped_names
+
+        return "learned" if "learned" in shipped_names(self.name) else "scripted"
+
     def learned_controller(self, name: str) -> Any:
         """The shipped learned controller ``--controller NAME`` names for this task (``learned``, ...)."""
         from sb3_memret.controllers.learned import LearnedController, default_checkpoint

@@ -7,7 +7,7 @@ controller the memory serves).
 """
 
 from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig
-from sb3_memret.controllers.learned.controller import LearnedController, default_checkpoint
+from sb3_memret.controllers.learned.controller import LearnedController, default_checkpoint, shipped_names
 from sb3_memret.controllers.learned.modeling import LearnedPolicy
 
-__all__ = ["LearnedController", "LearnedPolicy", "LearnedPolicyConfig", "default_checkpoint"]
+__all__ = ["LearnedController", "LearnedPolicy", "LearnedPolicyConfig", "default_checkpoint", "shipped_names"]

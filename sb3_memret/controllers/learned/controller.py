@@ -17,13 +17,13 @@ if TYPE_CHECKING:
     from sb3_memret.tasks import Task
 
 CHECKPOINTS = Path(__file__).resolve().parent.parent / "checkpoints"
-# shipped checkpoints by (task, controller name): the folder, and the make target that rebuilds it. ``learned``
-# names the state policy until a camera-reading checkpoint (``make controller-camera``) meets its targets
-# (issue 25: on the drawer it opens the named drawer but does not yet grasp the cube it must see).
+# shipped checkpoints by (task, controller name): the folder, and the make command that rebuilds it. ``learned`` is
+# the camera-reading controller (cameras and what the robot reads of itself); ``learned-state`` the drawer's policy on
+# the simulator's state, whose cube detection is perfect perception.
 SHIPPED: dict[tuple[str, str], tuple[Path, str]] = {
-    ("drawer", "learned"): (CHECKPOINTS / "drawer-learned", "controller"),
-    ("drawer", "learned-state"): (CHECKPOINTS / "drawer-learned", "controller"),  # the simulator's cube detection
-    ("drawer", "learned-objects"): (CHECKPOINTS / "drawer-objects-learned", "controller-objects"),  # state, any object
+    ("drawer", "learned"): (CHECKPOINTS / "drawer-camera", "make controller-camera"),
+    ("drawer", "learned-state"): (CHECKPOINTS / "drawer-learned", "make controller"),
+    ("drawer", "learned-objects"): (CHECKPOINTS / "drawer-objects-learned", "make controller-objects"),  # state
 }
 
 
@@ -38,10 +38,10 @@ def default_checkpoint(name: str = "learned", task: str = "drawer") -> Path:
     if (task, name) not in SHIPPED:
         raise ValueError(f"no shipped learned controller {name!r} for task {task!r}; shipped are "
                          f"{shipped_names(task) or 'none'} (or train one: sb3-memret demos, then finetune)")
-    folder, target = SHIPPED[task, name]
+    folder, command = SHIPPED[task, name]
     if not (folder / "model.safetensors").is_file():
         raise FileNotFoundError(f"the shipped learned controller {name!r} of task {task!r} is missing from {folder}; "
-                                f"rebuild it with `make {target}` (demos, then finetune)")
+                                f"rebuild it with `{command}` (demos, then finetune)")
     return folder
 
 
