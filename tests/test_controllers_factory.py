@@ -114,3 +114,24 @@ def test_openpi_spec_without_openpi_client_says_how_to_install(monkeypatch):
 def test_lerobot_spec_of_a_missing_folder_names_it(tmp_path):
     with pytest.raises(FileNotFoundError, match=rf"checkpoint folder {tmp_path / 'nope'} does not exist"):
         make_controller(f"lerobot:{tmp_path / 'nope'}")
+
+
+def test_each_task_names_its_default_controller():
+    from sb3_memret.tasks import make_task
+
+    assert make_task("drawer").default_controller == "learned-state"  # the main job's, within its budget
+    assert make_task("RememberColor3-VLA-v0").default_controller == "learned"  # its shipped camera controller
+    assert make_task("RememberShape3-VLA-v0").default_controller == "scripted"  # none ships: its expert
+
+
+@pytest.mark.parametrize("task", ["drawer", "RememberColor3-VLA-v0"])
+def test_the_shipped_learned_controllers_read_cameras_and_proprioception_only(task):
+    from sb3_memret.tasks import make_task
+
+    the_task = make_task(task)
+    controller = make_controller("learned", task)
+    config = controller.policy.config
+    assert controller.spec.needs_images and len(config.image_features) == 2
+    assert config.state_names == the_task.proprio_names()
+    # everything else of the task's layout (the object detector, drawer openings) is estimated from the images
+    assert set(config.perceived_names) == set(the_task.state_names()) - set(the_task.proprio_names())

@@ -24,6 +24,8 @@ SHIPPED: dict[tuple[str, str], tuple[Path, str]] = {
     ("drawer", "learned"): (CHECKPOINTS / "drawer-camera", "make controller-camera"),
     ("drawer", "learned-state"): (CHECKPOINTS / "drawer-learned", "make controller"),
     ("drawer", "learned-objects"): (CHECKPOINTS / "drawer-objects-learned", "make controller-objects"),  # state
+    ("RememberColor3-VLA-v0", "learned"): (CHECKPOINTS / "RememberColor3-VLA-v0-camera",
+                                           "make controller-mikasa MIKASA_TASK=RememberColor3-VLA-v0"),
 }
 
 
