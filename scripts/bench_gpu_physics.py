@@ -15,7 +15,7 @@ CPU physics).
 ``--sim-backend cpu`` runs the same path on ManiSkill's CPU simulation, which holds one env: a dry run at
 N = 1 on a machine without a GPU.
 
-Usage: ``python scripts/bench_gpu_physics.py [--n-envs 1 16 64 256] [--controller scripted learned]
+Usage: ``python scripts/bench_gpu_physics.py [--n-envs 1 16 64 256] [--controller scripted learned-state learned]
 [--controller-device cuda] [--sim-backend cpu]``.
 """
 
@@ -81,7 +81,8 @@ def build_controller(name: str, device: str) -> FrozenController:
 
 def batched_venv(n: int, controller: FrozenController, sim_backend: str, mode: str = "recall") -> RecallVecEnv:
     """``make_recall_vec_env(n, backend="gpu")`` with its physics on ``sim_backend``, unwrapped from its VecMonitor."""
-    kwargs = {"controller": controller, "mode": mode, "task_kwargs": {"sim_backend": sim_backend}}
+    kwargs = {"controller": controller, "mode": mode, "task_kwargs": {"sim_backend": sim_backend},
+              "render_backend": "gpu" if controller.spec.needs_images else "none"}  # a camera controller renders there
     return make_recall_vec_env(n, kwargs, seed=SEED, backend="gpu").unwrapped
 
 
@@ -170,7 +171,7 @@ def controller_alone(name: str, device: str, batches: list[int], calls: int) -> 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--controller", nargs="+", default=["scripted", "learned"])
+    parser.add_argument("--controller", nargs="+", default=["scripted", "learned-state"])
     parser.add_argument("--controller-device", default="cuda" if torch.cuda.is_available() else "cpu",
                         help="where the learned controller computes")
     parser.add_argument("--n-envs", type=int, nargs="+", default=[1, 16, 64, 256])

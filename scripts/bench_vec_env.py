@@ -12,7 +12,7 @@ slot picks are uniformly random). It reports the median window, the range, and t
 - the controller's time per call and its share of the trainer's wall time;
 - with ``--ray``, the same VecEnv on N local Ray actors.
 
-Usage: ``python scripts/bench_vec_env.py [--controller learned] [--n-envs 1 2 4] [--rounds 40] [--ray]``.
+Usage: ``python scripts/bench_vec_env.py [--controller learned-state] [--n-envs 1 2 4] [--rounds 40] [--ray]``.
 It also times the controller alone at batch 1 and batch N on recorded observations.
 """
 
@@ -142,7 +142,7 @@ def controller_alone(controller: str, batch: int, calls: int = 30) -> float:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("--controller", default="learned")
+    parser.add_argument("--controller", default="learned-state")
     parser.add_argument("--n-envs", type=int, nargs="+", default=[1, 2, 4])
     parser.add_argument("--rounds", type=int, default=25, help="decision rounds per measured window")
     parser.add_argument("--windows", type=int, default=5, help="measured windows per configuration")
