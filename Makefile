@@ -62,7 +62,8 @@ controller-objects: install
 
 # The camera-reading learned controller of the drawer (`--controller learned`): 480 expert episodes rendered at their
 # decision frames only (both cameras, stored at 128x128), then a policy on the hand's state and the cameras through
-# frozen EfficientNet-Lite0 features, its perception head trained on the simulator's labels; ~13 + 20 min here.
+# frozen EfficientNet-Lite0 features, its perception head trained on the simulator's labels; demos ~13 min here, the
+# finetune 44 min beside other jobs (not timed alone: over its 15-minute budget).
 SHIPPED_CAMERA := sb3_memret/controllers/checkpoints/drawer-camera
 controller-camera: install renderer
 	rm -rf $(STAGE1)-camera
