@@ -54,7 +54,11 @@ def make_controller(spec: str, task: "str | Task" = "drawer") -> FrozenControlle
     if spec == "scripted":
         return make_task(task).expert()
     if spec in SHIPPED_NAMES:
-        return make_task(task).learned_controller(spec)
+        from sb3_memret.controllers.learned import LearnedController
+        from sb3_memret.controllers.shipped import default_checkpoint
+
+        the_task = make_task(task)
+        return LearnedController(default_checkpoint(spec, the_task.name), task=the_task)
     if spec.startswith("learned:"):
         from sb3_memret.controllers.learned import LearnedController
 

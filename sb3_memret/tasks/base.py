@@ -214,15 +214,9 @@ class Task(ABC):
     def default_controller(self) -> str:
         """The frozen controller a command runs on this task when none is named: the task's shipped camera-reading
         ``learned`` controller where one ships, else its expert (``scripted``)."""
-        from sb3_memret.controllers.learned import shipped_names
+        from sb3_memret.controllers.shipped import shipped_names
 
         return "learned" if "learned" in shipped_names(self.name) else "scripted"
-
-    def learned_controller(self, name: str) -> Any:
-        """The shipped learned controller ``--controller NAME`` names for this task (``learned``, ...)."""
-        from sb3_memret.controllers.learned import LearnedController, default_checkpoint
-
-        return LearnedController(default_checkpoint(name, self.name), task=self)
 
     def evaluation_seeds(self, n_episodes: int) -> list[int] | None:
         """The env seeds of the task's benchmark protocol for ``n_episodes`` held-out episodes, or None

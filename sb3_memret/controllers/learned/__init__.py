@@ -7,7 +7,8 @@ controller the memory serves).
 """
 
 from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig
-from sb3_memret.controllers.learned.controller import LearnedController, default_checkpoint, shipped_names
+from sb3_memret.controllers.learned.controller import LearnedController
+from sb3_memret.controllers.shipped import default_checkpoint, shipped_names
 from sb3_memret.controllers.learned.modeling import LearnedPolicy
 
 __all__ = ["LearnedController", "LearnedPolicy", "LearnedPolicyConfig", "default_checkpoint", "shipped_names"]

@@ -11,41 +11,11 @@ import torch
 from sb3_memret.controllers.base import ControllerSpec, FrozenController, Obs
 from sb3_memret.controllers.learned.modeling import LearnedPolicy
 from sb3_memret.controllers.learned.processing import LearnedPolicyProcessor, PromptTokenizer
+from sb3_memret.controllers.shipped import default_checkpoint
 from sb3_memret.prompts import ParsedPrompt
 
 if TYPE_CHECKING:
     from sb3_memret.tasks import Task
-
-CHECKPOINTS = Path(__file__).resolve().parent.parent / "checkpoints"
-# shipped checkpoints by (task, controller name): the folder, and the make command that rebuilds it. ``learned`` is
-# the camera-reading controller (cameras and what the robot reads of itself); ``learned-state`` the drawer's policy on
-# the simulator's state, whose cube detection is perfect perception.
-SHIPPED: dict[tuple[str, str], tuple[Path, str]] = {
-    ("drawer", "learned"): (CHECKPOINTS / "drawer-camera", "make controller-camera"),
-    ("drawer", "learned-state"): (CHECKPOINTS / "drawer-learned", "make controller"),
-    ("drawer", "learned-objects"): (CHECKPOINTS / "drawer-objects-learned", "make controller-objects"),  # state
-    ("RememberColor3-VLA-v0", "learned"): (CHECKPOINTS / "RememberColor3-VLA-v0-camera",
-                                           "make controller-mikasa MIKASA_TASK=RememberColor3-VLA-v0"),
-}
-
-
-def shipped_names(task: str = "drawer") -> list[str]:
-    """The shipped learned controllers of ``task``, by ``--controller`` name."""
-    return sorted(name for t, name in SHIPPED if t == task)
-
-
-def default_checkpoint(name: str = "learned", task: str = "drawer") -> Path:
-    """The checkpoint ``--controller NAME`` names on ``task``: trained by its make target and shipped in the
-    package."""
-    if (task, name) not in SHIPPED:
-        raise ValueError(f"no shipped learned controller {name!r} for task {task!r}; shipped are "
-                         f"{shipped_names(task) or 'none'} (or train one: sb3-memret demos, then finetune)")
-    folder, command = SHIPPED[task, name]
-    if not (folder / "model.safetensors").is_file():
-        raise FileNotFoundError(f"the shipped learned controller {name!r} of task {task!r} is missing from {folder}; "
-                                f"rebuild it with `{command}` (demos, then finetune)")
-    return folder
-
 
 class LearnedController(FrozenController):
     """A LearnedPolicy checkpoint acting on the task's state (and cameras, if it was trained on them).

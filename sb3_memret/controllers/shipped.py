@@ -1,0 +1,39 @@
+"""The learned controllers shipped in the package, by task and ``--controller`` name: where each checkpoint lies
+and the make command that rebuilds it. Paths only (no torch, no tasks), so a task can ask what ships for it."""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
+# shipped checkpoints by (task, controller name): the folder, and the make command that rebuilds it. ``learned`` is
+# the camera-reading controller (cameras and what the robot reads of itself); ``learned-state`` the drawer's policy on
+# the simulator's state, whose cube detection is perfect perception.
+SHIPPED: dict[tuple[str, str], tuple[Path, str]] = {
+    ("drawer", "learned"): (CHECKPOINTS / "drawer-camera", "make controller-camera"),
+    ("drawer", "learned-state"): (CHECKPOINTS / "drawer-learned", "make controller"),
+    ("drawer", "learned-objects"): (CHECKPOINTS / "drawer-objects-learned", "make controller-objects"),  # state
+    ("RememberColor3-VLA-v0", "learned"): (CHECKPOINTS / "RememberColor3-VLA-v0-camera",
+                                           "make controller-mikasa MIKASA_TASK=RememberColor3-VLA-v0"),
+}
+
+
+def shipped_names(task: str = "drawer") -> list[str]:
+    """The shipped learned controllers of ``task``, by ``--controller`` name."""
+    return sorted(name for t, name in SHIPPED if t == task)
+
+
+def default_checkpoint(name: str = "learned", task: str = "drawer") -> Path:
+    """The checkpoint ``--controller NAME`` names on ``task``: trained by its make target and shipped in the
+    package."""
+    if (task, name) not in SHIPPED:
+        raise ValueError(f"no shipped learned controller {name!r} for task {task!r}; shipped are "
+                         f"{shipped_names(task) or 'none'} (or train one: sb3-memret demos, then finetune)")
+    folder, command = SHIPPED[task, name]
+    if not (folder / "model.safetensors").is_file():
+        raise FileNotFoundError(f"the shipped learned controller {name!r} of task {task!r} is missing from {folder}; "
+                                f"rebuild it with `{command}` (demos, then finetune)")
+    return folder
+
+
+__all__ = ["CHECKPOINTS", "SHIPPED", "default_checkpoint", "shipped_names"]
