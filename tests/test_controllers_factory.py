@@ -12,6 +12,7 @@ from sb3_memret.controllers import (
     parse_lerobot_spec,
     parse_openpi_spec,
 )
+from sb3_memret.controllers.shipped import SHIPPED
 
 
 def test_scripted():
@@ -124,7 +125,7 @@ def test_each_task_names_its_default_controller():
     assert make_task("RememberShape3-VLA-v0").default_controller == "scripted"  # none ships: its expert
 
 
-@pytest.mark.parametrize("task", ["drawer", "RememberColor3-VLA-v0"])
+@pytest.mark.parametrize("task", sorted(task for task, name in SHIPPED if name == "learned"))
 def test_the_shipped_learned_controllers_read_cameras_and_proprioception_only(task):
     from sb3_memret.tasks import make_task
 

@@ -13,6 +13,7 @@ from safetensors.torch import load_file, save_file
 from sb3_memret.controllers import make_controller
 from sb3_memret.controllers.learned import LearnedController, LearnedPolicy, LearnedPolicyConfig, default_checkpoint
 from sb3_memret.controllers.observation import IMAGE_KEYS, PROPRIO_NAMES, STATE_DIM, STATE_NAMES
+from sb3_memret.controllers.shipped import SHIPPED
 from sb3_memret.controllers.weights import WeightsNotLoadedError
 from sb3_memret.envs.objects import OBJECT_SETS
 from sb3_memret.prompts import condition_prompt
@@ -161,6 +162,23 @@ def test_the_shipped_objects_policy_takes_any_named_object_out_of_its_drawer():
         default_checkpoint("learned-tiny")
 
 
+@pytest.mark.parametrize("task", sorted(task for task, name in SHIPPED if name == "learned" and task != "drawer"))
+def test_the_shipped_mikasa_camera_controllers_act_on_the_fact_in_their_prompt(task):
+    """At MIKASA's first evaluation seeds, from rgb and proprioception alone: the true fact leads the shipped camera
+    controller to success, a wrong fact never does."""
+    from click.testing import CliRunner
+
+    from sb3_memret.cli import main
+
+    success = {}
+    for condition in ("oracle", "wrong"):
+        result = CliRunner().invoke(main, ["rollout", "--task", task, "--controller", "learned", "--condition",
+                                           condition, "--episodes", "2", "--replan-every", "4", "--json"])
+        assert result.exit_code == 0, result.output
+        success[condition] = json.loads(result.output.strip().splitlines()[-1])["success"]["overall"]
+    assert success == {"oracle": 1.0, "wrong": 0.0}
+
+
 def test_a_checkpoint_runs_only_on_its_task_and_state_layout(tmp_path):
     saved_policy(tmp_path)
     config = json.loads((tmp_path / "config.json").read_text())
@@ -208,7 +226,7 @@ def test_perceived_entries_need_cameras_and_stay_out_of_the_state():
 
 def test_a_frozen_trunk_stays_out_of_the_checkpoint_and_is_checked(tmp_path):
     policy = LearnedPolicy(LearnedPolicyConfig(**SMALL, image_features=tuple(IMAGE_KEYS), image_size=32,
-                                               image_encoder="efficientnet_lite0"))
+                                               image_encoder="efficientnet_lite0", image_dim=24, keypoints=12))
     assert len(policy.config.trunk_sha256) == 64
     policy.save_pretrained(tmp_path)
     assert not any(name.startswith("trunk.") for name in load_file(tmp_path / "model.safetensors"))
@@ -219,6 +237,12 @@ def test_a_frozen_trunk_stays_out_of_the_checkpoint_and_is_checked(tmp_path):
         np.testing.assert_array_equal(policy.eval()(state, prompt, policy.camera_features(images)),
                                       loaded(state, prompt, loaded.camera_features(images)))
     config = json.loads((tmp_path / "config.json").read_text())
+    assert (config["image_dim"], config["keypoints"]) == (24, 12)
+    (tmp_path / "config.json").write_text(json.dumps({**config, "keypoints": 32}))  # heads of another size
+    with pytest.raises(WeightsNotLoadedError, match="does not fit its config"):
+        LearnedPolicy.from_pretrained(tmp_path)
     (tmp_path / "config.json").write_text(json.dumps({**config, "trunk_sha256": "0" * 64}))
     with pytest.raises(WeightsNotLoadedError, match="a different trunk"):
         LearnedPolicy.from_pretrained(tmp_path)
+    with pytest.raises(ValueError, match="sizes must be positive"):
+        LearnedPolicyConfig(**SMALL, keypoints=0)

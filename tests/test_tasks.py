@@ -330,12 +330,14 @@ def test_a_retrieval_counts_only_with_every_needed_fact_in_the_bank_and_hits_onl
 
 
 def test_the_memory_learner_learns_to_retrieve_every_needed_fact(encoder):
-    """K = 2 over 2 facts and 2 decoys: a uniform draw holds both 1 time in 6; PPO learns to hold both."""
+    """K = 2 over 2 facts and 2 decoys: a uniform draw holds both 1 time in 6; PPO learns to hold both. With the
+    paper's entropy coefficient (0.001) the Plackett-Luce draws settle before they meet both facts together on 2 of
+    4 seeds here (greedy 0.4-0.7); 0.01 keeps exploring and learns on all 4."""
     from sb3_memret.analysis.evaluation import evaluate_retrieval
 
     venv = make_recall_vec_env(1, {"task": PairDoorsTask(), "controller": "scripted", "encoder": encoder,
                                    "replan_every": 4, "location_decoys": 2, "capacity": 4, "k": 2}, seed=0)
-    model = MemRetPPO(env=venv, n_steps=64, batch_size=32, gae_lambda=0.7, learning_rate=3e-3, seed=0)
+    model = MemRetPPO(env=venv, n_steps=64, batch_size=32, gae_lambda=0.7, learning_rate=3e-3, ent_coef=0.01, seed=0)
     before = evaluate_retrieval(model, venv, 20, seed=1000, samples=200)
     assert before.sampled_fraction == pytest.approx(1 / 6, abs=0.1)
     model.learn(2048)

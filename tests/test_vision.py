@@ -32,6 +32,8 @@ def test_heads_map_images_or_features_to_vectors():
     trunk, head = make_camera_encoder("efficientnet_lite0", 24)
     features = trunk(torch.rand(3, 3, 128, 128))
     assert features.shape == (3, 40, 16, 16) and head(features).shape == (3, 24)
+    _, wide = make_camera_encoder("efficientnet_lite0", 24, keypoints=48)  # more objects to locate: more keypoints
+    assert wide.net[-1].out_channels == 48 and wide(features).shape == (3, 24)
 
 
 def test_the_pretrained_trunk_is_frozen():

@@ -15,6 +15,10 @@ SHIPPED: dict[tuple[str, str], tuple[Path, str]] = {
     ("drawer", "learned-objects"): (CHECKPOINTS / "drawer-objects-learned", "make controller-objects"),  # state
     ("RememberColor3-VLA-v0", "learned"): (CHECKPOINTS / "RememberColor3-VLA-v0-camera",
                                            "make controller-mikasa MIKASA_TASK=RememberColor3-VLA-v0"),
+    ("RememberColor5-VLA-v0", "learned"): (CHECKPOINTS / "RememberColor5-VLA-v0-camera",
+                                           "make controller-mikasa MIKASA_TASK=RememberColor5-VLA-v0 MIKASA_STEPS=2000"),
+    ("RememberColor9-VLA-v0", "learned"): (CHECKPOINTS / "RememberColor9-VLA-v0-camera",
+                                           "make controller-mikasa MIKASA_TASK=RememberColor9-VLA-v0 MIKASA_STEPS=2000"),
 }
 
 

@@ -7,7 +7,7 @@ from dataclasses import asdict, dataclass, field, fields
 from pathlib import Path
 from typing import Any
 
-from sb3_memret.controllers.learned.vision import IMAGE_ENCODERS
+from sb3_memret.controllers.learned.vision import IMAGE_ENCODERS, KEYPOINTS
 from sb3_memret.controllers.observation import ACTION_DIM, IMAGE_KEYS, STATE_NAMES
 from sb3_memret.prompts import PromptTemplate
 
@@ -41,7 +41,8 @@ class LearnedPolicyConfig:
     image_features: tuple[str, ...] = ()  # camera features read, empty for a state-only policy
     perceived_names: tuple[str, ...] = ()  # state entries estimated from the cameras (never read from the state)
     image_size: int = 128  # cameras are area-resized to this size (the demonstrations' stored size)
-    image_dim: int = 64
+    image_dim: int = 64  # per camera: what the action and perception heads read of it
+    keypoints: int = KEYPOINTS  # per camera: feature maps whose expected image coordinates its head reads
     image_encoder: str = "cnn"  # one of vision.IMAGE_ENCODERS
     trunk_sha256: str = ""  # the frozen pretrained trunk's weights file, for encoders that have one
     action_convention: str = "pd_ee_delta_pose"
@@ -67,7 +68,8 @@ class LearnedPolicyConfig:
         both = sorted(set(self.perceived_names) & set(self.state_names))
         if both:
             raise ValueError(f"entries {both} are both read from the state and estimated from the cameras")
-        if min(self.chunk_len, self.hidden_dim, self.n_layers, self.text_dim, self.text_heads) < 1:
+        if min(self.chunk_len, self.hidden_dim, self.n_layers, self.text_dim, self.text_heads, self.image_dim,
+               self.keypoints) < 1:
             raise ValueError(f"sizes must be positive: {self}")
         if self.text_dim % self.text_heads:
             raise ValueError(f"text_dim {self.text_dim} must be a multiple of text_heads {self.text_heads}")

@@ -65,7 +65,8 @@ class LearnedPolicy(nn.Module):
         self.trunk: nn.Module | None = None
         heads = []
         for _ in config.image_features:
-            trunk, head = make_camera_encoder(config.image_encoder, config.image_dim, config.trunk_sha256 or None)
+            trunk, head = make_camera_encoder(config.image_encoder, config.image_dim, config.trunk_sha256 or None,
+                                              config.keypoints)
             heads.append(head)
             if trunk is not None and self.trunk is None:
                 self.trunk = trunk

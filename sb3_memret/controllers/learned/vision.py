@@ -27,7 +27,7 @@ from sb3_memret.errors import WeightsNotLoadedError
 
 IMAGE_ENCODERS = ("cnn", "efficientnet_lite0")
 EFFICIENTNET_BLOCKS = 5  # blocks kept: stride 8, 40 channels (16x16 maps at 128x128: a cube is a few cells wide)
-KEYPOINTS = 32  # feature maps whose expected coordinates a head reads
+KEYPOINTS = 32  # feature maps whose expected coordinates a head reads, by default (config.keypoints)
 
 
 class SpatialSoftmax(nn.Module):
@@ -48,7 +48,8 @@ class SpatialSoftmax(nn.Module):
 class CameraHead(nn.Module):
     """Trainable: feature maps (B, C, H, W) -> (B, image_dim), keypoint coordinates and pooled features."""
 
-    def __init__(self, in_channels: int, image_dim: int, convs: tuple[tuple[int, int, int], ...]):
+    def __init__(self, in_channels: int, image_dim: int, convs: tuple[tuple[int, int, int], ...],
+                 keypoints: int = KEYPOINTS):
         super().__init__()
         layers: list[nn.Module] = []
         channels = in_channels
@@ -56,10 +57,10 @@ class CameraHead(nn.Module):
             layers += [nn.Conv2d(channels, out, kernel, stride=stride, padding=kernel // 2), nn.GroupNorm(8, out),
                        nn.ReLU()]
             channels = out
-        layers.append(nn.Conv2d(channels, KEYPOINTS, 1))
+        layers.append(nn.Conv2d(channels, keypoints, 1))
         self.net = nn.Sequential(*layers)
         self.keypoints = SpatialSoftmax()
-        self.out = nn.Sequential(nn.Linear(3 * KEYPOINTS, image_dim), nn.ReLU())
+        self.out = nn.Sequential(nn.Linear(3 * keypoints, image_dim), nn.ReLU())
 
     def forward(self, features: torch.Tensor) -> torch.Tensor:
         maps = self.net(features)
@@ -117,14 +118,14 @@ class EfficientNetLite0Trunk(nn.Module):
         return x
 
 
-def make_camera_encoder(kind: str, image_dim: int, trunk_sha256: str | None = None
+def make_camera_encoder(kind: str, image_dim: int, trunk_sha256: str | None = None, keypoints: int = KEYPOINTS
                         ) -> tuple[nn.Module | None, nn.Module]:
-    """(frozen trunk or None, trainable head) of one image encoder kind."""
+    """(frozen trunk or None, trainable head) of one image encoder kind; the head reads ``keypoints`` maps."""
     if kind == "cnn":
-        return None, CameraHead(3, image_dim, ((32, 5, 2), (64, 3, 2), (64, 3, 2), (64, 3, 1)))
+        return None, CameraHead(3, image_dim, ((32, 5, 2), (64, 3, 2), (64, 3, 2), (64, 3, 1)), keypoints)
     if kind == "efficientnet_lite0":
         trunk = EfficientNetLite0Trunk(trunk_sha256)
-        return trunk, CameraHead(trunk.out_channels, image_dim, ((32, 3, 1),))
+        return trunk, CameraHead(trunk.out_channels, image_dim, ((32, 3, 1),), keypoints)
     raise ValueError(f"unknown image encoder {kind!r}; expected one of {list(IMAGE_ENCODERS)}")
 
 
