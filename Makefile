@@ -78,10 +78,12 @@ controller-camera: install renderer
 # policy on joints, hand pose and both cameras.
 MIKASA_TASK ?= RememberColor3-VLA-v0
 MIKASA_STEPS ?= 2500
+# extra finetune options, e.g. MIKASA_FINETUNE='--image-dim 128 --keypoints 64' for RememberColor5/9's 5 and 9 cubes
+MIKASA_FINETUNE ?=
 controller-mikasa: install renderer
 	rm -rf $(STAGE1)-$(MIKASA_TASK)
 	$(VENV)/bin/sb3-memret demos --task $(MIKASA_TASK) --episodes 400 --frames every --out $(STAGE1)-$(MIKASA_TASK)/demos
-	$(VENV)/bin/sb3-memret finetune $(STAGE1)-$(MIKASA_TASK)/demos --task $(MIKASA_TASK) --steps $(MIKASA_STEPS) \
+	$(VENV)/bin/sb3-memret finetune $(STAGE1)-$(MIKASA_TASK)/demos --task $(MIKASA_TASK) --steps $(MIKASA_STEPS) $(MIKASA_FINETUNE) \
 		--out $(STAGE1)-$(MIKASA_TASK)/policy
 	mkdir -p sb3_memret/controllers/checkpoints/$(MIKASA_TASK)-camera
 	cp $(STAGE1)-$(MIKASA_TASK)/policy/config.json $(STAGE1)-$(MIKASA_TASK)/policy/model.safetensors \
