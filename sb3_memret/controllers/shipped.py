@@ -21,6 +21,8 @@ SHIPPED: dict[tuple[str, str], tuple[Path, str]] = {
     ("RememberColor9-VLA-v0", "learned"): (CHECKPOINTS / "RememberColor9-VLA-v0-camera",
                                            "make controller-mikasa MIKASA_TASK=RememberColor9-VLA-v0 MIKASA_STEPS=2000 "
                                            "MIKASA_FINETUNE='--image-dim 128 --keypoints 64'"),
+    ("RememberShape3-VLA-v0", "learned"): (CHECKPOINTS / "RememberShape3-VLA-v0-camera",
+                                           "make controller-mikasa MIKASA_TASK=RememberShape3-VLA-v0 MIKASA_STEPS=2000"),
 }
 
 
