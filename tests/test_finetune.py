@@ -11,7 +11,14 @@ from sb3_memret.controllers.learned import LearnedPolicyConfig
 from sb3_memret.controllers.observation import PROPRIO_NAMES, STATE_NAMES
 from sb3_memret.prompts import INSTRUCTION, condition_prompt
 from sb3_memret.stage1.demos import DemoEpisode, record_demos
-from sb3_memret.stage1.finetune import Demonstrations, FinetuneSettings, finetune, load_demonstrations, read_log
+from sb3_memret.stage1.finetune import (
+    Demonstrations,
+    FinetuneSettings,
+    finetune,
+    load_demonstrations,
+    read_log,
+    validation_episodes,
+)
 
 SMALL = LearnedPolicyConfig(hidden_dim=64, n_layers=2, text_dim=32, text_heads=2, chunk_len=8)
 
@@ -30,6 +37,15 @@ def test_chunks_are_padded_at_each_episode_end():
     index, pad = demos.chunk_indices(3)
     np.testing.assert_array_equal(index, [[0, 1, 2], [1, 2, 2], [2, 2, 2], [3, 4, 4], [4, 4, 4]])
     np.testing.assert_array_equal(pad, [[0, 0, 0], [0, 0, 1], [0, 1, 1], [0, 0, 1], [0, 1, 1]])
+
+
+def test_the_validation_split_is_whole_episodes_rebuilt_from_the_seed():
+    """A finetune's held-out episodes can be rebuilt from its seed (scripts/perception_error.py does)."""
+    frames = np.repeat(np.arange(20), 5)
+    held = validation_episodes(frames, 0.1, np.random.default_rng(0))
+    assert len(held) == len(set(held.tolist())) == 2 and set(held.tolist()) <= set(range(20))
+    np.testing.assert_array_equal(held, validation_episodes(frames, 0.1, np.random.default_rng(0)))
+    assert len(validation_episodes(frames, 0.0, np.random.default_rng(0))) == 0
 
 
 def test_datasets_are_read_with_their_prompts(demos):

@@ -207,6 +207,14 @@ def state_names_for(task: Task, state: str) -> tuple[str, ...]:
     return task.state_names() if state == "full" else task.proprio_names()
 
 
+def validation_episodes(episodes: np.ndarray, fraction: float, rng: np.random.Generator) -> np.ndarray:
+    """The episode ids held out for validation: ``fraction`` of them, drawn by ``rng`` (a finetune's first draw from
+    ``default_rng(seed)``, so a finetune's split can be rebuilt from its seed)."""
+    ids = np.unique(episodes)
+    n_val = int(round(len(ids) * fraction))
+    return rng.choice(ids, size=n_val, replace=False) if n_val else np.array([], dtype=np.int64)
+
+
 def camera_inputs(model: LearnedPolicy, images: dict[str, np.ndarray], keys: Sequence[str]) -> list[torch.Tensor]:
     """What the policy's camera heads read for every frame: a frozen trunk's features (computed here once, in
     batches, kept as float16), or the uint8 images themselves (channels first) for encoders trained from pixels."""
@@ -267,10 +275,7 @@ def finetune(
     if perceived:
         model.set_perceived_stats(torch.from_numpy(hidden.mean(0)), torch.from_numpy(hidden.std(0)))
     targets, is_pad = demos.targets(config.chunk_len)
-    episode_ids = np.unique(demos.episodes)
-    n_val = int(round(len(episode_ids) * settings.validation_fraction))
-    val_episodes = rng.choice(episode_ids, size=n_val, replace=False) if n_val else np.array([], dtype=np.int64)
-    is_val = np.isin(demos.episodes, val_episodes)
+    is_val = np.isin(demos.episodes, validation_episodes(demos.episodes, settings.validation_fraction, rng))
     train_idx, val_idx = np.flatnonzero(~is_val), np.flatnonzero(is_val)
     if len(train_idx) == 0:
         raise ValueError("no training frames left after the validation split")
@@ -346,4 +351,4 @@ def read_log(out: str | Path) -> list[dict[str, str]]:
 
 
 __all__ = ["Demonstrations", "FinetuneSettings", "STATE_CHOICES", "finetune", "has_cameras", "load_demonstrations", "read_log",
-           "state_names_for"]
+           "state_names_for", "validation_episodes"]

@@ -1,0 +1,69 @@
+"""How far off are a camera controller's perception estimates? Per perceived entry, on demonstration frames.
+
+Runs a trained camera-reading learned controller's perception head on the validation episodes its finetune held
+out (the split rebuilt from ``--seed`` and ``--validation-fraction``, finetune's defaults) of the dataset it was
+trained on, and prints, per perceived entry, the normalised MSE and the median absolute error in the state's
+units; for entries named ``<object>_x`` / ``_y`` with a ``<object>_visible`` flag (MIKASA's cubes), also the
+median xy error over the frames where the object is in sight.
+
+    python scripts/perception_error.py sb3_memret/controllers/checkpoints/RememberColor9-VLA-v0-camera \\
+        runs/stage1-RememberColor9-VLA-v0/demos --task RememberColor9-VLA-v0
+"""
+
+from __future__ import annotations
+
+import argparse
+
+import numpy as np
+import torch
+
+from sb3_memret.controllers.learned import LearnedPolicy
+from sb3_memret.stage1.finetune import FinetuneSettings, camera_inputs, load_demonstrations, validation_episodes
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("checkpoint")
+    parser.add_argument("dataset")
+    parser.add_argument("--task", default="drawer")
+    parser.add_argument("--seed", type=int, default=FinetuneSettings.seed, help="the finetune's --seed")
+    parser.add_argument("--validation-fraction", type=float, default=FinetuneSettings.validation_fraction)
+    parser.add_argument("--frames", type=int, default=1500, help="validation frames drawn at most")
+    args = parser.parse_args()
+
+    policy = LearnedPolicy.from_pretrained(args.checkpoint)
+    names = policy.config.perceived_names
+    if not names:
+        raise SystemExit(f"{args.checkpoint} estimates nothing: its config has no perceived_names")
+    demos = load_demonstrations([args.dataset], args.task)
+    missing = sorted(set(names) - set(demos.state_names))
+    if missing:
+        raise SystemExit(f"the dataset's state has no entries {missing}: record it for task {policy.config.task!r}")
+    rng = np.random.default_rng(args.seed)
+    held = np.flatnonzero(np.isin(demos.episodes, validation_episodes(demos.episodes, args.validation_fraction, rng)))
+    if not len(held):
+        raise SystemExit("no validation episodes: --validation-fraction is 0")
+    idx = np.sort(np.random.default_rng(0).choice(held, size=min(args.frames, len(held)), replace=False))
+    features = camera_inputs(policy, {k: v[idx] for k, v in demos.images.items()}, policy.config.image_features)
+    with torch.no_grad():
+        estimates = policy.perceive(policy.encode_cameras([f.float() for f in features]))
+    labels = torch.from_numpy(demos.states[idx][:, [demos.state_names.index(n) for n in names]])
+    normalised = (labels - policy.perceived_mean) / policy.perceived_std
+    error = estimates * policy.perceived_std + policy.perceived_mean - labels
+    print(f"{len(idx)} of the {len(held)} frames of the finetune's validation episodes")
+    print("| entry | normalised MSE | median abs error |\n|---|---|---|")
+    for i, name in enumerate(names):
+        print(f"| {name} | {float(((estimates[:, i] - normalised[:, i]) ** 2).mean()):.3f} | "
+              f"{float(error[:, i].abs().median()):.4f} |")
+    objects = [n.removesuffix("_visible") for n in names if n.endswith("_visible")]
+    located = [o for o in objects if f"{o}_x" in names and f"{o}_y" in names]
+    if located:
+        print("\n| object | frames in sight | median xy error |\n|---|---|---|")
+    for obj in located:
+        seen = labels[:, names.index(f"{obj}_visible")] > 0.5
+        xy = error[seen][:, [names.index(f"{obj}_x"), names.index(f"{obj}_y")]].norm(dim=1)
+        print(f"| {obj} | {int(seen.sum())} | {float(xy.median()) if len(xy) else float('nan'):.4f} |")
+
+
+if __name__ == "__main__":
+    main()
