@@ -73,16 +73,17 @@ controller-camera: install renderer
 	cp $(STAGE1)-camera/policy/config.json $(STAGE1)-camera/policy/model.safetensors \
 		$(STAGE1)-camera/policy/train_log.csv $(SHIPPED_CAMERA)/
 
-# The camera-reading learned controller of a MIKASA task (`--task $(MIKASA_TASK) --controller learned`): 400 expert
-# episodes with every control step kept (MIKASA renders its 128x128 cameras at every step anyway), then the same
+# The camera-reading learned controller of a MIKASA task (`--task $(MIKASA_TASK) --controller learned`): $(MIKASA_EPISODES)
+# expert episodes with every control step kept (MIKASA renders its 128x128 cameras at every step anyway), then the same
 # policy on joints, hand pose and both cameras.
 MIKASA_TASK ?= RememberColor3-VLA-v0
 MIKASA_STEPS ?= 2500
+MIKASA_EPISODES ?= 400
 # extra finetune options, e.g. MIKASA_FINETUNE='--image-dim 128 --keypoints 64' for RememberColor5/9's 5 and 9 cubes
 MIKASA_FINETUNE ?=
 controller-mikasa: install renderer
 	rm -rf $(STAGE1)-$(MIKASA_TASK)
-	$(VENV)/bin/sb3-memret demos --task $(MIKASA_TASK) --episodes 400 --frames every --out $(STAGE1)-$(MIKASA_TASK)/demos
+	$(VENV)/bin/sb3-memret demos --task $(MIKASA_TASK) --episodes $(MIKASA_EPISODES) --frames every --out $(STAGE1)-$(MIKASA_TASK)/demos
 	$(VENV)/bin/sb3-memret finetune $(STAGE1)-$(MIKASA_TASK)/demos --task $(MIKASA_TASK) --steps $(MIKASA_STEPS) $(MIKASA_FINETUNE) \
 		--out $(STAGE1)-$(MIKASA_TASK)/policy
 	mkdir -p sb3_memret/controllers/checkpoints/$(MIKASA_TASK)-camera
