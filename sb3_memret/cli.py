@@ -334,13 +334,14 @@ def demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fr
     if task != DEFAULT_TASK:
         if image_size not in (None, 128):
             raise click.BadParameter(f"MIKASA's cameras are 128x128; got {image_size}", param_hint="--image-size")
-        for name, used in (("--learner", learner is not None), ("--objects", objects != "cube"),
-                           ("--n-objects", n_objects != 1)):
+        for name, used in (("--objects", objects != "cube"), ("--n-objects", n_objects != 1)):
             if used:
                 raise click.BadParameter(f"{name} applies to the drawer's demonstrations only, not task {task!r}",
                                          param_hint=name)
+        if learner is not None:
+            _controller(click.get_current_context(), None, learner, task)
         _task_demos(task, episodes, out, seed, noise, noisy_fraction, n_envs, replan_every or 4, progress,
-                    render_backend, frames)
+                    render_backend, frames, learner)
         return
     from sb3_memret.stage1.demos import plan_episodes, record_demos
 
@@ -362,7 +363,7 @@ def demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fr
 
 
 def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fraction: float, n_envs: int,
-                replan_every: int, progress: bool, render_backend: str, frames: str) -> None:
+                replan_every: int, progress: bool, render_backend: str, frames: str, learner: str | None) -> None:
     """``demos`` for a task other than the drawer, through the Task interface."""
     from tqdm import tqdm
 
@@ -378,7 +379,7 @@ def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, no
 
         try:
             record_task_demos(out, task, plan_task_episodes(episodes, seed, noise, noisy_fraction), render_backend,
-                              n_envs, replan_every, on_episode=on_episode, frames=frames)
+                              n_envs, replan_every, on_episode=on_episode, frames=frames, learner=learner)
         except (NotImplementedError, ValueError) as err:
             raise click.UsageError(str(err)) from err
     click.echo(f"{episodes} episodes ({wins} successful) written to {out}")

@@ -120,3 +120,35 @@ def test_mikasa_demos_with_cameras_keep_the_decision_frames_and_their_chunks(tmp
     dataset = LeRobotDataset("sb3_memret/rc3", root=out)
     last = dataset[6]
     assert last[ACTION_CHUNK_KEY].shape[1] == 7 and int((~last[CHUNK_PAD_KEY]).sum()) == 1  # step 24 is the last
+
+
+def test_a_dagger_round_on_a_mikasa_task_follows_the_learner_with_the_experts_labels():
+    from sb3_memret.stage1.task_demos import TaskDemoEpisode, TaskRecorder
+    from sb3_memret.tasks.mikasa.demo_layout import state_names
+    from sb3_memret.tasks.mikasa.expert import ScriptedTouchController
+
+    task = make_task(TASK)
+
+    class Stubborn(ScriptedTouchController):
+        """A learner that never reads the fact: it touches the first colour, whatever its prompt says."""
+
+        def act(self, obs, prompts, check_prompts=True):
+            return super().act(obs, [task.instruction_text] * len(prompts), check_prompts)
+
+    expert = task.expert()
+    learner = Stubborn(vocabulary=expert.vocabulary, field=expert.field, prompt_template=expert.spec.prompt_template,
+                       key=expert.key, default=expert.default)
+    recorder = TaskRecorder(task, "cpu", replan_every=4, learner=learner)
+    try:
+        seed = next(s for s in range(100_000, 100_020) if recorder.record(TaskDemoEpisode(s, "bare")).group != "red")
+        recorded = recorder.record(TaskDemoEpisode(seed, "matching"))
+    finally:
+        recorder.env.close()
+    assert recorded.learner_acted and not recorded.success and recorded.group != "red"
+    names = list(state_names(task.colours))
+    last = recorded.frames[-1]["observation.state"]
+    tcp = last[[names.index("tcp_x"), names.index("tcp_y")]]
+    red = last[[names.index("cube_red_x"), names.index("cube_red_y")]]
+    assert np.linalg.norm(tcp - red) < 0.05  # the learner went to red ...
+    # ... while the labels, the expert's on the learner's states, kept asking to move on to the cue's cube
+    assert np.all(np.abs(recorded.actions[-4:, :2]).max(axis=1) > 0.5)

@@ -8,7 +8,8 @@ naming something else (``wrong_facts``), which the expert follows as a controlle
 Per frame: ``Task.demo_frame`` (state, cameras with a renderer), the expert's action as label, the
 exact prompt as ``task``; with ``frames="decisions"`` only the steps a controller acts at, each with its
 chunk of labels (as the drawer's recorder). A share of episodes runs with Gaussian noise on the arm
-(labels stay clean).
+(labels stay clean). With a learner (``learner=``, a controller spec) it is a DAgger round: the learner acts
+on the prompt while the expert labels the states it reaches, as the drawer's recorder does.
 Episodes are written as they finish; an interrupted run keeps every episode saved so far.
 """
 
@@ -20,7 +21,8 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from sb3_memret.controllers.base import as_numpy
+from sb3_memret.controllers import make_controller
+from sb3_memret.controllers.base import FrozenController, as_numpy
 from sb3_memret.controllers.observation import ACTION_CHUNK_KEY, ACTION_KEY, CHUNK_PAD_KEY, TASK_KEY, chunk_features
 from sb3_memret.prompts import build_prompt
 from sb3_memret.rollout import DEFAULT_REPLAN_EVERY
@@ -51,6 +53,7 @@ class TaskEpisodeFrames:
     actions: np.ndarray  # (T, action_dim): the expert's label at every control step
     success: bool
     frame_steps: np.ndarray  # (F,) the control step of each kept frame
+    learner_acted: bool = False  # a DAgger episode: the learner acted, the expert only labelled
 
 
 def plan_task_episodes(n: int, seed: int = 0, noise: float = 0.0, noisy_fraction: float = 0.5,
@@ -69,10 +72,11 @@ def plan_task_episodes(n: int, seed: int = 0, noise: float = 0.0, noisy_fraction
 
 
 class TaskRecorder:
-    """A task env and the task's expert, recording episodes one after another."""
+    """A task env and the task's expert, recording episodes one after another; with a learner (a controller
+    spec or instance) the learner acts and the expert labels."""
 
     def __init__(self, task: Task | str, render_backend: str, replan_every: int = DEFAULT_REPLAN_EVERY,
-                 frames: str = "every"):
+                 frames: str = "every", learner: str | FrozenController | None = None):
         self.task = make_task(task)
         self.decisions_only = check_frames(frames) == "decisions"
         self.with_images = check_render_backend(render_backend) != "none"
@@ -82,10 +86,17 @@ class TaskRecorder:
         self.task.demo_features(self.with_images)  # a task without a layout refuses before any env is made
         self.env = self.task.make_env(**self.task.env_kwargs(self.with_images, render_backend))
         self.expert.check_env(self.env)
+        self.learner = make_controller(learner, self.task) if isinstance(learner, str) else learner
+        if self.learner is not None:
+            if not 1 <= replan_every <= self.learner.spec.chunk_len:
+                raise ValueError(f"replan_every must be in [1, {self.learner.spec.chunk_len}] (the learner's chunk "
+                                 f"length), got {replan_every}")
+            self.learner.check_env(self.env)
         self.replan_every = replan_every
 
     def record(self, episode: TaskDemoEpisode) -> TaskEpisodeFrames:
-        """Play one episode, the expert acting on the episode's prompt and labelling every frame."""
+        """Play one episode, the expert (or the learner) acting on the episode's prompt and the expert labelling
+        every frame."""
         rng = np.random.default_rng(episode.seed)
         obs, info = self.env.reset(seed=episode.seed)
         truth = self.task.episode(self.task.frames(self.env, obs, info, reset=True)[0])
@@ -93,14 +104,18 @@ class TaskRecorder:
                  "mismatched": self.task.wrong_facts(truth)}[episode.prompt_kind]
         prompt = build_prompt(self.task.instruction(truth), facts, self.expert.spec.prompt_template)
         self.expert.reset([episode.seed])
+        if self.learner is not None:
+            self.learner.reset([episode.seed])
         frames, kept, actions, success, done = [], [], [], False, False
         while not done:
-            for i, label in enumerate(self.expert.act(obs, [prompt])[0][: self.replan_every]):
+            labels = self.expert.act(obs, [prompt])[0][: self.replan_every]
+            executed = labels if self.learner is None else self.learner.act(obs, [prompt])[0][: self.replan_every]
+            for i, (label, action) in enumerate(zip(labels, executed)):
                 if i == 0 or not self.decisions_only:
                     kept.append(len(actions))
                     frames.append(self.task.demo_frame(obs, self.with_images))
                 actions.append(label)
-                action = label.copy()
+                action = np.array(action, np.float32)
                 if episode.noise:
                     action[:6] = np.clip(action[:6] + rng.normal(0.0, episode.noise, 6), -1.0, 1.0)
                 obs, _, terminated, truncated, info = self.env.step(action[None])
@@ -109,20 +124,20 @@ class TaskRecorder:
                 if done:
                     break
         return TaskEpisodeFrames(episode, prompt, truth.group, frames, np.asarray(actions, np.float32), success,
-                                 np.asarray(kept))
+                                 np.asarray(kept), self.learner is not None)
 
 
 _recorder: TaskRecorder | None = None
 
 
 def _init_recorder(task: Task | str, render_backend: str, replan_every: int, frames: str = "every",
-                   in_worker: bool = True) -> None:
+                   learner: str | None = None, in_worker: bool = True) -> None:
     global _recorder
     if in_worker:
         from sb3_memret.parallel_rollout import init_pool_worker
 
         init_pool_worker()
-    _recorder = TaskRecorder(task, render_backend, replan_every, frames)
+    _recorder = TaskRecorder(task, render_backend, replan_every, frames, learner)
 
 
 def _record(episode: TaskDemoEpisode) -> TaskEpisodeFrames:
@@ -139,12 +154,16 @@ def record_task_demos(
     replan_every: int = DEFAULT_REPLAN_EVERY,
     on_episode: Callable[[TaskEpisodeFrames], None] | None = None,
     frames: str = "every",
+    learner: str | None = None,
 ) -> Path:
     """Record ``episodes`` of ``task``'s expert into a new LeRobotDataset at ``out`` and return its folder;
-    ``frames`` (``every`` or ``decisions``) says which control steps it keeps."""
+    ``frames`` (``every`` or ``decisions``) says which control steps it keeps; ``learner`` (a controller spec)
+    makes it a DAgger round, the learner acting and the expert labelling."""
     from sb3_memret.parallel_rollout import map_in_workers
 
     the_task = make_task(task)
+    if learner is not None:
+        make_controller(learner, the_task)  # a bad spec fails here, before any worker starts
     features = the_task.demo_features(check_render_backend(render_backend) != "none")
     chunk_len = the_task.expert().spec.chunk_len if check_frames(frames) == "decisions" else None
     writer = DemoDatasetWriter(out, {**features, **(chunk_features(chunk_len) if chunk_len else {})})
@@ -156,13 +175,14 @@ def record_task_demos(
               **({ACTION_CHUNK_KEY: chunks[i], CHUNK_PAD_KEY: pads[i]} if chunk_len else {})}
              for i, (frame, step) in enumerate(zip(recorded.frames, recorded.frame_steps))),
             {**asdict(recorded.episode), "task": the_task.name, "prompt": recorded.prompt, "group": recorded.group,
-             "frames": len(recorded.frames), "steps": len(recorded.actions), "success": recorded.success})
+             "frames": len(recorded.frames), "steps": len(recorded.actions), "success": recorded.success,
+             "learner": learner})
         if on_episode is not None:
             on_episode(recorded)
 
     global _recorder
     try:
-        map_in_workers(_init_recorder, (task, render_backend, replan_every, frames), _record, list(episodes), n_workers,
+        map_in_workers(_init_recorder, (task, render_backend, replan_every, frames, learner), _record, list(episodes), n_workers,
                        save)
     finally:
         writer.close()
