@@ -182,8 +182,8 @@ def record_task_demos(
 
     global _recorder
     try:
-        map_in_workers(_init_recorder, (task, render_backend, replan_every, frames, learner), _record, list(episodes), n_workers,
-                       save)
+        map_in_workers(_init_recorder, (task, render_backend, replan_every, frames, learner), _record, list(episodes),
+                       n_workers, save)
     finally:
         writer.close()
         if _recorder is not None:
