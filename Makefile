@@ -75,20 +75,31 @@ controller-camera: install renderer
 
 # The camera-reading learned controller of a MIKASA task (`--task $(MIKASA_TASK) --controller learned`): $(MIKASA_EPISODES)
 # expert episodes with every control step kept (MIKASA renders its 128x128 cameras at every step anyway), then the same
-# policy on joints, hand pose and both cameras.
+# policy on joints, hand pose and both cameras. MIKASA_DAGGER=N adds a DAgger round: N episodes (seeds after the
+# expert's) played by that policy and labelled by the expert, then the policy trained again on both datasets.
 MIKASA_TASK ?= RememberColor3-VLA-v0
 MIKASA_STEPS ?= 2500
 MIKASA_EPISODES ?= 400
+MIKASA_DAGGER ?= 0
+MIKASA_DAGGER_STEPS ?= $(MIKASA_STEPS)
 # extra finetune options, e.g. MIKASA_FINETUNE='--image-dim 128 --keypoints 64' for RememberColor5/9's 5 and 9 cubes
 MIKASA_FINETUNE ?=
+MIKASA_RUN = $(STAGE1)-$(MIKASA_TASK)
 controller-mikasa: install renderer
-	rm -rf $(STAGE1)-$(MIKASA_TASK)
-	$(VENV)/bin/sb3-memret demos --task $(MIKASA_TASK) --episodes $(MIKASA_EPISODES) --frames every --out $(STAGE1)-$(MIKASA_TASK)/demos
-	$(VENV)/bin/sb3-memret finetune $(STAGE1)-$(MIKASA_TASK)/demos --task $(MIKASA_TASK) --steps $(MIKASA_STEPS) $(MIKASA_FINETUNE) \
-		--out $(STAGE1)-$(MIKASA_TASK)/policy
+	rm -rf $(MIKASA_RUN)
+	$(VENV)/bin/sb3-memret demos --task $(MIKASA_TASK) --episodes $(MIKASA_EPISODES) --frames every --out $(MIKASA_RUN)/demos
+	$(VENV)/bin/sb3-memret finetune $(MIKASA_RUN)/demos --task $(MIKASA_TASK) --steps $(MIKASA_STEPS) $(MIKASA_FINETUNE) \
+		--out $(MIKASA_RUN)/policy
+	if [ $(MIKASA_DAGGER) -gt 0 ]; then \
+		$(VENV)/bin/sb3-memret demos --task $(MIKASA_TASK) --episodes $(MIKASA_DAGGER) --frames every \
+			--seed $$((100000 + $(MIKASA_EPISODES))) --learner learned:$(MIKASA_RUN)/policy --out $(MIKASA_RUN)/dagger && \
+		mv $(MIKASA_RUN)/policy $(MIKASA_RUN)/policy-expert && \
+		$(VENV)/bin/sb3-memret finetune $(MIKASA_RUN)/demos $(MIKASA_RUN)/dagger --task $(MIKASA_TASK) \
+			--steps $(MIKASA_DAGGER_STEPS) $(MIKASA_FINETUNE) --out $(MIKASA_RUN)/policy; \
+	fi
 	mkdir -p sb3_memret/controllers/checkpoints/$(MIKASA_TASK)-camera
-	cp $(STAGE1)-$(MIKASA_TASK)/policy/config.json $(STAGE1)-$(MIKASA_TASK)/policy/model.safetensors \
-		$(STAGE1)-$(MIKASA_TASK)/policy/train_log.csv sb3_memret/controllers/checkpoints/$(MIKASA_TASK)-camera/
+	cp $(MIKASA_RUN)/policy/config.json $(MIKASA_RUN)/policy/model.safetensors \
+		$(MIKASA_RUN)/policy/train_log.csv sb3_memret/controllers/checkpoints/$(MIKASA_TASK)-camera/
 
 bench: install
 	$(PY) scripts/bench_env.py
