@@ -162,8 +162,8 @@ def record_task_demos(
     from sb3_memret.parallel_rollout import map_in_workers
 
     the_task = make_task(task)
-    if learner is not None:
-        make_controller(learner, the_task)  # a bad spec fails here, before any worker starts
+    if learner is not None and n_workers > 1:
+        make_controller(learner, the_task)  # a bad spec fails here, before any worker starts (one worker: in-process)
     features = the_task.demo_features(check_render_backend(render_backend) != "none")
     chunk_len = the_task.expert().spec.chunk_len if check_frames(frames) == "decisions" else None
     writer = DemoDatasetWriter(out, {**features, **(chunk_features(chunk_len) if chunk_len else {})})
