@@ -17,6 +17,7 @@ SHIPPED: dict[tuple[str, str], tuple[Path, str]] = {
                                            "make controller-mikasa MIKASA_TASK=RememberColor3-VLA-v0"),
     ("RememberColor5-VLA-v0", "learned"): (CHECKPOINTS / "RememberColor5-VLA-v0-camera",
                                            "make controller-mikasa MIKASA_TASK=RememberColor5-VLA-v0 MIKASA_STEPS=2000 "
+                                           "MIKASA_DAGGER=150 MIKASA_DAGGER_STEPS=3000 "
                                            "MIKASA_FINETUNE='--image-dim 128 --keypoints 64'"),
     ("RememberColor9-VLA-v0", "learned"): (CHECKPOINTS / "RememberColor9-VLA-v0-camera",
                                            "make controller-mikasa MIKASA_TASK=RememberColor9-VLA-v0 MIKASA_EPISODES=800 "
