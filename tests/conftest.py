@@ -2,6 +2,10 @@
 both cameras rendered by the CPU renderer per session, and SB3's default log folder inside
 pytest's temporary directory rather than the system's."""
 
+import importlib.util
+from pathlib import Path
+from types import ModuleType
+
 import pytest
 
 from sb3_memret.rollout import make_task_env
@@ -47,3 +51,17 @@ def rgb_task_env():
     env = make_task_env(obs_mode="rgb", render_backend="cpu", robot_init_qpos_noise=0.0)
     yield env
     env.close()
+
+
+@pytest.fixture(scope="session")
+def load_script():
+    """Import a script of ``scripts/`` by name as a module, for tests of its functions."""
+    return _load_script
+
+
+def _load_script(name: str) -> ModuleType:
+    path = Path(__file__).resolve().parents[1] / "scripts" / f"{name}.py"
+    spec = importlib.util.spec_from_file_location(name, path)
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    return module

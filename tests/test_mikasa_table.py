@@ -1,19 +1,11 @@
 """scripts/mikasa_table.py: the table's rows and the published figures beside them, and its refusals."""
 
-import importlib.util
-from pathlib import Path
-
 import pytest
-
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "mikasa_table.py"
 
 
 @pytest.fixture(scope="module")
-def table():
-    spec = importlib.util.spec_from_file_location("mikasa_table", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def table(load_script):
+    return load_script("mikasa_table")
 
 
 def test_the_table_puts_each_task_row_and_the_published_systems_beside_our_recall(table):

@@ -1,22 +1,14 @@
 """scripts/prompt_schedules.py: which fact each decision's prompt carries, and the episodes it plays."""
 
-import importlib.util
-from pathlib import Path
-
 import numpy as np
 import pytest
 
 from sb3_memret.tasks import make_task
 
-SCRIPT = Path(__file__).resolve().parents[1] / "scripts" / "prompt_schedules.py"
-
 
 @pytest.fixture(scope="module")
-def schedules():
-    spec = importlib.util.spec_from_file_location("prompt_schedules", SCRIPT)
-    module = importlib.util.module_from_spec(spec)
-    spec.loader.exec_module(module)
-    return module
+def schedules(load_script):
+    return load_script("prompt_schedules")
 
 
 def test_a_schedule_switches_between_the_true_fact_and_a_decoy_at_its_decision(schedules):
