@@ -24,7 +24,8 @@ SHIPPED: dict[tuple[str, str], tuple[Path, str]] = {
                                            "MIKASA_STEPS=3000 "
                                            "MIKASA_FINETUNE='--image-dim 128 --keypoints 64'"),
     ("RememberShape3-VLA-v0", "learned"): (CHECKPOINTS / "RememberShape3-VLA-v0-camera",
-                                           "make controller-mikasa MIKASA_TASK=RememberShape3-VLA-v0 MIKASA_STEPS=2000"),
+                                           "make controller-mikasa MIKASA_TASK=RememberShape3-VLA-v0 MIKASA_STEPS=2000 "
+                                           "MIKASA_DAGGER=150 MIKASA_DAGGER_STEPS=3000"),
     ("TakeItBack-VLA-v0", "learned"): (CHECKPOINTS / "TakeItBack-VLA-v0-camera",
                                        "make controller-mikasa MIKASA_TASK=TakeItBack-VLA-v0 MIKASA_EPISODES=300 "
                                        "MIKASA_DAGGER=116 MIKASA_DAGGER_STEPS=3000"),
