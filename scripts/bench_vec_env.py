@@ -12,7 +12,8 @@ slot picks are uniformly random). It reports the median window, the range, and t
 - the controller's time per call and its share of the trainer's wall time;
 - with ``--ray``, the same VecEnv on N local Ray actors.
 
-Usage: ``python scripts/bench_vec_env.py [--controller learned-state] [--n-envs 1 2 4] [--rounds 40] [--ray]``.
+Usage: ``python scripts/bench_vec_env.py [--controller learned-state] [--n-envs 1 2 4] [--rounds 40] [--ray]
+[--render-backend cpu|gpu]`` (a camera controller needs a render backend).
 It also times the controller alone at batch 1 and batch N on recorded observations.
 """
 
@@ -35,17 +36,18 @@ from sb3_memret.envs.physics import stack_obs, to_numpy
 from sb3_memret.envs.vec_env import RecallVecEnv
 from sb3_memret.prompts import condition_prompt
 from sb3_memret.rollout import make_task_env, task_env_kwargs
+from sb3_memret.tasks.base import RENDER_BACKENDS
 from sb3_memret.workers import init_worker_process
 
 SEED = 1_000_000
 
 
-def _recall_env(controller: str) -> Callable[[], gym.Env]:
+def _recall_env(controller: str, render_backend: str) -> Callable[[], gym.Env]:
     def make() -> gym.Env:
         import sb3_memret.envs.drawer_cube  # noqa: F401  (registers DrawerCubeTakeOut-v1)
 
         init_worker_process()
-        return gym.make(RECALL_ENV_ID, controller=controller)
+        return gym.make(RECALL_ENV_ID, controller=controller, render_backend=render_backend)
 
     return make
 
@@ -110,23 +112,23 @@ class TimedController:
         self.seconds, self.calls = 0.0, 0
 
 
-def one_controller(controller: str, n: int, backend: str) -> Config:
+def one_controller(controller: str, n: int, backend: str, render_backend: str) -> Config:
     timed = TimedController(make_controller(controller))
-    venv = RecallVecEnv(n, controller=timed.controller, backend=backend)
+    venv = RecallVecEnv(n, controller=timed.controller, backend=backend, render_backend=render_backend)
     physics = venv.physics
     pids = physics.pids() if backend == "ray" else [p.pid for p in physics.processes]
     return Config(venv, pids, timed)
 
 
-def per_worker_controllers(controller: str, n: int) -> Config:
-    venv = SubprocVecEnv([_recall_env(controller) for _ in range(n)], start_method="spawn")
+def per_worker_controllers(controller: str, n: int, render_backend: str) -> Config:
+    venv = SubprocVecEnv([_recall_env(controller, render_backend) for _ in range(n)], start_method="spawn")
     return Config(venv, [p.pid for p in venv.processes])
 
 
-def controller_alone(controller: str, batch: int, calls: int = 30) -> float:
+def controller_alone(controller: str, batch: int, render_backend: str, calls: int = 30) -> float:
     """Milliseconds per ``act`` call at ``batch`` envs, on observations of real episodes."""
     ctrl = make_controller(controller)
-    env = make_task_env(**task_env_kwargs(ctrl))
+    env = make_task_env(**task_env_kwargs(ctrl, render_backend))
     obs, _ = env.reset(seed=SEED)
     frame = to_numpy(obs)
     env.close()
@@ -149,14 +151,17 @@ def main() -> None:
     parser.add_argument("--warmup", type=int, default=5)
     parser.add_argument("--ray", action="store_true", help="also run the physics as local Ray actors")
     parser.add_argument("--skip-baseline", action="store_true", help="leave out the SubprocVecEnv baseline")
+    parser.add_argument("--render-backend", choices=RENDER_BACKENDS, default="none",
+                        help="SAPIEN render backend: cpu or gpu for a controller that reads cameras")
     args = parser.parse_args()
-    print(f"{os.cpu_count()} CPU cores, controller {args.controller}, {args.rounds} rounds after {args.warmup}\n")
+    print(f"{os.cpu_count()} CPU cores, controller {args.controller}, render backend {args.render_backend}, "
+          f"{args.rounds} rounds after {args.warmup}\n")
 
     print("| envs | batch-1 act ms | batch-N act ms |")
     print("|---|---|---|")
-    one = controller_alone(args.controller, 1)
+    one = controller_alone(args.controller, 1, args.render_backend)
     for n in args.n_envs:
-        print(f"| {n} | {one:.2f} | {controller_alone(args.controller, n):.2f} |")
+        print(f"| {n} | {one:.2f} | {controller_alone(args.controller, n, args.render_backend):.2f} |")
 
     if args.ray:
         import logging
@@ -167,11 +172,11 @@ def main() -> None:
     configs: dict[tuple[str, int], Config] = {}
     try:
         for n in args.n_envs:
-            configs[("process", n)] = one_controller(args.controller, n, "process")
+            configs[("process", n)] = one_controller(args.controller, n, "process", args.render_backend)
             if not args.skip_baseline:
-                configs[("subproc", n)] = per_worker_controllers(args.controller, n)
+                configs[("subproc", n)] = per_worker_controllers(args.controller, n, args.render_backend)
             if args.ray and n > 1:
-                configs[("ray", n)] = one_controller(args.controller, n, "ray")
+                configs[("ray", n)] = one_controller(args.controller, n, "ray", args.render_backend)
         for config in configs.values():
             config.start(args.warmup)
         for _ in range(args.windows):  # interleaved, so slow drifts of a shared machine hit every path alike

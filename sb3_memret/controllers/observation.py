@@ -68,15 +68,25 @@ def camera_images(obs: Obs) -> dict[str, np.ndarray]:
     return images
 
 
+def resize_image_tensor(images: "torch.Tensor", size: int) -> "torch.Tensor":
+    """(B, 3, H, W) uint8 -> (B, 3, size, size) float holding uint8 values: area-averaged and rounded as the
+    demonstrations were stored, on whatever device ``images`` is (a GPU controller resizes on its GPU)."""
+    from torch.nn import functional as F
+
+    x = images.float()
+    if tuple(x.shape[-2:]) == (size, size):
+        return x
+    return F.interpolate(x, size=(size, size), mode="area").round().clamp(0, 255)
+
+
 def resize_images(images: np.ndarray, size: int) -> np.ndarray:
     """(B, H, W, 3) uint8 -> (B, size, size, 3) uint8 by area averaging (unchanged when already that size)."""
     if images.shape[1:3] == (size, size):
         return images
     import torch
-    from torch.nn import functional as F
 
-    x = torch.from_numpy(np.ascontiguousarray(images)).permute(0, 3, 1, 2).float()
-    return F.interpolate(x, size=(size, size), mode="area").round().clamp(0, 255).to(torch.uint8).permute(0, 2, 3, 1).numpy()
+    x = torch.from_numpy(np.ascontiguousarray(images)).permute(0, 3, 1, 2)
+    return resize_image_tensor(x, size).to(torch.uint8).permute(0, 2, 3, 1).numpy()
 
 
 def dataset_features(with_images: bool, image_size: int = IMAGE_SHAPE[0],
@@ -104,4 +114,4 @@ def chunk_features(chunk_len: int) -> dict[str, dict[str, Any]]:
 
 __all__ = ["ACTION_CHUNK_KEY", "ACTION_DIM", "ACTION_KEY", "CHUNK_PAD_KEY", "IMAGE_KEYS", "IMAGE_SHAPE", "PROPRIO_NAMES",
            "STATE_DIM", "STATE_KEY", "STATE_NAMES", "TASK_KEY", "camera_images", "chunk_features", "dataset_features",
-           "observation_state", "resize_images"]
+           "observation_state", "resize_image_tensor", "resize_images"]

@@ -33,7 +33,8 @@ class LearnedController(FrozenController):
         self.device = torch.device(device)
         self.policy = LearnedPolicy.from_pretrained(self.checkpoint, self.device)
         config = self.policy.config
-        self.processor = LearnedPolicyProcessor(config, make_task(task if task is not None else config.task), tokenizer)
+        self.processor = LearnedPolicyProcessor(config, make_task(task if task is not None else config.task), tokenizer,
+                                                self.device)
         self.spec = ControllerSpec(
             action_convention=config.action_convention,
             chunk_len=config.chunk_len,
@@ -55,6 +56,6 @@ class LearnedController(FrozenController):
             raise RuntimeError(f"reset() was called for {self._num_envs} envs but act() got {len(prompts)} prompts")
         inputs = self.processor(obs, prompts)
         prompt = self.policy.encode_prompts(inputs["tokens"].to(self.device), inputs["token_mask"].to(self.device))
-        features = self.policy.camera_features([image.to(self.device) for image in inputs["images"]])
+        features = self.policy.camera_features(inputs["images"])
         chunks = self.policy(inputs["state"].to(self.device), prompt, features)
         return chunks.cpu().numpy()

@@ -14,7 +14,7 @@ import torch
 
 from sb3_memret.controllers.base import Obs
 from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig
-from sb3_memret.controllers.observation import STATE_KEY, resize_images
+from sb3_memret.controllers.observation import STATE_KEY, resize_image_tensor
 from sb3_memret.memory.encoder import MiniLMEncoder
 
 if TYPE_CHECKING:
@@ -37,12 +37,14 @@ class PromptTokenizer:
         return torch.from_numpy(tokens), torch.from_numpy(mask)
 
 
-def image_tensor(images: np.ndarray, size: int) -> torch.Tensor:
-    """(B, H, W, 3) uint8 -> (B, 3, size, size) float in [0, 1], resized as the demonstrations were."""
+def image_tensor(images: np.ndarray, size: int, device: str | torch.device = "cpu") -> torch.Tensor:
+    """(B, H, W, 3) uint8 -> (B, 3, size, size) float in [0, 1] on ``device``, resized there as the
+    demonstrations were (the uint8 frames travel, a quarter of the float bytes)."""
     images = np.asarray(images)
     if images.ndim != 4 or images.shape[-1] != 3 or images.dtype != np.uint8:
         raise ValueError(f"camera images must be (B, H, W, 3) uint8, got {images.dtype}{images.shape}")
-    return torch.from_numpy(resize_images(images, size)).permute(0, 3, 1, 2).float() / 255.0
+    x = torch.from_numpy(np.ascontiguousarray(images)).to(device).permute(0, 3, 1, 2)
+    return resize_image_tensor(x, size) / 255.0
 
 
 def state_columns(available: Sequence[str], wanted: Sequence[str], where: str) -> np.ndarray:
@@ -56,16 +58,18 @@ def state_columns(available: Sequence[str], wanted: Sequence[str], where: str) -
 class LearnedPolicyProcessor:
     """Builds the policy's inputs from a batched task observation and the prompts."""
 
-    def __init__(self, config: LearnedPolicyConfig, task: "Task", tokenizer: PromptTokenizer | None = None):
+    def __init__(self, config: LearnedPolicyConfig, task: "Task", tokenizer: PromptTokenizer | None = None,
+                 device: str | torch.device = "cpu"):
         if task.name != config.task:
             raise ValueError(f"the learned controller was trained on task {config.task!r}, not {task.name!r}")
         self.config, self.task = config, task
         self.columns = state_columns(task.state_names(), config.state_names, f"task {task.name!r}'s observation layout")
         self.tokenizer = tokenizer or PromptTokenizer()
+        self.device = torch.device(device)
 
     def __call__(self, obs: Obs, prompts: Sequence[str]) -> dict[str, torch.Tensor | list[torch.Tensor]]:
         inputs = self.task.controller_inputs(obs, len(prompts), bool(self.config.image_features))
         state = torch.from_numpy(inputs[STATE_KEY][:, self.columns].astype(np.float32))
         tokens, mask = self.tokenizer(prompts)
-        images = [image_tensor(inputs[key], self.config.image_size) for key in self.config.image_features]
+        images = [image_tensor(inputs[key], self.config.image_size, self.device) for key in self.config.image_features]
         return {"state": state, "tokens": tokens, "token_mask": mask, "images": images}
