@@ -4,7 +4,7 @@ from __future__ import annotations
 
 from contextlib import nullcontext
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable, Sequence
+from typing import Any, Callable, Iterable, Protocol, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -14,7 +14,7 @@ from sb3_memret.controllers.base import FrozenController, as_numpy
 from sb3_memret.envs.cabinet import LAYERS, check_layer
 from sb3_memret.prompts import CONDITIONS, build_prompt, condition_prompt
 from sb3_memret.tasks import Task, make_task
-from sb3_memret.tasks.base import RENDER_BACKENDS, check_render_backend
+from sb3_memret.tasks.base import RENDER_BACKENDS, EnvFrame, Episode, check_render_backend
 from sb3_memret.tasks.drawer import DrawerTask
 
 DEFAULT_REPLAN_EVERY = 8
@@ -144,6 +144,78 @@ def evaluate_condition(
     return results
 
 
+class FactSchedule(Protocol):
+    """The facts an episode's prompt carries at each of its decisions (``play_task_episodes``)."""
+
+    def start(self, frame: EnvFrame, episode: Episode) -> None:
+        """A new episode begins, at ``frame``."""
+
+    def facts(self, decision: int) -> Sequence[str]:
+        """The facts appended to the instruction at ``decision`` (0, 1, ...)."""
+
+
+@dataclass
+class ConditionFacts:
+    """A prompt condition's facts, the same at every decision: oracle, wrong, or none."""
+
+    task: Task
+    condition: str
+    _facts: list[str] = field(default_factory=list)
+
+    def __post_init__(self) -> None:
+        if self.condition not in CONDITIONS:
+            raise ValueError(f"unknown condition {self.condition!r}; expected one of {list(CONDITIONS)}")
+
+    def start(self, frame: EnvFrame, episode: Episode) -> None:
+        facts = {"oracle": self.task.oracle_facts, "wrong": self.task.wrong_facts}.get(self.condition)
+        self._facts = facts(episode) if facts is not None else []
+
+    def facts(self, decision: int) -> Sequence[str]:
+        return self._facts
+
+
+def play_task_episodes(
+    controller: FrozenController,
+    task: Task,
+    seeds: Iterable[int],
+    schedule: FactSchedule,
+    replan_every: int = DEFAULT_REPLAN_EVERY,
+    on_episode: Callable[[EpisodeResult], None] | None = None,
+    render_backend: str | None = None,
+) -> list[EpisodeResult]:
+    """One episode of ``task`` per seed, the controller replanning every ``replan_every`` control steps with
+    the instruction and ``schedule``'s facts of that decision. Success is the task's (once per episode)."""
+    from sb3_memret.envs.physics import TaskRunner, stack_obs
+
+    if not 1 <= replan_every <= controller.spec.chunk_len:
+        raise ValueError(f"replan_every must be in [1, {controller.spec.chunk_len}] (the chunk length), got {replan_every}")
+    runner = TaskRunner(task_env_kwargs(controller, render_backend or task.default_render_backend, task),
+                        task.max_control_steps, task)
+    results = []
+    try:
+        controller.check_env(runner.info())
+        for episode_seed in seeds:
+            frame = runner.reset(episode_seed, {})
+            episode = task.episode(frame)
+            schedule.start(frame, episode)
+            controller.reset([episode_seed])
+            decision, steps, success_steps = 0, 0, 0 if frame.success else None
+            while not (frame.terminated or frame.truncated):
+                facts = schedule.facts(decision)
+                prompt = build_prompt(task.instruction(episode), facts, controller.spec.prompt_template)
+                frame = runner.execute(controller.act(stack_obs([frame.obs]), [prompt])[0][:replan_every])
+                decision, steps = decision + 1, steps + frame.steps
+                if frame.success and success_steps is None:
+                    success_steps = steps  # at the end of the chunk it succeeded in
+            results.append(EpisodeResult(episode.group, episode_seed, frame.success,
+                                         steps if success_steps is None else success_steps))
+            if on_episode is not None:
+                on_episode(results[-1])
+    finally:
+        runner.close()
+    return results
+
+
 def evaluate_task_condition(
     controller: FrozenController,
     condition: str,
@@ -157,39 +229,12 @@ def evaluate_task_condition(
     """``episodes`` episodes of ``task`` at its protocol seeds (MIKASA's 4242424242 + i), else at
     seed..seed+episodes-1, each prompted by ``condition``: the task's instruction with its oracle
     facts, with none, or with its wrong facts. Success is the task's (once per episode)."""
-    from sb3_memret.envs.physics import TaskRunner, stack_obs
-
-    if condition not in CONDITIONS:
-        raise ValueError(f"unknown condition {condition!r}; expected one of {list(CONDITIONS)}")
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
-    if not 1 <= replan_every <= controller.spec.chunk_len:
-        raise ValueError(f"replan_every must be in [1, {controller.spec.chunk_len}] (the chunk length), got {replan_every}")
     task = make_task(task)
-    runner = TaskRunner(task_env_kwargs(controller, render_backend or task.default_render_backend, task),
-                        task.max_control_steps, task)
-    results = []
-    try:
-        controller.check_env(runner.info())
-        for episode_seed in task.evaluation_seeds(episodes) or range(seed, seed + episodes):
-            frame = runner.reset(episode_seed, {})
-            episode = task.episode(frame)
-            facts = {"oracle": task.oracle_facts, "wrong": task.wrong_facts}.get(condition, lambda _: [])(episode)
-            prompt = build_prompt(task.instruction(episode), facts, controller.spec.prompt_template)
-            controller.reset([episode_seed])
-            steps, success_steps = 0, 0 if frame.success else None
-            while not (frame.terminated or frame.truncated):
-                frame = runner.execute(controller.act(stack_obs([frame.obs]), [prompt])[0][:replan_every])
-                steps += frame.steps
-                if frame.success and success_steps is None:
-                    success_steps = steps  # at the end of the chunk it succeeded in
-            results.append(EpisodeResult(episode.group, episode_seed, frame.success,
-                                         steps if success_steps is None else success_steps))
-            if on_episode is not None:
-                on_episode(results[-1])
-    finally:
-        runner.close()
-    return results
+    schedule = ConditionFacts(task, condition)
+    seeds = task.evaluation_seeds(episodes) or range(seed, seed + episodes)
+    return play_task_episodes(controller, task, seeds, schedule, replan_every, on_episode, render_backend)
 
 
 def summarize(results: Iterable[EpisodeResult]) -> dict:
@@ -206,6 +251,6 @@ def summarize(results: Iterable[EpisodeResult]) -> dict:
     return summary
 
 
-__all__ = ["ChunkOutcome", "EpisodeResult", "RENDER_BACKENDS", "evaluate_condition", "evaluate_task_condition",
-           "execute_chunk", "make_task_env",
+__all__ = ["ChunkOutcome", "ConditionFacts", "EpisodeResult", "FactSchedule", "RENDER_BACKENDS",
+           "evaluate_condition", "evaluate_task_condition", "execute_chunk", "make_task_env", "play_task_episodes",
            "run_episode", "summarize", "task_env_kwargs"]

@@ -25,11 +25,10 @@ import numpy as np
 
 from sb3_memret.controllers import make_controller
 from sb3_memret.controllers.base import FrozenController
-from sb3_memret.envs.physics import TaskRunner, stack_obs
 from sb3_memret.memory.seeding import SeedingConfig
-from sb3_memret.prompts import build_prompt
-from sb3_memret.rollout import task_env_kwargs
+from sb3_memret.rollout import EpisodeResult, play_task_episodes
 from sb3_memret.tasks import Task, make_task
+from sb3_memret.tasks.base import EnvFrame, Episode
 
 SCHEDULES = ("oracle", "decoy", "decoy-then-oracle", "oracle-then-decoy", "uniform")
 
@@ -51,6 +50,24 @@ def fact_at(schedule: str, decision: int, switch: int, true_fact: str, decoys: l
     raise ValueError(f"unknown schedule {schedule!r}; expected one of {list(SCHEDULES)}")
 
 
+class ScheduledFacts:
+    """``schedule``'s fact at each decision of an episode, recording whether each one was the true fact."""
+
+    def __init__(self, task: Task, schedule: str, switch: int, seeding: SeedingConfig, rng: np.random.Generator):
+        self.task, self.schedule, self.switch, self.seeding, self.rng = task, schedule, switch, seeding, rng
+        self.true_fact, self.bank, self.used = "", [], []
+
+    def start(self, frame: EnvFrame, episode: Episode) -> None:
+        self.true_fact, = self.task.oracle_facts(episode)
+        self.bank = [m.text for m in self.task.seed_memories(frame, episode, self.rng, self.seeding)]
+        self.used = []
+
+    def facts(self, decision: int) -> list[str]:
+        fact = fact_at(self.schedule, decision, self.switch, self.true_fact, self.bank, self.rng)
+        self.used.append(fact == self.true_fact)
+        return [fact]
+
+
 def play(task: Task, controller: FrozenController, schedules: Sequence[str], episodes: int, switch: int,
          replan_every: int = 4, decoys: int = 5, seed: int = 0, verbose: bool = False) -> list[dict]:
     """Play ``episodes`` episodes of ``task`` (its protocol seeds) under each schedule; one record per episode:
@@ -58,35 +75,22 @@ def play(task: Task, controller: FrozenController, schedules: Sequence[str], epi
     for s in schedules:
         if s not in SCHEDULES:
             raise ValueError(f"unknown schedule {s!r}; expected some of {list(SCHEDULES)}")
-    runner = TaskRunner(task_env_kwargs(controller, task.default_render_backend, task), task.max_control_steps, task)
-    seeding = SeedingConfig(location_decoys=decoys)
     seeds = task.evaluation_seeds(episodes) or list(range(episodes))
     records: list[dict] = []
     start = time.perf_counter()
-    try:
-        controller.check_env(runner.info())
-        for schedule in schedules:
-            rng = np.random.default_rng(seed)
-            for episode_seed in seeds:
-                frame = runner.reset(episode_seed, {})
-                episode = task.episode(frame)
-                true_fact, = task.oracle_facts(episode)
-                bank = [m.text for m in task.seed_memories(frame, episode, rng, seeding)]
-                controller.reset([episode_seed])
-                used: list[bool] = []
-                while not (frame.terminated or frame.truncated):
-                    fact = fact_at(schedule, len(used), switch, true_fact, bank, rng)
-                    used.append(fact == true_fact)
-                    prompt = build_prompt(task.instruction(episode), [fact], controller.spec.prompt_template)
-                    frame = runner.execute(controller.act(stack_obs([frame.obs]), [prompt])[0][:replan_every])
-                records.append(dict(schedule=schedule, seed=int(episode_seed), group=str(episode.group),
-                                    decoy=bank[0], true=used, success=bool(frame.success)))
-            if verbose:
-                wins = [r["success"] for r in records if r["schedule"] == schedule]
-                print(f"{schedule:>18}: {100 * np.mean(wins):5.1f}% of {len(wins)}  "
-                      f"({time.perf_counter() - start:.0f} s)", flush=True)
-    finally:
-        runner.close()
+    for schedule in schedules:
+        seeding, rng = SeedingConfig(location_decoys=decoys), np.random.default_rng(seed)
+        facts = ScheduledFacts(task, schedule, switch, seeding, rng)
+
+        def record(result: EpisodeResult) -> None:
+            records.append(dict(schedule=schedule, seed=int(result.seed), group=str(result.layer),
+                                decoy=facts.bank[0], true=list(facts.used), success=bool(result.success)))
+
+        play_task_episodes(controller, task, seeds, facts, replan_every, on_episode=record)
+        if verbose:
+            wins = [r["success"] for r in records if r["schedule"] == schedule]
+            print(f"{schedule:>18}: {100 * np.mean(wins):5.1f}% of {len(wins)}  "
+                  f"({time.perf_counter() - start:.0f} s)", flush=True)
     return records
 
 

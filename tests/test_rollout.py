@@ -45,3 +45,22 @@ def test_image_controller_without_a_backend_is_refused_before_any_env_is_built()
 def test_unknown_backend_is_named():
     with pytest.raises(ValueError, match="unknown render backend 'vulkan'; expected one of"):
         task_env_kwargs(ScriptedDrawerController(), "vulkan")
+
+
+def test_a_condition_gives_its_facts_at_every_decision_and_an_unknown_one_is_named():
+    from sb3_memret.rollout import ConditionFacts
+    from sb3_memret.tasks import make_task
+    from sb3_memret.tasks.base import Episode
+
+    task = make_task("drawer")
+    episode = Episode("cube", "2", (), {"target_layer": 2})
+    oracle, wrong = ConditionFacts(task, "oracle"), ConditionFacts(task, "wrong")
+    oracle.start(None, episode)
+    wrong.start(None, episode)
+    assert [list(oracle.facts(d)) for d in range(3)] == [["the cube is in drawer layer 2."]] * 3
+    assert list(wrong.facts(0)) == ["the cube is in drawer layer 3."]
+    none = ConditionFacts(task, "none")
+    none.start(None, episode)
+    assert list(none.facts(0)) == []
+    with pytest.raises(ValueError, match="unknown condition 'nonsense'"):
+        ConditionFacts(task, "nonsense")
