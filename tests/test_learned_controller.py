@@ -13,7 +13,7 @@ from safetensors.torch import load_file, save_file
 from sb3_memret.controllers import make_controller
 from sb3_memret.controllers.learned import LearnedController, LearnedPolicy, LearnedPolicyConfig, default_checkpoint
 from sb3_memret.controllers.observation import IMAGE_KEYS, PROPRIO_NAMES, STATE_DIM, STATE_NAMES
-from sb3_memret.controllers.weights import WeightsNotLoadedError
+from sb3_memret.weights import WeightsNotLoadedError
 from sb3_memret.envs.objects import OBJECT_SETS
 from sb3_memret.prompts import condition_prompt
 from sb3_memret.rollout import execute_chunk, make_task_env, run_episode
