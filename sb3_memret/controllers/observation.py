@@ -10,11 +10,14 @@ feature names lerobot's π0.5 LIBERO finetuning expects.
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from typing import TYPE_CHECKING, Any, Mapping
 
 import numpy as np
 
 from sb3_memret.controllers.base import RENDER_HINT, Obs, as_numpy
+
+if TYPE_CHECKING:
+    import torch
 
 STATE_KEY, ACTION_KEY, TASK_KEY = "observation.state", "action", "task"
 # decision-frame datasets: each frame's labels for its next chunk_len control steps, and the steps past the episode
@@ -68,7 +71,7 @@ def camera_images(obs: Obs) -> dict[str, np.ndarray]:
     return images
 
 
-def resize_image_tensor(images: "torch.Tensor", size: int) -> "torch.Tensor":
+def resize_image_tensor(images: torch.Tensor, size: int) -> torch.Tensor:
     """(B, 3, H, W) uint8 -> (B, 3, size, size) float holding uint8 values: area-averaged and rounded as the
     demonstrations were stored, on whatever device ``images`` is (a GPU controller resizes on its GPU)."""
     from torch.nn import functional as F
