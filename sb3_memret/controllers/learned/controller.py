@@ -55,7 +55,7 @@ class LearnedController(FrozenController):
         if self._num_envs != len(prompts):
             raise RuntimeError(f"reset() was called for {self._num_envs} envs but act() got {len(prompts)} prompts")
         inputs = self.processor(obs, prompts)
-        prompt = self.policy.encode_prompts(inputs["tokens"].to(self.device), inputs["token_mask"].to(self.device))
+        prompt = self.policy.encode_prompts(inputs["tokens"], inputs["token_mask"])
         features = self.policy.camera_features(inputs["images"])
-        chunks = self.policy(inputs["state"].to(self.device), prompt, features)
+        chunks = self.policy(inputs["state"], prompt, features)
         return chunks.cpu().numpy()

@@ -56,7 +56,7 @@ def state_columns(available: Sequence[str], wanted: Sequence[str], where: str) -
 
 
 class LearnedPolicyProcessor:
-    """Builds the policy's inputs from a batched task observation and the prompts."""
+    """Builds the policy's inputs, on ``device``, from a batched task observation and the prompts."""
 
     def __init__(self, config: LearnedPolicyConfig, task: "Task", tokenizer: PromptTokenizer | None = None,
                  device: str | torch.device = "cpu"):
@@ -69,7 +69,7 @@ class LearnedPolicyProcessor:
 
     def __call__(self, obs: Obs, prompts: Sequence[str]) -> dict[str, torch.Tensor | list[torch.Tensor]]:
         inputs = self.task.controller_inputs(obs, len(prompts), bool(self.config.image_features))
-        state = torch.from_numpy(inputs[STATE_KEY][:, self.columns].astype(np.float32))
+        state = torch.from_numpy(inputs[STATE_KEY][:, self.columns].astype(np.float32)).to(self.device)
         tokens, mask = self.tokenizer(prompts)
         images = [image_tensor(inputs[key], self.config.image_size, self.device) for key in self.config.image_features]
-        return {"state": state, "tokens": tokens, "token_mask": mask, "images": images}
+        return {"state": state, "tokens": tokens.to(self.device), "token_mask": mask.to(self.device), "images": images}
