@@ -3,6 +3,7 @@ frozen trunk never trains."""
 
 from __future__ import annotations
 
+import pytest
 import torch
 
 from sb3_memret.controllers.learned.vision import EfficientNetLite0Trunk, SpatialSoftmax, make_camera_encoder, shift_augment
@@ -42,3 +43,22 @@ def test_the_pretrained_trunk_is_frozen():
     assert not trunk.training and not any(p.requires_grad for p in trunk.parameters())
     x = torch.rand(2, 3, 64, 64)
     torch.testing.assert_close(trunk(x), trunk(x))  # batch-norm statistics never move
+
+
+def test_a_colour_trunk_adds_the_image_averaged_to_its_grid():
+    trunk, head = make_camera_encoder("efficientnet_lite0", 24, colour=True)
+    images = torch.zeros(2, 3, 128, 128)
+    images[0, 0, :8, :8] = 1.0  # a red patch filling the top-left cell of the 16 x 16 grid
+    images[1, 2, 64:, 64:] = 0.5  # a dim blue bottom-right quarter
+    features = trunk(images)
+    assert features.shape == (2, 43, 16, 16) and head(features).shape == (2, 24)
+    torch.testing.assert_close(features[:, :40], EfficientNetLite0Trunk()(images))  # the trunk's own maps, unchanged
+    assert features[0, 40, 0, 0] == 1.0 and features[0, 40, 0, 1] == 0.0 and features[0, 41:].abs().max() == 0.0
+    assert features[1, 42, 8:, 8:].eq(0.5).all() and features[1, 42, :8].abs().max() == 0.0
+    trunk.train()
+    assert not trunk.training and not any(p.requires_grad for p in trunk.parameters())
+
+
+def test_colour_needs_a_frozen_trunk():
+    with pytest.raises(ValueError, match="image_colour needs a frozen trunk"):
+        make_camera_encoder("cnn", 24, colour=True)

@@ -66,7 +66,7 @@ class LearnedPolicy(nn.Module):
         heads = []
         for _ in config.image_features:
             trunk, head = make_camera_encoder(config.image_encoder, config.image_dim, config.trunk_sha256 or None,
-                                              config.keypoints)
+                                              config.keypoints, config.image_colour)
             heads.append(head)
             if trunk is not None and self.trunk is None:
                 self.trunk = trunk

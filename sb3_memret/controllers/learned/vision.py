@@ -9,6 +9,10 @@ Two choices (``LearnedPolicyConfig.image_encoder``), measured against each other
   a checkpoint cannot silently run on another trunk. Frozen features can be computed once per
   demonstration frame, which keeps finetuning on a CPU to the head's cost.
 
+With ``colour``, a trunk's head also reads the image itself, area-averaged to the trunk's grid (3 more
+channels): a frozen ImageNet trunk keeps what an object is better than its exact hue, and scenes of nine
+cubes in nearby hues (RememberColor9) need the hue to tell the cubes apart.
+
 Both heads end in a spatial softmax (each feature map's expected image coordinates, as in
 visuomotor policy learning), which keeps *where* an object is; average pooling alone loses it.
 """
@@ -118,13 +122,40 @@ class EfficientNetLite0Trunk(nn.Module):
         return x
 
 
-def make_camera_encoder(kind: str, image_dim: int, trunk_sha256: str | None = None, keypoints: int = KEYPOINTS
-                        ) -> tuple[nn.Module | None, nn.Module]:
-    """(frozen trunk or None, trainable head) of one image encoder kind; the head reads ``keypoints`` maps."""
+class ColourTrunk(nn.Module):
+    """A frozen trunk whose feature maps carry the image's colour too: (B, 3, S, S) in [0, 1] ->
+    (B, C + 3, h, w), the trunk's C maps and the image area-averaged to their h x w grid."""
+
+    def __init__(self, trunk: EfficientNetLite0Trunk):
+        super().__init__()
+        self.trunk = trunk
+        self.sha256 = trunk.sha256
+        self.out_channels = trunk.out_channels + 3
+        self.requires_grad_(False)
+        super().train(False)
+
+    def train(self, mode: bool = True) -> "ColourTrunk":
+        return self  # frozen: always in eval mode
+
+    @torch.no_grad()
+    def forward(self, images: torch.Tensor) -> torch.Tensor:
+        features = self.trunk(images)
+        return torch.cat([features, F.adaptive_avg_pool2d(images, features.shape[-2:]).to(features.dtype)], dim=1)
+
+
+def make_camera_encoder(kind: str, image_dim: int, trunk_sha256: str | None = None, keypoints: int = KEYPOINTS,
+                        colour: bool = False) -> tuple[nn.Module | None, nn.Module]:
+    """(frozen trunk or None, trainable head) of one image encoder kind; the head reads ``keypoints`` maps, and
+    with ``colour`` a trunk's maps carry the image's colour too (a CNN from pixels reads colour already)."""
     if kind == "cnn":
+        if colour:
+            raise ValueError("image_colour needs a frozen trunk (image_encoder 'efficientnet_lite0'): the 'cnn' "
+                             "encoder reads the pixels themselves")
         return None, CameraHead(3, image_dim, ((32, 5, 2), (64, 3, 2), (64, 3, 2), (64, 3, 1)), keypoints)
     if kind == "efficientnet_lite0":
-        trunk = EfficientNetLite0Trunk(trunk_sha256)
+        trunk: nn.Module = EfficientNetLite0Trunk(trunk_sha256)
+        if colour:
+            trunk = ColourTrunk(trunk)
         return trunk, CameraHead(trunk.out_channels, image_dim, ((32, 3, 1),), keypoints)
     raise ValueError(f"unknown image encoder {kind!r}; expected one of {list(IMAGE_ENCODERS)}")
 
@@ -144,5 +175,5 @@ def shift_augment(images: torch.Tensor, pad: int, generator: torch.Generator | N
     return padded.permute(0, 2, 3, 1)[batch, rows[:, :, None], cols[:, None, :]].permute(0, 3, 1, 2)
 
 
-__all__ = ["CameraHead", "EfficientNetLite0Trunk", "IMAGE_ENCODERS", "SpatialSoftmax",
+__all__ = ["CameraHead", "ColourTrunk", "EfficientNetLite0Trunk", "IMAGE_ENCODERS", "SpatialSoftmax",
            "make_camera_encoder", "shift_augment"]
