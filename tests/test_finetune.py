@@ -130,6 +130,17 @@ def test_a_camera_policy_learns_from_decision_frames_and_sees_only_the_hand(came
         load_demonstrations([camera_demos, demos])
 
 
+def test_a_colour_reading_policy_round_trips_and_acts(camera_demos, tmp_path, rgb_task_env):
+    config = LearnedPolicyConfig(hidden_dim=32, n_layers=1, text_dim=16, text_heads=2, image_encoder="efficientnet_lite0",
+                                 image_dim=8, keypoints=8, image_colour=True)
+    out = finetune([camera_demos], tmp_path / "ckpt", config, FinetuneSettings(steps=3, batch_size=4), state="proprio")
+    controller = make_controller(f"learned:{out}")
+    assert controller.policy.config.image_colour and controller.policy.cameras[0].net[0].in_channels == 43
+    obs, _ = rgb_task_env.reset(seed=43, options={"target_layer": 2})
+    controller.reset([43])
+    assert controller.act(obs, [condition_prompt("oracle", 2)]).shape == (1, 32, 7)
+
+
 def test_a_policy_without_cameras_estimates_nothing(demos, tmp_path):
     out = finetune([demos], tmp_path / "ckpt", SMALL, FinetuneSettings(steps=2, batch_size=8))
     assert make_controller(f"learned:{out}").policy.config.perceived_names == ()
