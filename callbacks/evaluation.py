@@ -11,7 +11,7 @@ from typing import Any
 from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_memret.analysis.evaluation import RetrievalReport, evaluate_retrieval
+from sb3_memret.evaluation import RetrievalReport, evaluate_retrieval
 from sb3_memret.callbacks.checkpoint import save_whole
 
 

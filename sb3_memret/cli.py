@@ -685,7 +685,7 @@ def evaluate(ctx: click.Context, model_path: Path, task: str | None, condition: 
              backend: str, ray_address: str | None) -> None:
     """Evaluate a trained model: success per group (the drawer's layer, the cue's colour) and retrieval
     accuracy, at the task's protocol seeds where it has them (MIKASA's 4242424242 + i)."""
-    from sb3_memret.analysis.evaluation import evaluate_retrieval
+    from sb3_memret.evaluation import evaluate_retrieval
     from sb3_memret.envs.vec_env import make_recall_vec_env
     from sb3_memret.training import eval_env_kwargs
 

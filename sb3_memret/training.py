@@ -32,7 +32,7 @@ from sb3_memret.config import TrainConfig, parse_section
 from sb3_memret.controllers import FrozenController, make_controller
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.tasks import DEFAULT_TASK, make_task
-from sb3_memret.analysis.evaluation import RetrievalReport
+from sb3_memret.evaluation import RetrievalReport
 from sb3_memret.policy.networks import HIDDEN
 from sb3_memret.policy.policy import MemoryRetrievalPolicy, saved_retriever
 from sb3_memret.policy.ppo import MemRetPPO

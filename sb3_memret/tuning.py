@@ -18,7 +18,7 @@ from typing import Any, Callable
 
 import yaml
 
-from sb3_memret.analysis.evaluation import RetrievalReport
+from sb3_memret.evaluation import RetrievalReport
 from sb3_memret.config import TrainConfig, parse_section
 from sb3_memret.controllers import FrozenController
 from sb3_memret.training import RunOptions, train

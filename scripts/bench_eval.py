@@ -26,7 +26,7 @@ import torch
 
 from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.vec_env import make_recall_vec_env
-from sb3_memret.analysis.evaluation import evaluate_retrieval
+from sb3_memret.evaluation import evaluate_retrieval
 from sb3_memret.parallel_rollout import EpisodeJob, run_jobs
 from sb3_memret.policy.policy import MemoryRetrievalPolicy
 from sb3_memret.policy.ppo import MemRetPPO

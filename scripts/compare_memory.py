@@ -22,7 +22,7 @@ from typing import Any
 import yaml
 from stable_baselines3 import PPO
 
-from sb3_memret.analysis.evaluation import RetrievalReport, evaluate_retrieval
+from sb3_memret.evaluation import RetrievalReport, evaluate_retrieval
 from sb3_memret.cli import HELD_OUT_SEED
 from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.objects import OBJECT_SETS

@@ -53,7 +53,7 @@ def run_row(run: Path) -> dict[str, Any]:
 
 def oracle_success(run: Path, episodes: int, n_envs: int) -> float:
     """Success of the oracle prompt on the run's held-out episodes, with the run's controller."""
-    from sb3_memret.analysis.evaluation import evaluate_retrieval
+    from sb3_memret.evaluation import evaluate_retrieval
     from sb3_memret.envs.vec_env import make_recall_vec_env
     from sb3_memret.policy.ppo import load_model
     from sb3_memret.training import eval_env_kwargs

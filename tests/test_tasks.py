@@ -176,7 +176,7 @@ def test_the_memory_learner_trains_on_a_task_of_its_own(encoder):
               "location_decoys": 3, "capacity": 4}
     venv = make_recall_vec_env(1, kwargs, seed=0)
     model = MemRetPPO(env=venv, n_steps=64, batch_size=32, gae_lambda=0.7, learning_rate=3e-3, seed=0)
-    from sb3_memret.analysis.evaluation import evaluate_retrieval
+    from sb3_memret.evaluation import evaluate_retrieval
 
     before = evaluate_retrieval(model, venv, 20, seed=1000)
     model.learn(1536)
@@ -198,7 +198,7 @@ def test_evaluation_plays_the_tasks_protocol_seeds_once_each(encoder):
     venv = make_recall_vec_env(2, {"task": SeededDoorsTask(), "controller": "scripted", "encoder": encoder,
                                    "replan_every": 4, "location_decoys": 3, "capacity": 4}, backend="inprocess")
     model = MemRetPPO(env=venv, n_steps=8, batch_size=8, seed=0)
-    from sb3_memret.analysis.evaluation import evaluate_retrieval
+    from sb3_memret.evaluation import evaluate_retrieval
 
     played = []
     report = evaluate_retrieval(model, venv, 5, seed=3, on_episode=played.append)
@@ -333,7 +333,7 @@ def test_the_memory_learner_learns_to_retrieve_every_needed_fact(encoder):
     """K = 2 over 2 facts and 2 decoys: a uniform draw holds both 1 time in 6; PPO learns to hold both. With the
     paper's entropy coefficient (0.001) the Plackett-Luce draws settle before they meet both facts together on 2 of
     4 seeds here (greedy 0.4-0.7); 0.01 keeps exploring and learns on all 4."""
-    from sb3_memret.analysis.evaluation import evaluate_retrieval
+    from sb3_memret.evaluation import evaluate_retrieval
 
     venv = make_recall_vec_env(1, {"task": PairDoorsTask(), "controller": "scripted", "encoder": encoder,
                                    "replan_every": 4, "location_decoys": 2, "capacity": 4, "k": 2}, seed=0)

@@ -179,7 +179,7 @@ def test_retrieval_is_learned_on_the_real_simulator():
     runs the full 24 rounds)."""
     from sb3_memret.cli import load_task_config
     from sb3_memret.envs.vec_env import make_recall_vec_env
-    from sb3_memret.analysis.evaluation import evaluate_retrieval
+    from sb3_memret.evaluation import evaluate_retrieval
     from sb3_memret.policy.policy import MemoryRetrievalPolicy
     from sb3_memret.policy.ppo import MemRetPPO
     from sb3_memret.training import env_kwargs_for

@@ -7,7 +7,7 @@ import optuna
 import pytest
 from click.testing import CliRunner
 
-from sb3_memret.analysis.evaluation import RetrievalReport
+from sb3_memret.evaluation import RetrievalReport
 from sb3_memret.cli import main
 from sb3_memret.config import load_config, parse_section
 from sb3_memret.tuning import TrialReporter, apply_hyperparameters, sample_hyperparameters

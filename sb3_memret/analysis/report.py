@@ -17,7 +17,7 @@ from typing import Any, Callable
 from sb3_memret.analysis.ablations import ABLATIONS
 from sb3_memret.tasks import DEFAULT_TASK
 from sb3_memret.envs.vec_env import make_recall_vec_env
-from sb3_memret.analysis.evaluation import RetrievalReport, evaluate_retrieval
+from sb3_memret.evaluation import RetrievalReport, evaluate_retrieval
 from sb3_memret.analysis.plotting import PLOT_FILE, plot_learning_curves
 from sb3_memret.policy.ppo import MemRetPPO, load_model
 from sb3_memret.analysis.trace import model_label, trace_models
