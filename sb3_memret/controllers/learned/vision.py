@@ -86,11 +86,20 @@ def file_sha256(path: Path) -> str:
     return hashlib.sha256(path.read_bytes()).hexdigest()
 
 
-class EfficientNetLite0Trunk(nn.Module):
-    """Frozen ImageNet EfficientNet-Lite0 up to stride 8: (B, 3, S, S) in [0, 1] -> (B, 40, S/8, S/8).
+class FrozenModule(nn.Module):
+    """A module that never trains: no gradients, and eval mode (batch-norm statistics, drop-connect as trained)
+    whatever mode its policy is in. Subclasses call ``freeze`` once built."""
 
-    Stays in eval mode (batch-norm statistics and drop-connect as trained) whatever mode its policy is in.
-    """
+    def freeze(self) -> None:
+        self.requires_grad_(False)
+        super().train(False)
+
+    def train(self, mode: bool = True) -> "FrozenModule":
+        return self
+
+
+class EfficientNetLite0Trunk(FrozenModule):
+    """Frozen ImageNet EfficientNet-Lite0 up to stride 8: (B, 3, S, S) in [0, 1] -> (B, 40, S/8, S/8)."""
 
     out_channels = 40
 
@@ -108,11 +117,7 @@ class EfficientNetLite0Trunk(nn.Module):
         model.load_state_dict(torch.load(path, map_location="cpu", weights_only=True))
         self.stem = nn.Sequential(model._conv_stem, model._bn0, model._swish)
         self.blocks = nn.ModuleList(model._blocks[:EFFICIENTNET_BLOCKS])
-        self.requires_grad_(False)
-        super().train(False)
-
-    def train(self, mode: bool = True) -> "EfficientNetLite0Trunk":
-        return self  # frozen: always in eval mode
+        self.freeze()
 
     @torch.no_grad()
     def forward(self, images: torch.Tensor) -> torch.Tensor:
@@ -122,7 +127,7 @@ class EfficientNetLite0Trunk(nn.Module):
         return x
 
 
-class ColourTrunk(nn.Module):
+class ColourTrunk(FrozenModule):
     """A frozen trunk whose feature maps carry the image's colour too: (B, 3, S, S) in [0, 1] ->
     (B, C + 3, h, w), the trunk's C maps and the image area-averaged to their h x w grid."""
 
@@ -131,11 +136,7 @@ class ColourTrunk(nn.Module):
         self.trunk = trunk
         self.sha256 = trunk.sha256
         self.out_channels = trunk.out_channels + 3
-        self.requires_grad_(False)
-        super().train(False)
-
-    def train(self, mode: bool = True) -> "ColourTrunk":
-        return self  # frozen: always in eval mode
+        self.freeze()
 
     @torch.no_grad()
     def forward(self, images: torch.Tensor) -> torch.Tensor:
@@ -175,5 +176,5 @@ def shift_augment(images: torch.Tensor, pad: int, generator: torch.Generator | N
     return padded.permute(0, 2, 3, 1)[batch, rows[:, :, None], cols[:, None, :]].permute(0, 3, 1, 2)
 
 
-__all__ = ["CameraHead", "ColourTrunk", "EfficientNetLite0Trunk", "IMAGE_ENCODERS", "SpatialSoftmax",
+__all__ = ["CameraHead", "ColourTrunk", "EfficientNetLite0Trunk", "FrozenModule", "IMAGE_ENCODERS", "SpatialSoftmax",
            "make_camera_encoder", "shift_augment"]
