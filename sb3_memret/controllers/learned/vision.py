@@ -154,7 +154,7 @@ def make_camera_encoder(kind: str, image_dim: int, trunk_sha256: str | None = No
                              "encoder reads the pixels themselves")
         return None, CameraHead(3, image_dim, ((32, 5, 2), (64, 3, 2), (64, 3, 2), (64, 3, 1)), keypoints)
     if kind == "efficientnet_lite0":
-        trunk: nn.Module = EfficientNetLite0Trunk(trunk_sha256)
+        trunk: FrozenModule = EfficientNetLite0Trunk(trunk_sha256)
         if colour:
             trunk = ColourTrunk(trunk)
         return trunk, CameraHead(trunk.out_channels, image_dim, ((32, 3, 1),), keypoints)
