@@ -18,6 +18,7 @@ import numpy as np
 import torch
 
 from sb3_memret.controllers.learned import LearnedPolicy
+from sb3_memret.controllers.learned.processing import PromptTokenizer
 from sb3_memret.stage1.finetune import FinetuneSettings, camera_inputs, load_demonstrations, validation_episodes
 
 
@@ -45,8 +46,9 @@ def main() -> None:
         raise SystemExit("no validation episodes: --validation-fraction is 0")
     idx = np.sort(np.random.default_rng(0).choice(held, size=min(args.frames, len(held)), replace=False))
     features = camera_inputs(policy, {k: v[idx] for k, v in demos.images.items()}, policy.config.image_features)
-    with torch.no_grad():
-        estimates = policy.perceive(policy.encode_cameras([f.float() for f in features]))
+    with torch.no_grad():  # heads conditioned on the prompt (image_film) read each frame's own prompt
+        prompts = policy.encode_prompts(*PromptTokenizer()(demos.tasks))[torch.from_numpy(demos.task_ids[idx])]
+        estimates = policy.perceive(policy.encode_cameras([f.float() for f in features], prompts))
     labels = torch.from_numpy(demos.states[idx][:, [demos.state_names.index(n) for n in names]])
     normalised = (labels - policy.perceived_mean) / policy.perceived_std
     error = estimates * policy.perceived_std + policy.perceived_mean - labels

@@ -4,6 +4,7 @@ policy learns the expert's labels on a small budget, and the checkpoint loads as
 from __future__ import annotations
 
 import numpy as np
+import torch
 import pytest
 
 from sb3_memret.controllers import make_controller
@@ -139,6 +140,27 @@ def test_a_colour_reading_policy_round_trips_and_acts(camera_demos, tmp_path, rg
     obs, _ = rgb_task_env.reset(seed=43, options={"target_layer": 2})
     controller.reset([43])
     assert controller.act(obs, [condition_prompt("oracle", 2)]).shape == (1, 32, 7)
+
+
+def test_a_prompt_conditioned_camera_policy_round_trips_and_its_vision_follows_the_prompt(camera_demos, tmp_path,
+                                                                                          rgb_task_env):
+    config = LearnedPolicyConfig(hidden_dim=32, n_layers=1, text_dim=16, text_heads=2, image_encoder="cnn",
+                                 image_dim=8, keypoints=8, image_film=True)
+    out = finetune([camera_demos], tmp_path / "ckpt", config, FinetuneSettings(steps=3, batch_size=4), state="proprio")
+    controller = make_controller(f"learned:{out}")
+    policy = controller.policy
+    assert policy.config.image_film and all(head.film is not None for head in policy.cameras)
+    obs, _ = rgb_task_env.reset(seed=43, options={"target_layer": 2})
+    controller.reset([43])
+    assert controller.act(obs, [condition_prompt("oracle", 2)]).shape == (1, 32, 7)
+    prompts = [condition_prompt("oracle", 1), condition_prompt("oracle", 3)]
+    inputs = controller.processor(obs, prompts[:1])
+    features = [f.expand(2, -1, -1, -1) for f in policy.camera_features(inputs["images"])]
+    with torch.no_grad():
+        vision = policy.encode_cameras(features, policy.encode_prompts(*controller.processor.tokenizer(prompts)))
+        assert not torch.allclose(vision[0], vision[1])  # one frame, two prompts: two views of it
+        with pytest.raises(ValueError, match="conditioned on the prompt"):
+            policy.encode_cameras(features)
 
 
 def test_a_policy_without_cameras_estimates_nothing(demos, tmp_path):

@@ -1,12 +1,12 @@
-"""Camera encoders: keypoints land where a feature map peaks, shifts move pixels without inventing any, and a
-frozen trunk never trains."""
+"""Camera encoders: keypoints land where a feature map peaks, shifts move pixels without inventing any, a
+frozen trunk never trains, and a prompt-conditioned head finds the object its prompt names."""
 
 from __future__ import annotations
 
 import pytest
 import torch
 
-from sb3_memret.controllers.learned.vision import EfficientNetLite0Trunk, SpatialSoftmax, make_camera_encoder, shift_augment
+from sb3_memret.controllers.learned.vision import CameraHead, EfficientNetLite0Trunk, SpatialSoftmax, make_camera_encoder, shift_augment
 
 
 def test_spatial_softmax_finds_a_peak():
@@ -57,6 +57,52 @@ def test_a_colour_trunk_adds_the_image_averaged_to_its_grid():
     assert features[1, 42, 8:, 8:].eq(0.5).all() and features[1, 42, :8].abs().max() == 0.0
     trunk.train()
     assert not trunk.training and not any(p.requires_grad for p in trunk.parameters())
+
+
+def test_a_film_head_starts_as_its_unconditioned_twin_and_needs_the_prompt():
+    _, film = make_camera_encoder("cnn", 24, film_dim=6)
+    _, plain = make_camera_encoder("cnn", 24)
+    plain.load_state_dict({k: v for k, v in film.state_dict().items() if not k.startswith("film.")})
+    images = torch.rand(3, 3, 32, 32)
+    torch.testing.assert_close(film(images, torch.randn(3, 6)), plain(images))  # FiLM starts as the identity
+    with pytest.raises(ValueError, match="conditioned on the prompt"):
+        film(images)
+
+
+def _two_squares(n: int, generator: torch.Generator) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """(n, 3, 16, 16) maps with a red and a blue 3x3 square at random cells, a one-hot prompt naming one of the
+    two, and the named square's centre in [-1, 1]."""
+    maps = torch.zeros(n, 3, 16, 16)
+    named = torch.randint(0, 2, (n,), generator=generator)
+    centres = torch.zeros(n, 2, 2)
+    for i in range(n):
+        cells = torch.randperm(4, generator=generator)[:2]  # two of four quadrants: the squares never overlap
+        for colour, cell in zip((0, 2), cells.tolist()):
+            row = 8 * (cell // 2) + int(torch.randint(0, 5, (1,), generator=generator))
+            col = 8 * (cell % 2) + int(torch.randint(0, 5, (1,), generator=generator))
+            maps[i, colour, row: row + 3, col: col + 3] = 1.0
+            centres[i, colour // 2] = torch.tensor([col + 1, row + 1]) / 7.5 - 1.0
+    return maps, torch.nn.functional.one_hot(named, 2).float(), centres[torch.arange(n), named]
+
+
+def test_a_film_head_learns_to_locate_the_object_its_prompt_names():
+    """Two squares in sight, the prompt names one: its position is learnable only through the prompt."""
+    torch.manual_seed(0)
+    generator = torch.Generator().manual_seed(0)
+    head = CameraHead(3, 32, ((16, 3, 1),), keypoints=8, film_dim=2)  # a 16x16 grid of 3 channels, no striding
+    readout = torch.nn.Linear(32, 2)
+    optimizer = torch.optim.Adam([*head.parameters(), *readout.parameters()], lr=3e-3)
+    for _ in range(400):
+        maps, prompt, target = _two_squares(64, generator)
+        loss = torch.nn.functional.mse_loss(readout(head(maps, prompt)), target)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    maps, prompt, target = _two_squares(256, generator)
+    with torch.no_grad():
+        error = (readout(head(maps, prompt)) - target).norm(dim=1).median()
+        swapped = (readout(head(maps, prompt.flip(1))) - target).norm(dim=1).median()
+    assert error < 0.15 and swapped > 0.5, (error, swapped)  # it finds the named square, not the other
 
 
 def test_colour_needs_a_frozen_trunk():

@@ -294,8 +294,9 @@ def finetune(
         cams = [f[index].float() / 255.0 if from_pixels else f[index] for f in features]
         if from_pixels and model.training:
             cams = [shift_augment(c, settings.image_shift, shifts) for c in cams]
-        vision = model.encode_cameras(cams)
-        predicted = model.decode(states[index], model.encode_prompts(task_tokens, task_mask)[tid], vision)
+        prompt = model.encode_prompts(task_tokens, task_mask)[tid]
+        vision = model.encode_cameras(cams, prompt)
+        predicted = model.decode(states[index], prompt, vision)
         seen = F.mse_loss(model.perceive(vision), labels[index]) if perceived else predicted.new_zeros(())
         return torch.stack([chunk_loss(predicted, targets_t[index], is_pad_t[index]), seen])
 

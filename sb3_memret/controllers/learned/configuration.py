@@ -45,6 +45,7 @@ class LearnedPolicyConfig:
     keypoints: int = KEYPOINTS  # per camera: feature maps whose expected image coordinates its head reads
     image_encoder: str = "cnn"  # one of vision.IMAGE_ENCODERS
     image_colour: bool = False  # a frozen trunk's heads also read the image's colour on the trunk's grid
+    image_film: bool = False  # the camera heads' keypoints are conditioned on the prompt (FiLM)
     trunk_sha256: str = ""  # the frozen pretrained trunk's weights file, for encoders that have one
     action_convention: str = "pd_ee_delta_pose"
     instructions: tuple[str, ...] = field(default_factory=lambda: PromptTemplate().instructions)

@@ -66,7 +66,8 @@ class LearnedPolicy(nn.Module):
         heads = []
         for _ in config.image_features:
             trunk, head = make_camera_encoder(config.image_encoder, config.image_dim, config.trunk_sha256 or None,
-                                              config.keypoints, config.image_colour)
+                                              config.keypoints, config.image_colour,
+                                              config.text_dim if config.image_film else 0)
             heads.append(head)
             if trunk is not None and self.trunk is None:
                 self.trunk = trunk
@@ -112,15 +113,22 @@ class LearnedPolicy(nn.Module):
                              f"got {len(images)} image batches")
         return [self.trunk(image) for image in images] if self.trunk is not None else list(images)
 
-    def encode_cameras(self, camera_features: list[torch.Tensor] | None) -> torch.Tensor:
-        """Per camera ``camera_features`` -> (B, image_dim x cameras): what the action head sees of the images."""
+    def encode_cameras(self, camera_features: list[torch.Tensor] | None,
+                       prompt: torch.Tensor | None = None) -> torch.Tensor:
+        """Per camera ``camera_features`` -> (B, image_dim x cameras): what the action head sees of the images.
+        Heads conditioned on the prompt (``config.image_film``) also read the (B, text_dim) ``encode_prompts``
+        vectors."""
         camera_features = camera_features or []
+        if self.config.image_film and prompt is None:
+            raise ValueError("this policy's camera heads are conditioned on the prompt (image_film): pass the "
+                             "encode_prompts vectors to encode_cameras")
         if len(camera_features) != len(self.cameras):
             raise ValueError(f"the policy reads {len(self.cameras)} cameras {list(self.config.image_features)}, "
                              f"got {len(camera_features)} feature batches")
         if not camera_features:
             return self.state_mean.new_zeros((0, 0))
-        return torch.cat([head(features.float()) for head, features in zip(self.cameras, camera_features)], dim=-1)
+        return torch.cat([head(features.float(), prompt) for head, features in zip(self.cameras, camera_features)],
+                         dim=-1)
 
     def perceive(self, vision: torch.Tensor) -> torch.Tensor:
         """``encode_cameras`` vectors -> (B, len(perceived_names)) normalised estimates of the perceived entries."""
@@ -140,7 +148,7 @@ class LearnedPolicy(nn.Module):
     def forward(self, state: torch.Tensor, prompt: torch.Tensor,
                 camera_features: list[torch.Tensor] | None = None) -> torch.Tensor:
         """(B, state_dim) states, (B, text_dim) ``encode_prompts`` vectors, per camera ``camera_features``."""
-        return self.decode(state, prompt, self.encode_cameras(camera_features))
+        return self.decode(state, prompt, self.encode_cameras(camera_features, prompt))
 
     def save_pretrained(self, folder: str | Path) -> Path:
         """Write ``config.json`` and ``model.safetensors`` into ``folder``."""

@@ -50,10 +50,16 @@ class SpatialSoftmax(nn.Module):
 
 
 class CameraHead(nn.Module):
-    """Trainable: feature maps (B, C, H, W) -> (B, image_dim), keypoint coordinates and pooled features."""
+    """Trainable: feature maps (B, C, H, W) -> (B, image_dim), keypoint coordinates and pooled features.
+
+    With ``film_dim`` the maps its keypoints are drawn from are modulated by the prompt (FiLM: a per-channel
+    scale and shift computed from the prompt vector, as in language-conditioned visuomotor policies), so a
+    keypoint can follow the object the prompt names rather than every object of the scene. The modulation
+    starts as the identity.
+    """
 
     def __init__(self, in_channels: int, image_dim: int, convs: tuple[tuple[int, int, int], ...],
-                 keypoints: int = KEYPOINTS):
+                 keypoints: int = KEYPOINTS, film_dim: int = 0):
         super().__init__()
         layers: list[nn.Module] = []
         channels = in_channels
@@ -63,11 +69,24 @@ class CameraHead(nn.Module):
             channels = out
         layers.append(nn.Conv2d(channels, keypoints, 1))
         self.net = nn.Sequential(*layers)
+        self.film: nn.Linear | None = None
+        if film_dim:
+            self.film = nn.Linear(film_dim, 2 * channels)
+            nn.init.zeros_(self.film.weight)
+            nn.init.zeros_(self.film.bias)
         self.keypoints = SpatialSoftmax()
         self.out = nn.Sequential(nn.Linear(3 * keypoints, image_dim), nn.ReLU())
 
-    def forward(self, features: torch.Tensor) -> torch.Tensor:
-        maps = self.net(features)
+    def forward(self, features: torch.Tensor, prompt: torch.Tensor | None = None) -> torch.Tensor:
+        """(B, C, H, W) features (and, for a FiLM head, (B, film_dim) prompt vectors) -> (B, image_dim)."""
+        if self.film is None:
+            maps = self.net(features)
+        else:
+            if prompt is None:
+                raise ValueError("this camera head is conditioned on the prompt (FiLM): pass the prompt vectors")
+            hidden = self.net[:-1](features)
+            scale, shift = self.film(prompt).chunk(2, dim=-1)
+            maps = self.net[-1](hidden * (1.0 + scale[:, :, None, None]) + shift[:, :, None, None])
         return self.out(torch.cat([self.keypoints(maps), maps.mean(dim=(2, 3))], dim=1))
 
 
@@ -145,19 +164,21 @@ class ColourTrunk(FrozenModule):
 
 
 def make_camera_encoder(kind: str, image_dim: int, trunk_sha256: str | None = None, keypoints: int = KEYPOINTS,
-                        colour: bool = False) -> tuple[nn.Module | None, nn.Module]:
-    """(frozen trunk or None, trainable head) of one image encoder kind; the head reads ``keypoints`` maps, and
-    with ``colour`` a trunk's maps carry the image's colour too (a CNN from pixels reads colour already)."""
+                        colour: bool = False, film_dim: int = 0) -> tuple[nn.Module | None, CameraHead]:
+    """(frozen trunk or None, trainable head) of one image encoder kind; the head reads ``keypoints`` maps, with
+    ``colour`` a trunk's maps carry the image's colour too (a CNN from pixels reads colour already), and with
+    ``film_dim`` the head is conditioned on prompt vectors of that size."""
     if kind == "cnn":
         if colour:
             raise ValueError("image_colour needs a frozen trunk (image_encoder 'efficientnet_lite0'): the 'cnn' "
                              "encoder reads the pixels themselves")
-        return None, CameraHead(3, image_dim, ((32, 5, 2), (64, 3, 2), (64, 3, 2), (64, 3, 1)), keypoints)
+        return None, CameraHead(3, image_dim, ((32, 5, 2), (64, 3, 2), (64, 3, 2), (64, 3, 1)), keypoints,
+                                film_dim)
     if kind == "efficientnet_lite0":
         trunk: FrozenModule = EfficientNetLite0Trunk(trunk_sha256)
         if colour:
             trunk = ColourTrunk(trunk)
-        return trunk, CameraHead(trunk.out_channels, image_dim, ((32, 3, 1),), keypoints)
+        return trunk, CameraHead(trunk.out_channels, image_dim, ((32, 3, 1),), keypoints, film_dim)
     raise ValueError(f"unknown image encoder {kind!r}; expected one of {list(IMAGE_ENCODERS)}")
 
 
