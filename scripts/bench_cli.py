@@ -53,7 +53,7 @@ def main() -> None:
         for name, command in COMMANDS.items():
             times[name].append(wall_seconds(command))
     base = statistics.median(times["python -c pass (baseline)"])
-    print(f"| command | median s | min s | max s | over bare Python start-up | heavy libraries loaded |")
+    print("| command | median s | min s | max s | over bare Python start-up | heavy libraries loaded |")
     print("|---|---|---|---|---|---|")
     for name, command in COMMANDS.items():
         median = statistics.median(times[name])
