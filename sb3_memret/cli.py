@@ -421,11 +421,14 @@ def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, no
 @click.option("--image-film/--no-image-film", default=False, show_default=True,
               help="learned: the camera heads' keypoints are conditioned on the prompt (FiLM), to find the object it "
                    "names among many alike.")
+@click.option("--pointer/--no-pointer", default=False, show_default=True,
+              help="learned: the action head also reads the perceived entries of the object the prompt points at "
+                   "(attention over the perceived objects, named <object>_x/_y/_z/_visible), for scenes of many alike.")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
 def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | None, batch_size: int | None,
              learning_rate: float | None, seed: int, pretrained: Path | None, tokenizer: Path | None, lora_rank: int,
              device: str, task: str, state: str | None, image_encoder: str, image_dim: int, keypoints: int,
-             image_colour: bool, image_film: bool, progress: bool) -> None:
+             image_colour: bool, image_film: bool, pointer: bool, progress: bool) -> None:
     """Train a frozen controller from DATASETS (LeRobotDatasets written by `sb3-memret demos`).
 
     The learned policy reads the prompt as frozen MiniLM per-token features, the state (and the
@@ -464,7 +467,7 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
     template = the_task.prompt_template
     config = LearnedPolicyConfig(instructions=template.instructions, fact_templates=template.fact_templates,
                                  image_encoder=image_encoder, image_dim=image_dim, keypoints=keypoints,
-                                 image_colour=image_colour, image_film=image_film,
+                                 image_colour=image_colour, image_film=image_film, pointer=pointer,
                                  chunk_len=the_task.expert().spec.chunk_len)
     try:
         state = state or ("proprio" if has_cameras(datasets) else "full")

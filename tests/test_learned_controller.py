@@ -12,6 +12,8 @@ from safetensors.torch import load_file, save_file
 
 from sb3_memret.controllers import make_controller
 from sb3_memret.controllers.learned import LearnedController, LearnedPolicy, LearnedPolicyConfig, default_checkpoint
+from sb3_memret.controllers.learned.configuration import perceived_objects
+from sb3_memret.controllers.learned.modeling import ObjectPointer
 from sb3_memret.controllers.observation import IMAGE_KEYS, PROPRIO_NAMES, STATE_DIM, STATE_NAMES
 from sb3_memret.weights import WeightsNotLoadedError
 from sb3_memret.envs.objects import OBJECT_SETS
@@ -258,3 +260,54 @@ def test_images_are_resized_on_the_controllers_device_as_the_demonstrations_were
     assert torch.equal(same * 255.0, torch.from_numpy(frames).permute(0, 3, 1, 2).float())
     with pytest.raises(ValueError, match="uint8"):
         image_tensor(frames.astype(np.float32), 128)
+
+
+CUBES = ("red", "blue", "lime")
+CUBE_NAMES = tuple(f"cube_{c}_{axis}" for c in CUBES for axis in "xyz") + tuple(f"cube_{c}_visible" for c in CUBES)
+
+
+def test_a_pointer_groups_the_perceived_entries_per_object_or_says_why_not():
+    assert perceived_objects(CUBE_NAMES) == (tuple(f"cube_{c}" for c in CUBES), ("x", "y", "z", "visible"))
+    camera = {**SMALL, "image_features": tuple(IMAGE_KEYS), "pointer": True}
+    with pytest.raises(ValueError, match="'opening_1' is not"):
+        LearnedPolicyConfig(**camera, state_names=PROPRIO_NAMES, state_dim=len(PROPRIO_NAMES),
+                            perceived_names=STATE_NAMES[len(PROPRIO_NAMES):])  # the drawer's entries name no objects
+    with pytest.raises(ValueError, match="the same fields"):
+        LearnedPolicyConfig(**camera, perceived_names=CUBE_NAMES[:-1])  # lime has no visibility flag
+    with pytest.raises(ValueError, match="pointer needs perceived entries to point at"):
+        LearnedPolicy(LearnedPolicyConfig(**camera))
+
+
+def test_a_pointer_learns_to_hand_on_the_object_its_prompt_names():
+    torch.manual_seed(0)
+    pointer = ObjectPointer(CUBE_NAMES, 16)
+    prompts = torch.randn(len(CUBES), 16)  # one prompt vector per cube named
+    optimizer = torch.optim.Adam(pointer.parameters(), lr=1e-2)
+    for _ in range(200):
+        named = torch.randint(0, len(CUBES), (64,))
+        perceived = torch.randn(64, len(CUBE_NAMES))
+        target = perceived.gather(1, pointer.index[named])  # the named cube's x, y, z, visible
+        loss = torch.nn.functional.mse_loss(pointer(perceived, prompts[named]), target)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    with torch.no_grad():
+        weights = pointer.weights(prompts)
+    assert weights.argmax(dim=1).tolist() == [0, 1, 2] and weights.diagonal().min() > 0.9, weights
+
+
+def test_a_pointer_policy_round_trips_exactly(tmp_path):
+    torch.manual_seed(0)
+    config = LearnedPolicyConfig(**SMALL, task="RememberColor3-VLA-v0", state_names=("tcp_x", "tcp_y"), state_dim=2,
+                                 image_features=tuple(IMAGE_KEYS), image_size=32, image_encoder="cnn", image_dim=8,
+                                 keypoints=8, perceived_names=CUBE_NAMES, pointer=True)
+    policy = LearnedPolicy(config)
+    assert policy.head[0].in_features == 2 + 16 + 2 * 8 + len(CUBE_NAMES) + 4  # ... and the pointed cube's 4
+    torch.nn.init.normal_(policy.pointer.keys)
+    policy.save_pretrained(tmp_path)
+    assert "pointer.index" not in load_file(tmp_path / "model.safetensors")  # rebuilt from the names
+    loaded = LearnedPolicy.from_pretrained(tmp_path)
+    state, prompt, images = torch.randn(2, 2), torch.randn(2, 16), [torch.rand(2, 3, 32, 32) for _ in IMAGE_KEYS]
+    with torch.no_grad():
+        np.testing.assert_array_equal(policy.eval()(state, prompt, policy.camera_features(images)),
+                                      loaded(state, prompt, loaded.camera_features(images)))

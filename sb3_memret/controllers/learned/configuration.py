@@ -12,6 +12,7 @@ from sb3_memret.controllers.observation import ACTION_DIM, IMAGE_KEYS, STATE_NAM
 from sb3_memret.prompts import PromptTemplate
 
 CONFIG_FILE = "config.json"
+POINTER_FIELDS = ("x", "y", "z", "visible")  # the entries of one perceived object, ``<object>_<field>``
 POLICY_TYPE = "sb3_memret_learned"
 
 
@@ -46,6 +47,7 @@ class LearnedPolicyConfig:
     image_encoder: str = "cnn"  # one of vision.IMAGE_ENCODERS
     image_colour: bool = False  # a frozen trunk's heads also read the image's colour on the trunk's grid
     image_film: bool = False  # the camera heads' keypoints are conditioned on the prompt (FiLM)
+    pointer: bool = False  # the action head also reads the perceived entries of the object the prompt points at
     trunk_sha256: str = ""  # the frozen pretrained trunk's weights file, for encoders that have one
     action_convention: str = "pd_ee_delta_pose"
     instructions: tuple[str, ...] = field(default_factory=lambda: PromptTemplate().instructions)
@@ -67,6 +69,8 @@ class LearnedPolicyConfig:
         if self.perceived_names and not self.image_features:
             raise ValueError(f"perceived_names {list(self.perceived_names)} need cameras to be estimated from; "
                              "image_features is empty")
+        if self.pointer and self.perceived_names:
+            perceived_objects(self.perceived_names)  # entries grouped per object, or a clear error
         both = sorted(set(self.perceived_names) & set(self.state_names))
         if both:
             raise ValueError(f"entries {both} are both read from the state and estimated from the cameras")
@@ -75,6 +79,11 @@ class LearnedPolicyConfig:
             raise ValueError(f"sizes must be positive: {self}")
         if self.text_dim % self.text_heads:
             raise ValueError(f"text_dim {self.text_dim} must be a multiple of text_heads {self.text_heads}")
+
+    @property
+    def pointer_fields(self) -> int:
+        """How many entries the pointer hands the action head: one object's (0 without a pointer)."""
+        return len(perceived_objects(self.perceived_names)[1]) if self.pointer else 0
 
     @property
     def prompt_template(self) -> PromptTemplate:
@@ -97,3 +106,19 @@ class LearnedPolicyConfig:
         if unknown:
             raise ValueError(f"{path} has unknown keys {unknown}; accepted {sorted(known)}")
         return cls(**data)
+
+
+def perceived_objects(names: tuple[str, ...]) -> tuple[tuple[str, ...], tuple[str, ...]]:
+    """(objects, fields) of perceived entries named ``<object>_<field>`` (fields from POINTER_FIELDS), each object
+    with the same fields: MIKASA's ``cube_red_x`` ... ``cube_teal_visible``. A ValueError names what does not fit."""
+    objects: dict[str, list[str]] = {}
+    for name in names:
+        obj, _, field_name = name.rpartition("_")
+        if not obj or field_name not in POINTER_FIELDS:
+            raise ValueError(f"pointer needs perceived entries named <object>_<field> with a field in "
+                             f"{list(POINTER_FIELDS)}; {name!r} is not")
+        objects.setdefault(obj, []).append(field_name)
+    shapes = {tuple(fields_) for fields_ in objects.values()}
+    if len(objects) < 2 or len(shapes) != 1:
+        raise ValueError(f"pointer needs two or more perceived objects with the same fields; got {objects}")
+    return tuple(objects), shapes.pop()

@@ -6,7 +6,9 @@ sentence vector blurs. State is normalised with the demonstrations' statistics, 
 so a checkpoint carries them. A camera policy also estimates, from its image vectors alone, the state
 entries a robot does not read of itself (``perceived_names``: where the cube is, how far each drawer is
 open), trained on the simulator's labels: the action head reads those estimates, as a modular
-visuomotor policy reads its detector. An MLP maps the concatenation to ``chunk_len`` x ``action_dim``.
+visuomotor policy reads its detector. With ``pointer`` the action head also reads the estimates of the one object
+the prompt points at (``ObjectPointer``), and with ``image_film`` the camera heads read the prompt too. An MLP maps
+the concatenation to ``chunk_len`` x ``action_dim``.
 """
 
 from __future__ import annotations
@@ -19,7 +21,7 @@ from safetensors.torch import load_file, save_file
 from torch import nn
 from torch.nn import functional as F
 
-from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig
+from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig, perceived_objects
 from sb3_memret.controllers.learned.vision import make_camera_encoder
 from sb3_memret.weights import WeightsNotLoadedError, check_loaded
 
@@ -45,6 +47,27 @@ class AttentionPool(nn.Module):
         scores = torch.einsum("bthd,hd->bht", keys, self.queries) / math.sqrt(self.head_dim)
         weights = scores.masked_fill(~mask[:, None, :], float("-inf")).softmax(dim=-1)
         return self.norm(torch.einsum("bht,bthd->bhd", weights, values).reshape(b, -1))
+
+
+class ObjectPointer(nn.Module):
+    """Attention from the prompt over the perceived objects: (B, perceived) estimates and (B, text_dim) prompts ->
+    (B, fields), the estimates of the object the prompt points at (softly). With nine cubes in sight, an MLP
+    left to pick the named one's coordinates out of all 36 estimates went to another cube in most failures."""
+
+    def __init__(self, perceived_names: tuple[str, ...], text_dim: int):
+        super().__init__()
+        objects, fields = perceived_objects(perceived_names)
+        index = [[perceived_names.index(f"{obj}_{name}") for name in fields] for obj in objects]
+        self.register_buffer("index", torch.tensor(index), persistent=False)  # (objects, fields), rebuilt from names
+        self.query = nn.Linear(text_dim, text_dim)
+        self.keys = nn.Parameter(torch.randn(len(objects), text_dim) / math.sqrt(text_dim))
+
+    def weights(self, prompt: torch.Tensor) -> torch.Tensor:
+        """(B, text_dim) prompts -> (B, objects): how much each perceived object is the one pointed at."""
+        return (self.query(prompt) @ self.keys.T / math.sqrt(self.keys.shape[1])).softmax(dim=-1)
+
+    def forward(self, perceived: torch.Tensor, prompt: torch.Tensor) -> torch.Tensor:
+        return torch.einsum("bo,bof->bf", self.weights(prompt), perceived[:, self.index])
 
 
 class LearnedPolicy(nn.Module):
@@ -80,7 +103,13 @@ class LearnedPolicy(nn.Module):
             self.register_buffer("perceived_mean", torch.zeros(n_perceived))
             self.register_buffer("perceived_std", torch.ones(n_perceived))
             self.perception = nn.Linear(vision_dim, n_perceived)
-        width = config.state_dim + config.text_dim + vision_dim + n_perceived
+        self.pointer: ObjectPointer | None = None
+        if config.pointer:
+            if not n_perceived:
+                raise ValueError("pointer needs perceived entries to point at: a camera policy trained with its "
+                                 "perception head (perception_coef > 0) on a task whose state has objects to perceive")
+            self.pointer = ObjectPointer(config.perceived_names, config.text_dim)
+        width = config.state_dim + config.text_dim + vision_dim + n_perceived + config.pointer_fields
         layers: list[nn.Module] = []
         for _ in range(config.n_layers):
             layers += [nn.Linear(width, config.hidden_dim), nn.GELU()]
@@ -141,7 +170,10 @@ class LearnedPolicy(nn.Module):
         head reads the perception estimates as they are: only their labels train them."""
         parts = [(state - self.state_mean) / self.state_std, prompt]
         if self.cameras:
-            parts += [vision, self.perceive(vision).detach()]
+            perceived = self.perceive(vision).detach()
+            parts += [vision, perceived]
+            if self.pointer is not None:
+                parts.append(self.pointer(perceived, prompt))
         out = self.head(torch.cat(parts, dim=-1))
         return out.view(-1, self.config.chunk_len, self.config.action_dim)
 
