@@ -4,7 +4,9 @@ Runs a trained camera-reading learned controller's perception head on the valida
 out (the split rebuilt from ``--seed`` and ``--validation-fraction``, finetune's defaults) of the dataset it was
 trained on, and prints, per perceived entry, the normalised MSE and the median absolute error in the state's
 units; for entries named ``<object>_x`` / ``_y`` with a ``<object>_visible`` flag (MIKASA's cubes), also the
-median xy error over the frames where the object is in sight.
+median xy error over the frames where the object is in sight. For a policy with a pointer (``finetune --pointer``),
+also the object each of its training prompts points at, and how sharply: a pointer that learned nothing spreads its
+weight.
 
     python scripts/perception_error.py sb3_memret/controllers/checkpoints/RememberColor9-VLA-v0-camera \\
         runs/stage1-RememberColor9-VLA-v0/demos --task RememberColor9-VLA-v0
@@ -18,6 +20,7 @@ import numpy as np
 import torch
 
 from sb3_memret.controllers.learned import LearnedPolicy
+from sb3_memret.controllers.learned.configuration import perceived_objects
 from sb3_memret.controllers.learned.processing import PromptTokenizer
 from sb3_memret.stage1.finetune import FinetuneSettings, camera_inputs, load_demonstrations, validation_episodes
 
@@ -65,6 +68,15 @@ def main() -> None:
         seen = labels[:, names.index(f"{obj}_visible")] > 0.5
         xy = error[seen][:, [names.index(f"{obj}_x"), names.index(f"{obj}_y")]].norm(dim=1)
         print(f"| {obj} | {int(seen.sum())} | {float(xy.median()) if len(xy) else float('nan'):.4f} |")
+
+    if policy.pointer is not None:
+        prompts = list(policy.config.training_prompts)
+        with torch.no_grad():
+            weights = policy.pointer.weights(policy.encode_prompts(*PromptTokenizer()(prompts)))
+        pointed = perceived_objects(names)[0]
+        print("\n| training prompt | object pointed at | weight |\n|---|---|---|")
+        for prompt, row in zip(prompts, weights):
+            print(f"| {prompt} | {pointed[int(row.argmax())]} | {float(row.max()):.2f} |")
 
 
 if __name__ == "__main__":
