@@ -49,16 +49,17 @@ def main() -> None:
         raise SystemExit("no validation episodes: --validation-fraction is 0")
     idx = np.sort(np.random.default_rng(0).choice(held, size=min(args.frames, len(held)), replace=False))
     features = camera_inputs(policy, {k: v[idx] for k, v in demos.images.items()}, policy.config.image_features)
+    tokenizer = PromptTokenizer()
     with torch.no_grad():  # heads conditioned on the prompt (image_film) read each frame's own prompt
-        prompts = policy.encode_prompts(*PromptTokenizer()(demos.tasks))[torch.from_numpy(demos.task_ids[idx])]
-        estimates = policy.perceive(policy.encode_cameras([f.float() for f in features], prompts))
+        prompts = policy.encode_prompts(*tokenizer(demos.tasks))[torch.from_numpy(demos.task_ids[idx])]
+    estimates = policy.estimate_perceived([f.float() for f in features], prompts)
     labels = torch.from_numpy(demos.states[idx][:, [demos.state_names.index(n) for n in names]])
-    normalised = (labels - policy.perceived_mean) / policy.perceived_std
-    error = estimates * policy.perceived_std + policy.perceived_mean - labels
+    error = estimates - labels
+    normalised_error = error / policy.perceived_std
     print(f"{len(idx)} of the {len(held)} frames of the finetune's validation episodes")
     print("| entry | normalised MSE | median abs error |\n|---|---|---|")
     for i, name in enumerate(names):
-        print(f"| {name} | {float(((estimates[:, i] - normalised[:, i]) ** 2).mean()):.3f} | "
+        print(f"| {name} | {float((normalised_error[:, i] ** 2).mean()):.3f} | "
               f"{float(error[:, i].abs().median()):.4f} |")
     objects = [n.removesuffix("_visible") for n in names if n.endswith("_visible")]
     located = [o for o in objects if f"{o}_x" in names and f"{o}_y" in names]
@@ -72,7 +73,7 @@ def main() -> None:
     if policy.pointer is not None:
         prompts = list(policy.config.training_prompts)
         with torch.no_grad():
-            weights = policy.pointer.weights(policy.encode_prompts(*PromptTokenizer()(prompts)))
+            weights = policy.pointer.weights(policy.encode_prompts(*tokenizer(prompts)))
         pointed = perceived_objects(names)[0]
         print("\n| training prompt | object pointed at | weight |\n|---|---|---|")
         for prompt, row in zip(prompts, weights):

@@ -38,8 +38,7 @@ def perceived_target_xy(controller: LearnedController, obs, prompt: str, key: st
     policy = controller.policy
     with torch.no_grad():
         prompt_vector = policy.encode_prompts(inputs["tokens"], inputs["token_mask"])
-        vision = policy.encode_cameras(policy.camera_features(inputs["images"]), prompt_vector)
-        estimate = policy.perceive(vision)[0] * policy.perceived_std + policy.perceived_mean
+    estimate = policy.estimate_perceived(policy.camera_features(inputs["images"]), prompt_vector)[0]
     return np.array([float(estimate[names.index(f"{key}_{word}_{axis}")]) for axis in "xy"])
 
 
@@ -69,8 +68,8 @@ def main() -> None:
             controller.reset([seed])
             closest, nearest, errors, step, chunk = np.inf, None, [], 0, None
             while not (frame.terminated or frame.truncated):
-                obs = stack_obs([frame.obs])
-                if step % args.replan_every == 0:
+                obs, offset = stack_obs([frame.obs]), step % args.replan_every
+                if offset == 0:
                     chunk = controller.act(obs, [prompt])[0]
                 extra = frame.obs["extra"]
                 visible = np.asarray(extra[f"{key}_visible"]).reshape(-1) > 0.5
@@ -79,11 +78,11 @@ def main() -> None:
                     cubes = np.asarray(extra[f"{key}_positions"]).reshape(len(words), 3)
                     distances = np.linalg.norm(cubes - tcp, axis=1)
                     closest, nearest = min(closest, float(distances[target])), int(np.argmin(distances))
-                    if step % args.replan_every == 0 and isinstance(controller, LearnedController):
+                    if offset == 0 and isinstance(controller, LearnedController):
                         estimate = perceived_target_xy(controller, obs, prompt, key, episode.group)
                         if estimate is not None:
                             errors.append(100 * float(np.linalg.norm(estimate - cubes[target, :2])))
-                frame = runner.execute(chunk[step % args.replan_every: step % args.replan_every + 1])
+                frame = runner.execute(chunk[offset: offset + 1])
                 step += 1
             if frame.success:
                 outcome = "success"

@@ -165,6 +165,13 @@ class LearnedPolicy(nn.Module):
             return vision.new_zeros((len(vision), 0))
         return self.perception(vision)
 
+    @torch.no_grad()
+    def estimate_perceived(self, camera_features: list[torch.Tensor], prompt: torch.Tensor) -> torch.Tensor:
+        """Per camera ``camera_features`` and (B, text_dim) prompts -> (B, len(perceived_names)) estimates in the
+        state's units: what the perception head makes of the images, for diagnosis."""
+        estimates = self.perceive(self.encode_cameras(camera_features, prompt))
+        return estimates * self.perceived_std + self.perceived_mean if self.perception is not None else estimates
+
     def decode(self, state: torch.Tensor, prompt: torch.Tensor, vision: torch.Tensor) -> torch.Tensor:
         """(B, state_dim) states, (B, text_dim) prompts and ``encode_cameras`` vectors -> action chunks. The action
         head reads the perception estimates as they are: only their labels train them."""
