@@ -17,6 +17,7 @@ from sb3_memret.stage1.finetune import (
     FinetuneSettings,
     finetune,
     load_demonstrations,
+    pointer_imbalance,
     read_log,
     validation_episodes,
 )
@@ -167,3 +168,21 @@ def test_a_policy_without_cameras_estimates_nothing(demos, tmp_path):
     out = finetune([demos], tmp_path / "ckpt", SMALL, FinetuneSettings(steps=2, batch_size=8))
     assert make_controller(f"learned:{out}").policy.config.perceived_names == ()
     assert {row["val_perception_mse"] for row in read_log(out)} == {""}
+
+
+def test_the_pointer_balance_term_is_zero_when_prompts_point_apart_and_largest_when_they_all_point_at_one():
+    eye = torch.eye(3)
+    assert float(pointer_imbalance(eye)) == pytest.approx(0.0, abs=1e-6)  # three prompts, three objects
+    assert float(pointer_imbalance(torch.full((4, 3), 1 / 3))) == pytest.approx(0.0, abs=1e-6)
+    assert float(pointer_imbalance(eye[[0, 0, 0]])) == pytest.approx(np.log(3), rel=1e-5)  # a collapse onto one
+    logits = torch.tensor([[4.0, 0.0, 0.0], [3.0, 0.5, 0.0], [5.0, 0.0, 1.0]], requires_grad=True)
+    optimizer = torch.optim.SGD([logits], lr=1.0)
+    before = float(pointer_imbalance(logits.softmax(-1)))
+    for _ in range(50):
+        loss = pointer_imbalance(logits.softmax(-1))
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    assert float(pointer_imbalance(logits.softmax(-1))) < 0.1 * before  # its gradient moves prompts off the one
+    with pytest.raises(ValueError, match="pointer_balance >= 0"):
+        FinetuneSettings(pointer_balance=-0.1)

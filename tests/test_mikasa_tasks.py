@@ -75,16 +75,23 @@ def test_rollout_refuses_a_layer_on_a_task_without_drawers():
     assert result.exit_code == 2 and "--layer chooses a drawer; task 'RememberColor3-VLA-v0' has none" in result.output
 
 
-def test_demos_of_a_mikasa_task_are_a_lerobot_dataset_whose_prompts_carry_the_fact(tmp_path):
+@pytest.fixture(scope="module")
+def every_step_demos(tmp_path_factory):
+    """Two expert episodes of RememberColor3 with every control step kept (both cameras rendered)."""
+    out = tmp_path_factory.mktemp("mikasa") / "rc3"
+    result = CliRunner().invoke(main, ["demos", "--task", TASK, "--episodes", "2", "--seed", "100005", "--n-envs", "1",
+                                       "--noisy-fraction", "0", "--frames", "every", "--out", str(out), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    return out
+
+
+def test_demos_of_a_mikasa_task_are_a_lerobot_dataset_whose_prompts_carry_the_fact(every_step_demos):
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     from sb3_memret.stage1.demos import read_episode_log
     from sb3_memret.tasks.mikasa.demo_layout import state_names
 
-    out = tmp_path / "rc3"
-    result = CliRunner().invoke(main, ["demos", "--task", TASK, "--episodes", "2", "--seed", "100005", "--n-envs", "1",
-                                       "--noisy-fraction", "0", "--frames", "every", "--out", str(out), "--no-progress"])
-    assert result.exit_code == 0, result.output
+    out = every_step_demos
     log = read_episode_log(out)
     assert [r["seed"] for r in log] == [100005, 100006] and {r["prompt_kind"] for r in log} == {"matching", "mismatched"} and all(r["frames"] == 25 for r in log)
     dataset = LeRobotDataset("sb3_memret/rc3", root=out)
@@ -99,6 +106,26 @@ def test_demos_of_a_mikasa_task_are_a_lerobot_dataset_whose_prompts_carry_the_fa
         elif kind == "mismatched":
             assert "the cue cube was" in prompt and not prompt.endswith(f"{colour}.")
     assert {dataset[i]["task"] for i in range(0, 50, 25)} == {r["prompt"] for r in log}
+
+
+def test_a_pointer_camera_policy_finetunes_on_mikasa_demos_and_logs_its_balance(every_step_demos, tmp_path):
+    """``finetune --pointer`` on a MIKASA task: the pointer groups the perceived cubes, its balance term is logged
+    (log 3 at most for three cubes), and the checkpoint loads as a controller with its pointer."""
+    from sb3_memret.controllers import make_controller
+    from sb3_memret.stage1.finetune import read_log
+
+    out = tmp_path / "policy"
+    result = CliRunner().invoke(main, ["finetune", str(every_step_demos), "--task", TASK, "--steps", "4",
+                                       "--batch-size", "8", "--pointer", "--pointer-balance", "0.5", "--no-progress",
+                                       "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    balance = [float(row["pointer_imbalance"]) for row in read_log(out)]
+    assert len(balance) == 4 and all(0 <= b <= np.log(3) + 1e-6 for b in balance)
+    controller = make_controller(f"learned:{out}", task=make_task(TASK))
+    assert controller.policy.pointer is not None and controller.policy.config.pointer_fields == 4
+    bad = CliRunner().invoke(main, ["finetune", str(every_step_demos), "--task", TASK, "--pointer-balance", "-1",
+                                    "--out", str(tmp_path / "bad")])
+    assert bad.exit_code == 2 and "-1" in bad.output
 
 
 def test_demos_refuse_drawer_options_on_a_mikasa_task(tmp_path):
