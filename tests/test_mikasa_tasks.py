@@ -108,22 +108,22 @@ def test_demos_of_a_mikasa_task_are_a_lerobot_dataset_whose_prompts_carry_the_fa
     assert {dataset[i]["task"] for i in range(0, 50, 25)} == {r["prompt"] for r in log}
 
 
-def test_a_pointer_camera_policy_finetunes_on_mikasa_demos_and_logs_its_balance(every_step_demos, tmp_path):
-    """``finetune --pointer`` on a MIKASA task: the pointer groups the perceived cubes, its balance term is logged
+def test_a_pointer_camera_policy_finetunes_on_mikasa_demos_and_logs_its_ambiguity(every_step_demos, tmp_path):
+    """``finetune --pointer`` on a MIKASA task: the pointer groups the perceived cubes, its ambiguity is logged
     (log 3 at most for three cubes), and the checkpoint loads as a controller with its pointer."""
     from sb3_memret.controllers import make_controller
     from sb3_memret.stage1.finetune import read_log
 
     out = tmp_path / "policy"
     result = CliRunner().invoke(main, ["finetune", str(every_step_demos), "--task", TASK, "--steps", "4",
-                                       "--batch-size", "8", "--pointer", "--pointer-balance", "0.5", "--no-progress",
+                                       "--batch-size", "8", "--pointer", "--pointer-ambiguity", "0.5", "--no-progress",
                                        "--out", str(out)])
     assert result.exit_code == 0, result.output
-    balance = [float(row["pointer_imbalance"]) for row in read_log(out)]
-    assert len(balance) == 4 and all(0 <= b <= np.log(3) + 1e-6 for b in balance)
+    ambiguity = [float(row["pointer_ambiguity"]) for row in read_log(out)]
+    assert len(ambiguity) == 4 and all(0 <= a <= np.log(3) + 1e-6 for a in ambiguity)
     controller = make_controller(f"learned:{out}", task=make_task(TASK))
     assert controller.policy.pointer is not None and controller.policy.config.pointer_fields == 4
-    bad = CliRunner().invoke(main, ["finetune", str(every_step_demos), "--task", TASK, "--pointer-balance", "-1",
+    bad = CliRunner().invoke(main, ["finetune", str(every_step_demos), "--task", TASK, "--pointer-ambiguity", "-1",
                                     "--out", str(tmp_path / "bad")])
     assert bad.exit_code == 2 and "-1" in bad.output
 

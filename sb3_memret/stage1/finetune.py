@@ -58,16 +58,16 @@ class FinetuneSettings:
     # weight of the perception loss: a camera policy's perception head regresses the state entries it does not read
     # (the simulator's detection, drawer openings), normalised; 0 leaves the policy without a perception head
     perception_coef: float = 1.0
-    # weight of the pointer's balance term (a policy with a pointer only): log(objects) minus the entropy of its
-    # weights averaged over the distinct training prompts, which is 0 when the prompts point at different objects
-    # and large when they all point at one (a collapse seen on RememberColor9 from some initialisations)
-    pointer_balance: float = 0.1
+    # weight of the pointer's ambiguity term (a policy with a pointer only): log(objects) minus the information its
+    # choice carries about the prompt, over the distinct training prompts. It is high both when the prompts all point
+    # at one object (a collapse seen on RememberColor9 from some initialisations) and when each spreads its weight
+    pointer_ambiguity: float = 0.0
 
     def __post_init__(self) -> None:
         if self.steps < 1 or self.batch_size < 1 or self.learning_rate <= 0 or min(
-                self.image_shift, self.perception_coef, self.pointer_balance) < 0:
+                self.image_shift, self.perception_coef, self.pointer_ambiguity) < 0:
             raise ValueError(f"steps and batch_size must be >= 1, learning_rate > 0, image_shift, perception_coef "
-                             f"and pointer_balance >= 0: {self}")
+                             f"and pointer_ambiguity >= 0: {self}")
         if not 0 <= self.validation_fraction < 1:
             raise ValueError(f"validation_fraction must lie in [0, 1), got {self.validation_fraction}")
 
@@ -303,20 +303,20 @@ def finetune(
         vision = model.encode_cameras(cams, prompt)
         predicted = model.decode(states[index], prompt, vision)
         seen = F.mse_loss(model.perceive(vision), labels[index]) if perceived else predicted.new_zeros(())
-        balance = pointer_imbalance(model.pointer.weights(every_prompt)) if model.pointer else predicted.new_zeros(())
-        return torch.stack([chunk_loss(predicted, targets_t[index], is_pad_t[index]), seen, balance])
+        ambiguity = pointer_ambiguity(model.pointer.weights(every_prompt)) if model.pointer else predicted.new_zeros(())
+        return torch.stack([chunk_loss(predicted, targets_t[index], is_pad_t[index]), seen, ambiguity])
 
     optimizer = torch.optim.AdamW(model.parameters(), lr=settings.learning_rate, weight_decay=settings.weight_decay)
     schedule = torch.optim.lr_scheduler.LambdaLR(
         optimizer, lambda step: 0.5 * (1 + math.cos(math.pi * min(step, settings.steps) / settings.steps)))
-    weights = torch.tensor([1.0, settings.perception_coef, settings.pointer_balance])
+    weights = torch.tensor([1.0, settings.perception_coef, settings.pointer_ambiguity])
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     log_every = max(1, settings.steps // 50)
     started = time.monotonic()
     with open(out / LOG_FILE, "w", newline="") as f:
         log = csv.writer(f)
-        log.writerow(["step", "train_loss", "val_loss", "val_perception_mse", "pointer_imbalance", "seconds"])
+        log.writerow(["step", "train_loss", "val_loss", "val_perception_mse", "pointer_ambiguity", "seconds"])
         model.train()
         for step in range(1, settings.steps + 1):
             batch = rng.choice(train_idx, size=min(settings.batch_size, len(train_idx)), replace=False)
@@ -339,12 +339,14 @@ def finetune(
     return out
 
 
-def pointer_imbalance(weights: torch.Tensor) -> torch.Tensor:
-    """(P, objects) pointer weights of P distinct prompts -> log(objects) - entropy of their mean: 0 when the
-    prompts between them point evenly at every object, log(objects) when they all point at one. A load-balancing
-    term (as for mixtures of experts): it keeps the prompts from collapsing onto the object most often named."""
-    mean = weights.mean(dim=0)
-    return math.log(weights.shape[1]) + (mean * mean.clamp_min(1e-12).log()).sum()
+def pointer_ambiguity(weights: torch.Tensor) -> torch.Tensor:
+    """(P, objects) pointer weights of P distinct prompts -> log(objects) minus the mutual information between the
+    prompt and the object pointed at (the entropy of the mean weights less the mean entropy of each prompt's): 0
+    when each prompt points sharply at an object of its own, log(objects) when all point alike or spread evenly."""
+    def entropy(p: torch.Tensor) -> torch.Tensor:
+        return -(p * p.clamp_min(1e-12).log()).sum(dim=-1)
+
+    return math.log(weights.shape[1]) - entropy(weights.mean(dim=0)) + entropy(weights).mean()
 
 
 @torch.no_grad()
@@ -366,4 +368,4 @@ def read_log(out: str | Path) -> list[dict[str, str]]:
 
 
 __all__ = ["Demonstrations", "FinetuneSettings", "STATE_CHOICES", "finetune", "has_cameras", "load_demonstrations",
-           "pointer_imbalance", "read_log", "state_names_for", "validation_episodes"]
+           "pointer_ambiguity", "read_log", "state_names_for", "validation_episodes"]
