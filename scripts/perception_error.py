@@ -22,7 +22,8 @@ import torch
 from sb3_memret.controllers.learned import LearnedPolicy
 from sb3_memret.controllers.learned.configuration import perceived_objects
 from sb3_memret.controllers.learned.processing import PromptTokenizer
-from sb3_memret.stage1.finetune import FinetuneSettings, camera_inputs, load_demonstrations, validation_episodes
+from sb3_memret.stage1.finetune import (FinetuneSettings, camera_inputs, load_demonstrations, pointer_ambiguity,
+                                        validation_episodes)
 
 
 def main() -> None:
@@ -78,6 +79,8 @@ def main() -> None:
         print("\n| training prompt | object pointed at | weight |\n|---|---|---|")
         for prompt, row in zip(prompts, weights):
             print(f"| {prompt} | {pointed[int(row.argmax())]} | {float(row.max()):.2f} |")
+        print(f"\npointer ambiguity {float(pointer_ambiguity(weights)):.3f} (0: each prompt points at an object of its "
+              f"own; {np.log(len(pointed)):.2f}: none tells)")
 
 
 if __name__ == "__main__":

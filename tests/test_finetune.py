@@ -175,17 +175,5 @@ def test_the_pointer_ambiguity_is_zero_when_each_prompt_points_at_its_own_object
     assert float(pointer_ambiguity(eye)) == pytest.approx(0.0, abs=1e-6)  # three prompts, three objects
     assert float(pointer_ambiguity(torch.full((4, 3), 1 / 3))) == pytest.approx(np.log(3), rel=1e-5)  # spread
     assert float(pointer_ambiguity(eye[[0, 0, 0]])) == pytest.approx(np.log(3), rel=1e-5)  # a collapse onto one
-    logits = torch.tensor([[4.0, 0.0, 0.0], [3.0, 0.5, 0.0], [5.0, 0.0, 1.0]], requires_grad=True)
-    optimizer = torch.optim.SGD([logits], lr=1.0)
-    before = float(pointer_ambiguity(logits.softmax(-1)))
-    for _ in range(100):
-        loss = pointer_ambiguity(logits.softmax(-1))
-        optimizer.zero_grad()
-        loss.backward()
-        optimizer.step()
-    weights = logits.softmax(-1).detach()
-    assert float(pointer_ambiguity(weights)) < 0.5 * before  # its gradient takes prompts off the one object
-    assert len(set(weights.argmax(dim=1).tolist())) == 2 and float(weights.max(dim=1).values.min()) > 0.95
-    # alone it only sharpens: the third prompt stays on the first one's object (the action loss must tell them apart)
-    with pytest.raises(ValueError, match="pointer_ambiguity >= 0"):
-        FinetuneSettings(pointer_ambiguity=-0.1)
+    partial = float(pointer_ambiguity(eye[[0, 1, 1]]))  # two of three prompts share an object
+    assert 0 < partial < np.log(3)

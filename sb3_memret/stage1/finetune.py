@@ -58,16 +58,12 @@ class FinetuneSettings:
     # weight of the perception loss: a camera policy's perception head regresses the state entries it does not read
     # (the simulator's detection, drawer openings), normalised; 0 leaves the policy without a perception head
     perception_coef: float = 1.0
-    # weight of the pointer's ambiguity term (a policy with a pointer only): log(objects) minus the information its
-    # choice carries about the prompt, over the distinct training prompts. It is high both when the prompts all point
-    # at one object (a collapse seen on RememberColor9 from some initialisations) and when each spreads its weight
-    pointer_ambiguity: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.steps < 1 or self.batch_size < 1 or self.learning_rate <= 0 or min(
-                self.image_shift, self.perception_coef, self.pointer_ambiguity) < 0:
-            raise ValueError(f"steps and batch_size must be >= 1, learning_rate > 0, image_shift, perception_coef "
-                             f"and pointer_ambiguity >= 0: {self}")
+        if self.steps < 1 or self.batch_size < 1 or self.learning_rate <= 0 or min(self.image_shift,
+                                                                                     self.perception_coef) < 0:
+            raise ValueError(f"steps and batch_size must be >= 1, learning_rate > 0, image_shift and perception_coef "
+                             f">= 0: {self}")
         if not 0 <= self.validation_fraction < 1:
             raise ValueError(f"validation_fraction must lie in [0, 1), got {self.validation_fraction}")
 
@@ -298,18 +294,24 @@ def finetune(
         cams = [f[index].float() / 255.0 if from_pixels else f[index] for f in features]
         if from_pixels and model.training:
             cams = [shift_augment(c, settings.image_shift, shifts) for c in cams]
-        every_prompt = model.encode_prompts(task_tokens, task_mask)
-        prompt = every_prompt[tid]
+        prompt = model.encode_prompts(task_tokens, task_mask)[tid]
         vision = model.encode_cameras(cams, prompt)
         predicted = model.decode(states[index], prompt, vision)
         seen = F.mse_loss(model.perceive(vision), labels[index]) if perceived else predicted.new_zeros(())
-        ambiguity = pointer_ambiguity(model.pointer.weights(every_prompt)) if model.pointer else predicted.new_zeros(())
-        return torch.stack([chunk_loss(predicted, targets_t[index], is_pad_t[index]), seen, ambiguity])
+        return torch.stack([chunk_loss(predicted, targets_t[index], is_pad_t[index]), seen])
+
+    def ambiguity() -> str:
+        """The pointer's ``pointer_ambiguity`` over the training prompts, for the log ('' without a pointer)."""
+        if model.pointer is None:
+            return ""
+        with torch.no_grad():
+            weights = model.pointer.weights(model.encode_prompts(task_tokens, task_mask))
+        return f"{float(pointer_ambiguity(weights)):.4f}"
 
     optimizer = torch.optim.AdamW(model.parameters(), lr=settings.learning_rate, weight_decay=settings.weight_decay)
     schedule = torch.optim.lr_scheduler.LambdaLR(
         optimizer, lambda step: 0.5 * (1 + math.cos(math.pi * min(step, settings.steps) / settings.steps)))
-    weights = torch.tensor([1.0, settings.perception_coef, settings.pointer_ambiguity])
+    weights = torch.tensor([1.0, settings.perception_coef])
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     log_every = max(1, settings.steps // 50)
@@ -332,7 +334,7 @@ def finetune(
                 val = _validation_losses(model, losses_on, val_idx, settings.batch_size * 8)
                 log.writerow([step, f"{losses[0].item():.5f}", *(["", ""] if val is None else
                                                                  [f"{val[0]:.5f}", f"{val[1]:.5f}" if perceived else ""]),
-                              f"{losses[2].item():.4f}" if model.pointer else "", f"{time.monotonic() - started:.1f}"])
+                              ambiguity(), f"{time.monotonic() - started:.1f}"])
                 f.flush()
     model.eval()
     model.save_pretrained(out)
@@ -342,7 +344,8 @@ def finetune(
 def pointer_ambiguity(weights: torch.Tensor) -> torch.Tensor:
     """(P, objects) pointer weights of P distinct prompts -> log(objects) minus the mutual information between the
     prompt and the object pointed at (the entropy of the mean weights less the mean entropy of each prompt's): 0
-    when each prompt points sharply at an object of its own, log(objects) when all point alike or spread evenly."""
+    when each prompt points sharply at an object of its own, log(objects) when all point alike or spread evenly.
+    Logged by ``finetune``: a pointer that learned reads ~0.15 on RememberColor9, one that failed 1.8-2.1."""
     def entropy(p: torch.Tensor) -> torch.Tensor:
         return -(p * p.clamp_min(1e-12).log()).sum(dim=-1)
 
