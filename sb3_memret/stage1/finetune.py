@@ -345,7 +345,7 @@ def pointer_ambiguity(weights: torch.Tensor) -> torch.Tensor:
     """(P, objects) pointer weights of P distinct prompts -> log(objects) minus the mutual information between the
     prompt and the object pointed at (the entropy of the mean weights less the mean entropy of each prompt's): 0
     when each prompt points sharply at an object of its own, log(objects) when all point alike or spread evenly.
-    Logged by ``finetune``: a pointer that learned reads ~0.15 on RememberColor9, one that failed 1.8-2.1."""
+    Logged by ``finetune``: a pointer that learned reads ~0.15 on RememberColor9, one that failed 1.8-2.0."""
     def entropy(p: torch.Tensor) -> torch.Tensor:
         return -(p * p.clamp_min(1e-12).log()).sum(dim=-1)
 
