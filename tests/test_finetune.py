@@ -9,6 +9,7 @@ import pytest
 
 from sb3_memret.controllers import make_controller
 from sb3_memret.controllers.learned import LearnedPolicyConfig
+from sb3_memret.controllers.learned.modeling import pointer_ambiguity
 from sb3_memret.controllers.observation import PROPRIO_NAMES, STATE_NAMES
 from sb3_memret.prompts import INSTRUCTION, condition_prompt
 from sb3_memret.stage1.demos import DemoEpisode, record_demos
@@ -17,7 +18,6 @@ from sb3_memret.stage1.finetune import (
     FinetuneSettings,
     finetune,
     load_demonstrations,
-    pointer_ambiguity,
     read_log,
     validation_episodes,
 )

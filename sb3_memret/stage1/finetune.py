@@ -32,7 +32,7 @@ import torch
 from torch.nn import functional as F
 
 from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig
-from sb3_memret.controllers.learned.modeling import LearnedPolicy, chunk_loss
+from sb3_memret.controllers.learned.modeling import LearnedPolicy, chunk_loss, pointer_ambiguity
 from sb3_memret.controllers.learned.processing import PromptTokenizer, state_columns
 from sb3_memret.controllers.learned.vision import shift_augment
 from sb3_memret.controllers.observation import ACTION_CHUNK_KEY, ACTION_DIM, ACTION_KEY, CHUNK_PAD_KEY, IMAGE_KEYS, STATE_KEY
@@ -341,17 +341,6 @@ def finetune(
     return out
 
 
-def pointer_ambiguity(weights: torch.Tensor) -> torch.Tensor:
-    """(P, objects) pointer weights of P distinct prompts -> log(objects) minus the mutual information between the
-    prompt and the object pointed at (the entropy of the mean weights less the mean entropy of each prompt's): 0
-    when each prompt points sharply at an object of its own, log(objects) when all point alike or spread evenly.
-    Logged by ``finetune``: a pointer that learned reads ~0.15 on RememberColor9, one that failed 1.8-2.0."""
-    def entropy(p: torch.Tensor) -> torch.Tensor:
-        return -(p * p.clamp_min(1e-12).log()).sum(dim=-1)
-
-    return math.log(weights.shape[1]) - entropy(weights.mean(dim=0)) + entropy(weights).mean()
-
-
 @torch.no_grad()
 def _validation_losses(model: LearnedPolicy, losses_on: Callable[[np.ndarray], torch.Tensor], idx: np.ndarray,
                        batch: int) -> list[float] | None:
@@ -370,5 +359,5 @@ def read_log(out: str | Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
-__all__ = ["Demonstrations", "FinetuneSettings", "STATE_CHOICES", "finetune", "has_cameras", "load_demonstrations",
-           "pointer_ambiguity", "read_log", "state_names_for", "validation_episodes"]
+__all__ = ["Demonstrations", "FinetuneSettings", "STATE_CHOICES", "finetune", "has_cameras", "load_demonstrations", "read_log",
+           "state_names_for", "validation_episodes"]
