@@ -424,11 +424,14 @@ def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, no
 @click.option("--pointer/--no-pointer", default=False, show_default=True,
               help="learned: the action head also reads the perceived entries of the object the prompt points at "
                    "(attention over the perceived objects, named <object>_x/_y/_z/_visible), for scenes of many alike.")
+@click.option("--pointer-hindsight", type=click.FloatRange(min=0.0), default=0.0, show_default=True,
+              help="learned, with --pointer: weight of a cross-entropy that points each training prompt at the object "
+                   "its demonstrations' hands end nearest (0: the pointer learns from the action loss alone).")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
 def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | None, batch_size: int | None,
              learning_rate: float | None, seed: int, pretrained: Path | None, tokenizer: Path | None, lora_rank: int,
              device: str, task: str, state: str | None, image_encoder: str, image_dim: int, keypoints: int,
-             image_colour: bool, image_film: bool, pointer: bool, progress: bool) -> None:
+             image_colour: bool, image_film: bool, pointer: bool, pointer_hindsight: float, progress: bool) -> None:
     """Train a frozen controller from DATASETS (LeRobotDatasets written by `sb3-memret demos`).
 
     The learned policy reads the prompt as frozen MiniLM per-token features, the state (and the
@@ -462,7 +465,10 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
     from sb3_memret.tasks import make_task
 
     settings = FinetuneSettings(steps=steps or 8000, batch_size=batch_size or 256,
-                                learning_rate=learning_rate or 1e-3, seed=seed)
+                                learning_rate=learning_rate or 1e-3, seed=seed, pointer_hindsight=pointer_hindsight)
+    if pointer_hindsight > 0 and not pointer:
+        raise click.BadParameter(f"--pointer-hindsight {pointer_hindsight} trains the pointer: add --pointer",
+                                 param_hint="--pointer-hindsight")
     the_task = make_task(task)
     template = the_task.prompt_template
     config = LearnedPolicyConfig(instructions=template.instructions, fact_templates=template.fact_templates,

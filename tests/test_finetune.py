@@ -17,6 +17,7 @@ from sb3_memret.stage1.finetune import (
     Demonstrations,
     FinetuneSettings,
     finetune,
+    hindsight_objects,
     load_demonstrations,
     read_log,
     validation_episodes,
@@ -177,3 +178,25 @@ def test_the_pointer_ambiguity_is_zero_when_each_prompt_points_at_its_own_object
     assert float(pointer_ambiguity(eye[[0, 0, 0]])) == pytest.approx(np.log(3), rel=1e-5)  # a collapse onto one
     partial = float(pointer_ambiguity(eye[[0, 1, 1]]))  # two of three prompts share an object
     assert 0 < partial < np.log(3)
+
+
+def test_hindsight_points_each_prompt_at_the_object_its_episodes_hands_mostly_end_nearest():
+    """Two objects, three prompts: prompt 0's hands end at a every time, prompt 1's at b in two episodes of three,
+    prompt 2's episodes disagree one to one and get no target. Only the frames given vote."""
+    names = ("tcp_x", "tcp_y", "tcp_z", "a_x", "a_y", "a_z", "b_x", "b_y", "b_z")
+    a, b = [0.0, 0.0, 0.0], [1.0, 0.0, 0.0]
+    ends = {"a": [0.1, 0.0, 0.0], "b": [0.9, 0.0, 0.0]}
+    finals = [(0, "a"), (0, "a"), (1, "b"), (1, "b"), (1, "a"), (2, "a"), (2, "b")]
+    states, episodes, prompts = [], [], []
+    for episode, (prompt, end) in enumerate(finals):  # two frames an episode: the hand starts between, then ends
+        states += [[0.5, 0.0, 0.3] + a + b, ends[end] + a + b]
+        episodes += [episode, episode]
+        prompts += [prompt, prompt]
+    demos = Demonstrations(states=np.array(states, np.float32), actions=np.zeros((len(states), 7), np.float32),
+                           episodes=np.array(episodes), task_ids=np.array(prompts), tasks=["p0", "p1", "p2"],
+                           images={}, state_names=names)
+    assert hindsight_objects(demos, names[:3], ("a", "b")).tolist() == [0, 1, -1]
+    without_episode_5 = np.array(episodes) != 5  # prompt 2 is then b's alone
+    assert hindsight_objects(demos, names[:3], ("a", "b"), without_episode_5).tolist() == [0, 1, 1]
+    with pytest.raises(ValueError, match="hand_z"):
+        hindsight_objects(demos, ("tcp_x", "tcp_y", "hand_z"), ("a", "b"))

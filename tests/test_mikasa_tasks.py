@@ -125,6 +125,34 @@ def test_a_pointer_camera_policy_finetunes_on_mikasa_demos_and_logs_its_ambiguit
     assert controller.policy.pointer is not None and controller.policy.config.pointer_fields == 4
 
 
+def test_pointer_hindsight_points_each_prompt_at_the_cube_its_hand_ended_at(every_step_demos, tmp_path):
+    """``finetune --pointer --pointer-hindsight``: each prompt's target is the cube the expert's hand ended nearest
+    (the matching prompt's: the cue's colour), written to pointer_targets.json, and the pointer learns to point
+    there; without --pointer the option is refused."""
+    import json
+
+    from sb3_memret.controllers.learned import LearnedPolicy
+    from sb3_memret.controllers.learned.processing import PromptTokenizer
+    from sb3_memret.stage1.demos import read_episode_log
+
+    out = tmp_path / "policy"
+    result = CliRunner().invoke(main, ["finetune", str(every_step_demos), "--task", TASK, "--steps", "30",
+                                       "--batch-size", "8", "--lr", "0.01", "--pointer", "--pointer-hindsight", "1",
+                                       "--no-progress", "--out", str(out)])
+    assert result.exit_code == 0, result.output
+    targets = json.loads((out / "pointer_targets.json").read_text())
+    matching = next(r for r in read_episode_log(every_step_demos) if r["prompt_kind"] == "matching")
+    assert targets[matching["prompt"]] == f"cube_{matching['group']}" and len(targets) == 2
+    policy = LearnedPolicy.from_pretrained(out)
+    objects = [name.removesuffix("_x") for name in policy.config.perceived_names if name.endswith("_x")]
+    prompts = list(targets)
+    weights = policy.pointer.weights(policy.encode_prompts(*PromptTokenizer()(prompts)))
+    assert [objects[i] for i in weights.argmax(dim=1).tolist()] == [targets[p] for p in prompts]
+    refused = CliRunner().invoke(main, ["finetune", str(every_step_demos), "--task", TASK, "--pointer-hindsight", "1",
+                                        "--out", str(tmp_path / "refused")])
+    assert refused.exit_code == 2 and "add --pointer" in refused.output
+
+
 def test_demos_refuse_drawer_options_on_a_mikasa_task(tmp_path):
     result = CliRunner().invoke(main, ["demos", "--task", TASK, "--objects", "train", "--out", str(tmp_path / "x")])
     assert result.exit_code == 2 and "--objects applies to the drawer's demonstrations only" in result.output

@@ -21,6 +21,7 @@ cloning alone did not learn to use them.)
 from __future__ import annotations
 
 import csv
+import json
 import math
 import time
 from dataclasses import dataclass, replace
@@ -31,7 +32,7 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
-from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig
+from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig, perceived_objects
 from sb3_memret.controllers.learned.modeling import LearnedPolicy, chunk_loss, pointer_ambiguity
 from sb3_memret.controllers.learned.processing import PromptTokenizer, state_columns
 from sb3_memret.controllers.learned.vision import shift_augment
@@ -40,6 +41,7 @@ from sb3_memret.prompts import INSTRUCTION_TEMPLATE, PromptTemplate, parse_promp
 from sb3_memret.tasks import DEFAULT_TASK, Task, make_task
 
 LOG_FILE = "train_log.csv"
+POINTER_TARGETS_FILE = "pointer_targets.json"  # finetune's hindsight target of each training prompt, for reading
 STATE_CHOICES = ("full", "proprio")  # the whole state layout, or what a robot reads of itself
 FEATURE_BATCH = 64  # frames per batch when a frozen trunk's features are computed
 
@@ -58,12 +60,15 @@ class FinetuneSettings:
     # weight of the perception loss: a camera policy's perception head regresses the state entries it does not read
     # (the simulator's detection, drawer openings), normalised; 0 leaves the policy without a perception head
     perception_coef: float = 1.0
+    # weight of the pointer's hindsight loss: a cross-entropy between each training prompt's pointer weights and the
+    # object its demonstrations' hands end nearest (``hindsight_objects``); 0 leaves the pointer to the action loss
+    pointer_hindsight: float = 0.0
 
     def __post_init__(self) -> None:
-        if self.steps < 1 or self.batch_size < 1 or self.learning_rate <= 0 or min(self.image_shift,
-                                                                                     self.perception_coef) < 0:
-            raise ValueError(f"steps and batch_size must be >= 1, learning_rate > 0, image_shift and perception_coef "
-                             f">= 0: {self}")
+        if self.steps < 1 or self.batch_size < 1 or self.learning_rate <= 0 or min(
+                self.image_shift, self.perception_coef, self.pointer_hindsight) < 0:
+            raise ValueError(f"steps and batch_size must be >= 1, learning_rate > 0, image_shift, perception_coef "
+                             f"and pointer_hindsight >= 0: {self}")
         if not 0 <= self.validation_fraction < 1:
             raise ValueError(f"validation_fraction must lie in [0, 1), got {self.validation_fraction}")
 
@@ -207,6 +212,35 @@ def state_names_for(task: Task, state: str) -> tuple[str, ...]:
     return task.state_names() if state == "full" else task.proprio_names()
 
 
+def hindsight_objects(demos: Demonstrations, hand_names: Sequence[str], objects: Sequence[str],
+                      frames: np.ndarray | None = None) -> np.ndarray:
+    """(len(demos.tasks),) for each prompt the index in ``objects`` of the object its episodes' hands end nearest
+    (by the ``<object>_x/_y/_z`` and ``hand_names`` state entries at each episode's last frame; only episodes
+    whose last frame is in the boolean ``frames`` vote), or -1 where no object is nearest in more than half of
+    them: what the prompt was about, read from where the hand went. Exact for an expert's episodes; a DAgger
+    round's, where the learner drove, are outvoted when it erred."""
+    def columns(names: Sequence[str]) -> list[int]:
+        missing = [name for name in names if name not in demos.state_names]
+        if missing:
+            raise ValueError(f"pointer hindsight needs the state entries {missing}; the datasets' state holds "
+                             f"{list(demos.state_names)}")
+        return [demos.state_names.index(name) for name in names]
+
+    last = np.r_[np.flatnonzero(np.diff(demos.episodes)), len(demos.episodes) - 1]
+    if frames is not None:
+        last = last[frames[last]]
+    hand = demos.states[last][:, columns(hand_names)]
+    where = np.stack([demos.states[last][:, columns([f"{obj}_{axis}" for axis in "xyz"])] for obj in objects], axis=1)
+    nearest = np.linalg.norm(where - hand[:, None], axis=-1).argmin(axis=1)
+    prompts = demos.task_ids[last]
+    targets = np.full(len(demos.tasks), -1)
+    for prompt in np.unique(prompts):
+        votes = np.bincount(nearest[prompts == prompt], minlength=len(objects))
+        if votes.max() * 2 > votes.sum():
+            targets[prompt] = votes.argmax()
+    return targets
+
+
 def validation_episodes(episodes: np.ndarray, fraction: float, rng: np.random.Generator) -> np.ndarray:
     """The episode ids held out for validation: ``fraction`` of them, drawn by ``rng`` (a finetune's first draw from
     ``default_rng(seed)``, so a finetune's split can be rebuilt from its seed)."""
@@ -279,6 +313,9 @@ def finetune(
     train_idx, val_idx = np.flatnonzero(~is_val), np.flatnonzero(is_val)
     if len(train_idx) == 0:
         raise ValueError("no training frames left after the validation split")
+    out = Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    pointed = pointer_targets(model, demos, ~is_val, task, out) if settings.pointer_hindsight > 0 else None
 
     states = torch.from_numpy(np.ascontiguousarray(picked))
     targets_t, is_pad_t, task_ids = torch.from_numpy(targets), torch.from_numpy(is_pad), torch.from_numpy(demos.task_ids)
@@ -311,9 +348,16 @@ def finetune(
     optimizer = torch.optim.AdamW(model.parameters(), lr=settings.learning_rate, weight_decay=settings.weight_decay)
     schedule = torch.optim.lr_scheduler.LambdaLR(
         optimizer, lambda step: 0.5 * (1 + math.cos(math.pi * min(step, settings.steps) / settings.steps)))
+
+    def hindsight_loss() -> torch.Tensor:
+        """Cross-entropy of the training prompts' pointer weights against ``hindsight_objects`` (0 without)."""
+        if pointed is None:
+            return states.new_zeros(())
+        labelled = pointed >= 0
+        weights = model.pointer.weights(model.encode_prompts(task_tokens[labelled], task_mask[labelled]))
+        return F.nll_loss(torch.log(weights.clamp_min(1e-8)), pointed[labelled])
+
     weights = torch.tensor([1.0, settings.perception_coef])
-    out = Path(out)
-    out.mkdir(parents=True, exist_ok=True)
     log_every = max(1, settings.steps // 50)
     started = time.monotonic()
     with open(out / LOG_FILE, "w", newline="") as f:
@@ -323,7 +367,7 @@ def finetune(
         for step in range(1, settings.steps + 1):
             batch = rng.choice(train_idx, size=min(settings.batch_size, len(train_idx)), replace=False)
             losses = losses_on(batch)
-            loss = (weights * losses).sum()
+            loss = (weights * losses).sum() + settings.pointer_hindsight * hindsight_loss()
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
@@ -339,6 +383,26 @@ def finetune(
     model.eval()
     model.save_pretrained(out)
     return out
+
+
+def pointer_targets(model: LearnedPolicy, demos: Demonstrations, training: np.ndarray, task: Task,
+                    out: Path) -> torch.Tensor:
+    """``hindsight_objects`` of the ``training`` frames' episodes for the pointer's objects as a tensor, written to ``out/pointer_targets.json`` (each
+    training prompt and the object it points at, null where its episodes disagree). A ValueError when the policy
+    has no pointer or no prompt gets a target."""
+    if model.pointer is None:
+        raise ValueError("pointer_hindsight trains the pointer: finetune with pointer (--pointer)")
+    objects = perceived_objects(model.config.perceived_names)[0]
+    try:
+        hand = task.hand_position_names()
+    except NotImplementedError as err:
+        raise ValueError(f"pointer hindsight reads where the hand ends: {err}") from err
+    targets = hindsight_objects(demos, hand, objects, training)
+    if (targets < 0).all():
+        raise ValueError("pointer hindsight found no prompt whose episodes' hands mostly end nearest one object")
+    table = {prompt: objects[t] if t >= 0 else None for prompt, t in zip(demos.tasks, targets)}
+    (out / POINTER_TARGETS_FILE).write_text(json.dumps(table, indent=1))
+    return torch.from_numpy(targets)
 
 
 @torch.no_grad()

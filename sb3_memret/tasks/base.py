@@ -202,6 +202,12 @@ class Task(ABC):
         raise NotImplementedError(f"task {self.name!r} does not say which of its state entries are proprioception "
                                   "(Task.proprio_names)")
 
+    def hand_position_names(self) -> tuple[str, ...]:
+        """The state entries that place the hand (x, y, z, in the frame of the objects' positions): where a
+        demonstration's hand ends says which object it was about (``finetune``'s pointer hindsight)."""
+        raise NotImplementedError(f"task {self.name!r} does not say which of its state entries place the hand "
+                                  "(Task.hand_position_names)")
+
     def controller_inputs(self, obs: Any, n_envs: int, with_images: bool) -> dict[str, np.ndarray]:
         """``demo_frame`` of every env of a batched controller observation, stacked: (n_envs, ...) per feature."""
         from sb3_memret.envs.physics import select_obs, to_numpy

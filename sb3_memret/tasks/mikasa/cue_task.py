@@ -166,5 +166,8 @@ class MikasaCueTask(Task):
     def proprio_names(self) -> tuple[str, ...]:
         return demo_layout.proprio_names()
 
+    def hand_position_names(self) -> tuple[str, ...]:
+        return demo_layout.HAND_POSITION
+
 
 __all__ = ["CueWriter", "EPISODE_STEPS", "EVAL_SEED", "MikasaCueTask", "RENDERER_NEEDED"]

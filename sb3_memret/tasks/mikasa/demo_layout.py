@@ -18,12 +18,13 @@ from sb3_memret.controllers.observation import ACTION_KEY, ACTION_NAMES, IMAGE_K
 
 MIKASA_IMAGE_SHAPE = (128, 128, 3)
 ARM_JOINTS = 9  # 7 arm joints + 2 fingers
+HAND_POSITION = ("tcp_x", "tcp_y", "tcp_z")  # where the hand (the TCP) is, in the frame of the objects' positions
 
 
 def state_names(objects: Sequence[str], key: str = "cube") -> tuple[str, ...]:
     """The names of the state's entries, for candidates named by ``objects`` (colours or shapes)."""
     arm = [f"qpos_{i}" for i in range(ARM_JOINTS)] + [f"qvel_{i}" for i in range(ARM_JOINTS)]
-    hand = ["tcp_x", "tcp_y", "tcp_z", "tcp_qw", "tcp_qx", "tcp_qy", "tcp_qz"]
+    hand = [*HAND_POSITION, "tcp_qw", "tcp_qx", "tcp_qy", "tcp_qz"]
     seen = [f"{key}_{name}_{axis}" for name in objects for axis in "xyz"] + [f"{key}_{name}_visible" for name in objects]
     return tuple(arm + hand + seen)
 
