@@ -167,7 +167,9 @@ def test_the_cli_serves_the_scripted_expert_for_a_whole_episode(task_env):
     port = free_port()
     command = [str(Path(sys.executable).parent / "sb3-memret"), "serve", "scripted", "--host", "127.0.0.1",
                "--port", str(port)]
-    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE)
+    # Ctrl-C must reach it even where the tests run with SIGINT ignored (a shell's background job passes that on)
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                               preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         wait_healthy(port, process=process)
         remote = make_controller(f"openpi://127.0.0.1:{port}")
