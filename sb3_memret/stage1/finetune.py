@@ -97,15 +97,15 @@ class Demonstrations:
                              f"{chunk_len}: lower chunk_len or record longer chunks")
         return self.chunks[:, :chunk_len], self.chunk_pad[:, :chunk_len]
 
+    def last_frames(self) -> np.ndarray:
+        """The index of each episode's last frame (episodes are runs of equal ids in ``episodes``)."""
+        return np.r_[np.flatnonzero(np.diff(self.episodes)), len(self.episodes) - 1]
+
     def chunk_indices(self, chunk_len: int) -> tuple[np.ndarray, np.ndarray]:
         """(N, chunk_len) frame indices of each frame's target chunk and the mask of steps past its episode."""
-        n = len(self.actions)
-        ends = np.zeros(n, dtype=np.int64)
-        boundaries = np.flatnonzero(np.diff(self.episodes)) + 1
-        starts, stops = np.r_[0, boundaries], np.r_[boundaries, n]
-        for a, b in zip(starts, stops):
-            ends[a:b] = b - 1
-        raw = np.arange(n)[:, None] + np.arange(chunk_len)[None, :]
+        last = self.last_frames()
+        ends = np.repeat(last, np.diff(np.r_[-1, last]))  # each frame's episode's last frame
+        raw = np.arange(len(self.actions))[:, None] + np.arange(chunk_len)[None, :]
         return np.minimum(raw, ends[:, None]), raw > ends[:, None]
 
 
@@ -219,14 +219,10 @@ def hindsight_objects(demos: Demonstrations, hand_names: Sequence[str], objects:
     whose last frame is in the boolean ``frames`` vote), or -1 where no object is nearest in more than half of
     them: what the prompt was about, read from where the hand went. Exact for an expert's episodes; a DAgger
     round's, where the learner drove, are outvoted when it erred."""
-    def columns(names: Sequence[str]) -> list[int]:
-        missing = [name for name in names if name not in demos.state_names]
-        if missing:
-            raise ValueError(f"pointer hindsight needs the state entries {missing}; the datasets' state holds "
-                             f"{list(demos.state_names)}")
-        return [demos.state_names.index(name) for name in names]
+    def columns(names: Sequence[str]) -> np.ndarray:
+        return state_columns(demos.state_names, names, "the datasets' state (for pointer hindsight)")
 
-    last = np.r_[np.flatnonzero(np.diff(demos.episodes)), len(demos.episodes) - 1]
+    last = demos.last_frames()
     if frames is not None:
         last = last[frames[last]]
     hand = demos.states[last][:, columns(hand_names)]
@@ -316,6 +312,7 @@ def finetune(
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     pointed = pointer_targets(model, demos, ~is_val, task, out) if settings.pointer_hindsight > 0 else None
+    labelled = pointed >= 0 if pointed is not None else None  # the prompts with a hindsight target
 
     states = torch.from_numpy(np.ascontiguousarray(picked))
     targets_t, is_pad_t, task_ids = torch.from_numpy(targets), torch.from_numpy(is_pad), torch.from_numpy(demos.task_ids)
@@ -353,9 +350,8 @@ def finetune(
         """Cross-entropy of the training prompts' pointer weights against ``hindsight_objects`` (0 without)."""
         if pointed is None:
             return states.new_zeros(())
-        labelled = pointed >= 0
-        weights = model.pointer.weights(model.encode_prompts(task_tokens[labelled], task_mask[labelled]))
-        return F.nll_loss(torch.log(weights.clamp_min(1e-8)), pointed[labelled])
+        pointing = model.pointer.weights(model.encode_prompts(task_tokens[labelled], task_mask[labelled]))
+        return F.nll_loss(torch.log(pointing.clamp_min(1e-8)), pointed[labelled])
 
     weights = torch.tensor([1.0, settings.perception_coef])
     log_every = max(1, settings.steps // 50)
@@ -387,9 +383,9 @@ def finetune(
 
 def pointer_targets(model: LearnedPolicy, demos: Demonstrations, training: np.ndarray, task: Task,
                     out: Path) -> torch.Tensor:
-    """``hindsight_objects`` of the ``training`` frames' episodes for the pointer's objects as a tensor, written to ``out/pointer_targets.json`` (each
-    training prompt and the object it points at, null where its episodes disagree). A ValueError when the policy
-    has no pointer or no prompt gets a target."""
+    """``hindsight_objects`` of the ``training`` frames' episodes for the pointer's objects as a tensor, written to
+    ``out/pointer_targets.json`` (each training prompt and the object it points at, null where its episodes
+    disagree). A ValueError when the policy has no pointer or no prompt gets a target."""
     if model.pointer is None:
         raise ValueError("pointer_hindsight trains the pointer: finetune with pointer (--pointer)")
     objects = perceived_objects(model.config.perceived_names)[0]
@@ -423,5 +419,5 @@ def read_log(out: str | Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
-__all__ = ["Demonstrations", "FinetuneSettings", "STATE_CHOICES", "finetune", "has_cameras", "load_demonstrations", "read_log",
-           "state_names_for", "validation_episodes"]
+__all__ = ["Demonstrations", "FinetuneSettings", "STATE_CHOICES", "finetune", "has_cameras", "hindsight_objects",
+           "load_demonstrations", "pointer_targets", "read_log", "state_names_for", "validation_episodes"]
