@@ -330,20 +330,24 @@ def test_a_retrieval_counts_only_with_every_needed_fact_in_the_bank_and_hits_onl
 
 
 def test_the_memory_learner_learns_to_retrieve_every_needed_fact(encoder):
-    """K = 2 over 2 facts and 2 decoys: a uniform draw holds both 1 time in 6; PPO learns to hold both. With the
-    paper's entropy coefficient (0.001) the Plackett-Luce draws settle before they meet both facts together on 2 of
-    4 seeds here (greedy 0.4-0.7); 0.01 keeps exploring and learns on all 4."""
+    """K = 2 over 2 facts and 2 decoys: a uniform draw holds both 1 time in 6; PPO, at the paper's settings and
+    with one Plackett-Luce draw per episode (the default), learns to hold both within 1024 decisions and keeps it
+    for 1024 more (seeds 0-3). With a fresh draw at every decision it needed 10x the step and entropy bonus and
+    still fell back on 2 seeds of 4 (greedy 1.0 then 0.72; 0.72, 0.33, 0.21)."""
     from sb3_memret.evaluation import evaluate_retrieval
 
     venv = make_recall_vec_env(1, {"task": PairDoorsTask(), "controller": "scripted", "encoder": encoder,
                                    "replan_every": 4, "location_decoys": 2, "capacity": 4, "k": 2}, seed=0)
-    model = MemRetPPO(env=venv, n_steps=64, batch_size=32, gae_lambda=0.7, learning_rate=3e-3, ent_coef=0.01, seed=0)
+    model = MemRetPPO(env=venv, n_steps=64, batch_size=32, gae_lambda=0.7, seed=0)
     before = evaluate_retrieval(model, venv, 20, seed=1000, samples=200)
     assert before.sampled_fraction == pytest.approx(1 / 6, abs=0.1)
-    model.learn(2048)
-    after = evaluate_retrieval(model, venv, 20, seed=1000)
+    learned = []
+    for _ in range(2):
+        model.learn(1024, reset_num_timesteps=False)
+        learned.append(evaluate_retrieval(model, venv, 20, seed=1000))
     venv.close()
-    assert after.greedy_accuracy >= 0.9 > before.greedy_accuracy and after.success["overall"] >= 0.9
+    assert before.greedy_accuracy < 0.9
+    assert all(after.greedy_accuracy >= 0.9 and after.success["overall"] >= 0.9 for after in learned)
 
 
 def test_a_decision_can_hold_its_prompt_for_several_replans(encoder):

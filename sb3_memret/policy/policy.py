@@ -53,6 +53,10 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
     an episode's retrievals agree while the scores do: each decision is still exactly a Plackett-Luce
     draw, and PPO's ratios use its probability, as SB3's gSDE does for Gaussian noise. Outside collection
     (``predict``) every draw is fresh.
+    ``"episode"`` is the default: it held what it learned on every task measured, where ``"decision"``
+    learned and unlearned (the drawer's learned controller; K = 2 on a toy task, where
+    held-out greedy retrieval read 1.0, 0.72, 1.0 over three rounds of 1024 decisions for one seed and
+    0.72, 0.33, 0.21 for another, against 1.0 throughout for four seeds of 4 with one draw per episode).
 
     ``retriever_lr_scale`` scales the retriever's learning rate against the critic's (0 freezes it: a
     warm-started retriever that must not drift while the retention critic learns).
@@ -65,7 +69,7 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
 
     def __init__(self, observation_space: spaces.Dict, action_space: spaces.MultiDiscrete, lr_schedule,
                  temperature: float = 0.5, hidden: int = HIDDEN, retriever: str = "mlp", age_unit: str = "steps",
-                 exploration: str = "decision", retriever_lr_scale: float = 1.0, context_lr_scale: float | None = None,
+                 exploration: str = "episode", retriever_lr_scale: float = 1.0, context_lr_scale: float | None = None,
                  **kwargs: Any):
         if not isinstance(action_space, spaces.MultiDiscrete):
             raise ValueError(f"MemoryRetrievalPolicy needs a MultiDiscrete action space of slot indices, got {action_space}")
