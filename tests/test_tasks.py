@@ -332,8 +332,7 @@ def test_a_retrieval_counts_only_with_every_needed_fact_in_the_bank_and_hits_onl
 def test_the_memory_learner_learns_to_retrieve_every_needed_fact(encoder):
     """K = 2 over 2 facts and 2 decoys: a uniform draw holds both 1 time in 6; PPO, at the paper's settings and
     with one Plackett-Luce draw per episode (the default), learns to hold both within 1024 decisions and keeps it
-    for 1024 more (seeds 0-3). With a fresh draw at every decision it needed 10x the step and entropy bonus and
-    still fell back on 2 seeds of 4 (greedy 1.0 then 0.72; 0.72, 0.33, 0.21)."""
+    for 1024 more (seeds 0-3; ``scripts/exploration_stability.py``)."""
     from sb3_memret.evaluation import evaluate_retrieval
 
     venv = make_recall_vec_env(1, {"task": PairDoorsTask(), "controller": "scripted", "encoder": encoder,

@@ -53,10 +53,10 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
     an episode's retrievals agree while the scores do: each decision is still exactly a Plackett-Luce
     draw, and PPO's ratios use its probability, as SB3's gSDE does for Gaussian noise. Outside collection
     (``predict``) every draw is fresh.
-    ``"episode"`` is the default: it held what it learned on every task measured, where ``"decision"``
-    learned and unlearned (the drawer's learned controller; K = 2 on a toy task, where
-    held-out greedy retrieval read 1.0, 0.72, 1.0 over three rounds of 1024 decisions for one seed and
-    0.72, 0.33, 0.21 for another, against 1.0 throughout for four seeds of 4 with one draw per episode).
+    ``"episode"`` is the default: it held what it learned wherever measured, where ``"decision"`` learned and
+    unlearned (the drawer's learned controller, above; RememberShape3's camera controller; on the tests' K = 2
+    toy task at 10x the paper's step and entropy bonus it fell back on 2 seeds of 4, episode draws on none:
+    ``scripts/exploration_stability.py``).
 
     ``retriever_lr_scale`` scales the retriever's learning rate against the critic's (0 freezes it: a
     warm-started retriever that must not drift while the retention critic learns).
