@@ -53,10 +53,11 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
     an episode's retrievals agree while the scores do: each decision is still exactly a Plackett-Luce
     draw, and PPO's ratios use its probability, as SB3's gSDE does for Gaussian noise. Outside collection
     (``predict``) every draw is fresh.
-    ``"episode"`` is the default: it held what it learned wherever measured, where ``"decision"`` learned and
-    unlearned (the drawer's learned controller, above; RememberShape3's camera controller; on the tests' K = 2
-    toy task at 10x the paper's step and entropy bonus it fell back on 2 seeds of 4, episode draws on none:
-    ``scripts/exploration_stability.py``).
+    ``"episode"`` is the default: it held what it learned where ``"decision"`` learned and unlearned (the
+    drawer's learned controller, above; RememberShape3's camera controller; on the tests' K = 2 toy task at 10x
+    the paper's step and entropy bonus it fell back on 2 seeds of 4, episode draws on none:
+    ``scripts/exploration_stability.py``). Neither steadies SeqOfColors3, whose advantages favour the wrong
+    facts (README, Tasks).
 
     ``retriever_lr_scale`` scales the retriever's learning rate against the critic's (0 freezes it: a
     warm-started retriever that must not drift while the retention critic learns).
