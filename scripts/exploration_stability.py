@@ -15,19 +15,18 @@ from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
 
-from test_tasks import PairDoorsTask  # noqa: E402  (the toy task lives with the tests that define it)
+from test_tasks import pair_doors_env  # noqa: E402  (the toy task lives with the tests that define it)
 
-from sb3_memret.envs.vec_env import make_recall_vec_env  # noqa: E402
 from sb3_memret.evaluation import evaluate_retrieval  # noqa: E402
 from sb3_memret.memory.encoder import MiniLMEncoder  # noqa: E402
+from sb3_memret.policy.policy import EXPLORATION  # noqa: E402
 from sb3_memret.policy.ppo import MemRetPPO  # noqa: E402
 
 
 def greedy_by_round(exploration: str, seed: int, rounds: int, decisions: int, encoder: MiniLMEncoder,
                     learning_rate: float, ent_coef: float) -> list[float]:
     """Train from scratch and evaluate greedy retrieval on 20 held-out episodes after each round."""
-    venv = make_recall_vec_env(1, {"task": PairDoorsTask(), "controller": "scripted", "encoder": encoder,
-                                   "replan_every": 4, "location_decoys": 2, "capacity": 4, "k": 2}, seed=0)
+    venv = pair_doors_env(encoder)
     model = MemRetPPO(env=venv, n_steps=64, batch_size=32, gae_lambda=0.7, learning_rate=learning_rate,
                       ent_coef=ent_coef, seed=seed, policy_kwargs={"exploration": exploration})
     accuracy = []
@@ -45,7 +44,7 @@ def main() -> None:
     parser.add_argument("--decisions", type=int, default=1024, help="decisions between evaluations")
     parser.add_argument("--learning-rate", type=float, default=3e-4)
     parser.add_argument("--ent-coef", type=float, default=0.001)
-    parser.add_argument("--exploration", nargs="+", default=["decision", "episode"], choices=["decision", "episode"])
+    parser.add_argument("--exploration", nargs="+", default=list(EXPLORATION), choices=EXPLORATION)
     args = parser.parse_args()
     encoder = MiniLMEncoder()
     for exploration in args.exploration:

@@ -309,11 +309,16 @@ class PairDoorsTask(DoorsTask):
         return PairDoorsExpert()
 
 
+def pair_doors_env(encoder):
+    """The pair-doors recall env with both facts and 2 decoys in a bank of 4, K = 2, the scripted controller."""
+    return make_recall_vec_env(1, {"task": PairDoorsTask(), "controller": "scripted", "encoder": encoder,
+                                   "replan_every": 4, "location_decoys": 2, "capacity": 4, "k": 2}, seed=0)
+
+
 def test_a_retrieval_counts_only_with_every_needed_fact_in_the_bank_and_hits_only_with_all(encoder):
     """Two facts needed: the reset decision is not scored (the second light is not yet seen), later ones are, and
     a hit needs both facts among the K = 2 retrieved; one of them and a decoy is a miss, and the expert holds still."""
-    venv = make_recall_vec_env(1, {"task": PairDoorsTask(), "controller": "scripted", "encoder": encoder,
-                                   "replan_every": 4, "location_decoys": 2, "capacity": 4, "k": 2}, seed=0)
+    venv = pair_doors_env(encoder)
     venv.reset()
     memory = venv.venv.memories[0]
     assert len(memory.true_slots()) == 1 and not memory.facts_in_bank() and memory.true_slot() == -1
@@ -335,8 +340,7 @@ def test_the_memory_learner_learns_to_retrieve_every_needed_fact(encoder):
     for 1024 more (seeds 0-3; ``scripts/exploration_stability.py``)."""
     from sb3_memret.evaluation import evaluate_retrieval
 
-    venv = make_recall_vec_env(1, {"task": PairDoorsTask(), "controller": "scripted", "encoder": encoder,
-                                   "replan_every": 4, "location_decoys": 2, "capacity": 4, "k": 2}, seed=0)
+    venv = pair_doors_env(encoder)
     model = MemRetPPO(env=venv, n_steps=64, batch_size=32, gae_lambda=0.7, seed=0)
     before = evaluate_retrieval(model, venv, 20, seed=1000, samples=200)
     assert before.sampled_fraction == pytest.approx(1 / 6, abs=0.1)
