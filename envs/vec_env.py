@@ -41,7 +41,7 @@ from sb3_memret.memory.schema import MemoryEntry, check_age_unit
 from sb3_memret.memory.retention import FIXED_RULES, check_retention
 from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.policy.networks import RetentionScorer
-from sb3_memret.rewards import shaped_reward
+from sb3_memret.rewards import absorbing_success_value, shaped_reward
 from sb3_memret.rollout import task_env_kwargs
 from sb3_memret.tasks import DEFAULT_TASK, Task, make_task
 from sb3_memret.tasks.base import EnvFrame
@@ -61,7 +61,10 @@ class RecallVecEnv(VecEnv):
     executed control steps, plus ``success_bonus`` on success (a task without a potential Phi, as
     MIKASA's, gives its env's own reward summed over the steps instead of the shaping term). Shaping at the decision level,
     with the gamma PPO discounts decisions by, telescopes exactly, so it cannot change which
-    retrieval policy is optimal (Ng et al., 1999).
+    retrieval policy is optimal (Ng et al., 1999). A task that ends its episodes at success
+    (``Task.ends_at_success``) stands for an env that would run on in an absorbing success: the decision
+    that succeeds also earns what the cut-off steps would have paid (``absorbing_success_value``), so an
+    early success never pays less than failing slowly.
 
     With ``replans_per_decision`` R, a decision holds its prompt for R replans (R * replan_every steps);
     its reward sums the env's reward over them (or shapes from the first state to the last). With
@@ -147,6 +150,10 @@ class RecallVecEnv(VecEnv):
             raise ValueError(f"k must be in [1, slots={slots}], got {k}")
         self.mode, self.slots, self.k = mode, slots, k
         self.replan_every, self.gamma, self.success_bonus = replan_every, gamma, success_bonus
+        if self.task.ends_at_success and self.task.success_reward is None:
+            raise ValueError(f"task {self.task.name!r} ends its episodes at success but sets no success_reward: "
+                             "the reward its env pays at each step after success is needed to value the cut-off steps")
+        self.max_control_steps = max_control_steps or self.task.max_control_steps
         self.controller = make_controller(controller, self.task) if isinstance(controller, str) else controller
         if not 1 <= replan_every <= self.controller.spec.chunk_len:
             raise ValueError(f"replan_every must be in [1, {self.controller.spec.chunk_len}], got {replan_every}")
@@ -169,7 +176,7 @@ class RecallVecEnv(VecEnv):
         self.households = [Household(object_set(objects), n_objects, household) for _ in range(num_envs)] \
             if long_term_capacity else None
         self.physics: PhysicsBackend = make_physics(backend, num_envs, task_kwargs,
-                                                    max_control_steps or self.task.max_control_steps, ray_address,
+                                                    self.max_control_steps, ray_address,
                                                     self.task)
         try:
             self.controller.check_env(self.physics.env_info)
@@ -185,6 +192,7 @@ class RecallVecEnv(VecEnv):
         self.task_seed_queues: list[list[int]] = [[] for _ in range(num_envs)]
         self.episode_task_seeds: list[int | None] = [None] * num_envs  # the seed each env's episode started from
         self.frames: list[EnvFrame | None] = [None] * num_envs
+        self.episode_steps = np.zeros(num_envs, dtype=np.int64)  # control steps each env's episode has run
         self.controller_calls = 0
         self.tasks_played = np.zeros(num_envs, dtype=np.int64)
         self.closed = False
@@ -270,6 +278,7 @@ class RecallVecEnv(VecEnv):
         for request in requests:
             i, frame = request.env_id, frames[request.env_id]
             self.frames[i], self.episode_task_seeds[i] = frame, request.seed
+            self.episode_steps[i] = 0
             self.memories[i].start(frame, self.rngs[i], moved.get(i, False))
             infos[i] = {**self.memories[i].info(success=False), "task_seed": request.seed}
         return infos
@@ -288,6 +297,7 @@ class RecallVecEnv(VecEnv):
             chosen.append(memory.choose(slots))
             prompts.append(memory.prompt(chosen[-1]))
         starts, rewards = list(self.frames), np.zeros(self.num_envs, dtype=np.float32)
+        decision_steps = np.zeros(self.num_envs, dtype=np.int64)
         running = list(range(self.num_envs))
         for _ in range(self.replans_per_decision):  # the same prompts, each replan from the newest observation
             with torch_threads(1 if self.physics.shares_cores else None):
@@ -300,6 +310,7 @@ class RecallVecEnv(VecEnv):
                 if self.memories[i].observe(frames[i]):
                     wrote.add(i)
                 rewards[i] += frames[i].reward
+                decision_steps[i] += frames[i].steps
             running = [i for i in running if not (frames[i].terminated or frames[i].truncated
                                                   or (self.retrieve_on_write and i in wrote))]
             if not running:
@@ -308,7 +319,8 @@ class RecallVecEnv(VecEnv):
         observations, infos = [], []
         for i, memory in enumerate(self.memories):
             frame = dataclasses.replace(self.frames[i], reward=float(rewards[i]))
-            rewards[i] = self._reward(starts[i], frame)
+            self.episode_steps[i] += decision_steps[i]
+            rewards[i] = self._reward(starts[i], frame, self.episode_steps[i], decision_steps[i])
             terminated[i], truncated[i] = frame.terminated, frame.truncated and not frame.terminated
             info = memory.info(frame.success)
             info.update(prompt=prompts[i], decision_true_slots=true_slots[i], task_seed=self.episode_task_seeds[i],
@@ -317,14 +329,21 @@ class RecallVecEnv(VecEnv):
             infos.append(info)
         return observations, rewards, terminated, truncated, infos
 
-    def _reward(self, before: EnvFrame, frame: EnvFrame) -> float:
+    def _reward(self, before: EnvFrame, frame: EnvFrame, episode_steps: int, decision_steps: int) -> float:
         """(1 - gamma) times the shaping term of the task's potential (or, for a task without one, the env's
-        own reward summed over the chunk), plus the success bonus."""
+        own reward summed over the chunk), plus the success bonus; an episode that ended at its success
+        also earns what its cut-off steps would have paid."""
         if frame.potential is None:
             reward = frame.reward
         else:
             reward = float(shaped_reward(np.array([before.potential]), np.array([frame.potential]), self.gamma)[0])
-        return (1.0 - self.gamma) * reward + (self.success_bonus if frame.success else 0.0)
+        reward = (1.0 - self.gamma) * reward + (self.success_bonus if frame.success else 0.0)
+        if self.task.ends_at_success and frame.success and frame.terminated:
+            steps_per_decision = self.replan_every * self.replans_per_decision
+            reward += absorbing_success_value(self.task.success_reward, max(self.max_control_steps - episode_steps, 0),
+                                              max(steps_per_decision - decision_steps, 0), steps_per_decision,
+                                              self.gamma)
+        return reward
 
     def _observation(self, i: int) -> dict[str, np.ndarray]:
         """Env ``i``'s decision observation: its memory's, with the shaping potential if observed."""

@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from mikasa_support import MIKASA_MISSING, leaked_keys
+from mikasa_support import MIKASA_MISSING, PROTOCOL_SEEDS, leaked_keys
 
 pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
@@ -286,15 +286,15 @@ def _counts(env, expert, seed: int, condition: str) -> bool:
 
 
 @pytest.mark.slow
-def test_expert_and_reader_over_mikasas_50_evaluation_seeds(state_env, rgb_env):
-    """Oracle >= 90 %, none 0 %, one fact missing (the second, the third) 0 %, over MIKASA's 50 seeds; and every
-    cue frame of those 50 episodes read right, no other frame read as a colour (cue, delay, 5 manipulation steps)."""
+def test_expert_and_reader_over_mikasas_first_evaluation_seeds(state_env, rgb_env):
+    """Oracle >= 90 %, none 0 %, one fact missing (the second, the third) 0 %, over MIKASA's first seeds; and every
+    cue frame of those episodes read right, no other frame read as a colour (cue, delay, 5 manipulation steps)."""
     expert = sequence_expert()
-    wins = {c: sum(_counts(state_env, expert, EVAL_SEED + i, c) for i in range(50))
+    wins = {c: sum(_counts(state_env, expert, EVAL_SEED + i, c) for i in range(PROTOCOL_SEEDS))
             for c in ("oracle", "none", "missing2", "missing3")}
-    assert wins["oracle"] >= 45 and wins["none"] == 0 and wins["missing2"] == 0 and wins["missing3"] == 0, wins
+    assert wins["oracle"] >= 0.9 * PROTOCOL_SEEDS and wins["none"] == wins["missing2"] == wins["missing3"] == 0, wins
     right = frames = false = 0
-    for i in range(50):
+    for i in range(PROTOCOL_SEEDS):
         obs, info = rgb_env.reset(seed=EVAL_SEED + i)
         base, colours = rgb_env.unwrapped, _colours(info)
         duration = int(base.cue_step_duration_per_env[0])

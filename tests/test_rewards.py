@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from sb3_memret.rewards import PHI_MAX, shaped_reward, staged_potential
+from sb3_memret.rewards import PHI_MAX, absorbing_success_value, shaped_reward, staged_potential
 
 ORIGIN = np.zeros((1, 3))
 
@@ -41,3 +41,30 @@ def test_shaping_is_potential_difference():
 def test_bad_gamma_is_refused():
     with pytest.raises(ValueError, match="gamma"):
         shaped_reward(np.zeros(1), np.zeros(1), 1.5)
+
+
+def _decision_returns_of_held_success(reward, remaining, left_now, per_decision, gamma):
+    """The env run on after success, decision by decision: (1 - gamma) * the steps' reward, discounted per decision."""
+    steps = [min(remaining, left_now)]
+    remaining -= steps[0]
+    while remaining > 0:
+        steps.append(min(remaining, per_decision))
+        remaining -= steps[-1]
+    return sum(gamma ** j * (1.0 - gamma) * reward * n for j, n in enumerate(steps))
+
+
+@pytest.mark.parametrize("remaining,left_now,per_decision", [(0, 3, 4), (3, 3, 4), (10, 0, 4), (11, 2, 4),
+                                                             (376, 5, 24), (7, 7, 1)])
+def test_an_absorbing_success_is_worth_the_cut_off_steps_decision_by_decision(remaining, left_now, per_decision):
+    expected = _decision_returns_of_held_success(1.0, remaining, left_now, per_decision, 0.97)
+    assert absorbing_success_value(1.0, remaining, left_now, per_decision, 0.97) == pytest.approx(expected)
+
+
+def test_an_absorbing_success_outweighs_failing_slowly_and_checks_its_input():
+    # an early success is worth more than a late one, and both more than nothing
+    early, late = (absorbing_success_value(1.0, n, 0, 24, 0.97) for n in (300, 100))
+    assert early > late > 0.0 == absorbing_success_value(1.0, 0, 0, 24, 0.97)
+    with pytest.raises(ValueError, match="gamma must be in \\(0, 1\\], got 0.0"):
+        absorbing_success_value(1.0, 4, 0, 4, 0.0)
+    with pytest.raises(ValueError, match="remaining_steps=-1"):
+        absorbing_success_value(1.0, -1, 0, 4, 0.97)

@@ -22,6 +22,7 @@ from sb3_memret.memory.schema import MemoryEntry, MemoryType
 from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.policy.ppo import MemRetPPO
 from sb3_memret.prompts import PromptTemplate
+from sb3_memret.rewards import absorbing_success_value
 from sb3_memret.tasks import EnvFrame, Episode, Predicates, Task, make_task, register_task, task_names
 
 COLOURS = ("red", "green", "blue")
@@ -185,6 +186,47 @@ def test_the_memory_learner_trains_on_a_task_of_its_own(encoder):
     assert after.greedy_accuracy >= 0.9 > before.greedy_accuracy
     assert after.success["overall"] >= 0.9
     assert set(after.success) <= {"overall", *COLOURS}
+
+
+class AbsorbingDoorsTask(DoorsTask):
+    """The doors, ending at success (the env already does) as a task whose env would run on in success paying 0.5."""
+
+    ends_at_success, success_reward = True, 0.5
+
+
+def _oracle_decisions(task: Task, encoder) -> tuple[list[float], list[int], bool]:
+    """One oracle episode decided to its end, replanning every 3 steps: each decision's reward and the episode's
+    steps after it. Its light is an outer door's (4 steps away), so success comes 1 step into the second decision."""
+    venv = make_recall_vec_env(1, {"task": task, "controller": "scripted", "encoder": encoder, "mode": "oracle",
+                                   "replan_every": 3, "location_decoys": 3, "capacity": 4}, seed=0)
+    env = venv.venv
+    env.set_task_seeds([[next(seed for seed in range(100) if _colour_of(seed) != "green")]])
+    env.reset_envs([0])
+    rewards, steps, done = [], [], False
+    while not done:
+        _, reward, terminated, truncated, infos = env.decide(np.zeros((1, 1), dtype=np.int64))
+        rewards.append(float(reward[0]))
+        steps.append(int(env.episode_steps[0]))
+        done = bool(terminated[0] or truncated[0])
+    venv.close()
+    return rewards, steps, bool(infos[0]["success"])
+
+
+def test_a_success_that_ends_the_episode_earns_the_steps_it_cut_off(encoder):
+    plain, steps, success = _oracle_decisions(DoorsTask(), encoder)
+    absorbing, _, _ = _oracle_decisions(AbsorbingDoorsTask(), encoder)
+    assert success and steps == [3, 4]
+    assert absorbing[:-1] == plain[:-1]  # only the decision that succeeds earns more
+    cut_off = absorbing_success_value(0.5, DoorsTask.max_control_steps - 4, 2, 3, 0.97)
+    assert cut_off > 0 and absorbing[-1] == pytest.approx(plain[-1] + cut_off, rel=1e-5)
+
+
+def test_a_task_that_ends_at_success_must_say_what_success_pays(encoder):
+    class Unpriced(DoorsTask):
+        ends_at_success = True
+
+    with pytest.raises(ValueError, match="task 'doors-test' ends its episodes at success but sets no success_reward"):
+        make_recall_vec_env(1, {"task": Unpriced(), "controller": "scripted", "encoder": encoder})
 
 
 class SeededDoorsTask(DoorsTask):

@@ -116,6 +116,9 @@ class Task(ABC):
     #: whether an episode ends at its first success: success counts once, so the steps after it cannot change
     #: the figure (for envs that run on after success, as MIKASA's SeqOfColors does for its 400 steps)
     ends_at_success: ClassVar[bool] = False
+    #: for a task that ends at success: the env's reward at each step once it has succeeded (what the cut-off
+    #: steps would have paid, ``sb3_memret.rewards.absorbing_success_value``); required with ``ends_at_success``
+    success_reward: ClassVar[float | None] = None
 
     @property
     def config_key(self) -> str:

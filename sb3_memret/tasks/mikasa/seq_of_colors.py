@@ -144,6 +144,7 @@ class SeqOfColorsTask(MikasaCueTask):
     noop_before_manipulation = False  # MIKASA's wrapper table gives SeqOfColors none: actions act in every phase
     max_control_steps = EPISODE_STEPS
     ends_at_success = True  # MIKASA masks success out of terminated; its success once is over by then
+    success_reward = 1.0  # normalized_dense pays 400 / 400 at every step it reads success
 
     def __init__(self, env_id: str = "SeqOfColors3-VLA-v0"):
         if env_id not in SEQ_TASKS:
