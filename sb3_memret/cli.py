@@ -24,12 +24,22 @@ DEMO_SEED = 100_000  # demonstrations never share a placement with rollout (0..)
 
 
 def load_task_config(task: str = DEFAULT_TASK, path: Path | None = None):
-    """The hyperparameters of ``task``: its section of ``path`` (default: the task's own zoo config)."""
-    from sb3_memret.config import load_config
+    """The hyperparameters of ``task``: its section (``Task.config_key``) of ``path``, by default of the task's own
+    zoo config (``Task.zoo_config``). Without ``path``, a task that has no section there (a task of your own) is
+    told where they were looked for and how to pass them: no other task's section stands in for its own."""
+    from sb3_memret.config import MissingSectionError, load_config
     from sb3_memret.tasks import make_task
 
     the_task = make_task(task)
-    return load_config(path or ZOO_CONFIGS / the_task.zoo_config, the_task.config_key)
+    default = ZOO_CONFIGS / the_task.zoo_config
+    try:
+        return load_config(path or default, the_task.config_key)
+    except (FileNotFoundError, MissingSectionError) as err:
+        if path is not None:
+            raise
+        raise MissingSectionError(f"no hyperparameters for task {task!r}: its zoo config ({err}); pass --config "
+                                  f"FILE, a YAML with a section {the_task.config_key!r} (the task's config_key), e.g. "
+                                  "a section of zoo_configs/ copied and renamed") from None
 
 
 def _default_controller(task: str | None) -> str:
@@ -513,7 +523,8 @@ def serve(controller: str, host: str, port: int) -> None:
 @click.argument("experiment", type=click.Choice(list(EXPERIMENTS)), metavar="EXPERIMENT")
 @_task_option(default=None)
 @click.option("--config", "config_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
-              help="rl-zoo-style YAML keyed by task  [default: the task's file in zoo_configs/ of the source tree: "
+              help="rl-zoo-style YAML keyed by task (its section named by the task's config_key, its name; a task "
+                   "of your own passes its own YAML)  [default: the task's file in zoo_configs/ of the source tree: "
                    "memret_ppo.yml for the drawer, memret_ppo_mikasa.yml for MIKASA's tasks]")
 @click.option("--controller", default=None,
               help="Frozen controller the memory serves ('scripted': the task's expert; 'learned': its camera-reading "
@@ -559,13 +570,16 @@ def train(ctx: click.Context, experiment: str, task: str | None, config_path: Pa
     the_task = make_task(name)
     config = None
     if not resume or config_path or timesteps:
+        # a resume without --config keeps its run's own hyperparameters (--timesteps may lengthen it)
+        from_run = resume and config_path is None and (out / "config.yml").exists()
         try:
-            config = load_task_config(name, config_path)
+            config = load_run_config(out) if from_run else load_task_config(name, config_path)
         except (FileNotFoundError, ValueError) as err:
             raise click.BadParameter(str(err), param_hint="--config") from err
         if config.env_kwargs.get("task", name) != name:
             raise click.BadParameter(f"section {the_task.config_key!r} of the config is for task "
-                                     f"{config.env_kwargs['task']!r}, not {name!r}", param_hint="--config")
+                                     f"{config.env_kwargs['task']!r}, not {name!r}; pass --config FILE with a "
+                                     f"section {the_task.config_key!r} for it", param_hint="--config")
         config.env_kwargs["task"] = name
         if n_envs is not None:
             config.ppo["n_envs"] = n_envs

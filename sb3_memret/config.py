@@ -12,9 +12,16 @@ from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.objects import OBJECT_SETS
 from sb3_memret.memory.retention import RETENTION_RULES
 from sb3_memret.memory.schema import AGE_UNITS
-from sb3_memret.tasks import task_names
+from sb3_memret.tasks import check_task_name
 
 Check = tuple[type | tuple[type, ...], Callable[[Any], bool], str]
+
+
+def _is_task(value: str) -> bool:
+    """Whether ``value`` names a task (``check_task_name``: a registered name, or a ``module:Class`` that imports);
+    a ValueError says why not, and ``_validate`` passes it on."""
+    check_task_name(value)
+    return True
 
 
 def _positive_int() -> Check:
@@ -51,7 +58,7 @@ POLICY_KEYS: dict[str, Check] = {
                     "every decision), 'episode' (one draw per episode)"),
 }
 ENV_KEYS: dict[str, Check] = {
-    "task": (str, lambda v: v in task_names(), f"one of the registered tasks {task_names()}"),
+    "task": (str, _is_task, "a registered task or package.module:Class naming a Task of your own"),
     "mode": (str, lambda v: v in ("recall", "oracle", "none"), "one of 'recall', 'oracle', 'none'"),
     "capacity": _positive_int(),
     "k": _positive_int(),
@@ -75,6 +82,10 @@ ENV_KEYS: dict[str, Check] = {
     "memory_source": (str, lambda v: v in ("seeded", "observed"), "one of 'seeded' (from the placement), "
                       "'observed' (from what the robot saw)"),
 }
+
+
+class MissingSectionError(ValueError):
+    """A config file without a section for the env id (task) asked for."""
 
 
 @dataclass
@@ -117,7 +128,7 @@ def load_config(path: str | Path, env_id: str) -> TrainConfig:
         raise ValueError(f"{path} is not valid YAML{where}: {problem}") from None
     if not isinstance(data, dict) or env_id not in data:
         known = list(data) if isinstance(data, dict) else []
-        raise ValueError(f"{path}: no section for env id {env_id!r}; the file has {known}")
+        raise MissingSectionError(f"{path}: no section for env id {env_id!r}; the file has {known}")
     return parse_section(data[env_id], env_id, where=str(path))
 
 
@@ -143,6 +154,12 @@ def _validate(values: Any, spec: dict[str, Check], where: str) -> dict[str, Any]
         if key not in spec:
             raise ValueError(f"{where}: unknown key {key!r}; accepted keys are {sorted(spec)}")
         types, ok, expected = spec[key]
-        if isinstance(value, bool) != (types is bool) or not isinstance(value, types) or not ok(value):
+        if isinstance(value, bool) != (types is bool) or not isinstance(value, types):
+            raise ValueError(f"{where}: {key}={value!r} is invalid; expected {expected}")
+        try:
+            valid = ok(value)
+        except ValueError as err:  # a check that can say why (the task's)
+            raise ValueError(f"{where}: {key}={value!r} is invalid: {err}") from None
+        if not valid:
             raise ValueError(f"{where}: {key}={value!r} is invalid; expected {expected}")
     return dict(values)

@@ -48,15 +48,21 @@ def make_task(task: str | Task) -> Task:
 
 
 def _import_task(spec: str) -> Task:
+    """The task ``package.module:Class`` names: ``Class`` must be a ``Task`` subclass built with no arguments."""
     module_name, _, attr = spec.partition(":")
+    expected = "package.module:Class naming a sb3_memret.tasks.Task subclass whose __init__ needs no arguments"
     try:
         factory = getattr(importlib.import_module(module_name), attr)
     except (ImportError, AttributeError) as err:
-        raise ValueError(f"task {spec!r}: cannot import {attr!r} from module {module_name!r} ({err})") from None
-    task = factory()
-    if not isinstance(task, Task):
-        raise ValueError(f"task {spec!r} made a {type(task).__name__}, not a sb3_memret.tasks.Task")
-    return task
+        raise ValueError(f"task {spec!r}: cannot import {attr!r} from module {module_name!r} ({err}); expected "
+                         f"{expected}, its module importable (its folder on PYTHONPATH)") from None
+    if not (isinstance(factory, type) and issubclass(factory, Task)):
+        kind = "a class" if isinstance(factory, type) else f"a {type(factory).__name__}"
+        raise ValueError(f"task {spec!r}: {module_name}.{attr} is {kind}, not a Task subclass; expected {expected}")
+    try:
+        return factory()
+    except TypeError as err:  # abstract methods left, or arguments without defaults
+        raise ValueError(f"task {spec!r}: {attr}() fails ({err}); expected {expected}") from None
 
 
 def check_task_name(name: str) -> str:

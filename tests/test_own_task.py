@@ -1,0 +1,111 @@
+"""A task of one's own, as a new user writes it: a module outside the package, named ``module:Class``, with its own
+YAML. Its hyperparameters are found there, its run folder reads back (``eval``, ``train --resume``), and a ``--task``
+that names no task ends in one line that says what would be accepted.
+
+The user's module lives in a temporary folder on ``sys.path``: the toy doors task of ``test_tasks`` (the cheapest task
+that goes through the real decision env) under a name of its own.
+"""
+
+from __future__ import annotations
+
+import json
+import textwrap
+from pathlib import Path
+
+import pytest
+import yaml
+from click.testing import CliRunner
+
+from sb3_memret.cli import load_task_config, main
+
+USER_MODULE = '''
+"""My doors: the test suite's toy task under a name of my own."""
+
+from test_tasks import DoorsTask
+
+
+class MyDoorsTask(DoorsTask):
+    name = "my-doors"
+'''
+USER_CONFIG = """
+my-doors:                 # the task's config_key: its name
+  n_timesteps: 16
+  n_envs: 1
+  n_steps: 8
+  batch_size: 8
+  n_epochs: 1
+  env_kwargs:
+    task: my_doors:MyDoorsTask
+    capacity: 4
+    location_decoys: 3
+    replan_every: 4
+"""
+SPEC = "my_doors:MyDoorsTask"
+
+
+@pytest.fixture
+def user_folder(tmp_path, monkeypatch) -> Path:
+    """The user's folder, on ``sys.path`` (as PYTHONPATH puts it): ``my_doors.py`` and ``my.yml``."""
+    (tmp_path / "my_doors.py").write_text(textwrap.dedent(USER_MODULE))
+    (tmp_path / "my.yml").write_text(USER_CONFIG)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    return tmp_path
+
+
+def _one_line_error(result, *fragments: str) -> None:
+    """A usage error: exit status 2, one line, no traceback, naming every fragment."""
+    assert result.exit_code == 2, result.output
+    lines = result.output.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("Error:") and "Traceback" not in result.output, result.output
+    for fragment in fragments:
+        assert fragment in lines[0], lines[0]
+
+
+def test_the_users_yaml_gives_a_task_of_ones_own_its_hyperparameters(user_folder):
+    config = load_task_config(SPEC, user_folder / "my.yml")
+    assert config.env_kwargs["task"] == SPEC and config.n_timesteps == 16
+    with pytest.raises(ValueError, match="no hyperparameters for task 'my_doors:MyDoorsTask'.*no section for env id "
+                                         "'my-doors'.*pass --config FILE, a YAML with a section 'my-doors'"):
+        load_task_config(SPEC)
+
+
+def test_a_run_of_a_task_of_ones_own_trains_evaluates_and_resumes(user_folder):
+    runner, run = CliRunner(), user_folder / "run"
+    result = runner.invoke(main, ["train", "recall", "--task", SPEC, "--config", str(user_folder / "my.yml"),
+                                  "--out", str(run), "--eval-episodes", "2", "--eval-every", "1", "--no-progress"])
+    assert result.exit_code == 0, result.output
+    assert yaml.safe_load((run / "config.yml").read_text())["my-doors"]["env_kwargs"]["task"] == SPEC
+    assert (run / "final_model.zip").is_file()
+
+    result = runner.invoke(main, ["eval", str(run / "final_model.zip"), "--episodes", "2", "--json"])
+    assert result.exit_code == 0, result.output
+    report = json.loads(result.output.strip().splitlines()[-1])
+    assert report["episodes"] == 2 and set(report["success"]) <= {"overall", "red", "green", "blue"}
+
+    result = runner.invoke(main, ["train", "recall", "--resume", "--out", str(run), "--timesteps", "24",
+                                  "--eval-episodes", "2", "--no-progress"])
+    assert result.exit_code == 0, result.output
+    assert json.loads((run / "summary.json").read_text())["num_timesteps"] == 24
+
+
+def test_a_task_of_ones_own_without_a_config_is_told_where_to_put_it(user_folder):
+    result = CliRunner().invoke(main, ["train", "recall", "--task", SPEC, "--out", str(user_folder / "run")])
+    _one_line_error(result, "no hyperparameters for task 'my_doors:MyDoorsTask'", "zoo_configs", "pass --config FILE",
+                    "section 'my-doors'")
+
+
+@pytest.mark.parametrize("task, fragments", [
+    ("os.path:join", ["'os.path:join'", "os.path.join is a function, not a Task subclass",
+                      "package.module:Class naming a sb3_memret.tasks.Task subclass"]),
+    ("nosuchmodule:X", ["'nosuchmodule:X'", "No module named 'nosuchmodule'", "PYTHONPATH"]),
+    ("sb3_memret.tasks:Task", ["Task() fails", "abstract", "whose __init__ needs no arguments"]),
+])
+def test_a_task_value_that_names_no_task_is_one_line(user_folder, task, fragments):
+    runner = CliRunner()
+    for args in (["rollout", "--task", task], ["train", "recall", "--task", task, "--out", str(user_folder / "r")]):
+        _one_line_error(runner.invoke(main, args), "--task", *fragments)
+    bad = user_folder / "bad.yml"
+    bad.write_text(USER_CONFIG.replace(SPEC, task))
+    result = runner.invoke(main, ["train", "recall", "--task", SPEC, "--config", str(bad), "--out",
+                                  str(user_folder / "r")])
+    _one_line_error(result, "--config", f"env_kwargs: task={task!r} is invalid", *fragments[1:])
