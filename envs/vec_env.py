@@ -66,6 +66,7 @@ class RecallVecEnv(VecEnv):
     that succeeds also earns what the cut-off steps would have paid (``absorbing_success_value``), so an
     early success never pays less than failing slowly.
 
+    The controller replans every ``replan_every`` control steps (None: the task's, ``Task.replan_every``).
     With ``replans_per_decision`` R, a decision holds its prompt for R replans (R * replan_every steps);
     its reward sums the env's reward over them (or shapes from the first state to the last). With
     ``retrieve_on_write`` an env's decision ends early at the replan whose frames wrote a fact to its bank.
@@ -107,7 +108,7 @@ class RecallVecEnv(VecEnv):
         controller: str | FrozenController = "scripted",
         capacity: int = 6,
         k: int = 1,
-        replan_every: int = 8,
+        replan_every: int | None = None,
         replans_per_decision: int = 1,
         retrieve_on_write: bool = False,
         gamma: float = 0.97,
@@ -149,6 +150,7 @@ class RecallVecEnv(VecEnv):
         if not 1 <= k <= slots:
             raise ValueError(f"k must be in [1, slots={slots}], got {k}")
         self.mode, self.slots, self.k = mode, slots, k
+        replan_every = replan_every or self.task.replan_every  # None: the task's clock
         self.replan_every, self.gamma, self.success_bonus = replan_every, gamma, success_bonus
         if self.task.ends_at_success and self.task.success_reward is None:
             raise ValueError(f"task {self.task.name!r} ends its episodes at success but sets no success_reward: "

@@ -243,15 +243,19 @@ def main() -> None:
               help="The drawer only: this layer (1 = top); default all three.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
               help="First episode seed (a task with protocol seeds, as MIKASA's, plays those instead).")
-@click.option("--replan-every", type=click.IntRange(min=1), default=8, show_default=True,
-              help="Control steps executed from each action chunk before replanning.")
+@click.option("--replan-every", type=click.IntRange(min=1), default=None,
+              help="Control steps executed from each action chunk before replanning  [default: the task's "
+                   "(Task.replan_every): 8 on the drawer, 4 on MIKASA's tasks]")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
 @_render_backend_option
-def rollout(task: str, controller, condition: str, episodes: int, layer: int | None, seed: int, replan_every: int,
-            as_json: bool, render_backend: str) -> None:
+def rollout(task: str, controller, condition: str, episodes: int, layer: int | None, seed: int,
+            replan_every: int | None, as_json: bool, render_backend: str) -> None:
     """Run a frozen controller on a task under a fixed prompt and print its success per group (the
     drawer's layer, the cue's colour)."""
     from sb3_memret.rollout import evaluate_condition, evaluate_task_condition, summarize
+    from sb3_memret.tasks import make_task
+
+    replan_every = replan_every or make_task(task).replan_every
 
     render_backend = _camera_render_backend(click.get_current_context(), render_backend, controller)
     if task != DEFAULT_TASK and layer is not None:
@@ -303,7 +307,8 @@ def rollout(task: str, controller, condition: str, episodes: int, layer: int | N
 @click.option("--n-objects", type=click.IntRange(min=1, max=len(LAYERS)), default=1, show_default=True,
               help="Objects per episode, one per drawer.")
 @click.option("--replan-every", type=click.IntRange(min=1), default=None,
-              help="Control steps executed from each expert chunk  [default: 8; 4 for MIKASA's short episodes]")
+              help="Control steps executed from each expert chunk  [default: the task's (Task.replan_every): 8 on the "
+                   "drawer, 4 on MIKASA's short episodes]")
 @click.option("--frames", type=click.Choice(["every", "decisions"]), default=None,
               help="Keep every control step (pi05 finetuning reads chunks from consecutive frames) or only the "
                    "decision steps, each with its chunk of labels, rendering the cameras only there  "
@@ -350,10 +355,11 @@ def demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fr
                                          param_hint=name)
         if learner is not None:
             _controller(click.get_current_context(), None, learner, task)
-        _task_demos(task, episodes, out, seed, noise, noisy_fraction, n_envs, replan_every or 4, progress,
+        _task_demos(task, episodes, out, seed, noise, noisy_fraction, n_envs, replan_every, progress,
                     render_backend, frames, learner)
         return
     from sb3_memret.stage1.demos import plan_episodes, record_demos
+    from sb3_memret.tasks.drawer import DrawerTask
 
     if learner is not None:
         _controller(click.get_current_context(), None, learner)
@@ -366,14 +372,14 @@ def demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fr
             bar.update(1)
             bar.set_postfix(success=f"{wins}/{bar.n}")
 
-        record_demos(out, planned, render_backend, learner, n_envs, replan_every=replan_every or 8,
+        record_demos(out, planned, render_backend, learner, n_envs, replan_every=replan_every or DrawerTask.replan_every,
                      on_episode=on_episode, objects=objects, n_objects=n_objects, frames=frames,
                      image_size=image_size or 224)
     click.echo(f"{episodes} episodes ({wins} successful) written to {out}")
 
 
 def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fraction: float, n_envs: int,
-                replan_every: int, progress: bool, render_backend: str, frames: str, learner: str | None) -> None:
+                replan_every: int | None, progress: bool, render_backend: str, frames: str, learner: str | None) -> None:
     """``demos`` for a task other than the drawer, through the Task interface."""
     from tqdm import tqdm
 
@@ -775,8 +781,8 @@ def evaluate(ctx: click.Context, model_path: Path, task: str | None, condition: 
               help="prompt: the cube's drawer layer.")
 @click.option("--intervals", default=",".join(map(str, (5, 8, 10, 12, 16, 20, 24, 28, 32))), show_default=True,
               help="replan: comma-separated replan intervals.")
-@click.option("--replan-every", type=click.IntRange(min=1), default=8, show_default=True,
-              help="prompt, memcount: control steps executed per action chunk.")
+@click.option("--replan-every", type=click.IntRange(min=1), default=None,
+              help="prompt, memcount: control steps executed per action chunk  [default: the drawer's, 8]")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Also write <ablation>.md, .csv and .json into this folder.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout instead of the table.")
@@ -785,7 +791,7 @@ def evaluate(ctx: click.Context, model_path: Path, task: str | None, condition: 
 @_physics_options
 @click.pass_context
 def ablate(ctx: click.Context, ablation: str, task: str, controller: str, episodes: int, seed: int, n_envs: int, layer: int,
-           intervals: str, replan_every: int, out: Path | None, as_json: bool, progress: bool,
+           intervals: str, replan_every: int | None, out: Path | None, as_json: bool, progress: bool,
            render_backend: str, backend: str, ray_address: str | None) -> None:
     """Characterise how a frozen controller consumes memory: ABLATION is replan (success per layer
     per replan interval, oracle memory), prompt (object word x layer number) or memcount (zero, one
@@ -798,8 +804,10 @@ def ablate(ctx: click.Context, ablation: str, task: str, controller: str, episod
                                  f"{task} --condition oracle|none|wrong --replan-every N`", param_hint="--task")
     from sb3_memret.analysis.ablations import (memcount_ablation, prompt_ablation, replan_ablation, run_ablation,
                                       wording_ablation)
+    from sb3_memret.tasks import make_task
 
     chunk_len = ctx.meta["controller"].spec.chunk_len
+    replan_every = replan_every or make_task(task).replan_every
     render_backend = _camera_render_backend(ctx, render_backend, ctx.meta["controller"])
     if ablation == "replan":
         try:
@@ -934,3 +942,13 @@ def report(run: Path, task: str | None, controller: str, baseline_episodes: int 
     except (FileNotFoundError, ValueError) as err:
         raise click.UsageError(str(err)) from err
     click.echo(str(path))
+
+
+def _add_command_groups() -> None:
+    """The command groups that live in their own modules."""
+    from sb3_memret.benchmark.command import benchmark
+
+    main.add_command(benchmark)
+
+
+_add_command_groups()

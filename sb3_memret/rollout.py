@@ -17,7 +17,7 @@ from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import RENDER_BACKENDS, EnvFrame, Episode, check_render_backend
 from sb3_memret.tasks.drawer import DrawerTask
 
-DEFAULT_REPLAN_EVERY = 8
+DEFAULT_REPLAN_EVERY = DrawerTask.replan_every  # the drawer's episodes (run_episode, evaluate_condition)
 
 
 @dataclass(frozen=True)
@@ -179,14 +179,16 @@ def play_task_episodes(
     task: Task,
     seeds: Iterable[int],
     schedule: FactSchedule,
-    replan_every: int = DEFAULT_REPLAN_EVERY,
+    replan_every: int | None = None,
     on_episode: Callable[[EpisodeResult], None] | None = None,
     render_backend: str | None = None,
 ) -> list[EpisodeResult]:
-    """One episode of ``task`` per seed, the controller replanning every ``replan_every`` control steps with
-    the instruction and ``schedule``'s facts of that decision. Success is the task's (once per episode)."""
+    """One episode of ``task`` per seed, the controller replanning every ``replan_every`` control steps (None: the
+    task's ``Task.replan_every``) with the instruction and ``schedule``'s facts of that decision. Success is the
+    task's (once per episode)."""
     from sb3_memret.envs.physics import TaskRunner, stack_obs
 
+    replan_every = replan_every or task.replan_every
     if not 1 <= replan_every <= controller.spec.chunk_len:
         raise ValueError(f"replan_every must be in [1, {controller.spec.chunk_len}] (the chunk length), got {replan_every}")
     runner = TaskRunner(task_env_kwargs(controller, render_backend or task.default_render_backend, task),
@@ -222,13 +224,14 @@ def evaluate_task_condition(
     task: Task | str,
     episodes: int,
     seed: int = 0,
-    replan_every: int = DEFAULT_REPLAN_EVERY,
+    replan_every: int | None = None,
     on_episode: Callable[[EpisodeResult], None] | None = None,
     render_backend: str | None = None,
 ) -> list[EpisodeResult]:
     """``episodes`` episodes of ``task`` at its protocol seeds (MIKASA's 4242424242 + i), else at
     seed..seed+episodes-1, each prompted by ``condition``: the task's instruction with its oracle
-    facts, with none, or with its wrong facts. Success is the task's (once per episode)."""
+    facts, with none, or with its wrong facts; the controller replans every ``replan_every`` steps (None: the task's).
+    Success is the task's (once per episode)."""
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     task = make_task(task)

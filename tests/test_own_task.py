@@ -17,6 +17,7 @@ import yaml
 from click.testing import CliRunner
 
 from sb3_memret.cli import load_task_config, main
+from sb3_memret.tasks import make_task
 
 USER_MODULE = '''
 """My doors: the test suite's toy task under a name of my own."""
@@ -26,6 +27,7 @@ from test_tasks import DoorsTask
 
 class MyDoorsTask(DoorsTask):
     name = "my-doors"
+    replan_every = 4  # the expert's chunk: commands and configs that name no interval take it
 '''
 USER_CONFIG = """
 my-doors:                 # the task's config_key: its name
@@ -38,7 +40,6 @@ my-doors:                 # the task's config_key: its name
     task: my_doors:MyDoorsTask
     capacity: 4
     location_decoys: 3
-    replan_every: 4
 """
 SPEC = "my_doors:MyDoorsTask"
 
@@ -86,6 +87,17 @@ def test_a_run_of_a_task_of_ones_own_trains_evaluates_and_resumes(user_folder):
                                   "--eval-episodes", "2", "--no-progress"])
     assert result.exit_code == 0, result.output
     assert json.loads((run / "summary.json").read_text())["num_timesteps"] == 24
+
+
+def test_commands_replan_at_the_tasks_own_interval_unless_told(user_folder):
+    """``rollout`` without ``--replan-every`` takes the task's (4: the doors expert's chunk, so 8 would be refused)."""
+    assert (make_task("drawer").replan_every, make_task("RememberColor3-VLA-v0").replan_every) == (8, 4)
+    runner = CliRunner()
+    result = runner.invoke(main, ["rollout", "--task", SPEC, "--episodes", "3", "--json"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.output.strip().splitlines()[-1])["success"]["overall"] == 1.0
+    result = runner.invoke(main, ["rollout", "--task", SPEC, "--episodes", "1", "--replan-every", "8"])
+    assert result.exit_code == 2 and "replan_every must be in [1, 4] (the chunk length), got 8" in result.output
 
 
 def test_a_task_of_ones_own_without_a_config_is_told_where_to_put_it(user_folder):

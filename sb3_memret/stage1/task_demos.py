@@ -25,7 +25,6 @@ from sb3_memret.controllers import make_controller
 from sb3_memret.controllers.base import FrozenController, as_numpy
 from sb3_memret.controllers.observation import ACTION_CHUNK_KEY, ACTION_KEY, CHUNK_PAD_KEY, TASK_KEY, chunk_features
 from sb3_memret.prompts import build_prompt
-from sb3_memret.rollout import DEFAULT_REPLAN_EVERY
 from sb3_memret.stage1.demos import DemoDatasetWriter, PromptMix, check_frames, label_chunks
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import check_render_backend
@@ -75,9 +74,10 @@ class TaskRecorder:
     """A task env and the task's expert, recording episodes one after another; with a learner (a controller
     spec or instance) the learner acts and the expert labels."""
 
-    def __init__(self, task: Task | str, render_backend: str, replan_every: int = DEFAULT_REPLAN_EVERY,
+    def __init__(self, task: Task | str, render_backend: str, replan_every: int | None = None,
                  frames: str = "every", learner: str | FrozenController | None = None):
         self.task = make_task(task)
+        replan_every = replan_every or self.task.replan_every  # None: the task's clock
         self.decisions_only = check_frames(frames) == "decisions"
         self.with_images = check_render_backend(render_backend) != "none"
         self.expert = self.task.expert()
@@ -151,7 +151,7 @@ def record_task_demos(
     episodes: Sequence[TaskDemoEpisode],
     render_backend: str = "cpu",
     n_workers: int = 1,
-    replan_every: int = DEFAULT_REPLAN_EVERY,
+    replan_every: int | None = None,
     on_episode: Callable[[TaskEpisodeFrames], None] | None = None,
     frames: str = "every",
     learner: str | None = None,

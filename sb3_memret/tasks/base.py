@@ -113,6 +113,9 @@ class Task(ABC):
     #: the render backend a run gets when none is named: "none" unless the task itself must see
     default_render_backend: ClassVar[str] = "none"
     max_control_steps: int = 400
+    #: control steps between two controller calls when a command is not told otherwise (``--replan-every``, a
+    #: config's ``replan_every``)
+    replan_every: ClassVar[int] = 8
     #: whether an episode ends at its first success: success counts once, so the steps after it cannot change
     #: the figure (for envs that run on after success, as MIKASA's SeqOfColors does for its 400 steps)
     ends_at_success: ClassVar[bool] = False

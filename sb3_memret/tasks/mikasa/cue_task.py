@@ -47,6 +47,7 @@ class MikasaCueTask(Task):
     perceives_every_step = True
     default_render_backend = "cpu"
     max_control_steps = EPISODE_STEPS
+    replan_every = 4  # a cue lasts 1-5 of 25 steps: MIKASA's zoo settings replan every 4
 
     #: the fact's field (``colour``), the detector's observation key (``cube``) and MIKASA's truth attribute
     field: ClassVar[str]
