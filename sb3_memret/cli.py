@@ -942,3 +942,13 @@ def report(run: Path, task: str | None, controller: str, baseline_episodes: int 
     except (FileNotFoundError, ValueError) as err:
         raise click.UsageError(str(err)) from err
     click.echo(str(path))
+
+
+def _add_command_groups() -> None:
+    """The command groups that live in their own modules."""
+    from sb3_memret.benchmark.command import benchmark
+
+    main.add_command(benchmark)
+
+
+_add_command_groups()

@@ -1,0 +1,194 @@
+"""sb3-memret's agent as a policy of MIKASA's harness: writer, bank, retriever and the frozen controller.
+
+MIKASA's ``run_episode`` asks a policy for actions with ``forward(obs)`` whenever its action queue is empty. The
+agent declares ``chunk_size = 1``, so the harness calls it at every control step: every frame reaches the writer
+(a cue can be shorter than a replan), and the agent replans its frozen controller every ``replan_every`` steps
+itself, returning that chunk's actions one per call. What the controller's prompt carries is the condition's:
+
+- ``none``: the instruction alone; ``oracle``: with the task's true facts; ``wrong``: with facts worded alike that
+  name something else (``Task.oracle_facts`` / ``wrong_facts``: the only condition-side use of the ground truth);
+- ``written``: with every fact the task's writer wrote from the cameras so far, no decoys, no retriever (checks the
+  writer end to end);
+- ``recall``: with the facts a trained memory learner retrieves from a bank holding the writer's facts and the
+  task's decoys (its run's settings: capacity, K, decoys, age unit), greedily, its retention critic evicting.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from pathlib import Path
+from typing import Any, Mapping, Sequence
+
+import gymnasium as gym
+import numpy as np
+
+from sb3_memret.controllers.base import FrozenController
+from sb3_memret.prompts import build_prompt
+from sb3_memret.tasks.base import EnvFrame, Episode, Task
+
+CONDITIONS = ("none", "oracle", "wrong", "written", "recall")
+WRITTEN_CAPACITY = 64  # a bank that never evicts: every fact the writer wrote reaches the prompt
+
+
+def check_conditions(conditions: Sequence[str]) -> list[str]:
+    """``conditions`` if each is a benchmark condition, without repeats; else a ValueError naming the bad one."""
+    unknown = [c for c in conditions if c not in CONDITIONS]
+    if unknown or not conditions:
+        raise ValueError(f"unknown conditions {unknown}; expected a comma list of {list(CONDITIONS)}")
+    return list(dict.fromkeys(conditions))
+
+
+class MemoryLearner:
+    """A trained memory learner (``sb3-memret train recall``'s model) and the bank settings of its run."""
+
+    def __init__(self, path: Path, controller: str):
+        from sb3_memret.policy.ppo import load_model
+        from sb3_memret.training import eval_env_kwargs
+
+        self.path = Path(path)
+        self.model = load_model(self.path)
+        self.settings = eval_env_kwargs(self.model, self.path, "recall", controller, "cpu")
+        if self.settings.get("observe_potential"):
+            raise ValueError(f"{self.path}: a learner whose critic observes the shaping potential reads simulator "
+                             "state at run time; the benchmark's agent may read cameras and proprioception only")
+        if self.settings.get("long_term_capacity"):
+            raise ValueError(f"{self.path}: a household learner (long-term store) is not a MIKASA task's learner")
+
+    def keep_scores(self, entries: Sequence[Any], ages: np.ndarray) -> np.ndarray:
+        """The run's retention critic's keep-scores (the lowest is evicted when the bank is full)."""
+        import torch
+
+        with torch.no_grad():
+            mem = torch.as_tensor(np.stack([e.embedding for e in entries]))[None]
+            types = torch.tensor([[int(e.type) for e in entries]])
+            age = torch.as_tensor(np.asarray(ages, dtype=np.float32))[None]
+            usage = torch.tensor([[float(e.usage_count) for e in entries]])
+            return self.model.policy.retention(mem, types, age, usage)[0].numpy()
+
+    def retrieve(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
+        """The slots the learner retrieves, greedily (top-K by score)."""
+        slots, _ = self.model.predict(dict(observation), deterministic=True)
+        return np.asarray(slots).reshape(-1)
+
+
+class MemoryAgent:
+    """MIKASA's ``ChunkPolicy`` for one condition: ``bind`` it to a task's harness env, ``begin`` each episode
+    with its seed, then let the harness call ``forward``."""
+
+    chunk_size = 1
+
+    def __init__(self, task: Task, controller: FrozenController, condition: str, replan_every: int,
+                 learner: MemoryLearner | None = None, encoder: Any = None):
+        check_conditions([condition])
+        if not 1 <= replan_every <= controller.spec.chunk_len:
+            raise ValueError(f"replan_every must be in [1, {controller.spec.chunk_len}] (the controller's chunk), "
+                             f"got {replan_every}")
+        if condition == "recall" and learner is None:
+            raise ValueError("the recall condition needs a trained memory learner")
+        self.task, self.controller, self.condition = task, controller, condition
+        self.replan_every, self.learner = replan_every, learner
+        self._encoder = encoder
+        self.env: gym.Env | None = None
+        self._view: Any = None
+        self._seed: int | None = None
+        self._queue: list[np.ndarray] = []
+        self._steps = 0
+        self.memory: Any = None
+        self.episode: Episode | None = None
+        self.prompts: list[str] = []  # the prompts of the current episode's decisions, in order
+
+    # ------------------------------------------------------------ set-up
+    @property
+    def encoder(self) -> Any:
+        if self._encoder is None:
+            from sb3_memret.memory.encoder import MiniLMEncoder
+
+            self._encoder = MiniLMEncoder()
+        return self._encoder
+
+    def bind(self, env: gym.Env) -> None:
+        """Act in ``env`` (a harness env of this agent's task) from now on."""
+        self.env, self._view = env, None
+        self.controller.check_env(env)
+
+    def begin(self, seed: int) -> None:
+        """The next ``forward`` starts the episode played at ``seed``."""
+        if self.env is None:
+            raise RuntimeError("bind() the agent to its harness env before an episode")
+        self._seed, self._queue, self._steps = int(seed), [], 0
+
+    def _memory(self) -> Any:
+        """A fresh bank for the episode: the learner's run settings for recall; for written, one that keeps all."""
+        from sb3_memret.envs.recall_memory import EpisodeMemory
+        from sb3_memret.memory.seeding import SeedingConfig
+
+        template = self.controller.spec.prompt_template
+        if self.condition == "written":
+            seeding = SeedingConfig(location_decoys=0, holding_decoys=0)
+            return EpisodeMemory(WRITTEN_CAPACITY, "recall", self.encoder, _keep_all, template, seeding,
+                                 task=self.task)
+        settings = self.learner.settings
+        seeding = dataclasses.replace(SeedingConfig(), **{k: settings[k] for k in ("location_decoys", "holding_decoys")
+                                                          if settings.get(k) is not None})
+        return EpisodeMemory(settings["capacity"], "recall", self.encoder, self.learner.keep_scores, template,
+                             seeding, settings.get("memory_source", "seeded"), age_unit=settings["age_unit"],
+                             task=self.task)
+
+    # ------------------------------------------------------------ acting
+    def _frame(self, obs: Mapping[str, Any], view: Mapping[str, Any], first: bool) -> EnvFrame:
+        frame, = self.task.frames(self.env, view, {"success": np.zeros(1, dtype=bool)}, reset=first)
+        frame.steps = 0 if first else 1
+        if self.task.perceives_every_step:
+            frame.percepts = [self.task.perceive(self.env, view)]
+        return frame
+
+    def _start(self, frame: EnvFrame) -> None:
+        self.episode, self.prompts = self.task.episode(frame), []
+        self.controller.reset([self._seed])
+        if self.condition in ("written", "recall"):
+            self.memory = self._memory()
+            self.memory.start(frame, np.random.default_rng(self._seed))
+
+    def _facts(self) -> list[str]:
+        if self.condition == "oracle":
+            return self.task.oracle_facts(self.episode)
+        if self.condition == "wrong":
+            return self.task.wrong_facts(self.episode)
+        if self.condition == "written":
+            return [entry.text for entry in self.memory.bank.entries]
+        if self.condition == "recall":
+            return [entry.text for entry in self.memory.choose(self.learner.retrieve(self.memory.observation()))]
+        return []
+
+    def forward(self, obs: Mapping[str, Any]) -> np.ndarray:
+        """The next action (7,) for the harness's observation (its ``rgb`` and ``proprio`` only are read)."""
+        from sb3_memret.benchmark.view import HarnessView
+        from sb3_memret.envs.physics import stack_obs
+
+        if self._seed is None:
+            raise RuntimeError("begin(seed) the episode before the harness calls forward()")
+        if self._view is None:
+            self._view = HarnessView(self.task, self.env, obs)
+        view = self._view.observation(obs)
+        first = self._steps == 0
+        frame = self._frame(obs, view, first)
+        if first:
+            self._start(frame)
+        elif self.memory is not None:
+            self.memory.observe(frame)
+        if not self._queue:
+            prompt = build_prompt(self.task.instruction(self.episode), self._facts(),
+                                  self.controller.spec.prompt_template)
+            self.prompts.append(prompt)
+            chunk = self.controller.act(stack_obs([view]), [prompt])[0][:self.replan_every]
+            self._queue = [np.asarray(action, dtype=np.float32) for action in chunk]
+        self._steps += 1
+        return self._queue.pop(0)
+
+
+def _keep_all(entries: Sequence[Any], ages: np.ndarray) -> np.ndarray:
+    """Keep-scores for a bank that never fills (``WRITTEN_CAPACITY``): all equal."""
+    return np.zeros(len(entries))
+
+
+__all__ = ["CONDITIONS", "MemoryAgent", "MemoryLearner", "check_conditions"]

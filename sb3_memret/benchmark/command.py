@@ -1,0 +1,94 @@
+"""``sb3-memret benchmark``: a benchmark's own protocol, by one command."""
+
+from __future__ import annotations
+
+import os
+from pathlib import Path
+
+import click
+
+from sb3_memret.benchmark.agent import CONDITIONS
+from sb3_memret.benchmark.manifest import SEED_SETS, SPLITS
+
+
+def _conditions(ctx: click.Context, param: click.Parameter, value: str) -> list[str]:
+    from sb3_memret.benchmark.agent import check_conditions
+
+    try:
+        return check_conditions([c.strip() for c in value.split(",") if c.strip()])
+    except ValueError as err:
+        raise click.BadParameter(f"{value!r}: {err}") from None
+
+
+def _tasks(ctx: click.Context, param: click.Parameter, value: str | None) -> list[str] | None:
+    return None if value is None else [t.strip() for t in value.split(",") if t.strip()]
+
+
+@click.group()
+def benchmark() -> None:
+    """Run a benchmark's official protocol with sb3-memret's agent as the policy."""
+
+
+@benchmark.command()
+@click.option("--split", type=click.Choice(SPLITS), default=None,
+              help="The horizon split whose every task runs  [default: short, unless --tasks]")
+@click.option("--tasks", callback=_tasks, default=None, metavar="ID[,ID...]",
+              help="Exactly these tasks (MIKASA env ids), instead of a split.")
+@click.option("--episodes", type=click.IntRange(min=1), default=50, show_default=True,
+              help="Episodes per task and condition (the protocol's: 50).")
+@click.option("--controller", default="scripted", show_default=True,
+              help="The frozen controller (scripted: each task's expert; learned: its shipped camera controller).")
+@click.option("--conditions", callback=_conditions, default="none,oracle,wrong", show_default=True,
+              metavar="C[,C...]", help=f"Prompt conditions, a comma list of {', '.join(CONDITIONS)}.")
+@click.option("--seeds", "seed_set", type=click.Choice(sorted(SEED_SETS)), default="protocol", show_default=True,
+              help="protocol: the benchmark's test seeds 4242424242 + i (the final figure only); dev: 5000 + i, "
+                   "for choosing checkpoints and variants.")
+@click.option("--learners", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="For recall: a folder with a trained memory learner per task, DIR/<env id>/final_model.zip.")
+@click.option("--replan-every", type=click.IntRange(min=1), default=None,
+              help="Control steps between controller calls  [default: each task's]")
+@click.option("--workers", type=click.IntRange(min=1), default=min(2, os.cpu_count() or 1), show_default=True,
+              help="Worker processes the episodes spread over.")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Run folder: results.json, report.md, the episode log; an existing one resumes.")
+@click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
+def mikasa(split: str | None, tasks: list[str] | None, episodes: int, controller: str, conditions: list[str],
+           seed_set: str, learners: Path | None, replan_every: int | None, workers: int, out: Path,
+           progress: bool) -> None:
+    """MIKASA-Robo-VLA's protocol through its own harness: every task of a split (or --tasks), each prompt
+    condition, success once over seeded episodes; writes OUT/results.json and OUT/report.md (resumable)."""
+    from tqdm import tqdm
+
+    from sb3_memret.benchmark.report import write_report
+    from sb3_memret.benchmark.runner import Protocol, plan, run_benchmark
+
+    if split is not None and tasks is not None:
+        raise click.UsageError("give --split or --tasks, not both")
+    if split is None and tasks is None:
+        split = "short"
+    protocol = Protocol(seed_set=seed_set, episodes=episodes, controller=controller, replan_every=replan_every)
+    try:
+        run = plan(protocol, conditions, split, tasks, learners)
+    except ValueError as err:
+        raise click.UsageError(str(err)) from None
+    for env_id, why in run.refused.items():
+        click.echo(f"refused {env_id}: {why}", err=True)
+    for (env_id, condition), why in run.refused_conditions.items():
+        click.echo(f"refused {env_id} ({condition}): {why}", err=True)
+    bar = tqdm(total=None, unit="episode", disable=not progress, desc="benchmark")
+
+    def on_progress(done: int, total: int) -> None:
+        bar.total = total
+        bar.update(done - bar.n)
+
+    try:
+        content = run_benchmark(run, out, learners, workers, on_progress,
+                                on_task_done=lambda content: write_report(content, out))
+    except ValueError as err:
+        raise click.UsageError(str(err)) from None
+    finally:
+        bar.close()
+    click.echo(str(write_report(content, out)))
+
+
+__all__ = ["benchmark"]

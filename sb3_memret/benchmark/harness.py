@@ -1,0 +1,70 @@
+"""MIKASA-Robo-VLA's own evaluation harness (``mikasa_robo_suite.vla.benchmarking``), made to run on this stack.
+
+Everything an episode does goes through the harness's functions: ``make_benchmark_env`` (``gym.make`` with its
+protocol settings, then ``apply_mikasa_vla_wrappers(include_overlays=False)``) and ``run_episode`` (reset at the
+episode's seed, a fresh action queue, the policy's ``forward(obs)`` whenever the queue is empty, ``success_once``
+latched over the episode). Two parts do not run unchanged on this stack, and are bridged here, narrowly:
+
+- **Imports.** ``apply_wrappers`` imports ``FlattenRGBDObservationWrapper`` from MIKASA's PPO baseline module, which
+  needs ``colorama`` and ``tyro`` (dependencies of this package), and must be imported after ManiSkill's envs (else a
+  circular import through huggingface_hub).
+- **Attribute forwarding.** ``FlattenRGBDObservationWrapper`` reads ``device`` and calls ``update_obs_space`` on a
+  ``StateOnlyTensorToDictWrapper`` around the base env, relying on gymnasium < 1.0 forwarding unknown attributes to
+  the wrapped env; gymnasium 1.x does not (``AttributeError: ... has no attribute 'device'``). ``install_shims``
+  gives that one wrapper class (MIKASA's ``rl`` copy, which the baseline module uses) the forwarding it was written
+  against: public names only, and only while the class has no ``__getattr__`` of its own.
+- **Renderer.** The harness names no render backend; on a machine without a GPU, ManiSkill falls back to SAPIEN's
+  CPU device, which renders with the project's lavapipe once ``use_cpu_renderer`` has pointed Vulkan at it.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import gymnasium as gym
+
+OBS_KEYS = ("rgb", "proprio")  # what a policy may read of the harness's observation (images and proprioception)
+FORBIDDEN_KEYS = ("oracle_info", "task_cue")  # in the observation, but reading them disqualifies a run
+
+
+def _forward_public(self: gym.Wrapper, name: str) -> Any:
+    """gymnasium < 1.0's attribute forwarding: a public name this wrapper lacks is the wrapped env's."""
+    if name.startswith("_"):
+        raise AttributeError(f"{type(self).__name__!r} object has no attribute {name!r}")
+    return getattr(self.env, name)
+
+
+def install_shims(render_backend: str = "cpu") -> None:
+    """Make MIKASA's harness importable and runnable here (idempotent); ``render_backend="cpu"`` also points
+    SAPIEN at the project's software renderer."""
+    if render_backend == "cpu":
+        from sb3_memret.rendering import use_cpu_renderer
+
+        use_cpu_renderer()
+    import mani_skill.envs  # noqa: F401  (before MIKASA's baseline module: it imports ManiSkill's envs halfway)
+    import mikasa_robo_suite.vla.memory_envs  # noqa: F401  (registers the *-VLA-v0 ids)
+    from baselines.ppo import ppo_memtasks
+
+    wrapper = ppo_memtasks.StateOnlyTensorToDictWrapper
+    if "__getattr__" not in vars(wrapper):
+        wrapper.__getattr__ = _forward_public
+
+
+def make_env(env_id: str, sim_backend: str = "cpu", render_backend: str = "cpu") -> gym.Env:
+    """The harness's canonical single env of ``env_id`` (``make_benchmark_env`` with its ``BenchmarkConfig``)."""
+    install_shims(render_backend)
+    from mikasa_robo_suite.vla.benchmarking import BenchmarkConfig, make_benchmark_env
+
+    return make_benchmark_env(env_id, BenchmarkConfig(sim_backend=sim_backend))
+
+
+def play_episode(env: gym.Env, policy: Any, seed: int) -> Any:
+    """One episode at ``seed`` by the harness's ``run_episode``: its ``EpisodeResult`` (success_once, return,
+    steps, seed)."""
+    from mikasa_robo_suite.vla.benchmarking import run_episode
+
+    result, _ = run_episode(env, policy, int(seed))
+    return result
+
+
+__all__ = ["FORBIDDEN_KEYS", "OBS_KEYS", "install_shims", "make_env", "play_episode"]

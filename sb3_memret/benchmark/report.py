@@ -1,0 +1,139 @@
+"""``report.md`` and ``success.png`` from a benchmark run's ``results.json``: the per-task table, the split's mean,
+the per-memory-type breakdown, and what was refused and why. Generated from the results file alone, so every
+figure in it is one the run produced."""
+
+from __future__ import annotations
+
+from collections import defaultdict
+from pathlib import Path
+from typing import Any, Mapping
+
+REPORT_FILE, FIGURE_FILE = "report.md", "success.png"
+
+
+def _cell(cell: Mapping[str, Any] | None) -> str:
+    if cell is None:
+        return ""
+    if "refused" in cell:
+        return "refused"
+    if not cell.get("episodes"):
+        return "error" if "error" in cell else "·"
+    wins = sum(cell["successes"])
+    partial = "" if cell.get("complete") else " *"
+    return f"{100 * cell['success']:.0f}% ({wins}/{cell['episodes']}){partial}"
+
+
+def _reads(tasks: Mapping[str, Any]) -> str:
+    """What the controllers read, from the tasks that ran."""
+    reads = sorted({t["controller"]["reads"] for t in tasks.values() if "controller" in t})
+    return "; ".join(reads) or "nothing (no task ran)"
+
+
+def _complete(tasks: Mapping[str, Any], condition: str) -> dict[str, float]:
+    """Each task's success under ``condition``, for the tasks that played all the protocol's episodes of it."""
+    return {env_id: t["conditions"][condition]["success"] for env_id, t in tasks.items()
+            if "conditions" in t and t["conditions"].get(condition, {}).get("complete")}
+
+
+def _mean(values: list[float]) -> str:
+    return f"{100 * sum(values) / len(values):.1f}%" if values else ""
+
+
+def render_report(content: Mapping[str, Any]) -> str:
+    """The markdown report of one run's results."""
+    protocol, tasks = content["protocol"], content["tasks"]
+    conditions = protocol["conditions"]
+    seeds = protocol["seeds"]
+    splits = sorted({t["split"] for t in tasks.values()})
+    lines = [
+        f"# {protocol['benchmark']}: {', '.join(splits)} split, {protocol['controller']} controller",
+        "",
+        f"- Harness: `{protocol['harness']}`, wrappers `{protocol['wrapper_chain']}`, `{protocol['control_mode']}`, "
+        f"`{protocol['obs_mode']}`, metric `{protocol['metric']}`.",
+        f"- Policy inputs: {', '.join(protocol['policy_inputs'])} (never `oracle_info` or `task_cue`).",
+        f"- Episodes per task and condition: {protocol['episodes']}, {protocol['seed_set']} seeds "
+        f"{seeds[0]}..{seeds[-1]}.",
+        f"- Frozen controller: `{protocol['controller']}`, reading {_reads(tasks)}; it replans every "
+        f"{protocol['replan_every'] or 'task-default (the table says)'} control steps.",
+        "- Conditions: none (instruction only), oracle (the true fact in the prompt), wrong (a false fact worded "
+        "alike), written (every fact the writer wrote from the cameras), recall (the facts a trained memory learner "
+        "retrieves from a bank with decoys).",
+        "",
+        "## Per task",
+        "",
+        "| task | memory type | replan | " + " | ".join(conditions) + " |",
+        "|---|---|---|" + "---|" * len(conditions),
+    ]
+    for env_id, t in tasks.items():
+        if "refused" in t:
+            cells = ["refused"] * len(conditions)
+        else:
+            cells = [_cell(t["conditions"].get(c)) for c in conditions]
+        lines.append(f"| {env_id} | {t['memory_type']} | {t.get('replan_every', '')} | " + " | ".join(cells) + " |")
+    lines += ["", "`*`: not all of the protocol's episodes played yet.", "", "## Split mean", "",
+              "| condition | tasks run | mean over tasks run | split mean, tasks not run counted as 0 |",
+              "|---|---|---|---|"]
+    for c in conditions:
+        run = list(_complete(tasks, c).values())
+        zero_filled = f"{100 * sum(run) / len(tasks):.1f}%" if tasks else ""
+        lines.append(f"| {c} | {len(run)}/{len(tasks)} | {_mean(run)} | {zero_filled} |")
+    lines += ["", "## By memory type", "", "| memory type | tasks | " + " | ".join(conditions) + " |",
+              "|---|---|" + "---|" * len(conditions)]
+    by_type: dict[str, list[str]] = defaultdict(list)
+    for env_id, t in tasks.items():
+        by_type[t["memory_type"]].append(env_id)
+    for memory_type, ids in sorted(by_type.items()):
+        cells = []
+        for c in conditions:
+            done = _complete({i: tasks[i] for i in ids}, c)
+            cells.append(f"{_mean(list(done.values()))} ({len(done)})" if done else "")
+        lines.append(f"| {memory_type} | {len(ids)} | " + " | ".join(cells) + " |")
+    refused = [(env_id, t["refused"]) for env_id, t in tasks.items() if "refused" in t]
+    refused += [(f"{env_id} ({c})", cell.get("refused") or cell.get("error"))
+                for env_id, t in tasks.items() for c, cell in t.get("conditions", {}).items()
+                if "refused" in cell or ("error" in cell and not cell.get("episodes"))]
+    if refused:
+        lines += ["", "## Refused here", "", "| task | why |", "|---|---|"]
+        lines += [f"| {name} | {why} |" for name, why in refused]
+    lines += ["", f"![success per task and condition]({FIGURE_FILE})", ""]
+    return "\n".join(lines)
+
+
+def plot_success(content: Mapping[str, Any], path: Path) -> None:
+    """A bar per (task, condition) of the tasks that played: success over the protocol's episodes."""
+    import matplotlib
+
+    matplotlib.use("Agg")
+    import matplotlib.pyplot as plt
+
+    conditions = content["protocol"]["conditions"]
+    rows = [(env_id.removesuffix("-VLA-v0"), t) for env_id, t in content["tasks"].items() if "conditions" in t]
+    fig, ax = plt.subplots(figsize=(max(6.0, 0.6 * len(rows) * max(1, len(conditions)) / 2), 4.0))
+    width = 0.8 / max(1, len(conditions))
+    for k, condition in enumerate(conditions):
+        xs, ys = [], []
+        for i, (_, t) in enumerate(rows):
+            cell = t["conditions"].get(condition) or {}
+            if cell.get("success") is not None:
+                xs.append(i + (k - (len(conditions) - 1) / 2) * width)
+                ys.append(100 * cell["success"])
+        ax.bar(xs, ys, width, label=condition)
+    ax.set_xticks(range(len(rows)), [name for name, _ in rows], rotation=45, ha="right", fontsize=8)
+    ax.set_ylabel("success once (%)")
+    ax.set_ylim(0, 100)
+    ax.legend(fontsize=8, ncols=len(conditions))
+    ax.set_title(f"{content['protocol']['benchmark']}, {content['protocol']['seed_set']} seeds")
+    fig.tight_layout()
+    fig.savefig(path, dpi=120)
+    plt.close(fig)
+
+
+def write_report(content: Mapping[str, Any], out: Path) -> Path:
+    """Write ``report.md`` and its figure into ``out``; the report's path."""
+    out = Path(out)
+    plot_success(content, out / FIGURE_FILE)
+    (out / REPORT_FILE).write_text(render_report(content))
+    return out / REPORT_FILE
+
+
+__all__ = ["FIGURE_FILE", "REPORT_FILE", "plot_success", "render_report", "write_report"]

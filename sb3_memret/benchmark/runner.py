@@ -1,0 +1,358 @@
+"""Run MIKASA-Robo-VLA's protocol: every task of a split, each condition, 50 seeded episodes, resumable.
+
+One episode is one unit of work (task, condition, seed), played in MIKASA's harness by ``MemoryAgent``. Finished
+episodes are appended to ``DIR/episodes.jsonl`` as they land, so an interrupted run resumes where it stopped;
+``DIR/results.json`` and ``DIR/report.md`` are rewritten after every task. Episodes spread over worker processes,
+each keeping one harness env per task (building one takes ~15 s). A task that cannot run here (no sb3-memret task,
+a missing asset, no controller, no trained learner for ``recall``, an error in its episodes) is refused with its
+reason, recorded in the results and the report; the run goes on with the others.
+"""
+
+from __future__ import annotations
+
+import hashlib
+import inspect
+import json
+import multiprocessing
+import traceback
+from collections import defaultdict
+from dataclasses import asdict, dataclass, field
+from pathlib import Path
+from typing import Any, Callable, Iterable, Iterator
+
+from sb3_memret.benchmark.agent import CONDITIONS, check_conditions
+from sb3_memret.benchmark.manifest import episode_seeds, select_tasks
+
+EPISODES_FILE, RESULTS_FILE, PROTOCOL_FILE, ERRORS_FILE = "episodes.jsonl", "results.json", "protocol.json", "errors.log"
+LEARNER_FILE = "final_model.zip"
+
+
+@dataclass(frozen=True)
+class Protocol:
+    """What every episode of a run shares; a run folder resumes only under the same protocol."""
+
+    benchmark: str = "MIKASA-Robo-VLA"
+    harness: str = "mikasa_robo_suite.vla.benchmarking (make_benchmark_env, run_episode)"
+    wrapper_chain: str = "apply_mikasa_vla_wrappers(include_overlays=False)"
+    control_mode: str = "pd_ee_delta_pose"
+    obs_mode: str = "rgb"
+    reward_mode: str = "normalized_dense"
+    metric: str = "success_once"
+    policy_inputs: tuple[str, ...] = ("rgb", "proprio", "instruction")
+    seed_set: str = "protocol"
+    episodes: int = 50
+    controller: str = "scripted"
+    replan_every: int | None = None  # None: each task's own (Task.replan_every)
+    sim_backend: str = "cpu"
+
+    def seeds(self) -> list[int]:
+        return episode_seeds(self.seed_set, self.episodes)
+
+
+@dataclass(frozen=True)
+class Unit:
+    """One episode to play."""
+
+    env_id: str
+    condition: str
+    seed: int
+
+
+@dataclass
+class Plan:
+    """The tasks of a run and what becomes of each: the units to play, or the reason it is refused."""
+
+    protocol: Protocol
+    tasks: list[Any]  # MIKASA's BenchmarkTask rows, in order
+    conditions: list[str]
+    refused: dict[str, str] = field(default_factory=dict)  # env id -> why it cannot run here
+    refused_conditions: dict[tuple[str, str], str] = field(default_factory=dict)  # (env id, condition) -> why
+    controllers: dict[str, dict[str, str]] = field(default_factory=dict)  # env id -> {"name", "sha256", "reads"}
+    task_digests: dict[str, str] = field(default_factory=dict)  # env id -> SHA-256 of its task's (writer's) code
+    replan_every: dict[str, int] = field(default_factory=dict)  # env id -> control steps between controller calls
+
+    def current(self, record: dict[str, Any]) -> bool:
+        """Whether a logged episode was played by this plan's controller and task code (else it is played again)."""
+        env_id = record["env_id"]
+        return (env_id in self.controllers and record.get("controller_sha256") == self.controllers[env_id]["sha256"]
+                and record.get("task_sha256") == self.task_digests[env_id])
+
+    def units(self, done: set[Unit]) -> list[Unit]:
+        seeds = self.protocol.seeds()
+        return [Unit(t.env_id, c, s) for t in self.tasks if t.env_id not in self.refused for c in self.conditions
+                if (t.env_id, c) not in self.refused_conditions for s in seeds if Unit(t.env_id, c, s) not in done]
+
+
+def controller_digest(controller: Any) -> str:
+    """SHA-256 of what makes the controller act as it does: a learned checkpoint's files, else its class's source."""
+    digest = hashlib.sha256()
+    checkpoint = getattr(controller, "checkpoint", None)
+    files = sorted(p for p in Path(checkpoint).iterdir() if p.suffix in (".json", ".safetensors")) \
+        if checkpoint is not None and Path(checkpoint).is_dir() else [Path(inspect.getsourcefile(type(controller)))]
+    for path in files:
+        digest.update(path.name.encode())
+        digest.update(path.read_bytes())
+    return digest.hexdigest()
+
+
+def source_digest(*classes: type) -> str:
+    """SHA-256 of the source files that define ``classes`` and their sb3-memret base classes."""
+    files = sorted({inspect.getsourcefile(k) for cls in classes for k in cls.__mro__
+                    if k.__module__.startswith("sb3_memret")})
+    digest = hashlib.sha256()
+    for path in files:
+        digest.update(Path(path).name.encode())
+        digest.update(Path(path).read_bytes())
+    return digest.hexdigest()
+
+
+def _reason(err: BaseException) -> str:
+    """An error's first clause: why, without the list of what would be accepted."""
+    text = str(err).splitlines()[0]
+    for cut in ("; available tasks", "; expected one of"):
+        text = text.split(cut)[0]
+    return text
+
+
+def learner_path(learners: Path | None, env_id: str) -> Path | None:
+    """Where the memory learner of ``env_id`` lies in a learners folder (``DIR/<env id>/final_model.zip``)."""
+    return None if learners is None else Path(learners) / env_id / LEARNER_FILE
+
+
+def plan(protocol: Protocol, conditions: Iterable[str], split: str | None = None,
+         env_ids: Iterable[str] | None = None, learners: Path | None = None) -> Plan:
+    """Select the tasks (by split or ids) and decide, without simulating, which can run here and why not."""
+    from sb3_memret.controllers import make_controller
+    from sb3_memret.tasks import check_task_name, make_task
+
+    tasks = select_tasks(split, list(env_ids) if env_ids is not None else None)
+    result = Plan(protocol, tasks, check_conditions(list(conditions)))
+    for row in tasks:
+        try:
+            check_task_name(row.env_id)
+            task = make_task(row.env_id)
+            controller = make_controller(protocol.controller, task)
+        except (ValueError, FileNotFoundError, ImportError) as err:
+            result.refused[row.env_id] = _reason(err)
+            continue
+        result.controllers[row.env_id] = {"name": protocol.controller, "sha256": controller_digest(controller),
+                                          "reads": "cameras and proprioception" if controller.spec.needs_images else
+                                          "proprioception and a simulated object detector (objects in sight)"}
+        result.task_digests[row.env_id] = source_digest(type(task))
+        result.replan_every[row.env_id] = protocol.replan_every or task.replan_every
+        path = learner_path(learners, row.env_id)
+        if "recall" in result.conditions and (path is None or not path.is_file()):
+            result.refused_conditions[row.env_id, "recall"] = (
+                f"no trained memory learner: expected {path}" if path is not None else
+                "no learners folder given (--learners DIR, with DIR/<env id>/final_model.zip)")
+    return result
+
+
+# ---------------------------------------------------------------- playing episodes (in workers)
+class _Worker:
+    """A worker's harness env and agents for the task it is playing (rebuilt when the task changes)."""
+
+    def __init__(self, protocol: Protocol, learners: Path | None):
+        self.protocol, self.learners = protocol, learners
+        self.env_id: str | None = None
+        self.env: Any = None
+        self.agents: dict[str, Any] = {}
+        self.encoder: Any = None
+        self.failed: dict[tuple[str, str], str] = {}  # (env id, condition) -> the error its first episode met
+
+    def agent(self, env_id: str, condition: str) -> Any:
+        from sb3_memret.benchmark import harness
+        from sb3_memret.benchmark.agent import MemoryAgent, MemoryLearner
+        from sb3_memret.controllers import make_controller
+        from sb3_memret.memory.encoder import MiniLMEncoder
+        from sb3_memret.tasks import make_task
+
+        if env_id != self.env_id:
+            if self.env is not None:
+                self.env.close()
+            self.env_id, self.agents = None, {}
+            self.env = harness.make_env(env_id, self.protocol.sim_backend)
+            self.env_id = env_id
+        if condition not in self.agents:
+            task = make_task(env_id)
+            self.encoder = self.encoder or MiniLMEncoder()
+            learner = MemoryLearner(learner_path(self.learners, env_id), self.protocol.controller) \
+                if condition == "recall" else None
+            agent = MemoryAgent(task, make_controller(self.protocol.controller, task), condition,
+                                self.protocol.replan_every or task.replan_every, learner, self.encoder)
+            agent.bind(self.env)
+            self.agents[condition] = agent
+        return self.agents[condition]
+
+    def play(self, unit: Unit) -> dict[str, Any]:
+        from sb3_memret.benchmark import harness
+
+        if (unit.env_id, unit.condition) in self.failed:  # the same error again: not worth an episode
+            return {**asdict(unit), "error": self.failed[unit.env_id, unit.condition]}
+        try:
+            agent = self.agent(unit.env_id, unit.condition)
+            agent.begin(unit.seed)
+            result = harness.play_episode(self.env, agent, unit.seed)
+        except Exception as err:  # recorded with the task, which the report then refuses
+            error = f"{type(err).__name__}: {err}".splitlines()[0]
+            self.failed[unit.env_id, unit.condition] = error
+            return {**asdict(unit), "error": error, "traceback": traceback.format_exc()}
+        return {**asdict(unit), "success": bool(result.success_once), "return": float(result.episode_return),
+                "steps": int(result.n_steps), "prompt": agent.prompts[-1] if agent.prompts else None}
+
+
+_WORKER: _Worker | None = None
+
+
+def _init_worker(protocol: Protocol, learners: Path | None) -> None:
+    from sb3_memret.workers import init_worker_process
+
+    global _WORKER
+    init_worker_process()
+    _WORKER = _Worker(protocol, learners)
+
+
+def _play(unit: Unit) -> dict[str, Any]:
+    return _WORKER.play(unit)
+
+
+def play_units(units: list[Unit], protocol: Protocol, learners: Path | None, workers: int) -> Iterator[dict[str, Any]]:
+    """Each unit's outcome as it lands: in this process for one worker, else in ``workers`` spawned processes
+    (each unit to the next free one; a task's units stay together in the queue, so envs are rebuilt rarely)."""
+    if workers <= 1:
+        worker = _Worker(protocol, learners)
+        yield from (worker.play(unit) for unit in units)
+        return
+    from sb3_memret.workers import START_METHOD
+
+    context = multiprocessing.get_context(START_METHOD)
+    with context.Pool(workers, initializer=_init_worker, initargs=(protocol, learners)) as pool:
+        yield from pool.imap_unordered(_play, units, chunksize=1)
+
+
+# ---------------------------------------------------------------- the run folder
+class RunFolder:
+    """``DIR``: the protocol, the episode log, the results and the report."""
+
+    def __init__(self, out: Path):
+        self.out = Path(out)
+
+    def check_protocol(self, protocol: Protocol) -> None:
+        """Write the protocol of a new run; refuse to resume a run played under another one."""
+        self.out.mkdir(parents=True, exist_ok=True)
+        path = self.out / PROTOCOL_FILE
+        mine = json.loads(json.dumps(asdict(protocol)))
+        if path.exists():
+            theirs = json.loads(path.read_text())
+            diff = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
+            if diff:
+                raise ValueError(f"{self.out} holds a run under another protocol ({', '.join(f'{k}: {theirs.get(k)!r}' for k in diff)}); "
+                                 "resume it with the same options, or choose another --out")
+        else:
+            path.write_text(json.dumps(mine, indent=2) + "\n")
+
+    def episodes(self) -> list[dict[str, Any]]:
+        """Every logged episode outcome (a line cut off by an interruption is skipped)."""
+        path = self.out / EPISODES_FILE
+        records = []
+        for line in path.read_text().splitlines() if path.exists() else []:
+            try:
+                records.append(json.loads(line))
+            except json.JSONDecodeError:
+                continue
+        return records
+
+    def log(self, record: dict[str, Any]) -> None:
+        trace = record.pop("traceback", None)
+        with (self.out / EPISODES_FILE).open("a") as f:
+            f.write(json.dumps(record) + "\n")
+        if trace is not None:
+            with (self.out / ERRORS_FILE).open("a") as f:
+                f.write(f"{record['env_id']} {record['condition']} seed {record['seed']}\n{trace}\n")
+
+
+def done_units(run: Plan, records: Iterable[dict[str, Any]]) -> set[Unit]:
+    """The units that finished with the plan's controller and task code (an errored one is not done: a resumed run
+    tries it again)."""
+    return {Unit(r["env_id"], r["condition"], int(r["seed"])) for r in records if "error" not in r and run.current(r)}
+
+
+def results(run: Plan, records: Iterable[dict[str, Any]]) -> dict[str, Any]:
+    """``results.json``'s content: the protocol, and per task its split, memory type, controller and each
+    condition's success over the protocol's seeds (or why the task or condition was refused)."""
+    seeds = run.protocol.seeds()
+    latest: dict[Unit, dict[str, Any]] = {}
+    errors: dict[tuple[str, str], str] = {}
+    for r in records:
+        if not run.current(r):
+            continue
+        unit = Unit(r["env_id"], r["condition"], int(r["seed"]))
+        if "error" in r:
+            errors[unit.env_id, unit.condition] = r["error"]
+        else:
+            latest[unit] = r
+    tasks: dict[str, Any] = {}
+    for row in run.tasks:
+        entry: dict[str, Any] = {"split": row.split, "memory_type": row.memory_type,
+                                 "max_episode_steps": row.max_episode_steps}
+        if row.env_id in run.refused:
+            tasks[row.env_id] = {**entry, "refused": run.refused[row.env_id]}
+            continue
+        entry["controller"] = run.controllers[row.env_id]
+        entry["replan_every"] = run.replan_every[row.env_id]
+        conditions: dict[str, Any] = {}
+        for condition in run.conditions:
+            if (row.env_id, condition) in run.refused_conditions:
+                conditions[condition] = {"refused": run.refused_conditions[row.env_id, condition]}
+                continue
+            played = [latest[u] for s in seeds if (u := Unit(row.env_id, condition, s)) in latest]
+            cell: dict[str, Any] = {"episodes": len(played), "seeds": [r["seed"] for r in played],
+                                    "successes": [r["success"] for r in played],
+                                    "success": sum(r["success"] for r in played) / len(played) if played else None,
+                                    "complete": len(played) == len(seeds)}
+            if (row.env_id, condition) in errors and not cell["complete"]:
+                cell["error"] = errors[row.env_id, condition]
+            conditions[condition] = cell
+        entry["conditions"] = conditions
+        tasks[row.env_id] = entry
+    return {"protocol": {**asdict(run.protocol), "conditions": run.conditions, "seeds": seeds}, "tasks": tasks}
+
+
+def run_benchmark(run: Plan, out: Path, learners: Path | None = None, workers: int = 1,
+                  on_progress: Callable[[int, int], None] | None = None,
+                  on_task_done: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
+    """Play every pending unit of ``run`` into ``out`` (resuming what is there), rewriting ``results.json`` (and
+    calling ``on_task_done`` with it) whenever a task's last pending unit lands; the final results."""
+    folder = RunFolder(out)
+    folder.check_protocol(run.protocol)
+    records = folder.episodes()
+    pending = run.units(done_units(run, records))
+    left = defaultdict(int)
+    for unit in pending:
+        left[unit.env_id] += 1
+    total, finished = len(pending), 0
+
+    def publish() -> dict[str, Any]:
+        content = results(run, records)
+        (folder.out / RESULTS_FILE).write_text(json.dumps(content, indent=2) + "\n")
+        if on_task_done is not None:
+            on_task_done(content)
+        return content
+
+    content = publish()
+    for record in play_units(pending, run.protocol, learners, workers):
+        record.update(controller_sha256=run.controllers[record["env_id"]]["sha256"],
+                      task_sha256=run.task_digests[record["env_id"]])
+        folder.log(record)
+        records.append(record)
+        finished += 1
+        left[record["env_id"]] -= 1
+        if on_progress is not None:
+            on_progress(finished, total)
+        if left[record["env_id"]] == 0:
+            content = publish()
+    return content
+
+
+__all__ = ["CONDITIONS", "Plan", "Protocol", "RunFolder", "Unit", "controller_digest", "done_units", "learner_path",
+           "plan", "play_units", "results", "run_benchmark"]
