@@ -234,9 +234,11 @@ def main() -> None:
               help="Frozen controller to run: 'learned' (the task's shipped camera-reading policy), 'learned-state' "
                    "(the drawer's policy on the simulator's state), 'learned:PATH', 'scripted' (the task's expert), "
                    "'openpi://HOST:PORT' or 'lerobot:PATH'." + TASK_CONTROLLER)
-@click.option("--condition", type=click.Choice(["oracle", "none", "wrong"]), default="oracle", show_default=True,
+@click.option("--condition", type=click.Choice(["oracle", "none", "wrong", "written"]), default="oracle",
+              show_default=True,
               help="Prompt: oracle tells what must be remembered (the cube's layer, the cue's colour), wrong names "
-                   "something else, none is the bare instruction.")
+                   "something else, none is the bare instruction, written carries every fact the task's writer has "
+                   "written so far in the episode (no retriever, no decoys: it checks the writer end to end).")
 @click.option("--episodes", type=click.IntRange(min=1), default=10, show_default=True,
               help="Episodes per layer (the drawer), else episodes in all.")
 @click.option("--layer", type=click.IntRange(min=min(LAYERS), max=max(LAYERS)), default=None,
@@ -250,7 +252,7 @@ def main() -> None:
 @_render_backend_option
 def rollout(task: str, controller, condition: str, episodes: int, layer: int | None, seed: int,
             replan_every: int | None, as_json: bool, render_backend: str) -> None:
-    """Run a frozen controller on a task under a fixed prompt and print its success per group (the
+    """Run a frozen controller on a task under a prompt condition and print its success per group (the
     drawer's layer, the cue's colour)."""
     from sb3_memret.rollout import evaluate_condition, evaluate_task_condition, summarize
     from sb3_memret.tasks import make_task
@@ -264,7 +266,11 @@ def rollout(task: str, controller, condition: str, episodes: int, layer: int | N
     total = episodes * len(layers) if task == DEFAULT_TASK else episodes
     with click.progressbar(length=total, label=f"{condition} rollouts", file=sys.stderr) as bar:
         try:
-            if task == DEFAULT_TASK:
+            if task == DEFAULT_TASK and condition == "written":  # the same placements as the fixed prompts'
+                results = [result for one in layers for result in evaluate_task_condition(
+                    controller, condition, task, episodes, seed, replan_every, on_episode=lambda _: bar.update(1),
+                    render_backend=render_backend, reset_options={"target_layer": one})]
+            elif task == DEFAULT_TASK:
                 results = evaluate_condition(controller, condition, episodes, layers, seed, replan_every,
                                              on_episode=lambda _: bar.update(1), render_backend=render_backend)
             else:

@@ -22,7 +22,10 @@ LAYER_LOCATION_TEMPLATE = TEMPLATES[MemoryType.OBJECT_LOCATION].replace("{value}
 OUTSIDE_TEMPLATE = SPECIAL_TEXTS[(MemoryType.OBJECT_LOCATION, OUTSIDE)]
 HOLDING_TEMPLATE = TEMPLATES[MemoryType.HOLDING]
 HOLDING_NOTHING_TEXT = SPECIAL_TEXTS[(MemoryType.HOLDING, NOTHING)]
-CONDITIONS: tuple[str, ...] = ("oracle", "none", "wrong")
+# controller-evaluation prompts: the true facts, none, wrong ones (the same at every decision), or the facts the task's
+# writer wrote so far in the episode (``sb3_memret.rollout.WrittenFacts``: they change as the episode goes)
+FIXED_CONDITIONS: tuple[str, ...] = ("oracle", "none", "wrong")
+CONDITIONS: tuple[str, ...] = (*FIXED_CONDITIONS, "written")
 
 _FIELD_PATTERNS = {"layer": r"[0-9]+"}
 _WORDS = r"[a-z]+(?: [a-z]+)*"
@@ -113,12 +116,24 @@ def parse_prompt(prompt: str, template: PromptTemplate | None = None) -> ParsedP
     return ParsedPrompt(instruction, tuple(_parse_fact(s, prompt, template) for s in rest))
 
 
+def check_fixed_condition(condition: str) -> str:
+    """``condition`` if it gives a fixed prompt (oracle, none, wrong); else a ValueError naming it and what is accepted."""
+    if condition == "written":
+        raise ValueError("condition 'written' has no fixed prompt: its facts are what the task's writer has written so "
+                         "far (sb3_memret.rollout.WrittenFacts, evaluate_task_condition); the fixed ones are "
+                         f"{list(FIXED_CONDITIONS)}")
+    if condition not in FIXED_CONDITIONS:
+        raise ValueError(f"unknown condition {condition!r}; expected one of {list(FIXED_CONDITIONS)}")
+    return condition
+
+
 def condition_prompt(condition: str, layer: int, target: str = "cube") -> str:
     """The prompt of a controller-evaluation condition for ``target`` in ``layer``.
 
     oracle names the right layer, wrong names another one (the next layer, cyclically),
     none is the bare instruction.
     """
+    check_fixed_condition(condition)
     check_layer(layer)
     instruction = instruction_text(target)
     template = PromptTemplate((instruction,))
@@ -126,9 +141,7 @@ def condition_prompt(condition: str, layer: int, target: str = "cube") -> str:
         return build_prompt(instruction, [location_text(target, layer)], template)
     if condition == "wrong":
         return build_prompt(instruction, [location_text(target, layer % len(LAYERS) + 1)], template)
-    if condition == "none":
-        return instruction
-    raise ValueError(f"unknown condition {condition!r}; expected one of {list(CONDITIONS)}")
+    return instruction  # none
 
 
 @functools.lru_cache(maxsize=None)

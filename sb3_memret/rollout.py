@@ -1,10 +1,10 @@
-"""Run a frozen controller on a task under a prompt condition (oracle / none / wrong) and score it."""
+"""Run a frozen controller on a task under a prompt condition (oracle / none / wrong / written) and score it."""
 
 from __future__ import annotations
 
 from contextlib import nullcontext
 from dataclasses import dataclass, field
-from typing import Any, Callable, Iterable, Protocol, Sequence
+from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -12,7 +12,9 @@ import numpy as np
 import sb3_memret.envs.drawer_cube  # noqa: F401  (registers DrawerCubeTakeOut-v1)
 from sb3_memret.controllers.base import FrozenController, as_numpy
 from sb3_memret.envs.cabinet import LAYERS, check_layer
-from sb3_memret.prompts import CONDITIONS, build_prompt, condition_prompt
+from sb3_memret.memory.schema import Key
+from sb3_memret.memory.writer import EventCompiler
+from sb3_memret.prompts import CONDITIONS, build_prompt, check_fixed_condition, condition_prompt
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import RENDER_BACKENDS, EnvFrame, Episode, check_render_backend
 from sb3_memret.tasks.drawer import DrawerTask
@@ -121,9 +123,9 @@ def evaluate_condition(
     on_episode: Callable[[EpisodeResult], None] | None = None,
     render_backend: str = "none",
 ) -> list[EpisodeResult]:
-    """``episodes`` episodes per layer with the prompt of ``condition``; seeds seed..seed+episodes-1."""
-    if condition not in CONDITIONS:
-        raise ValueError(f"unknown condition {condition!r}; expected one of {list(CONDITIONS)}")
+    """``episodes`` episodes per layer with the fixed prompt of ``condition``; seeds seed..seed+episodes-1. (The
+    drawer's ``written`` condition reads the writer's frames: ``evaluate_task_condition``.)"""
+    check_fixed_condition(condition)
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     own_env = env is None
@@ -145,7 +147,8 @@ def evaluate_condition(
 
 
 class FactSchedule(Protocol):
-    """The facts an episode's prompt carries at each of its decisions (``play_task_episodes``)."""
+    """The facts an episode's prompt carries at each of its decisions (``play_task_episodes``). A schedule that
+    subclasses it inherits ``observe``'s no-op; one that matches it only structurally defines ``observe`` too."""
 
     def start(self, frame: EnvFrame, episode: Episode) -> None:
         """A new episode begins, at ``frame``."""
@@ -153,18 +156,20 @@ class FactSchedule(Protocol):
     def facts(self, decision: int) -> Sequence[str]:
         """The facts appended to the instruction at ``decision`` (0, 1, ...)."""
 
+    def observe(self, frame: EnvFrame) -> None:
+        """The frame an executed chunk left (its per-step percepts included), before the next decision."""
+
 
 @dataclass
-class ConditionFacts:
-    """A prompt condition's facts, the same at every decision: oracle, wrong, or none."""
+class ConditionFacts(FactSchedule):
+    """A fixed prompt condition's facts, the same at every decision: oracle, wrong, or none."""
 
     task: Task
     condition: str
     _facts: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
-        if self.condition not in CONDITIONS:
-            raise ValueError(f"unknown condition {self.condition!r}; expected one of {list(CONDITIONS)}")
+        check_fixed_condition(self.condition)
 
     def start(self, frame: EnvFrame, episode: Episode) -> None:
         facts = {"oracle": self.task.oracle_facts, "wrong": self.task.wrong_facts}.get(self.condition)
@@ -172,6 +177,47 @@ class ConditionFacts:
 
     def facts(self, decision: int) -> Sequence[str]:
         return self._facts
+
+
+class WrittenFacts(FactSchedule):
+    """The written condition: the facts the task's writer has written so far in the episode, no retriever, no decoys.
+
+    The writer (``Task.writer``) reads every frame the physics returns, the reset frame's and each chunk's, per-step
+    percepts included, and its predicates are compiled as the decision env compiles them (``EventCompiler``: a fact
+    is written when a predicate changes and replaces the fact with its key in place, as in the bank); the prompt
+    carries them all, in the order first written, with no bank limit. So a writer that misreads or misses what must
+    be remembered fails here where ``oracle`` succeeds. The drawer's writer reads the target's drawer from the
+    simulator's state (its seeded memory, ``memory_source: seeded``): there it checks the facts' wording and their
+    updates as the episode goes (the cube taken out, held), not perception.
+    """
+
+    def __init__(self, task: Task):
+        self.task = task
+        self.writer = task.writer()  # one writer for the schedule's episodes, as one env's in the decision env
+        self.compiler = EventCompiler(relations=self.writer.relations)
+        self._facts: dict[Key, str] = {}
+        self.t = 0  # control steps into the episode
+
+    def start(self, frame: EnvFrame, episode: Episode) -> None:
+        self.compiler.reset()
+        self._facts, self.t = {}, 0
+        self.observe(frame)
+
+    def observe(self, frame: EnvFrame) -> None:
+        for step, predicates in self.writer.read(frame):
+            for entry in self.compiler.update(predicates, self.t + step):
+                self._facts[entry.key] = entry.text
+        self.t += frame.steps
+
+    def facts(self, decision: int) -> Sequence[str]:
+        return list(self._facts.values())
+
+
+def condition_schedule(task: Task, condition: str) -> FactSchedule:
+    """The facts ``condition`` gives each decision of ``task``: fixed (oracle, none, wrong) or the writer's (written)."""
+    if condition not in CONDITIONS:
+        raise ValueError(f"unknown condition {condition!r}; expected one of {list(CONDITIONS)}")
+    return WrittenFacts(task) if condition == "written" else ConditionFacts(task, condition)
 
 
 def play_task_episodes(
@@ -182,10 +228,12 @@ def play_task_episodes(
     replan_every: int | None = None,
     on_episode: Callable[[EpisodeResult], None] | None = None,
     render_backend: str | None = None,
+    reset_options: Mapping[str, Any] | None = None,
 ) -> list[EpisodeResult]:
-    """One episode of ``task`` per seed, the controller replanning every ``replan_every`` control steps (None: the
-    task's ``Task.replan_every``) with the instruction and ``schedule``'s facts of that decision. Success is the
-    task's (once per episode)."""
+    """One episode of ``task`` per seed (its env reset with ``reset_options``, e.g. the drawer's ``target_layer``),
+    the controller replanning every ``replan_every`` control steps (None: the task's ``Task.replan_every``) with the
+    instruction and ``schedule``'s facts of that decision; ``schedule`` observes every frame. Success is the task's
+    (once per episode)."""
     from sb3_memret.envs.physics import TaskRunner, stack_obs
 
     replan_every = replan_every or task.replan_every
@@ -197,7 +245,7 @@ def play_task_episodes(
     try:
         controller.check_env(runner.info())
         for episode_seed in seeds:
-            frame = runner.reset(episode_seed, {})
+            frame = runner.reset(episode_seed, reset_options or {})
             episode = task.episode(frame)
             schedule.start(frame, episode)
             controller.reset([episode_seed])
@@ -206,6 +254,7 @@ def play_task_episodes(
                 facts = schedule.facts(decision)
                 prompt = build_prompt(task.instruction(episode), facts, controller.spec.prompt_template)
                 frame = runner.execute(controller.act(stack_obs([frame.obs]), [prompt])[0][:replan_every])
+                schedule.observe(frame)
                 decision, steps = decision + 1, steps + frame.steps
                 if frame.success and success_steps is None:
                     success_steps = steps  # at the end of the chunk it succeeded in
@@ -227,17 +276,19 @@ def evaluate_task_condition(
     replan_every: int | None = None,
     on_episode: Callable[[EpisodeResult], None] | None = None,
     render_backend: str | None = None,
+    reset_options: Mapping[str, Any] | None = None,
 ) -> list[EpisodeResult]:
     """``episodes`` episodes of ``task`` at its protocol seeds (MIKASA's 4242424242 + i), else at
     seed..seed+episodes-1, each prompted by ``condition``: the task's instruction with its oracle
-    facts, with none, or with its wrong facts; the controller replans every ``replan_every`` steps (None: the task's).
-    Success is the task's (once per episode)."""
+    facts, with none, with its wrong facts, or with the facts its writer has written so far (``WrittenFacts``); the
+    controller replans every ``replan_every`` steps (None: the task's). Success is the task's (once per episode)."""
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     task = make_task(task)
-    schedule = ConditionFacts(task, condition)
+    schedule = condition_schedule(task, condition)
     seeds = task.evaluation_seeds(episodes) or range(seed, seed + episodes)
-    return play_task_episodes(controller, task, seeds, schedule, replan_every, on_episode, render_backend)
+    return play_task_episodes(controller, task, seeds, schedule, replan_every, on_episode, render_backend,
+                              reset_options)
 
 
 def summarize(results: Iterable[EpisodeResult]) -> dict:
@@ -254,6 +305,6 @@ def summarize(results: Iterable[EpisodeResult]) -> dict:
     return summary
 
 
-__all__ = ["ChunkOutcome", "ConditionFacts", "EpisodeResult", "FactSchedule", "RENDER_BACKENDS",
-           "evaluate_condition", "evaluate_task_condition", "execute_chunk", "make_task_env", "play_task_episodes",
-           "run_episode", "summarize", "task_env_kwargs"]
+__all__ = ["ChunkOutcome", "ConditionFacts", "EpisodeResult", "FactSchedule", "RENDER_BACKENDS", "WrittenFacts",
+           "condition_schedule", "evaluate_condition", "evaluate_task_condition", "execute_chunk", "make_task_env",
+           "play_task_episodes", "run_episode", "summarize", "task_env_kwargs"]

@@ -26,7 +26,7 @@ import numpy as np
 from sb3_memret.controllers import make_controller
 from sb3_memret.controllers.base import FrozenController
 from sb3_memret.memory.seeding import SeedingConfig
-from sb3_memret.rollout import EpisodeResult, play_task_episodes
+from sb3_memret.rollout import EpisodeResult, FactSchedule, play_task_episodes
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import EnvFrame, Episode
 
@@ -50,7 +50,7 @@ def fact_at(schedule: str, decision: int, switch: int, true_fact: str, decoys: l
     raise ValueError(f"unknown schedule {schedule!r}; expected one of {list(SCHEDULES)}")
 
 
-class ScheduledFacts:
+class ScheduledFacts(FactSchedule):
     """``schedule``'s fact at each decision of an episode, recording whether each one was the true fact."""
 
     def __init__(self, task: Task, schedule: str, switch: int, seeding: SeedingConfig, rng: np.random.Generator):

@@ -100,6 +100,35 @@ def test_commands_replan_at_the_tasks_own_interval_unless_told(user_folder):
     assert result.exit_code == 2 and "replan_every must be in [1, 4] (the chunk length), got 8" in result.output
 
 
+def _rollout(runner: CliRunner, condition: str, episodes: int = 6) -> dict:
+    result = runner.invoke(main, ["rollout", "--task", SPEC, "--condition", condition, "--episodes", str(episodes),
+                                  "--json"])
+    assert result.exit_code == 0, result.output
+    return json.loads(result.output.strip().splitlines()[-1])
+
+
+def test_the_written_condition_checks_the_writer_end_to_end(user_folder, monkeypatch):
+    """``rollout --condition written``: the prompt carries what the task's writer wrote from the frames (the light,
+    seen at the reset frame's percept), so it matches oracle episode for episode while the writer reads right, and
+    fails where oracle succeeds once it misreads."""
+    import test_tasks
+
+    runner = CliRunner()
+    oracle, written = _rollout(runner, "oracle"), _rollout(runner, "written")
+    assert oracle["success"]["overall"] == 1.0
+    assert {k: written[k] for k in ("seeds", "success", "median_steps_to_success")} == \
+        {k: oracle[k] for k in ("seeds", "success", "median_steps_to_success")}
+
+    def misread(self, frame):  # the next colour round: a broken reader
+        colours = test_tasks.COLOURS
+        return [(step, {("light", "light"): colours[(colours.index(c) + 1) % 3]})
+                for step, c in frame.timed_percepts() if c is not None]
+
+    monkeypatch.setattr(test_tasks.LightWriter, "read", misread)
+    assert _rollout(runner, "written")["success"]["overall"] == 0.0
+    assert _rollout(runner, "oracle")["success"]["overall"] == 1.0  # the writer is all that changed
+
+
 def test_a_task_of_ones_own_without_a_config_is_told_where_to_put_it(user_folder):
     result = CliRunner().invoke(main, ["train", "recall", "--task", SPEC, "--out", str(user_folder / "run")])
     _one_line_error(result, "no hyperparameters for task 'my_doors:MyDoorsTask'", "zoo_configs", "pass --config FILE",

@@ -64,3 +64,29 @@ def test_a_condition_gives_its_facts_at_every_decision_and_an_unknown_one_is_nam
     assert list(none.facts(0)) == []
     with pytest.raises(ValueError, match="unknown condition 'nonsense'"):
         ConditionFacts(task, "nonsense")
+    with pytest.raises(ValueError, match="condition 'written' has no fixed prompt.*WrittenFacts"):
+        ConditionFacts(task, "written")
+    with pytest.raises(ValueError, match="condition 'written' has no fixed prompt.*evaluate_task_condition"):
+        evaluate_condition(ScriptedDrawerController(), "written", 1)
+
+
+def test_the_drawers_written_condition_plays_the_fixed_prompts_placements():
+    """``rollout --condition written`` on the drawer: per layer, at the seeds the fixed prompts play; its writer reads
+    the cube's drawer from the simulator's state, so the scripted expert fares as with the oracle fact."""
+    import json
+
+    from click.testing import CliRunner
+
+    from sb3_memret.cli import main
+    from sb3_memret.rollout import WrittenFacts, condition_schedule
+    from sb3_memret.tasks import make_task
+
+    assert isinstance(condition_schedule(make_task("drawer"), "written"), WrittenFacts)
+    with pytest.raises(ValueError, match=r"unknown condition 'nonsense'; expected one of \['oracle', 'none', 'wrong', "
+                                         r"'written'\]"):
+        condition_schedule(make_task("drawer"), "nonsense")
+    result = CliRunner().invoke(main, ["rollout", "--controller", "scripted", "--condition", "written", "--layer", "3",
+                                       "--episodes", "1", "--seed", "5", "--json"])
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.output.strip().splitlines()[-1])
+    assert summary["seeds"] == [5] and summary["success"] == {"3": 1.0, "overall": 1.0}
