@@ -315,7 +315,9 @@ def results(run: Plan, records: Iterable[dict[str, Any]]) -> dict[str, Any]:
             conditions[condition] = cell
         entry["conditions"] = conditions
         tasks[row.env_id] = entry
-    return {"protocol": {**asdict(run.protocol), "conditions": run.conditions, "seeds": seeds}, "tasks": tasks}
+    protocol = {**asdict(run.protocol), "conditions": run.conditions, "seeds": seeds}
+    protocol["policy_inputs"] = list(protocol["policy_inputs"])  # as results.json reads back
+    return {"protocol": protocol, "tasks": tasks}
 
 
 def run_benchmark(run: Plan, out: Path, learners: Path | None = None, workers: int = 1,

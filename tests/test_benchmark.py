@@ -1,0 +1,159 @@
+"""MIKASA-Robo-VLA's protocol by one command: the manifest, the run folder (results, resume, report) and real
+episodes in MIKASA's own harness with the agent as its policy."""
+
+from __future__ import annotations
+
+import json
+from collections import Counter
+from collections.abc import Mapping
+
+import pytest
+from click.testing import CliRunner
+
+from mikasa_support import MIKASA_MISSING
+
+pytest.importorskip("mikasa_robo_suite", reason=MIKASA_MISSING)
+
+from mikasa_robo_suite.vla.benchmarking import BenchmarkTask  # noqa: E402
+
+from sb3_memret.benchmark.manifest import episode_seeds, select_tasks  # noqa: E402
+from sb3_memret.benchmark.report import render_report  # noqa: E402
+from sb3_memret.benchmark.runner import Plan, Protocol, RunFolder, done_units, results, run_benchmark  # noqa: E402
+from sb3_memret.cli import main  # noqa: E402
+
+# MIKASA-Robo-VLA's benchmarking page: the short split's memory types
+SHORT_SPLIT_TYPES = {"Spatial": 14, "Object": 9, "Negative": 9, "Temporal": 3, "Tracking": 2, "Prospective": 1}
+
+
+def test_the_manifest_gives_mikasas_splits():
+    short = select_tasks("short")
+    assert Counter(t.memory_type for t in short) == SHORT_SPLIT_TYPES
+    assert all(t.max_episode_steps <= 200 and t.split == "short" for t in short)
+    assert {"RememberColor3-VLA-v0", "FindImposterShape9-VLA-v0", "TakeItBack-VLA-v0"} <= {t.env_id for t in short}
+    assert (len(select_tasks("medium")), len(select_tasks("long")), len(select_tasks("all"))) == (30, 22, 90)
+    assert [t.env_id for t in select_tasks(env_ids=["TakeItBack-VLA-v0", "RememberColor3-VLA-v0"])] == \
+        ["TakeItBack-VLA-v0", "RememberColor3-VLA-v0"]
+
+
+def test_task_selection_refuses_what_is_not_a_benchmark_task():
+    with pytest.raises(ValueError, match="NotATask-VLA-v0"):
+        select_tasks(env_ids=["NotATask-VLA-v0"])
+    with pytest.raises(ValueError, match="huge"):
+        select_tasks("huge")
+    with pytest.raises(ValueError, match="not both"):
+        select_tasks("short", ["TakeItBack-VLA-v0"])
+
+
+def test_seed_sets_are_disjoint():
+    protocol, dev = episode_seeds("protocol", 50), episode_seeds("dev", 50)
+    assert protocol[0] == 4242424242 and protocol[-1] == 4242424291 and dev[0] == 5000
+    assert not set(protocol) & set(dev)
+    with pytest.raises(ValueError, match="test"):
+        episode_seeds("test", 5)
+
+
+def _row(env_id: str, memory_type: str = "Object") -> BenchmarkTask:
+    return BenchmarkTask(env_id, "short", memory_type, 25, "", "PPO")
+
+
+def _plan(episodes: int = 2) -> Plan:
+    run = Plan(Protocol(seed_set="dev", episodes=episodes), [_row("A-VLA-v0"), _row("B-VLA-v0", "Spatial"),
+                                                             _row("C-VLA-v0", "Negative")], ["none", "oracle"])
+    run.refused["C-VLA-v0"] = "needs an asset"
+    for env_id in ("A-VLA-v0", "B-VLA-v0"):
+        run.controllers[env_id] = {"name": "scripted", "sha256": f"c-{env_id}", "reads": "proprioception"}
+        run.task_digests[env_id], run.replan_every[env_id] = f"t-{env_id}", 4
+    return run
+
+
+def _record(env_id: str, condition: str, seed: int, success: bool, **extra) -> dict:
+    return {"env_id": env_id, "condition": condition, "seed": seed, "success": success,
+            "controller_sha256": f"c-{env_id}", "task_sha256": f"t-{env_id}", **extra}
+
+
+def test_results_count_current_episodes_and_keep_refusals():
+    run = _plan()
+    records = [_record("A-VLA-v0", "oracle", 5000, True), _record("A-VLA-v0", "oracle", 5001, False),
+               _record("A-VLA-v0", "none", 5000, False),
+               _record("A-VLA-v0", "none", 5001, True, controller_sha256="old controller"),  # played by other code
+               {**_record("B-VLA-v0", "oracle", 5000, False), "error": "RuntimeError: boom"}]
+    content = results(run, records)
+    a = content["tasks"]["A-VLA-v0"]["conditions"]
+    assert a["oracle"] == {"episodes": 2, "seeds": [5000, 5001], "successes": [True, False], "success": 0.5,
+                           "complete": True}
+    assert a["none"]["episodes"] == 1 and not a["none"]["complete"]  # the stale episode does not count
+    assert content["tasks"]["B-VLA-v0"]["conditions"]["oracle"]["error"] == "RuntimeError: boom"
+    assert content["tasks"]["C-VLA-v0"]["refused"] == "needs an asset"
+    assert content["protocol"]["seeds"] == [5000, 5001]
+    done = done_units(run, records)
+    assert {(u.env_id, u.condition, u.seed) for u in done} == {("A-VLA-v0", "oracle", 5000),
+                                                               ("A-VLA-v0", "oracle", 5001), ("A-VLA-v0", "none", 5000)}
+    assert len(run.units(done)) == 2 * 2 * 2 - 3  # C is refused; the errored and the stale units are played again
+
+    report = render_report(content)
+    assert "| A-VLA-v0 | Object | 4 | 0% (0/1) * | 50% (1/2) |" in report
+    assert "| oracle | 1/3 | 50.0% | 16.7% |" in report  # only A played all of its oracle episodes
+    assert "| C-VLA-v0 | needs an asset |" in report and "B-VLA-v0 (oracle) | RuntimeError: boom" in report
+
+
+def test_a_run_folder_resumes_only_under_its_protocol(tmp_path):
+    folder = RunFolder(tmp_path)
+    folder.check_protocol(Protocol(episodes=3))
+    folder.check_protocol(Protocol(episodes=3))
+    with pytest.raises(ValueError, match="episodes: 3"):
+        folder.check_protocol(Protocol(episodes=50))
+    folder.log(_record("A-VLA-v0", "none", 1, True, traceback="Traceback ..."))
+    with (tmp_path / "episodes.jsonl").open("a") as f:
+        f.write('{"env_id": "A-VLA')  # a line cut off by an interruption
+    assert [r["seed"] for r in folder.episodes()] == [1]
+    assert "Traceback" in (tmp_path / "errors.log").read_text()
+
+
+def test_the_command_refuses_bad_options_in_one_line(tmp_path):
+    runner = CliRunner()
+    result = runner.invoke(main, ["benchmark", "mikasa", "--conditions", "oracle,psychic", "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "psychic" in result.output and "Traceback" not in result.output
+    result = runner.invoke(main, ["benchmark", "mikasa", "--split", "short", "--tasks", "TakeItBack-VLA-v0",
+                                  "--out", str(tmp_path)])
+    assert result.exit_code == 2 and "not both" in result.output
+
+
+class _Guarded(Mapping):
+    """The harness's observation, failing the test if anything reads what the protocol forbids."""
+
+    def __init__(self, obs):
+        self.obs = obs
+
+    def __getitem__(self, key):
+        assert key not in ("oracle_info", "task_cue"), f"the agent read {key!r}"
+        return self.obs[key]
+
+    def __iter__(self):
+        return iter(k for k in self.obs if k not in ("oracle_info", "task_cue"))
+
+    def __len__(self):
+        return len(list(iter(self)))
+
+
+def test_the_agent_plays_mikasas_harness_from_cameras_only(tmp_path, monkeypatch):
+    """Real episodes of RememberColor3 in MIKASA's own harness, one per condition at a development seed: the
+    written facts are the ones the oracle names, so both succeed; the wrong fact fails; nothing forbidden is read;
+    a second run over the same folder plays nothing again."""
+    from sb3_memret.benchmark import agent as agent_module
+    from sb3_memret.benchmark.runner import plan
+
+    forward = agent_module.MemoryAgent.forward
+    monkeypatch.setattr(agent_module.MemoryAgent, "forward", lambda self, obs: forward(self, _Guarded(obs)))
+    run = plan(Protocol(seed_set="dev", episodes=1), ["oracle", "wrong", "written"],
+               env_ids=["RememberColor3-VLA-v0", "ShellGameTouch-VLA-v0"])
+    assert "YCB" in run.refused["ShellGameTouch-VLA-v0"]
+    content = run_benchmark(run, tmp_path, workers=1)
+    cells = content["tasks"]["RememberColor3-VLA-v0"]["conditions"]
+    assert {c: cells[c]["successes"] for c in cells} == {"oracle": [True], "wrong": [False], "written": [True]}
+    logged = [json.loads(line) for line in (tmp_path / "episodes.jsonl").read_text().splitlines()]
+    oracle, = (r["prompt"] for r in logged if r["condition"] == "oracle")
+    written, = (r["prompt"] for r in logged if r["condition"] == "written")
+    assert written == oracle and written.endswith("the cue cube was lime.")
+    assert json.loads((tmp_path / "results.json").read_text()) == content
+    again = run_benchmark(run, tmp_path, workers=1)
+    assert again == content and len((tmp_path / "episodes.jsonl").read_text().splitlines()) == 3
