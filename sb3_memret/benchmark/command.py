@@ -91,4 +91,32 @@ def mikasa(split: str | None, tasks: list[str] | None, episodes: int, controller
     click.echo(str(write_report(content, out)))
 
 
+@benchmark.command()
+@click.option("--split", type=click.Choice(SPLITS), default=None,
+              help="Train a learner for every task of this split  [default: short, unless --tasks]")
+@click.option("--tasks", callback=_tasks, default=None, metavar="ID[,ID...]", help="Exactly these tasks.")
+@click.option("--controller", default="scripted", show_default=True,
+              help="The frozen controller the learners serve (the benchmark's --controller).")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--eval-episodes", type=click.IntRange(min=1), default=50, show_default=True,
+              help="Held-out episodes per evaluation during training (development seeds).")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
+              help="Learners folder: OUT/<env id>/final_model.zip (benchmark mikasa --learners OUT).")
+def learners(split: str | None, tasks: list[str] | None, controller: str, seed: int, eval_episodes: int,
+             out: Path) -> None:
+    """Train the memory learner of every task of a split for the recall condition, one `train recall` run per task
+    on its zoo config; finished runs are kept and interrupted ones resume."""
+    from sb3_memret.benchmark.learners import train_learners
+    from sb3_memret.benchmark.manifest import select_tasks
+
+    if split is not None and tasks is not None:
+        raise click.UsageError("give --split or --tasks, not both")
+    try:
+        rows = select_tasks(split or ("short" if tasks is None else None), tasks)
+    except ValueError as err:
+        raise click.UsageError(str(err)) from None
+    train_learners([row.env_id for row in rows], out, controller, seed, eval_episodes,
+                   on_outcome=lambda o: click.echo(f"{o.status} {o.env_id}: {o.detail}", err=True))
+
+
 __all__ = ["benchmark"]

@@ -22,8 +22,9 @@ if TYPE_CHECKING:
 
 MANIFEST = Path(__file__).with_name("mikasa_robo_vla_envs.csv")
 SPLITS = ("short", "medium", "long", "all")
-PROTOCOL_SEED = 4242424242  # MIKASA-Robo-VLA's evaluation seeds: episode i plays PROTOCOL_SEED + i
-DEV_SEED = 5000  # development seeds, for choices made before the protocol's figure: episode i plays DEV_SEED + i
+# MIKASA-Robo-VLA's evaluation seeds (episode i plays 4242424242 + i) and the development seeds (5000 + i) for
+# choices made before the protocol's figure: the tasks' own (MikasaCueTask.evaluation_seeds, development_seeds)
+PROTOCOL_SEED, DEV_SEED = 4242424242, 5000
 SEED_SETS = {"protocol": PROTOCOL_SEED, "dev": DEV_SEED}
 
 

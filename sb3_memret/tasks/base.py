@@ -235,6 +235,12 @@ class Task(ABC):
         (held-out episodes then draw their seeds from the evaluation seed)."""
         return None
 
+    def development_seeds(self, n_episodes: int) -> list[int] | None:
+        """The env seeds of ``n_episodes`` held-out episodes for development (training's evaluations, choosing
+        checkpoints and variants), disjoint from ``evaluation_seeds``, which give the final figure only; None: the
+        evaluation seed decides, as for ``evaluation_seeds``."""
+        return None
+
     def check_options(self, **options: Any) -> None:
         """Refuse decision-env options this task does not implement, naming them."""
         unsupported = sorted(name for name, used in options.items() if used and name not in self.features)

@@ -24,6 +24,7 @@ from sb3_memret.tasks.mikasa import demo_layout
 from sb3_memret.tasks.mikasa.expert import ScriptedTouchController
 
 EVAL_SEED = 4242424242  # MIKASA-Robo-VLA's first evaluation seed; episode i plays EVAL_SEED + i
+DEV_SEED = 5000  # the first development seed (training's evaluations, choices): never one of the protocol's
 EPISODE_STEPS = 25
 RENDERER_NEEDED = ("MIKASA's envs need a renderer even without cameras, and this task's writer reads the cue from "
                    "the base camera: pass --render-backend cpu (the software renderer of `make renderer`) or gpu")
@@ -79,10 +80,14 @@ class MikasaCueTask(Task):
 
     def read_cue(self, rgb: np.ndarray) -> str | None:
         """The cue's word in one base-camera frame (H, W, 3), or None when no cue shows alone."""
-        raise NotImplementedError
+        raise NotImplementedError(f"{type(self).__name__} must override read_cue (e.g. with read_cue_colour or "
+                                  "read_cue_shape of sb3_memret.tasks.mikasa)")
 
     def evaluation_seeds(self, n_episodes: int) -> list[int]:
         return [EVAL_SEED + i for i in range(n_episodes)]
+
+    def development_seeds(self, n_episodes: int) -> list[int]:
+        return [DEV_SEED + i for i in range(n_episodes)]
 
     # ------------------------------------------------------------ simulation
     def make_env(self, *, max_episode_steps: int | None = None, num_envs: int = 1, obs_mode: str = "rgb",
@@ -171,4 +176,4 @@ class MikasaCueTask(Task):
         return demo_layout.HAND_POSITION
 
 
-__all__ = ["CueWriter", "EPISODE_STEPS", "EVAL_SEED", "MikasaCueTask", "RENDERER_NEEDED"]
+__all__ = ["CueWriter", "DEV_SEED", "EPISODE_STEPS", "EVAL_SEED", "MikasaCueTask", "RENDERER_NEEDED"]

@@ -1,0 +1,64 @@
+"""The memory learners the ``recall`` condition needs: one ``train recall`` run per task of a split, into
+``DIR/<env id>/``, each on its task's zoo config, one after another; a finished run is kept, an interrupted one
+resumes from its last checkpoint."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Callable
+
+from sb3_memret.benchmark.runner import LEARNER_FILE
+
+
+@dataclass(frozen=True)
+class LearnerOutcome:
+    """What became of one task's learner: trained now, there already, or refused with the reason."""
+
+    env_id: str
+    status: str  # "trained", "kept", "refused"
+    detail: str = ""
+
+
+def train_learners(env_ids: list[str], out: Path, controller: str = "scripted", seed: int = 0,
+                   eval_episodes: int = 50, load_config: Callable[[str], object] | None = None,
+                   on_outcome: Callable[[LearnerOutcome], None] | None = None) -> list[LearnerOutcome]:
+    """Train (or resume, or keep) the memory learner of each task in ``env_ids`` into ``out/<env id>``.
+    Held-out evaluations during training play the task's development seeds, never the benchmark's."""
+    from sb3_memret.cli import load_task_config
+    from sb3_memret.controllers import make_controller
+    from sb3_memret.tasks import check_task_name, make_task
+    from sb3_memret.callbacks import latest_checkpoint
+    from sb3_memret.training import RunOptions, train
+
+    load_config = load_config or load_task_config
+    outcomes = []
+    for env_id in env_ids:
+        folder = Path(out) / env_id
+        if (folder / LEARNER_FILE).is_file():
+            outcome = LearnerOutcome(env_id, "kept", str(folder / LEARNER_FILE))
+        else:
+            try:
+                check_task_name(env_id)
+                task = make_task(env_id)
+                config = load_config(env_id)
+                built = make_controller(controller, task)
+            except (ValueError, FileNotFoundError, ImportError) as err:
+                outcome = LearnerOutcome(env_id, "refused", str(err).splitlines()[0])
+            else:
+                resume = latest_checkpoint(folder / "checkpoints") is not None
+                options = RunOptions(out=folder, controller=controller, seed=seed, resume=resume,
+                                     eval_episodes=eval_episodes, render_backend=task.default_render_backend,
+                                     log_formats=("csv",))
+                result = train(None if resume else config, options, built)
+                if result.interrupted:
+                    raise KeyboardInterrupt(result.stopped_by)
+                outcome = LearnerOutcome(env_id, "trained", f"{result.rounds} rounds in "
+                                                            f"{result.wall_seconds / 60:.1f} min")
+        outcomes.append(outcome)
+        if on_outcome is not None:
+            on_outcome(outcome)
+    return outcomes
+
+
+__all__ = ["LearnerOutcome", "train_learners"]
