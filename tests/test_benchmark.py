@@ -96,6 +96,16 @@ def test_results_count_current_episodes_and_keep_refusals():
     assert "| C-VLA-v0 | needs an asset |" in report and "B-VLA-v0 (oracle) | RuntimeError: boom" in report
 
 
+def test_code_digests_name_the_code_that_acts():
+    from sb3_memret.benchmark.runner import code_digest, task_digest
+    from sb3_memret.tasks import make_task
+
+    colour, shape = make_task("RememberColor3-VLA-v0"), make_task("RememberShape3-VLA-v0")
+    assert task_digest(colour) == task_digest(make_task("RememberColor5-VLA-v0"))  # one class, one code
+    assert task_digest(colour) != task_digest(shape)
+    assert code_digest(type(colour.expert())) == code_digest(type(shape.expert()))  # the same touch expert
+
+
 def test_a_run_folder_resumes_only_under_its_protocol(tmp_path):
     folder = RunFolder(tmp_path)
     folder.check_protocol(Protocol(episodes=3))

@@ -10,10 +10,12 @@ reason, recorded in the results and the report; the run goes on with the others.
 
 from __future__ import annotations
 
+import ast
 import hashlib
 import inspect
 import json
 import multiprocessing
+import sys
 import traceback
 from collections import defaultdict
 from dataclasses import asdict, dataclass, field
@@ -83,27 +85,40 @@ class Plan:
                 if (t.env_id, c) not in self.refused_conditions for s in seeds if Unit(t.env_id, c, s) not in done]
 
 
-def controller_digest(controller: Any) -> str:
-    """SHA-256 of what makes the controller act as it does: a learned checkpoint's files, else its class's source."""
+def code_digest(*classes: type) -> str:
+    """SHA-256 of the code of ``classes`` and their sb3-memret base classes: each defining module's syntax tree
+    without its docstrings, so an edited comment or docstring leaves it as it was and a changed line does not."""
+    modules = sorted({k.__module__ for cls in classes for k in cls.__mro__ if k.__module__.startswith("sb3_memret")})
     digest = hashlib.sha256()
+    for name in modules:
+        tree = ast.parse(Path(inspect.getsourcefile(sys.modules[name])).read_text())
+        for node in ast.walk(tree):
+            body = getattr(node, "body", None)
+            if isinstance(body, list) and body and isinstance(body[0], ast.Expr) \
+                    and isinstance(body[0].value, ast.Constant) and isinstance(body[0].value.value, str):
+                node.body = body[1:] or [ast.Pass()]
+        digest.update(name.encode())
+        digest.update(ast.dump(tree).encode())
+    return digest.hexdigest()
+
+
+def controller_digest(controller: Any) -> str:
+    """SHA-256 of what makes the controller act as it does: a learned checkpoint's files, else its code."""
     checkpoint = getattr(controller, "checkpoint", None)
-    files = sorted(p for p in Path(checkpoint).iterdir() if p.suffix in (".json", ".safetensors")) \
-        if checkpoint is not None and Path(checkpoint).is_dir() else [Path(inspect.getsourcefile(type(controller)))]
-    for path in files:
+    if checkpoint is None or not Path(checkpoint).is_dir():
+        return code_digest(type(controller))
+    digest = hashlib.sha256()
+    for path in sorted(p for p in Path(checkpoint).iterdir() if p.suffix in (".json", ".safetensors")):
         digest.update(path.name.encode())
         digest.update(path.read_bytes())
     return digest.hexdigest()
 
 
-def source_digest(*classes: type) -> str:
-    """SHA-256 of the source files that define ``classes`` and their sb3-memret base classes."""
-    files = sorted({inspect.getsourcefile(k) for cls in classes for k in cls.__mro__
-                    if k.__module__.startswith("sb3_memret")})
-    digest = hashlib.sha256()
-    for path in files:
-        digest.update(Path(path).name.encode())
-        digest.update(Path(path).read_bytes())
-    return digest.hexdigest()
+def task_digest(task: Any) -> str:
+    """SHA-256 of the code of the task, its writer and its controller's view (``code_digest``)."""
+    parts = [type(task), type(task.writer())]
+    wrapper = getattr(task, "observation_wrapper", None)
+    return code_digest(*parts, *([wrapper] if isinstance(wrapper, type) else []))
 
 
 def _reason(err: BaseException) -> str:
@@ -138,7 +153,7 @@ def plan(protocol: Protocol, conditions: Iterable[str], split: str | None = None
         result.controllers[row.env_id] = {"name": protocol.controller, "sha256": controller_digest(controller),
                                           "reads": "cameras and proprioception" if controller.spec.needs_images else
                                           "proprioception and a simulated object detector (objects in sight)"}
-        result.task_digests[row.env_id] = source_digest(type(task))
+        result.task_digests[row.env_id] = task_digest(task)
         result.replan_every[row.env_id] = protocol.replan_every or task.replan_every
         path = learner_path(learners, row.env_id)
         if "recall" in result.conditions and (path is None or not path.is_file()):
