@@ -220,10 +220,13 @@ _WORKER: _Worker | None = None
 
 
 def _init_worker(protocol: Protocol, learners: Path | None) -> None:
+    """A pool worker: Ctrl-C is the parent's (it stops the pool), SIGTERM ends it (the pool's terminate sends it)."""
+    import signal
+
     from sb3_memret.workers import init_worker_process
 
     global _WORKER
-    init_worker_process()
+    init_worker_process(ignored=(signal.SIGINT,))
     _WORKER = _Worker(protocol, learners)
 
 
