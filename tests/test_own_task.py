@@ -129,6 +129,71 @@ def test_the_written_condition_checks_the_writer_end_to_end(user_folder, monkeyp
     assert _rollout(runner, "oracle")["success"]["overall"] == 1.0  # the writer is all that changed
 
 
+def test_the_written_condition_reads_a_cue_shown_between_two_decisions():
+    """The light of ``LateLightTask`` flashes at control step 3, inside the first chunk: only a per-step percept sees
+    it, and ``WrittenFacts`` hands it to the second decision's prompt."""
+    from test_tasks import COLOURS, DoorsExpert, LateLightTask
+
+    from sb3_memret.rollout import WrittenFacts, evaluate_task_condition, play_task_episodes
+
+    class Recorded(WrittenFacts):
+        def facts(self, decision: int) -> list[str]:
+            self.seen.append(list(super().facts(decision)))
+            return self.seen[-1]
+
+    task = LateLightTask()
+    schedule = Recorded(task)
+    schedule.seen = []
+    result, = play_task_episodes(DoorsExpert(), task, [0], schedule, replan_every=4)
+    assert schedule.seen[0] == [] and schedule.seen[1] == [f"the light was {result.layer}."] and result.success
+    written = evaluate_task_condition(DoorsExpert(), "written", task, 12, replan_every=4)
+    assert all(r.success for r in written) and {r.layer for r in written} == set(COLOURS)
+
+
+MY_CUE_MODULE = '''
+"""My RememberColor: MIKASA's RememberColor3 with an instruction worded my way."""
+
+from sb3_memret.prompts import PromptTemplate
+from sb3_memret.tasks.mikasa import COLOUR_NAMES, ControllerObservation, MikasaCueTask, read_cue_colour
+
+INSTRUCTION = "look at the cube, remember its colour, then touch the cube of that colour."
+
+
+class MyCueTask(MikasaCueTask):
+    field, detector_key, truth_attribute = "colour", "cube", "true_color_indices"
+    cue_entity, cue_relation, cue_fact = "shown cube", "was", "the shown cube was {colour}."
+    instruction_text, template = INSTRUCTION, PromptTemplate((INSTRUCTION,), ("the {entity} was {colour}.",))
+    vocabulary, observation_wrapper = COLOUR_NAMES, ControllerObservation
+
+    def __init__(self, env_id: str = "RememberColor3-VLA-v0"):
+        super().__init__(env_id, 3)
+
+    def read_cue(self, rgb):
+        return read_cue_colour(rgb, self.n_words)
+'''
+
+
+def test_a_cue_task_of_ones_own_is_built_from_the_public_mikasa_parts(user_folder):
+    """A RememberColor-like task written only with ``sb3_memret.tasks.mikasa``'s exports: its prompts follow its own
+    wording, its expert obeys them, and as it is named by MIKASA's env id the shipped section of that id (for the
+    registered task) is refused for it with the way out."""
+    from sb3_memret.prompts import build_prompt
+    from sb3_memret.tasks import Episode
+    from sb3_memret.tasks.mikasa import ScriptedTouchController
+
+    (user_folder / "my_cue.py").write_text(textwrap.dedent(MY_CUE_MODULE))
+    task = make_task("my_cue:MyCueTask")
+    episode = Episode("shown cube", "lime", ())
+    prompt = build_prompt(task.instruction(episode), task.oracle_facts(episode), task.expert().spec.prompt_template)
+    assert prompt == "look at the cube, remember its colour, then touch the cube of that colour. the shown cube was lime."
+    assert isinstance(task.expert(), ScriptedTouchController) and task.words == ("red", "lime", "blue")
+    assert task.replan_every == 4 and task.config_key == "RememberColor3-VLA-v0"
+    result = CliRunner().invoke(main, ["train", "recall", "--task", "my_cue:MyCueTask", "--out",
+                                       str(user_folder / "r")])
+    _one_line_error(result, "section 'RememberColor3-VLA-v0' of the config is for task 'RememberColor3-VLA-v0', not "
+                            "'my_cue:MyCueTask'", "pass --config FILE")
+
+
 def test_a_task_of_ones_own_without_a_config_is_told_where_to_put_it(user_folder):
     result = CliRunner().invoke(main, ["train", "recall", "--task", SPEC, "--out", str(user_folder / "run")])
     _one_line_error(result, "no hyperparameters for task 'my_doors:MyDoorsTask'", "zoo_configs", "pass --config FILE",

@@ -42,7 +42,39 @@ class CueWriter:
 
 
 class MikasaCueTask(Task):
-    """A MIKASA task whose memory is one word about a cue shown once (its colour, its shape)."""
+    """A MIKASA task whose memory is one word about a cue shown once (its colour, its shape): the base class to
+    subclass for another MIKASA env of the kind (RememberColor, RememberShape, SeqOfColors and TakeItBack subclass it).
+
+    It runs MIKASA's env ``env_id`` with its protocol (above), its writer reads the cue's word from the base camera
+    at every control step (``read_cue``) and writes ``cue_fact``, its decoys are worded alike about other things, and
+    its expert (``ScriptedTouchController``) touches the object the prompt's word names, guessing the first word
+    without one. A subclass sets these ten class attributes (none has a default):
+
+    - ``field``: the fact's field that carries the word (``"colour"``, ``"shape"``): the ``{field}`` of
+      ``cue_fact`` and of ``template``'s fact template, and what the expert reads from its prompt;
+    - ``detector_key``: the key of the object detector's entries in the controller's observation
+      (``extra/{detector_key}_positions``, ``extra/{detector_key}_visible``), as ``observation_wrapper`` writes them;
+    - ``truth_attribute``: the attribute of MIKASA's env (``env.unwrapped``) that holds each env's cued candidate
+      index (``true_color_indices``); read for metrics only (``Episode``), never by the writer or the controller;
+    - ``cue_entity``, ``cue_relation``: the cue fact's entity and relation in memory (its key, with
+      ``MemoryType.OTHER``); decoys take the same relation about other entities;
+    - ``cue_fact``: the cue's fact, a template with ``{field}`` (``"the cue cube was {colour}."``);
+    - ``instruction_text``: the instruction every prompt starts with (MIKASA's, lowercased);
+    - ``template``: the ``PromptTemplate`` the controllers were trained on: ``instruction_text`` and a fact template
+      that ``cue_fact`` and the decoys match;
+    - ``vocabulary``: the words, index i naming MIKASA's candidate i (the order of ``truth_attribute``'s indices and
+      of the detector's entries); the first ``n_words`` are in play;
+    - ``observation_wrapper``: a ``gym.Wrapper`` class (or any callable env -> env) that cuts MIKASA's observation
+      to a controller's view: joints, hand, cameras and the detector (``DetectorObservation``,
+      ``ControllerObservation``), never ``oracle_info``.
+
+    It must also override ``read_cue(rgb)`` (the shipped readers: ``read_cue_colour``, ``read_cue_shape``), and
+    ``__init__`` to give ``env_id`` and ``n_words`` (with defaults, for ``--task module:Class``). Optional:
+    ``noop_before_manipulation`` (default True: MIKASA's ``CurriculumPhaseNoopActionWrapper``, no-op actions during
+    the cue and delay phases, as its wrapper table gives the short Remember tasks), and the ``Task`` attributes set
+    here: ``max_control_steps`` 25, ``replan_every`` 4, ``zoo_config`` (a section keyed by ``env_id``; a task of
+    your own passes its own YAML with ``--config``).
+    """
 
     zoo_config = "memret_ppo_mikasa.yml"
     perceives_every_step = True
@@ -50,24 +82,20 @@ class MikasaCueTask(Task):
     max_control_steps = EPISODE_STEPS
     replan_every = 4  # a cue lasts 1-5 of 25 steps: MIKASA's zoo settings replan every 4
 
-    #: the fact's field (``colour``), the detector's observation key (``cube``) and MIKASA's truth attribute
     field: ClassVar[str]
     detector_key: ClassVar[str]
     truth_attribute: ClassVar[str]
-    #: the cue's entity and relation in memory, and the fact about it (a template with ``{field}``)
     cue_entity: ClassVar[str]
     cue_relation: ClassVar[str]
     cue_fact: ClassVar[str]
     instruction_text: ClassVar[str]
     template: ClassVar[PromptTemplate]
-    #: the task's words, index i naming MIKASA's candidate i; the first ``n_words`` are in play
     vocabulary: ClassVar[tuple[str, ...]]
     observation_wrapper: ClassVar[Callable[[gym.Env], gym.Env]]
-    #: whether MIKASA's wrapper table gives the task its ``CurriculumPhaseNoopActionWrapper`` (no-op actions
-    #: during the cue and delay phases)
     noop_before_manipulation: ClassVar[bool] = True
 
     def __init__(self, env_id: str, n_words: int):
+        """The task of MIKASA's env ``env_id`` (its name and config key), with the first ``n_words`` words in play."""
         self.name, self.n_words = env_id, n_words
 
     @property
