@@ -27,7 +27,8 @@ HOLDING_NOTHING_TEXT = SPECIAL_TEXTS[(MemoryType.HOLDING, NOTHING)]
 FIXED_CONDITIONS: tuple[str, ...] = ("oracle", "none", "wrong")
 CONDITIONS: tuple[str, ...] = (*FIXED_CONDITIONS, "written")
 
-_FIELD_PATTERNS = {"layer": r"[0-9]+"}
+# fields that hold a number (a drawer layer, a speed in cm/s); every other field holds words
+_FIELD_PATTERNS = {"layer": r"[0-9]+", "speed": r"[0-9]+"}
 _WORDS = r"[a-z]+(?: [a-z]+)*"
 _SENTENCE_RE = re.compile(r"[^ .][^.]*\.")
 
