@@ -4,6 +4,10 @@ A frozen controller only understands prompts worded exactly like its training pr
 every sentence is checked against the templates the controller declares, byte for byte:
 lowercase, single spaces, a full stop at the end. Anything else is refused with an error
 naming the offending sentence and the accepted forms, never silently passed on.
+
+An instruction may carry a number of its own (MIKASA's Rotate: ``rotate the peg by {angle_deg} degrees to match
+the target angle.``, a new angle every episode): its field values are parsed as a fact's are
+(``ParsedPrompt.instruction_fields``).
 """
 
 from __future__ import annotations
@@ -27,8 +31,9 @@ HOLDING_NOTHING_TEXT = SPECIAL_TEXTS[(MemoryType.HOLDING, NOTHING)]
 FIXED_CONDITIONS: tuple[str, ...] = ("oracle", "none", "wrong")
 CONDITIONS: tuple[str, ...] = (*FIXED_CONDITIONS, "written")
 
-# fields that hold a number (a drawer layer, a speed in cm/s); every other field holds words
-_FIELD_PATTERNS = {"layer": r"[0-9]+", "speed": r"[0-9]+"}
+# fields that hold a number (a drawer layer, a speed in cm/s, an angle in whole degrees: a rotation, signed, and a
+# start); every other field holds words
+_FIELD_PATTERNS = {"layer": r"[0-9]+", "speed": r"[0-9]+", "angle_deg": r"-?[0-9]+", "start_deg": r"[0-9]+"}
 _WORDS = r"[a-z]+(?: [a-z]+)*"
 _SENTENCE_RE = re.compile(r"[^ .][^.]*\.")
 
@@ -66,6 +71,7 @@ class Fact:
 class ParsedPrompt:
     instruction: str
     facts: tuple[Fact, ...] = ()
+    instruction_fields: tuple[tuple[str, str], ...] = ()  # the instruction template's field values, in order
 
     @property
     def target(self) -> str | None:
@@ -112,9 +118,11 @@ def parse_prompt(prompt: str, template: PromptTemplate | None = None) -> ParsedP
             f"spaces, lowercase, with no leading or trailing whitespace; accepted {template.describe()}"
         )
     instruction, *rest = sentences
-    if not any(_template_regex(t).fullmatch(instruction) for t in template.instructions):
+    match = next((m for t in template.instructions if (m := _template_regex(t).fullmatch(instruction))), None)
+    if match is None:
         raise ValueError(f"prompt {prompt!r} starts with {instruction!r}; expected one of {template.describe()}")
-    return ParsedPrompt(instruction, tuple(_parse_fact(s, prompt, template) for s in rest))
+    return ParsedPrompt(instruction, tuple(_parse_fact(s, prompt, template) for s in rest),
+                        tuple(match.groupdict().items()))
 
 
 def check_fixed_condition(condition: str) -> str:
