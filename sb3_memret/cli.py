@@ -244,13 +244,17 @@ def main() -> None:
 @click.option("--layer", type=click.IntRange(min=min(LAYERS), max=max(LAYERS)), default=None,
               help="The drawer only: this layer (1 = top); default all three.")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
-              help="First episode seed (a task with protocol seeds, as MIKASA's, plays those instead).")
+              help="First episode seed (a task with protocol seeds, as MIKASA's, plays those instead, unless "
+                   "--seeds dev).")
+@click.option("--seeds", "seed_set", type=click.Choice(["protocol", "dev"]), default="protocol", show_default=True,
+              help="protocol: a task's benchmark seeds where it has them (MIKASA's 4242424242 + i, its test set); "
+                   "dev: --seed, --seed + 1, ... on every task, for development (e.g. --seed 5000).")
 @click.option("--replan-every", type=click.IntRange(min=1), default=None,
               help="Control steps executed from each action chunk before replanning  [default: the task's "
                    "(Task.replan_every): 8 on the drawer, 4 on MIKASA's tasks]")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
 @_render_backend_option
-def rollout(task: str, controller, condition: str, episodes: int, layer: int | None, seed: int,
+def rollout(task: str, controller, condition: str, episodes: int, layer: int | None, seed: int, seed_set: str,
             replan_every: int | None, as_json: bool, render_backend: str) -> None:
     """Run a frozen controller on a task under a prompt condition and print its success per group (the
     drawer's layer, the cue's colour)."""
@@ -275,7 +279,8 @@ def rollout(task: str, controller, condition: str, episodes: int, layer: int | N
                                              on_episode=lambda _: bar.update(1), render_backend=render_backend)
             else:
                 results = evaluate_task_condition(controller, condition, task, episodes, seed, replan_every,
-                                                  on_episode=lambda _: bar.update(1), render_backend=render_backend)
+                                                  on_episode=lambda _: bar.update(1), render_backend=render_backend,
+                                                  protocol_seeds=seed_set == "protocol")
         except ValueError as err:
             raise click.UsageError(str(err)) from err
     summary = summarize(results)

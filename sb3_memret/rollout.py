@@ -277,16 +277,18 @@ def evaluate_task_condition(
     on_episode: Callable[[EpisodeResult], None] | None = None,
     render_backend: str | None = None,
     reset_options: Mapping[str, Any] | None = None,
+    protocol_seeds: bool = True,
 ) -> list[EpisodeResult]:
-    """``episodes`` episodes of ``task`` at its protocol seeds (MIKASA's 4242424242 + i), else at
-    seed..seed+episodes-1, each prompted by ``condition``: the task's instruction with its oracle
-    facts, with none, with its wrong facts, or with the facts its writer has written so far (``WrittenFacts``); the
-    controller replans every ``replan_every`` steps (None: the task's). Success is the task's (once per episode)."""
+    """``episodes`` episodes of ``task`` at its protocol seeds (MIKASA's 4242424242 + i; not with
+    ``protocol_seeds=False``, for development), else at seed..seed+episodes-1, each prompted by ``condition``: the
+    task's instruction with its oracle facts, with none, with its wrong facts, or with the facts its writer has
+    written so far (``WrittenFacts``); the controller replans every ``replan_every`` steps (None: the task's).
+    Success is the task's (once per episode)."""
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
     task = make_task(task)
     schedule = condition_schedule(task, condition)
-    seeds = task.evaluation_seeds(episodes) or range(seed, seed + episodes)
+    seeds = (task.evaluation_seeds(episodes) if protocol_seeds else None) or range(seed, seed + episodes)
     return play_task_episodes(controller, task, seeds, schedule, replan_every, on_episode, render_backend,
                               reset_options)
 

@@ -1,8 +1,8 @@
 """Probe MIKASA-Robo-VLA's cue tasks (RememberColor3/5/9, RememberShape3, SeqOfColors3, TakeItBack): the
 scripted expert's success and the cue reader's accuracy, through the Task interface.
 
-For each task, ``--episodes`` episodes at MIKASA's evaluation seeds (4242424242 + i) per prompt
-condition: ``oracle`` (the task's true facts; its truth is read from the simulator only to build this
+For each task, ``--episodes`` episodes at MIKASA's evaluation seeds (4242424242 + i; ``--seed`` for others) per
+prompt condition: ``oracle`` (the task's true facts; its truth is read from the simulator only to build this
 prompt), ``none`` (the bare instruction), ``wrong`` (the task's wrong facts) and, for a task that needs
 several facts, ``missing`` (the oracle's facts without the last one). Success is MIKASA's success-once
 over the episode (25 steps; TakeItBack's 60; SeqOfColors' 400, ended at success as the toolkit ends it). The expert
@@ -151,6 +151,8 @@ def main() -> None:
     parser.add_argument("--tasks", nargs="+", default=list(TASKS))
     parser.add_argument("--conditions", nargs="+", default=list(CONDITIONS), choices=CONDITIONS)
     parser.add_argument("--episodes", type=int, default=50)
+    parser.add_argument("--seed", type=int, default=MIKASA_SEED,
+                        help="first episode seed: MIKASA's evaluation seeds by default; develop on others (e.g. 5000)")
     parser.add_argument("--replan", type=int, default=4, help="control steps executed of each chunk")
     parser.add_argument("--no-timing", action="store_true", help="skip the state-vs-rgb step timing")
     parser.add_argument("--cue-check", type=int, default=0, metavar="N",
@@ -165,11 +167,11 @@ def main() -> None:
         controller = task.expert()
         controller.check_env(env)
         stats = CueStats()
-        several = len(task.oracle_facts(task.episode(task.frames(env, *env.reset(seed=MIKASA_SEED), reset=True)[0]))) > 1
+        several = len(task.oracle_facts(task.episode(task.frames(env, *env.reset(seed=args.seed), reset=True)[0]))) > 1
         for condition in [c for c in args.conditions if c != "missing" or several]:
             wins, steps, seconds, t0 = 0, 0, 0.0, time.perf_counter()
             for i in range(args.episodes):
-                ok, n, s = run_episode(task, env, controller, MIKASA_SEED + i, condition, args.replan, stats)
+                ok, n, s = run_episode(task, env, controller, args.seed + i, condition, args.replan, stats)
                 wins, steps, seconds = wins + ok, steps + n, seconds + s
             wall = time.perf_counter() - t0
             print(f"{env_id} {condition:6s} success_once {wins}/{args.episodes} = {wins / args.episodes:.0%}  "

@@ -1,4 +1,4 @@
-"""MIKASA RememberShape3: the pixel shape reader, the controller's view, the prompt contract, the expert, the task."""
+"""MIKASA RememberShape3/5/9: the pixel shape reader, the controller's view, the prompt contract, the expert, the task."""
 
 import numpy as np
 import pytest
@@ -11,7 +11,9 @@ pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 from sb3_memret.memory.schema import MemoryType  # noqa: E402
 from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
 from sb3_memret.prompts import parse_prompt  # noqa: E402
+from sb3_memret.tasks import make_task  # noqa: E402
 from sb3_memret.tasks.base import EnvFrame  # noqa: E402
+from sb3_memret.tasks.mikasa.perception import cue_blob  # noqa: E402
 from sb3_memret.tasks.mikasa.remember_color import EVAL_SEED  # noqa: E402
 from sb3_memret.tasks.mikasa.remember_shape import (  # noqa: E402
     CUE_KEY,
@@ -22,20 +24,24 @@ from sb3_memret.tasks.mikasa.remember_shape import (  # noqa: E402
     shape_prompt,
 )
 from sb3_memret.tasks.mikasa.shape_perception import (  # noqa: E402
-    PROTOTYPES,
+    MIN_MATCH,
     SHAPE_NAMES,
+    SILHOUETTES,
     read_cue_shape,
-    shape_distances,
+    silhouette,
+    silhouette_match,
 )
 
 TASK = "RememberShape3-VLA-v0"
 # the first evaluation seeds whose cue is a cube, a cylinder and a sphere
 SEEDS = (4242424242, 4242424244, 4242424245)
+# RememberShape9's first development seeds (5000 + i) whose cue is each of the nine shapes, in SHAPE_NAMES' order
+NINE_SEEDS = (5000, 5022, 5004, 5003, 5009, 5002, 5001, 5020, 5017)
 FORBIDDEN = ("oracle", "task_cue", "goal_")
 
 
-def _make(obs_mode: str):
-    return RememberShapeTask(TASK).make_env(obs_mode=obs_mode, sim_backend="cpu", robot_uids="panda")
+def _make(obs_mode: str, env_id: str = TASK):
+    return RememberShapeTask(env_id).make_env(obs_mode=obs_mode, sim_backend="cpu", robot_uids="panda")
 
 
 @pytest.fixture(scope="module")
@@ -71,32 +77,56 @@ def test_reads_the_cue_shape_and_nothing_else_on_rendered_frames(rgb_env, seed):
     appear = int(base.cue_steps_per_env[0] + base.empty_steps_per_env[0])
     for _ in range(appear + 2):
         phase = _phase(base, int(info["elapsed_steps"][0]))
-        seen.append((phase, read_cue_shape(_frame(obs), 3)))
+        seen.append((phase, read_cue_shape(_frame(obs), SHAPE_NAMES[:3])))
         obs, _, _, _, info = rgb_env.step(torch.zeros(1, 7))
     assert [r for p, r in seen if p == "cue"] == [true] * int(base.cue_steps_per_env[0])
     assert all(r is None for p, r in seen if p != "cue"), seen
 
 
-def test_the_three_cues_are_far_apart_and_an_odd_blob_reads_as_none(rgb_env):
-    protos = np.array(list(PROTOTYPES.values()))
-    for i, proto in enumerate(protos):
-        distances = np.delete(shape_distances(proto, 3), i)
-        assert distances.min() > 3.0  # the reader's acceptance radius is 1
+def test_the_nine_silhouettes_are_far_apart_and_an_odd_blob_reads_as_none(rgb_env):
+    for name, rows in SILHOUETTES.items():
+        grid = np.array([[".#+o".index(c) for c in row] for row in rows])
+        assert silhouette_match(grid, rows) == 1.0
+        others = [silhouette_match(grid, SILHOUETTES[other]) for other in SHAPE_NAMES if other != name]
+        assert max(others) <= 0.75 < MIN_MATCH, (name, others)
     obs, _ = rgb_env.reset(seed=SEEDS[0])  # a cube
     frame = _frame(obs)
-    assert read_cue_shape(frame, 3) == "cube"
-    assert read_cue_shape(frame, 2) == "cube"  # the first two shapes: cube, sphere
+    assert read_cue_shape(frame, SHAPE_NAMES[:3]) == "cube"
+    assert read_cue_shape(frame, ("cube", "sphere")) == read_cue_shape(frame, 2) == "cube"
+    assert read_cue_shape(frame, ("sphere", "cylinder")) is None  # no candidate's silhouette
     half = frame.copy()
     half[74:77, 62:66] = frame[40:43, 62:66]  # wood over the cube's top half: a blob like no shape
-    assert read_cue_shape(half, 3) is None
+    assert read_cue_shape(half, SHAPE_NAMES) is None
     blank = frame.copy()
     blank[70:85, 55:72] = frame[40:55, 55:72]
-    assert read_cue_shape(blank, 3) is None
+    assert read_cue_shape(blank, SHAPE_NAMES) is None
     twice = frame.copy()
     twice[74:80, 20:24] = frame[74:80, 62:66]  # a second object in view
-    assert read_cue_shape(twice, 3) is None
-    with pytest.raises(ValueError, match="calibrated for the first 3 shapes"):
-        read_cue_shape(frame, 5)
+    assert read_cue_shape(twice, SHAPE_NAMES) is None
+    with pytest.raises(ValueError, match="unknown shapes \\['hexagon'\\]"):
+        read_cue_shape(frame, ("cube", "hexagon"))
+    with pytest.raises(ValueError, match="must be in 1..9, got 10"):
+        read_cue_shape(frame, 10)
+    with pytest.raises(ValueError, match="measured at 128x128"):
+        read_cue_shape(np.zeros((64, 64, 3), np.uint8), SHAPE_NAMES)
+
+
+def test_reads_each_of_the_nine_cues():
+    """RememberShape9's cue frame of each shape (its first development seed) reads as that shape, in the silhouette
+    the module docstring gives; the first three shapes read the same through RememberShape3's candidates."""
+    env = _make("rgb", "RememberShape9-VLA-v0")
+    try:
+        for shape, seed in zip(SHAPE_NAMES, NINE_SEEDS):
+            obs, info = env.reset(seed=seed)
+            assert SHAPE_NAMES[int(info["oracle_info"][0])] == shape
+            frame = _frame(obs)
+            assert read_cue_shape(frame, SHAPE_NAMES) == shape
+            rows = ["".join(".#+o"[c] for c in row) for row in silhouette(frame, cue_blob(frame))]
+            assert tuple(rows) == SILHOUETTES[shape]
+            if shape in SHAPE_NAMES[:3]:
+                assert read_cue_shape(frame, SHAPE_NAMES[:3]) == shape
+    finally:
+        env.close()
 
 
 def test_wrapper_exposes_only_the_controllers_view(state_env, rgb_env):
@@ -158,12 +188,40 @@ def test_expert_is_batched_and_heads_for_the_named_shape():
         expert.act(obs, [f"{INSTRUCTION} the cue cube was red."] * 3)  # off its template: refused
 
 
+@pytest.mark.parametrize("env_id, n", [("RememberShape5-VLA-v0", 5), ("RememberShape9-VLA-v0", 9)])
+def test_the_detector_lists_every_shape_and_the_expert_touches_the_named_one(env_id, n):
+    """RememberShape5/9: registered, the detector reports all n shapes once they reappear, and the task's expert
+    touches the shape its prompt names (oracle) and not another (wrong), at development seeds."""
+    task = make_task(env_id)
+    assert isinstance(task, RememberShapeTask) and task.shapes == SHAPE_NAMES[:n]
+    env = _make("state_dict", env_id)
+    expert = task.expert()
+    try:
+        expert.check_env(env)
+        for seed, condition in ((5000, "oracle"), (5001, "oracle"), (5002, "wrong")):
+            obs, info = env.reset(seed=seed)
+            true = SHAPE_NAMES[int(info["oracle_info"][0])]
+            shape = true if condition == "oracle" else task.shapes[(task.shapes.index(true) + 1) % n]
+            expert.reset([seed])
+            success = False
+            for step in range(25):
+                if step % 4 == 0:
+                    chunk = expert.act(obs, [shape_prompt(shape)])[0]
+                obs, _, _, _, info = env.step(torch.from_numpy(chunk[step % 4][None]).float())
+                success |= bool(info["success"][0])
+            assert tuple(obs["extra"]["shape_positions"].shape) == (1, n, 3)
+            assert bool(obs["extra"]["shape_visible"].all())
+            assert success == (condition == "oracle"), (seed, condition, true)
+    finally:
+        env.close()
+
+
 def test_task_contract(rgb_env):
     task = RememberShapeTask()
     assert task.name == TASK and task.shapes == ("cube", "sphere", "cylinder") and task.perceives_every_step
     assert task.evaluation_seeds(2) == [EVAL_SEED, EVAL_SEED + 1] and task.default_render_backend == "cpu"
-    with pytest.raises(ValueError, match="RememberShape5-VLA-v0"):
-        RememberShapeTask("RememberShape5-VLA-v0")
+    with pytest.raises(ValueError, match="unknown RememberShape task 'RememberShape4-VLA-v0'"):
+        RememberShapeTask("RememberShape4-VLA-v0")
     with pytest.raises(ValueError, match="need a renderer"):
         task.env_kwargs(needs_images=False, render_backend="none")
     obs, info = rgb_env.reset(seed=SEEDS[2])  # a sphere
@@ -230,7 +288,7 @@ def _run(env, expert, seed: int, shape: str | None, replan: int = 4) -> tuple[bo
     expert.reset([seed])
     success, readings, chunk = False, [], None
     for step in range(25):
-        readings.append((_phase(base, int(info["elapsed_steps"][0])), read_cue_shape(_frame(obs), 3)))
+        readings.append((_phase(base, int(info["elapsed_steps"][0])), read_cue_shape(_frame(obs), SHAPE_NAMES[:3])))
         if step % replan == 0:
             chunk = expert.act(obs, [prompt])[0]
         obs, _, _, _, info = env.step(torch.from_numpy(chunk[step % replan][None]).float())

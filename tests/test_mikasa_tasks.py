@@ -70,6 +70,14 @@ def test_rollout_runs_a_mikasa_task_at_its_seeds(condition, expected):
     assert summary["success"]["overall"] == expected
 
 
+def test_rollout_plays_development_seeds_when_asked():
+    result = CliRunner().invoke(main, ["rollout", "--task", TASK, "--controller", "scripted", "--condition", "oracle",
+                                       "--episodes", "1", "--seeds", "dev", "--seed", "5000", "--json"])
+    assert result.exit_code == 0, result.output
+    summary = json.loads(result.output.strip().splitlines()[-1])
+    assert summary["seeds"] == [5000] and summary["success"]["overall"] == 1.0
+
+
 def test_rollout_refuses_a_layer_on_a_task_without_drawers():
     result = CliRunner().invoke(main, ["rollout", "--task", TASK, "--controller", "scripted", "--layer", "2"])
     assert result.exit_code == 2 and "--layer chooses a drawer; task 'RememberColor3-VLA-v0' has none" in result.output

@@ -92,6 +92,8 @@ register_task("RememberShape3-VLA-v0",
 register_task("SeqOfColors3-VLA-v0",
               _lazy("sb3_memret.tasks.mikasa.seq_of_colors", "SeqOfColorsTask", "SeqOfColors3-VLA-v0"))
 register_task("TakeItBack-VLA-v0", _lazy("sb3_memret.tasks.mikasa.take_it_back", "TakeItBackTask", "TakeItBack-VLA-v0"))
+for _env_id in ("RememberShape5-VLA-v0", "RememberShape9-VLA-v0"):
+    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.remember_shape", "RememberShapeTask", _env_id))
 
 __all__ = ["DEFAULT_TASK", "EnvFrame", "Episode", "Predicates", "Task", "UNAVAILABLE", "Writer", "check_task_name",
            "make_task", "register_task", "task_names"]

@@ -25,6 +25,7 @@ def state_names(objects: Sequence[str], key: str = "cube") -> tuple[str, ...]:
     """The names of the state's entries, for candidates named by ``objects`` (colours or shapes)."""
     arm = [f"qpos_{i}" for i in range(ARM_JOINTS)] + [f"qvel_{i}" for i in range(ARM_JOINTS)]
     hand = [*HAND_POSITION, "tcp_qw", "tcp_qx", "tcp_qy", "tcp_qz"]
+    objects = [name.replace(" ", "_") for name in objects]  # "t shape", "red cube": one token each
     seen = [f"{key}_{name}_{axis}" for name in objects for axis in "xyz"] + [f"{key}_{name}_visible" for name in objects]
     return tuple(arm + hand + seen)
 

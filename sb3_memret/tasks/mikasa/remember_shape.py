@@ -1,24 +1,25 @@
-"""MIKASA-Robo-VLA's RememberShape3-VLA-v0 as an sb3-memret task: the cue's shape must be remembered.
+"""MIKASA-Robo-VLA's RememberShape3/5/9-VLA-v0 as sb3-memret tasks: the cue's shape must be remembered.
 
 The env is MIKASA's own (``mikasa-robo-suite``), with its protocol: ``pd_ee_delta_pose``, its
 ``CurriculumPhaseNoopActionWrapper`` (actions are no-ops during the cue and delay phases), 128x128
 cameras, the ``normalized_dense`` reward, success counted once per episode, evaluation at seeds
 4242424242 + i.
 
-**Episode:** the cue object (a cube, a sphere or a cylinder, all the same blue and 4 cm across) is
-shown alone at the table centre for 1-5 steps, every object is hidden for 1-5 steps, then the three
-reappear, shuffled along a row across the table (about 20 cm apart), and the robot must touch the
-one of the cue's shape and hold still; episodes last 25 steps.
+**Episode:** the cue object (one of the first N of MIKASA's shapes: cube, sphere, cylinder, then cross,
+torus, then star, pyramid, t shape, crescent; all the same blue and 4-6 cm across) is shown alone at
+the table centre for 1-5 steps, every object is hidden for 1-5 steps, then the N reappear, shuffled,
+and the robot must touch the one of the cue's shape and hold still; episodes last 25 steps. Three
+shapes stand along a row across the table (about 20 cm apart); five and nine along an arc 30 cm
+around a point behind the table centre (12-19 cm apart).
 
-**Randomisations** (MIKASA's): the cue shape, uniform over the 3; the cue and delay lengths; the
-objects' positions (which one stands left, centre, right, and a jitter of about 1 cm); the arm's
-initial joints.
+**Randomisations** (MIKASA's): the cue shape, uniform over the N; the cue and delay lengths; the
+objects' positions (which one stands where, and a jitter of about 1 cm); the arm's initial joints.
 
 **Success:** MIKASA's: the TCP within 5 cm of the cue-shaped object's centre and the robot static,
 at any step.
 
 The writer sees every control step: it reads the cue's shape from the base camera's pixels
-(``read_cue_shape``: silhouette and shading) and writes ``the cue object was a {shape}.``; the
+(``read_cue_shape``: its silhouette and shading) and writes ``the cue object was a {shape}.``; the
 bank's decoys are worded alike about other things (``the key was a sphere.``). The controller sees
 ``ShapeControllerObservation`` only (never ``oracle_info``), so the shape reaches it only through
 its prompt.
@@ -46,7 +47,7 @@ INSTRUCTION = "observe the object's shape, wait, then touch the object of the sa
 FACT_TEMPLATE = "the {entity} was a {shape}."
 CUE_FACT = "the cue object was a {shape}."
 PROMPT_TEMPLATE = PromptTemplate(instructions=(INSTRUCTION,), fact_templates=(FACT_TEMPLATE,))
-SHAPE_TASKS = {"RememberShape3-VLA-v0": 3}  # the reader is calibrated for these only
+SHAPE_TASKS = {f"RememberShape{n}-VLA-v0": n for n in (3, 5, 9)}
 
 
 def shape_prompt(shape: str | None) -> str:
@@ -62,7 +63,7 @@ def shape_expert(n_shapes: int = 3, chunk_len: int = 8) -> ScriptedTouchControll
 
 
 class RememberShapeTask(MikasaCueTask):
-    """MIKASA-Robo-VLA's RememberShape3-VLA-v0: touch the object of the shape shown once, earlier."""
+    """MIKASA-Robo-VLA's RememberShape{3,5,9}-VLA-v0: touch the object of the shape shown once, earlier."""
 
     field, detector_key, truth_attribute = "shape", "shape", "true_shape_indices"
     cue_entity, cue_relation, cue_fact = CUE_ENTITY, CUE_RELATION, CUE_FACT
@@ -71,8 +72,7 @@ class RememberShapeTask(MikasaCueTask):
 
     def __init__(self, env_id: str = "RememberShape3-VLA-v0"):
         if env_id not in SHAPE_TASKS:
-            raise ValueError(f"unknown or uncalibrated RememberShape task {env_id!r}; expected one of "
-                             f"{sorted(SHAPE_TASKS)}")
+            raise ValueError(f"unknown RememberShape task {env_id!r}; expected one of {sorted(SHAPE_TASKS)}")
         super().__init__(env_id, SHAPE_TASKS[env_id])
 
     @property
@@ -84,7 +84,7 @@ class RememberShapeTask(MikasaCueTask):
         return self.words
 
     def read_cue(self, rgb: np.ndarray) -> str | None:
-        return read_cue_shape(rgb, self.n_shapes)
+        return read_cue_shape(rgb, self.shapes)
 
 
 __all__ = ["CUE_ENTITY", "CUE_FACT", "CUE_KEY", "FACT_TEMPLATE", "INSTRUCTION", "PROMPT_TEMPLATE", "RememberShapeTask",

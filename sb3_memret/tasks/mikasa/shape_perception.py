@@ -1,93 +1,140 @@
-"""What a camera sees of MIKASA-Robo-VLA's RememberShape3 task, and what a frozen controller may read.
+"""What a camera sees of MIKASA-Robo-VLA's RememberShape tasks, and what a frozen controller may read.
 
 ``read_cue_shape`` reads the cue's shape from pixels alone; ``ShapeControllerObservation`` strips the
 env's observation down to what a controller with a camera and a shape detector would see.
 
-Calibration (SAPIEN 3.0.3 rasteriser, lavapipe, the 128x128 ``base_camera``; MIKASA's evaluation
-seeds 4242424242 + i). Every shape is the same blue (0, 0, 255), 4 cm across, and the cue stands
-at the table centre in a fixed orientation with the arm parked (actions are no-ops in the cue
-phase), so a cue frame is the same, pixel for pixel, in every episode of a shape. The blue pixels
-(``cube_mask``: min channel <= 20, max >= 80; no table, floor or robot pixel passes) of the three
-cues, rows x columns of their bounding box, the share of it they fill, and the share of them on one
-of the two flat face shades (blue 231 top, 148 camera-facing side, +-6):
+Calibration (SAPIEN 3.0.3 rasteriser, lavapipe, the 128x128 ``base_camera``). Every shape is 4-6 cm
+across and the cue stands at the table centre in a fixed orientation with the arm parked (actions are
+no-ops in the cue phase), so a cue frame is the same, pixel for pixel, in every episode of a shape: its
+silhouette, each pixel marked by the shade of its brightest channel (``#`` the flat top-face shade
+231, ``+`` the flat camera-facing-side shade 148, ``o`` any other shade, ``.`` not the object), is
+one of ``SILHOUETTES``. Measured at seeds 5000-5059 of RememberShape9 (all nine shapes) and of
+RememberShapeAndColor5x3 (five of them in red, lime and blue: the same silhouettes in every colour):
 
-=========  ======  =====  =====  ====
-shape      pixels  box    fill   flat
-=========  ======  =====  =====  ====
-cube       24      6x4    1.00   1.00
-cylinder   18      5x4    0.90   1.00
-sphere     14      4x4    0.88   0.21
-=========  ======  =====  =====  ====
+=========  ======  ====  ==================================================
+shape      pixels  box   silhouette, top row first
+=========  ======  ====  ==================================================
+cube       24      6x4   ``####`` x4, ``++++`` x2
+sphere     14      4x4   ``o##o o#oo oooo .++.`` (smooth-shaded)
+cylinder   18      5x4   ``.##. #### #### +##+ ++++``
+cross      20      6x6   a plus sign two pixels thick
+torus      24      5x6   a ring around a two-pixel hole
+star       22      5x6   ``.####. .+##+. ###### ++##++ ..##..``
+pyramid    20      5x4   a square, its two sloping faces in side shade
+t shape    14      5x4   ``..## #### #### ..o# ..++``
+crescent   15      5x4   ``###. #### ..## .### ###.``
+=========  ======  ====  ==================================================
 
-The sphere is smooth-shaded (blue 153-238 over its 14 pixels); the cube's two faces and the
-cylinder's top and (at this resolution) side are flat. Area and aspect alone separate the three,
-shading separates the sphere from the others a second way; ``read_cue_shape`` takes the nearest of
-the measured prototypes and refuses a blob that is near none (a gripper finger over a shape, a
-shape cut by the frame). Calibrated for the first three shapes of MIKASA's SHAPE_MAPPING
-(RememberShape3) only: RememberShape5/9's cross, torus, star, ... are not.
+``silhouette_match`` scores a blob against a silhouette: the share of cells, over those either marks
+as object, on which both agree (half a point where both are object but shaded differently), at the
+best of the nine one-pixel shifts. Every silhouette scores 1.0 against itself and at most 0.75 against
+another (cube against pyramid and cylinder), so ``read_cue_shape`` takes the best of the candidates
+when it scores at least ``MIN_MATCH`` (0.875) and refuses a blob that matches none (a gripper finger
+over a shape, a shape cut by the frame). Over the cue frames of 60 episodes each of RememberShape3,
+RememberShape5 and RememberShape9 at seeds 5000-5059, every shape read right on every cue frame and no
+frame of the delay or choice phases read as a shape (``tests/test_mikasa_shape.py``).
 """
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Any, Sequence
 
 import gymnasium as gym
 import numpy as np
 
-from sb3_memret.tasks.mikasa.perception import FACE_LEVELS, REFERENCE_SIZE, DetectorObservation, cue_blob
+from sb3_memret.tasks.mikasa.perception import FACE_LEVELS, DetectorObservation, cue_blob
 
-# MIKASA's RememberShapeVLABaseEnv.SHAPE_MAPPING, in order: index i is actor ``shape_actors[i]``.
-SHAPE_NAMES: tuple[str, ...] = ("cube", "sphere", "cylinder", "cross", "torus", "star", "pyramide", "t_shape",
+# MIKASA's RememberShapeVLABaseEnv.SHAPE_MAPPING, in order: index i is actor ``shape_actors[i]``. Worded as prompts
+# word them (lowercase words: MIKASA's "pyramide" and "t_shape" are "pyramid" and "t shape").
+SHAPE_NAMES: tuple[str, ...] = ("cube", "sphere", "cylinder", "cross", "torus", "star", "pyramid", "t shape",
                                 "crescent")
-CALIBRATED_SHAPES = 3  # prototypes exist for cube, sphere and cylinder (RememberShape3)
-FLAT_LEVELS = (FACE_LEVELS["top"][255], FACE_LEVELS["side"][255])  # blue of a flat top / side face: 231, 148
-FLAT_TOL = 6
-# Each cue's silhouette at 128x128 (measured, see the table above): pixels, rows / columns of its
-# bounding box, the box's share it fills, and its share of flat-shaded pixels.
-PROTOTYPES: dict[str, tuple[float, float, float, float]] = {
-    "cube": (24.0, 1.50, 1.000, 1.00),
-    "sphere": (14.0, 1.00, 0.875, 0.21),
-    "cylinder": (18.0, 1.25, 0.900, 1.00),
+# Each shape's cue at the table centre in the 128x128 base camera (measured, see the table above).
+SILHOUETTES: dict[str, tuple[str, ...]] = {
+    "cube": ("####", "####", "####", "####", "++++", "++++"),
+    "sphere": ("o##o", "o#oo", "oooo", ".++."),
+    "cylinder": (".##.", "####", "####", "+##+", "++++"),
+    "cross": ("..##..", "..##..", "######", "######", "..##..", "..##.."),
+    "torus": (".####.", "##++##", "##..##", "+####+", ".+##+."),
+    "star": (".####.", ".+##+.", "######", "++##++", "..##.."),
+    "pyramid": ("####", "####", "#++#", "#++#", "++++"),
+    "t shape": ("..##", "####", "####", "..o#", "..++"),
+    "crescent": ("###.", "####", "..##", ".###", "###."),
 }
-# How far a feature may stray, per prototype distance unit: pixels in log-ratio, aspect, fill, flat share.
-FEATURE_SCALE = np.array([0.12, 0.15, 0.08, 0.25])
-MAX_DISTANCE = 1.0  # a blob farther than this from every prototype is not read (the prototypes are >= 3.1 apart)
+SHADES = {".": 0, "#": 1, "+": 2, "o": 3}
+TOP_SHADE, SIDE_SHADE = FACE_LEVELS["top"][255], FACE_LEVELS["side"][255]  # 231, 148 in any of R, G, B
+SHADE_TOL = 8
+MIN_MATCH = 0.875  # a blob matching no silhouette this well is not read (two silhouettes match at most 0.75)
+SHIFTS = (-1, 0, 1)  # pixels a blob may sit off a silhouette's alignment, down and across
 
 
-def shape_features(rgb: np.ndarray, blob: np.ndarray) -> np.ndarray:
-    """(pixels at 128x128, rows / columns of the bounding box, fill of the box, share of flat-shaded pixels)."""
-    scale = np.array(blob.shape) / REFERENCE_SIZE
+def check_shapes(shapes: Sequence[str] | int) -> tuple[str, ...]:
+    """``shapes`` as a tuple of names, each one of ``SHAPE_NAMES`` (a number n: the first n of them); else a
+    ValueError naming the unknown ones."""
+    if isinstance(shapes, int):
+        if not 1 <= shapes <= len(SHAPE_NAMES):
+            raise ValueError(f"a number of shapes must be in 1..{len(SHAPE_NAMES)}, got {shapes}")
+        return SHAPE_NAMES[:shapes]
+    shapes = tuple(shapes)
+    unknown = [s for s in shapes if s not in SILHOUETTES]
+    if not shapes or unknown:
+        raise ValueError(f"unknown shapes {unknown} (or none given); expected some of {list(SHAPE_NAMES)}")
+    return shapes
+
+
+def silhouette(rgb: np.ndarray, blob: np.ndarray) -> np.ndarray:
+    """The blob's bounding box as shade codes (``SHADES``): top face, side face, other shade, not the blob."""
     cells = np.argwhere(blob)
-    rows, cols = cells.max(axis=0) - cells.min(axis=0) + 1
-    area = len(cells)
-    brightest = np.asarray(rgb)[blob].max(axis=-1).astype(np.float32)
-    flat = np.min([np.abs(brightest - level) for level in FLAT_LEVELS], axis=0) <= FLAT_TOL
-    return np.array([area / scale.prod(), rows / cols, area / (rows * cols), flat.mean()])
+    (r0, c0), (r1, c1) = cells.min(axis=0), cells.max(axis=0) + 1
+    value = np.asarray(rgb)[r0:r1, c0:c1].max(axis=-1).astype(np.int16)
+    codes = np.full(value.shape, SHADES["o"], dtype=np.int8)
+    codes[np.abs(value - TOP_SHADE) <= SHADE_TOL] = SHADES["#"]
+    codes[np.abs(value - SIDE_SHADE) <= SHADE_TOL] = SHADES["+"]
+    codes[~blob[r0:r1, c0:c1]] = SHADES["."]
+    return codes
 
 
-def shape_distances(features: np.ndarray, n_shapes: int) -> np.ndarray:
-    """The scaled distance of ``features`` to each of the first ``n_shapes`` shapes' prototypes."""
-    protos = np.array([PROTOTYPES[name] for name in SHAPE_NAMES[:n_shapes]])
-    delta = np.column_stack([np.log(features[0] / protos[:, 0]), features[1:] - protos[:, 1:]]) / FEATURE_SCALE
-    return np.linalg.norm(delta, axis=1)
+def _codes(rows: Sequence[str]) -> np.ndarray:
+    return np.array([[SHADES[c] for c in row] for row in rows], dtype=np.int8)
 
 
-def read_cue_shape(rgb: np.ndarray, n_shapes: int = 3) -> str | None:
-    """The shape of the one object at the table centre, or None when no object or several are in view.
+def silhouette_match(grid: np.ndarray, rows: Sequence[str]) -> float:
+    """How well shade codes ``grid`` match the silhouette ``rows``: agreeing cells (0.5 for object cells
+    shaded differently) over the cells either marks as object, at the best one-pixel shift."""
+    template = _codes(rows)
+    pad = max(abs(s) for s in SHIFTS)
+    height = max(grid.shape[0], template.shape[0]) + 2 * pad
+    width = max(grid.shape[1], template.shape[1]) + 2 * pad
+    seen = np.zeros((height, width), dtype=np.int8)
+    seen[pad:pad + grid.shape[0], pad:pad + grid.shape[1]] = grid
+    best = 0.0
+    for dr in SHIFTS:
+        for dc in SHIFTS:
+            shape = np.zeros_like(seen)
+            shape[pad + dr:pad + dr + template.shape[0], pad + dc:pad + dc + template.shape[1]] = template
+            both = (seen > 0) & (shape > 0)
+            agree = np.sum(both & (seen == shape)) + 0.5 * np.sum(both & (seen != shape))
+            best = max(best, float(agree / np.sum((seen > 0) | (shape > 0))))
+    return best
 
-    Reads one base-camera frame (H, W, 3) uint8 only: the cue phase is the only phase with exactly
-    one object in sight, at the table centre. Its silhouette and shading go to the nearest of the
-    first ``n_shapes`` shapes' prototypes; a blob near none of them reads as None.
+
+def read_cue_shape(rgb: np.ndarray, shapes: Sequence[str] | int = 3) -> str | None:
+    """The shape, one of ``shapes`` (names, or n for the first n of ``SHAPE_NAMES``), of the one object at the
+    table centre; None when no object or several are in view, or when its silhouette matches none of theirs.
+
+    Reads one base-camera frame (H, W, 3) uint8 only, at 128x128 (the silhouettes' resolution): the cue
+    phase is the only phase with exactly one object in sight, at the table centre.
     """
-    if not 1 <= n_shapes <= CALIBRATED_SHAPES:
-        raise ValueError(f"read_cue_shape is calibrated for the first {CALIBRATED_SHAPES} shapes "
-                         f"{SHAPE_NAMES[:CALIBRATED_SHAPES]} (RememberShape3), got n_shapes={n_shapes}")
+    shapes = check_shapes(shapes)
+    rgb = np.asarray(rgb)
+    if rgb.shape[:2] != (128, 128):
+        raise ValueError(f"the silhouettes are measured at 128x128 (MIKASA's base camera), got a frame of {rgb.shape}")
     blob = cue_blob(rgb)
     if blob is None:
         return None
-    distances = shape_distances(shape_features(rgb, blob), n_shapes)
-    best = int(distances.argmin())
-    return SHAPE_NAMES[best] if distances[best] <= MAX_DISTANCE else None
+    grid = silhouette(rgb, blob)
+    scores = [silhouette_match(grid, SILHOUETTES[s]) for s in shapes]
+    best = int(np.argmax(scores))
+    return shapes[best] if scores[best] >= MIN_MATCH else None
 
 
 def _shape_actors(base: Any) -> list[Any]:
@@ -103,5 +150,5 @@ class ShapeControllerObservation(DetectorObservation):
         self.n_shapes = self.n_objects
 
 
-__all__ = ["CALIBRATED_SHAPES", "DetectorObservation", "PROTOTYPES", "SHAPE_NAMES", "ShapeControllerObservation",
-           "read_cue_shape", "shape_distances", "shape_features"]
+__all__ = ["DetectorObservation", "MIN_MATCH", "SHAPE_NAMES", "SILHOUETTES", "ShapeControllerObservation",
+           "check_shapes", "read_cue_shape", "silhouette", "silhouette_match"]
