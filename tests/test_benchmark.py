@@ -167,3 +167,47 @@ def test_the_agent_plays_mikasas_harness_from_cameras_only(tmp_path, monkeypatch
     assert json.loads((tmp_path / "results.json").read_text()) == content
     again = run_benchmark(run, tmp_path, workers=1)
     assert again == content and len((tmp_path / "episodes.jsonl").read_text().splitlines()) == 3
+
+
+LEARNER = """n_timesteps: 16
+n_envs: 1
+n_steps: 16
+batch_size: 8
+n_epochs: 1
+policy_kwargs:
+  exploration: episode
+env_kwargs:
+  task: RememberColor3-VLA-v0
+  mode: recall
+  capacity: 6
+  k: 1
+  replan_every: 4
+  location_decoys: 5
+"""
+
+
+def test_recall_retrieves_from_the_writers_bank_in_the_harness(tmp_path):
+    """``benchmark learners`` trains a (one-round) learner on the real task; the recall condition then plays the
+    harness with it: every prompt's fact is one of the bank's (the written cue fact or a decoy worded alike)."""
+    import yaml
+
+    from sb3_memret.benchmark.learners import train_learners
+    from sb3_memret.benchmark.runner import plan
+    from sb3_memret.config import parse_section
+
+    env_id = "RememberColor3-VLA-v0"
+    outcomes = train_learners([env_id, "ShellGameTouch-VLA-v0"], tmp_path / "learners", eval_episodes=1,
+                              load_config=lambda name: parse_section(yaml.safe_load(LEARNER), name))
+    assert [o.status for o in outcomes] == ["trained", "refused"]
+    assert (tmp_path / "learners" / env_id / "final_model.zip").is_file()
+    assert [o.status for o in train_learners([env_id], tmp_path / "learners")] == ["kept"]
+
+    run = plan(Protocol(seed_set="dev", episodes=1), ["recall"], env_ids=[env_id], learners=tmp_path / "learners")
+    content = run_benchmark(run, tmp_path / "run", tmp_path / "learners", workers=1)
+    assert content["tasks"][env_id]["conditions"]["recall"]["episodes"] == 1
+    record, = (json.loads(line) for line in (tmp_path / "run" / "episodes.jsonl").read_text().splitlines())
+    instruction = "observe the cube's color, wait, then touch the cube of the same color."
+    fact = record["prompt"].removeprefix(instruction + " ")
+    assert fact.startswith("the ") and fact.endswith(".") and " was " in fact
+    missing = plan(Protocol(seed_set="dev", episodes=1), ["recall"], env_ids=[env_id], learners=tmp_path / "none")
+    assert "no trained memory learner" in missing.refused_conditions[env_id, "recall"]

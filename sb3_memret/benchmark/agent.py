@@ -17,7 +17,7 @@ from __future__ import annotations
 
 import dataclasses
 from pathlib import Path
-from typing import Any, Mapping, Sequence
+from typing import TYPE_CHECKING, Any, Mapping, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -26,8 +26,10 @@ from sb3_memret.controllers.base import FrozenController
 from sb3_memret.prompts import build_prompt
 from sb3_memret.tasks.base import EnvFrame, Episode, Task
 
+if TYPE_CHECKING:
+    from sb3_memret.rollout import FactSchedule
+
 CONDITIONS = ("none", "oracle", "wrong", "written", "recall")
-WRITTEN_CAPACITY = 64  # a bank that never evicts: every fact the writer wrote reaches the prompt
 
 
 def check_conditions(conditions: Sequence[str]) -> list[str]:
@@ -71,6 +73,32 @@ class MemoryLearner:
         return np.asarray(slots).reshape(-1)
 
 
+class RecalledFacts:
+    """The recall condition's facts (a ``sb3_memret.rollout.FactSchedule``): what ``learner`` retrieves at each
+    decision from a bank that the task's writer fills and its decoys seed (the learner's run settings), its retention
+    critic evicting."""
+
+    def __init__(self, task: Task, learner: MemoryLearner, template: Any, encoder: Any, seed: int):
+        from sb3_memret.envs.recall_memory import EpisodeMemory
+        from sb3_memret.memory.seeding import SeedingConfig
+
+        settings = learner.settings
+        seeding = dataclasses.replace(SeedingConfig(), **{k: settings[k] for k in ("location_decoys", "holding_decoys")
+                                                          if settings.get(k) is not None})
+        self.learner, self.seed = learner, seed
+        self.memory = EpisodeMemory(settings["capacity"], "recall", encoder, learner.keep_scores, template, seeding,
+                                    settings.get("memory_source", "seeded"), age_unit=settings["age_unit"], task=task)
+
+    def start(self, frame: EnvFrame, episode: Episode) -> None:
+        self.memory.start(frame, np.random.default_rng(self.seed))
+
+    def observe(self, frame: EnvFrame) -> None:
+        self.memory.observe(frame)
+
+    def facts(self, decision: int) -> list[str]:
+        return [entry.text for entry in self.memory.choose(self.learner.retrieve(self.memory.observation()))]
+
+
 class MemoryAgent:
     """MIKASA's ``ChunkPolicy`` for one condition: ``bind`` it to a task's harness env, ``begin`` each episode
     with its seed, then let the harness call ``forward``."""
@@ -93,7 +121,8 @@ class MemoryAgent:
         self._seed: int | None = None
         self._queue: list[np.ndarray] = []
         self._steps = 0
-        self.memory: Any = None
+        self.schedule: "FactSchedule | None" = None
+        self.decisions = 0
         self.episode: Episode | None = None
         self.prompts: list[str] = []  # the prompts of the current episode's decisions, in order
 
@@ -117,23 +146,6 @@ class MemoryAgent:
             raise RuntimeError("bind() the agent to its harness env before an episode")
         self._seed, self._queue, self._steps = int(seed), [], 0
 
-    def _memory(self) -> Any:
-        """A fresh bank for the episode: the learner's run settings for recall; for written, one that keeps all."""
-        from sb3_memret.envs.recall_memory import EpisodeMemory
-        from sb3_memret.memory.seeding import SeedingConfig
-
-        template = self.controller.spec.prompt_template
-        if self.condition == "written":
-            seeding = SeedingConfig(location_decoys=0, holding_decoys=0)
-            return EpisodeMemory(WRITTEN_CAPACITY, "recall", self.encoder, _keep_all, template, seeding,
-                                 task=self.task)
-        settings = self.learner.settings
-        seeding = dataclasses.replace(SeedingConfig(), **{k: settings[k] for k in ("location_decoys", "holding_decoys")
-                                                          if settings.get(k) is not None})
-        return EpisodeMemory(settings["capacity"], "recall", self.encoder, self.learner.keep_scores, template,
-                             seeding, settings.get("memory_source", "seeded"), age_unit=settings["age_unit"],
-                             task=self.task)
-
     # ------------------------------------------------------------ acting
     def _frame(self, obs: Mapping[str, Any], view: Mapping[str, Any], first: bool) -> EnvFrame:
         frame, = self.task.frames(self.env, view, {"success": np.zeros(1, dtype=bool)}, reset=first)
@@ -143,22 +155,14 @@ class MemoryAgent:
         return frame
 
     def _start(self, frame: EnvFrame) -> None:
-        self.episode, self.prompts = self.task.episode(frame), []
-        self.controller.reset([self._seed])
-        if self.condition in ("written", "recall"):
-            self.memory = self._memory()
-            self.memory.start(frame, np.random.default_rng(self._seed))
+        from sb3_memret.rollout import condition_schedule
 
-    def _facts(self) -> list[str]:
-        if self.condition == "oracle":
-            return self.task.oracle_facts(self.episode)
-        if self.condition == "wrong":
-            return self.task.wrong_facts(self.episode)
-        if self.condition == "written":
-            return [entry.text for entry in self.memory.bank.entries]
-        if self.condition == "recall":
-            return [entry.text for entry in self.memory.choose(self.learner.retrieve(self.memory.observation()))]
-        return []
+        self.episode, self.prompts, self.decisions = self.task.episode(frame), [], 0
+        self.controller.reset([self._seed])
+        self.schedule = RecalledFacts(self.task, self.learner, self.controller.spec.prompt_template, self.encoder,
+                                      self._seed) if self.condition == "recall" else \
+            condition_schedule(self.task, self.condition)
+        self.schedule.start(frame, self.episode)
 
     def forward(self, obs: Mapping[str, Any]) -> np.ndarray:
         """The next action (7,) for the harness's observation (its ``rgb`` and ``proprio`` only are read)."""
@@ -174,11 +178,12 @@ class MemoryAgent:
         frame = self._frame(obs, view, first)
         if first:
             self._start(frame)
-        elif self.memory is not None:
-            self.memory.observe(frame)
+        else:
+            self.schedule.observe(frame)
         if not self._queue:
-            prompt = build_prompt(self.task.instruction(self.episode), self._facts(),
+            prompt = build_prompt(self.task.instruction(self.episode), self.schedule.facts(self.decisions),
                                   self.controller.spec.prompt_template)
+            self.decisions += 1
             self.prompts.append(prompt)
             chunk = self.controller.act(stack_obs([view]), [prompt])[0][:self.replan_every]
             self._queue = [np.asarray(action, dtype=np.float32) for action in chunk]
@@ -186,9 +191,4 @@ class MemoryAgent:
         return self._queue.pop(0)
 
 
-def _keep_all(entries: Sequence[Any], ages: np.ndarray) -> np.ndarray:
-    """Keep-scores for a bank that never fills (``WRITTEN_CAPACITY``): all equal."""
-    return np.zeros(len(entries))
-
-
-__all__ = ["CONDITIONS", "MemoryAgent", "MemoryLearner", "check_conditions"]
+__all__ = ["CONDITIONS", "MemoryAgent", "MemoryLearner", "RecalledFacts", "check_conditions"]
