@@ -16,20 +16,20 @@ from sb3_memret.tasks.base import EnvFrame, Episode, Predicates, Task, Writer
 
 DEFAULT_TASK = "drawer"
 _FACTORIES: dict[str, Callable[[], Task]] = {}
-# task names that exist elsewhere but cannot run here, by prefix, with the reason
-UNAVAILABLE = {
-    "ShellGame": "MIKASA's ShellGame tasks need the YCB mug model, which ManiSkill downloads at run time "
-                 "(no downloads on this machine's stack)",
-}
+# why a registered task cannot run here (e.g. a missing asset), or None when it can: checked whenever it is named
+_UNAVAILABLE: dict[str, Callable[[], str | None]] = {}
 
 
-def register_task(name: str, factory: Callable[[], Task]) -> None:
-    """Make ``name`` a task ``--task`` and ``make_task`` accept; ``factory()`` builds it."""
+def register_task(name: str, factory: Callable[[], Task], unavailable: Callable[[], str | None] | None = None) -> None:
+    """Make ``name`` a task ``--task`` and ``make_task`` accept; ``factory()`` builds it. ``unavailable()``, if
+    given, says why it cannot run here (a missing asset: what and how to get it), or None when it can."""
     if not name or not isinstance(name, str):
         raise ValueError(f"a task name must be a non-empty string, got {name!r}")
     if name in _FACTORIES:
         raise ValueError(f"task {name!r} is already registered")
     _FACTORIES[name] = factory
+    if unavailable is not None:
+        _UNAVAILABLE[name] = unavailable
 
 
 def task_names() -> list[str]:
@@ -66,16 +66,16 @@ def _import_task(spec: str) -> Task:
 
 
 def check_task_name(name: str) -> str:
-    """``name`` if it is a registered task or a ``module:Class`` that imports; else a ValueError that says
-    why it cannot run or lists the names."""
+    """``name`` if it is a registered task that can run here or a ``module:Class`` that imports; else a one-line
+    ValueError that says why it cannot run or lists the names."""
     if name in _FACTORIES:
+        reason = _UNAVAILABLE[name]() if name in _UNAVAILABLE else None
+        if reason is not None:
+            raise ValueError(f"task {name!r} is not available: {reason}")
         return name
     if ":" in str(name):
         _import_task(name)
         return name
-    reason = next((why for prefix, why in UNAVAILABLE.items() if str(name).startswith(prefix)), None)
-    if reason is not None:
-        raise ValueError(f"task {name!r} is not available: {reason}; available tasks: {task_names()}")
     raise ValueError(f"unknown task {name!r}; expected one of {task_names()}")
 
 
@@ -94,6 +94,10 @@ register_task("SeqOfColors3-VLA-v0",
 register_task("TakeItBack-VLA-v0", _lazy("sb3_memret.tasks.mikasa.take_it_back", "TakeItBackTask", "TakeItBack-VLA-v0"))
 for _env_id in ("RememberShape5-VLA-v0", "RememberShape9-VLA-v0"):
     register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.remember_shape", "RememberShapeTask", _env_id))
+for _env_id in ("ShellGameTouch-VLA-v0", "ShellGamePush-VLA-v0", "ShellGameColorLampTouch-VLA-v0",
+                "ShellGameShuffleTouch-VLA-v0", "ShellGameShuffleColorLampTouch-VLA-v0"):  # they need the YCB mug
+    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.shell_game", "shell_game_task", _env_id),
+                  lambda: importlib.import_module("sb3_memret.tasks.mikasa.shell_game").ycb_mug_missing())
 
-__all__ = ["DEFAULT_TASK", "EnvFrame", "Episode", "Predicates", "Task", "UNAVAILABLE", "Writer", "check_task_name",
+__all__ = ["DEFAULT_TASK", "EnvFrame", "Episode", "Predicates", "Task", "Writer", "check_task_name",
            "make_task", "register_task", "task_names"]
