@@ -496,6 +496,11 @@ def test_the_colour_lamp_expert_follows_the_fact_about_the_lamps_colour():
     assert chunk[0, :, 1].sum() < -1  # heading for the left cup (-y), where the green ball is
     with pytest.raises(ValueError, match="LampCupObservation"):
         expert.act(_obs([0.0, 0.0, 0.3], places), [template.instructions[0]])
+    task = ShellGameColorLampTask()
+    state = task.demo_frame(_obs([0.0, 0.0, 0.3], places, lamp="green"), False)["observation.state"]
+    names = task.demo_features(False)["observation.state"]["names"]
+    assert len(state) == len(names) and state[names.index("lamp_green_visible")] == 1
+    assert state[names.index("cup_left_y")] == pytest.approx(-0.2)
 
 
 @pytest.mark.parametrize("side", SIDES)
@@ -538,6 +543,7 @@ def test_facts_decoys_and_prompts_follow_the_contract(env_id):
         parse_prompt(build_prompt(task.instruction(episode), facts, task.template), task.expert().spec.prompt_template)
     writer = task.writer()
     assert writer.relations == {"ball": (MemoryType.OTHER, "is_under_the")}
+    assert isinstance(task.expert(), CupTouchController)
     assert isinstance(task.expert(), CupPushController) == VARIANTS[env_id].push
     names = task.demo_features(False)["observation.state"]["names"]
     assert "cup_left_x" in names and ("lamp_red_visible" in names) == (n == 3)
