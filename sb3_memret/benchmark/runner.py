@@ -85,10 +85,16 @@ class Plan:
                 if (t.env_id, c) not in self.refused_conditions for s in seeds if Unit(t.env_id, c, s) not in done]
 
 
+INTERFACE_MODULES = ("sb3_memret.tasks.base", "sb3_memret.controllers.base")  # interfaces and defaults, not digested
+
+
 def code_digest(*classes: type) -> str:
     """SHA-256 of the code of ``classes`` and their sb3-memret base classes: each defining module's syntax tree
-    without its docstrings, so an edited comment or docstring leaves it as it was and a changed line does not."""
-    modules = sorted({k.__module__ for cls in classes for k in cls.__mro__ if k.__module__.startswith("sb3_memret")})
+    without its docstrings, so an edited comment or docstring leaves it as it was and a changed line does not. The
+    two interface modules (``Task``, ``FrozenController``) are left out: they grow with every new task hook, and a
+    long run's episodes should not be replayed for a hook its tasks do not use."""
+    modules = sorted({k.__module__ for cls in classes for k in cls.__mro__
+                      if k.__module__.startswith("sb3_memret") and k.__module__ not in INTERFACE_MODULES})
     digest = hashlib.sha256()
     for name in modules:
         tree = ast.parse(Path(inspect.getsourcefile(sys.modules[name])).read_text())
