@@ -11,6 +11,10 @@ itself, returning that chunk's actions one per call. What the controller's promp
   writer end to end);
 - ``recall``: with the facts a trained memory learner retrieves from a bank holding the writer's facts and the
   task's decoys (its run's settings: capacity, K, decoys, age unit), greedily, its retention critic evicting.
+
+The instruction is the task's; where each episode's is the one its env states (``Task.instruction_in_info``: MIKASA's
+Rotate names the angle to turn in ``info["language_instruction"]``), the agent asks the env for it at the episode's
+first step (``stated_instruction``), as the harness keeps the reset's info from its policy.
 """
 
 from __future__ import annotations
@@ -148,7 +152,10 @@ class MemoryAgent:
 
     # ------------------------------------------------------------ acting
     def _frame(self, obs: Mapping[str, Any], view: Mapping[str, Any], first: bool) -> EnvFrame:
-        frame, = self.task.frames(self.env, view, {"success": np.zeros(1, dtype=bool)}, reset=first)
+        info: dict[str, Any] = {"success": np.zeros(1, dtype=bool)}
+        if first and self.task.instruction_in_info:
+            info["language_instruction"] = stated_instruction(self.env)
+        frame, = self.task.frames(self.env, view, info, reset=first)
         frame.steps = 0 if first else 1
         if self.task.perceives_every_step:
             frame.percepts = [self.task.perceive(self.env, view)]
@@ -191,4 +198,12 @@ class MemoryAgent:
         return self._queue.pop(0)
 
 
-__all__ = ["CONDITIONS", "MemoryAgent", "MemoryLearner", "RecalledFacts", "check_conditions"]
+def stated_instruction(env: gym.Env) -> Any:
+    """The instruction MIKASA's env states for the episode under way, ``info["language_instruction"]`` (one per env).
+    The harness keeps the reset's info from its policy, so the env is asked for its info again (``get_info``, which
+    evaluates the state the reset left, unchanged) and that key alone is kept: the protocol's policy inputs are the
+    images, proprioception and the instruction, never the rest of the info (``oracle_info``, ``task_cue``)."""
+    return env.unwrapped.get_info()["language_instruction"]
+
+
+__all__ = ["CONDITIONS", "MemoryAgent", "MemoryLearner", "RecalledFacts", "check_conditions", "stated_instruction"]

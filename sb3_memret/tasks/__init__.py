@@ -98,6 +98,9 @@ for _env_id in ("ShellGameTouch-VLA-v0", "ShellGamePush-VLA-v0", "ShellGameColor
                 "ShellGameShuffleTouch-VLA-v0", "ShellGameShuffleColorLampTouch-VLA-v0"):  # they need the YCB mug
     register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.shell_game", "shell_game_task", _env_id),
                   lambda: importlib.import_module("sb3_memret.tasks.mikasa.shell_game").ycb_mug_missing())
+for _env_id in ("RotateLenientPos-VLA-v0", "RotateLenientPosNeg-VLA-v0", "RotateStrictPos-VLA-v0",
+                "RotateStrictPosNeg-VLA-v0"):
+    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.rotate", "RotateTask", _env_id))
 
 __all__ = ["DEFAULT_TASK", "EnvFrame", "Episode", "Predicates", "Task", "Writer", "check_task_name",
            "make_task", "register_task", "task_names"]

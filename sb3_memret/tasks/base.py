@@ -122,6 +122,10 @@ class Task(ABC):
     #: for a task that ends at success: the env's reward at each step once it has succeeded (what the cut-off
     #: steps would have paid, ``sb3_memret.rewards.absorbing_success_value``); required with ``ends_at_success``
     success_reward: ClassVar[float | None] = None
+    #: whether each episode's instruction is the one its env states in the reset's ``info["language_instruction"]``
+    #: (MIKASA's Rotate names a new angle every episode there): ``frames`` reads it from the reset's info, and
+    #: MIKASA's harness, which keeps the reset's info from its policy, is asked for that key (``benchmark.agent``)
+    instruction_in_info: ClassVar[bool] = False
 
     @property
     def config_key(self) -> str:
