@@ -264,8 +264,9 @@ class EpisodeMemory:
         return slots[0] if slots and self.facts_in_bank() else -1
 
     def retrieved_true(self, chosen: list[MemoryEntry]) -> bool:
-        """Whether ``chosen`` holds every memory the controller needs (a hit)."""
-        return {(e.key, e.value) for e in chosen if self.is_true(e)} == set(self.truth.true_facts)
+        """Whether ``chosen`` holds every memory the controller needs (a hit): a true entry for each true fact's key
+        (a bank holds one entry per key; a task may count a value near the truth as true, ``Episode.is_true``)."""
+        return {e.key for e in chosen if self.is_true(e)} == {key for key, _ in self.truth.true_facts}
 
     def observation(self) -> dict[str, np.ndarray]:
         views = [store.view(self.ages(store.entries)) for store in self.stores]

@@ -98,6 +98,9 @@ for _env_id in ("ShellGameTouch-VLA-v0", "ShellGamePush-VLA-v0", "ShellGameColor
                 "ShellGameShuffleTouch-VLA-v0", "ShellGameShuffleColorLampTouch-VLA-v0"):  # they need the YCB mug
     register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.shell_game", "shell_game_task", _env_id),
                   lambda: importlib.import_module("sb3_memret.tasks.mikasa.shell_game").ycb_mug_missing())
+for _env_id in ("InterceptSlow-VLA-v0", "InterceptMedium-VLA-v0", "InterceptFast-VLA-v0", "InterceptGrabSlow-VLA-v0",
+                "InterceptGrabMedium-VLA-v0", "InterceptGrabFast-VLA-v0"):
+    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.intercept", "InterceptTask", _env_id))
 for _env_id in ("RotateLenientPos-VLA-v0", "RotateLenientPosNeg-VLA-v0", "RotateStrictPos-VLA-v0",
                 "RotateStrictPosNeg-VLA-v0"):
     register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.rotate", "RotateTask", _env_id))
