@@ -130,9 +130,11 @@ def task_digest(task: Any) -> str:
 def _reason(err: BaseException) -> str:
     """An error's first clause: why, without the list of what would be accepted."""
     text = str(err).splitlines()[0]
+    if text.startswith("unknown task"):
+        return "no sb3-memret task implements it yet"
     for cut in ("; available tasks", "; expected one of"):
         text = text.split(cut)[0]
-    return text
+    return text.removeprefix("task ").split(" is not available: ")[-1]
 
 
 def learner_path(learners: Path | None, env_id: str) -> Path | None:
