@@ -525,7 +525,8 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
 @click.option("--port", type=click.IntRange(1, 65535), default=8000, show_default=True)
 def serve(controller: str, host: str, port: int) -> None:
     """Serve the frozen CONTROLLER (as --controller takes it) over openpi's websocket protocol, with
-    openpi's own server: `--controller openpi://HOST:PORT` then runs it from any command."""
+    openpi's own server: `--controller openpi://HOST:PORT` then runs it from any command. One Ctrl-C or
+    SIGTERM stops it: open connections close once any inference in progress has replied."""
     from sb3_memret.stage1.serve import ControllerPolicy, serve as serve_policy
 
     try:
@@ -533,7 +534,10 @@ def serve(controller: str, host: str, port: int) -> None:
     except (ValueError, OSError, ImportError, RuntimeError) as err:
         raise click.BadParameter(str(err), param_hint="CONTROLLER") from err
     click.echo(f"serving {controller} on ws://{host}:{port} (openpi protocol; Ctrl-C stops)", err=True)
-    serve_policy(policy, host, port)
+    try:
+        serve_policy(policy, host, port)
+    except OSError as err:  # it could not listen there (the port is taken, say)
+        raise click.BadParameter(f"cannot serve on {host}:{port}: {err.strerror or err}", param_hint="--port") from err
 
 
 @main.command()

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import asyncio
+import os
 import signal
 import socket
 import subprocess
@@ -17,6 +18,8 @@ import pytest
 
 pytest.importorskip("openpi_server", reason="openpi-server is not installed (pip install --no-deps openpi-server)")
 
+import websockets.sync.client  # noqa: E402
+from openpi_client import msgpack_numpy  # noqa: E402
 from openpi_server import WebsocketPolicyServer  # noqa: E402
 
 from sb3_memret.controllers import make_controller  # noqa: E402
@@ -25,9 +28,11 @@ from sb3_memret.controllers.openpi import PolicyServerClient, PolicyServerError 
 from sb3_memret.controllers.scripted import ScriptedDrawerController  # noqa: E402
 from sb3_memret.prompts import condition_prompt  # noqa: E402
 from sb3_memret.rollout import evaluate_condition, execute_chunk  # noqa: E402
-from sb3_memret.stage1.serve import ControllerPolicy  # noqa: E402
+from sb3_memret.stage1.serve import ControllerPolicy, serve, serve_until_stopped  # noqa: E402
+from sb3_memret.workers import StopRequested, stop_signals_interrupt  # noqa: E402
 
 DECISIONS = 6  # enough for the scripted expert to leave its first phase
+EXIT_BOUND = 60.0  # s a served controller may take to exit after one stop signal: generous, it is no benchmark
 
 
 def free_port() -> int:
@@ -163,26 +168,171 @@ def test_a_stateless_learned_controller_over_the_wire(task_env):
     np.testing.assert_allclose(remote.act(batch, prompts), local.act(batch, prompts), atol=1e-5)
 
 
-def test_the_cli_serves_the_scripted_expert_for_a_whole_episode(task_env):
+class _SigtermWhenCollected:
+    """Raises SIGTERM from its ``__del__``, so that the signal's Python handler runs inside it: as when the signal
+    arrives while the event loop collects a hung-up client's transport (or drops a weak set's entry)."""
+
+    def __del__(self) -> None:
+        signal.raise_signal(signal.SIGTERM)
+
+
+class SigtermInInference(ControllerPolicy):
+    """The scripted expert, whose every inference is interrupted by a SIGTERM caught inside a ``__del__``."""
+
+    def infer(self, request: dict) -> dict:
+        _SigtermWhenCollected()  # collected at once, in the event loop's thread
+        return super().infer(request)
+
+
+def test_a_sigterm_caught_inside_a_del_stops_the_server_after_the_inference_in_flight(task_env):
+    """A ``__del__`` swallows whatever its code raises; the stop signal must survive that (it once did not, and the
+    server served on until a second SIGTERM). serve() runs here, in the main thread, under the CLI's signal handling."""
+    port, lines, seen = free_port(), [], {}
+    obs, _ = task_env.reset(seed=0)
+    request = state_request(obs, condition_prompt("oracle", 1))
+
+    def client() -> None:
+        try:
+            wait_healthy(port)
+            with websockets.sync.client.connect(f"ws://127.0.0.1:{port}", compression=None, max_size=None) as ws:
+                ws.recv(timeout=EXIT_BOUND)  # metadata
+                ws.send(msgpack_numpy.packb(request))
+                seen["reply"] = msgpack_numpy.unpackb(ws.recv(timeout=EXIT_BOUND))
+                ws.recv(timeout=EXIT_BOUND)
+        except websockets.exceptions.ConnectionClosed as closed:
+            seen["close code"] = closed.rcvd.code if closed.rcvd else None
+        except BaseException as err:  # reported below, in the test's thread
+            seen["error"] = err
+
+    def second_sigterm() -> None:  # only if the first was lost: it ends the server, and the test fails
+        seen["second SIGTERM"] = True
+        os.kill(os.getpid(), signal.SIGTERM)
+
+    watchdog = threading.Timer(EXIT_BOUND, second_sigterm)
+    thread = threading.Thread(target=client)
+    with stop_signals_interrupt():
+        watchdog.start()
+        thread.start()
+        try:
+            with pytest.raises(StopRequested):
+                serve(SigtermInInference("scripted"), "127.0.0.1", port, log=lines.append)
+        finally:
+            watchdog.cancel()
+    thread.join(EXIT_BOUND)
+    assert "second SIGTERM" not in seen and "error" not in seen, seen
+    assert seen["reply"]["actions"].shape == (32, 7)  # the inference in flight answered
+    assert seen["close code"] == 1001  # then the server went away
+    assert lines[0].startswith("SIGTERM: stopping;") and lines[1].startswith("stopped on SIGTERM after")
+
+
+def silent_client(port: int) -> socket.socket:
+    """A websocket client that, once the server has greeted it, never reads or answers again (a hung peer)."""
+    sock = socket.create_connection(("127.0.0.1", port), timeout=EXIT_BOUND)
+    sock.sendall(b"GET / HTTP/1.1\r\nHost: 127.0.0.1\r\nUpgrade: websocket\r\nConnection: Upgrade\r\n"
+                 b"Sec-WebSocket-Key: dGhlIHNhbXBsZSBub25jZQ==\r\nSec-WebSocket-Version: 13\r\n\r\n")
+    received = b""
+    while b"\r\n\r\n" not in received or received.endswith(b"\r\n\r\n"):  # the 101 reply, then the metadata
+        received += sock.recv(65536)
+    assert received.startswith(b"HTTP/1.1 101"), received
+    return sock
+
+
+@pytest.mark.parametrize("second_signal", [None, signal.SIGINT])
+def test_a_peer_that_never_closes_is_cut_after_the_grace_or_a_second_signal(second_signal):
+    """Closing waits for each peer's closing handshake; one that never answers is cut when the grace runs out (or
+    at once on a second signal), and no server task is left pending."""
+    port, lines, started = free_port(), [], threading.Event()
+    server = WebsocketPolicyServer(ControllerPolicy("scripted"), host="127.0.0.1", port=port)
+    loop, signals = asyncio.new_event_loop(), asyncio.Queue()
+
+    def log(line: str) -> None:
+        lines.append(line)
+        started.set()
+
+    def run() -> None:
+        grace = 0.5 if second_signal is None else EXIT_BOUND
+        lines.append(loop.run_until_complete(serve_until_stopped(server.run(), signals, log, grace=grace)))
+
+    thread = threading.Thread(target=run)
+    thread.start()
+    wait_healthy(port)
+    peer = silent_client(port)
+    try:
+        loop.call_soon_threadsafe(signals.put_nowait, signal.SIGTERM)
+        assert started.wait(EXIT_BOUND)
+        if second_signal is not None:
+            loop.call_soon_threadsafe(signals.put_nowait, second_signal)
+        thread.join(EXIT_BOUND)
+        assert not thread.is_alive()
+        assert not asyncio.all_tasks(loop)  # every server task unwound
+    finally:
+        peer.close()
+        if not loop.is_running():  # else the failure above says why
+            loop.close()
+    why = "0.5 s without closing" if second_signal is None else "a second SIGINT"
+    assert lines[1].startswith("stopped on SIGTERM after") and f": {why} cut the connections still open" in lines[1]
+    assert lines[2] == signal.SIGTERM
+
+
+def start_cli_server(controller: str) -> tuple[subprocess.Popen, int]:
+    """``sb3-memret serve CONTROLLER`` in a process of its own, answering on its port."""
     port = free_port()
-    command = [str(Path(sys.executable).parent / "sb3-memret"), "serve", "scripted", "--host", "127.0.0.1",
+    command = [str(Path(sys.executable).parent / "sb3-memret"), "serve", controller, "--host", "127.0.0.1",
                "--port", str(port)]
     # Ctrl-C must reach it even where the tests run with SIGINT ignored (a shell's background job passes that on)
     process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         wait_healthy(port, process=process)
+    except BaseException:
+        process.kill()
+        process.communicate()
+        raise
+    return process, port
+
+
+def stop_cli_server(process: subprocess.Popen, signum: int, bound: float = EXIT_BOUND) -> list[str]:
+    """Send ``signum`` once and return the server's standard error lines; fails if it is still running after
+    ``bound`` seconds (then kills it, so that a hang fails the test instead of stalling the suite)."""
+    process.send_signal(signum)
+    try:
+        _, stderr = process.communicate(timeout=bound)
+    except subprocess.TimeoutExpired:
+        process.kill()
+        _, stderr = process.communicate()
+        pytest.fail(f"one {signal.Signals(signum).name} left the server running for {bound:g} s:\n{stderr.decode()}")
+    return stderr.decode().strip().splitlines()
+
+
+def test_the_cli_serves_the_scripted_expert_for_a_whole_episode(task_env):
+    process, port = start_cli_server("scripted")
+    try:
         remote = make_controller(f"openpi://127.0.0.1:{port}")
         served = evaluate_condition(remote, "oracle", episodes=1, layers=[2], env=task_env)
         in_process = evaluate_condition(ScriptedDrawerController(), "oracle", episodes=1, layers=[2], env=task_env)
         assert served == in_process and served[0].success
         remote.close()
     finally:
-        process.send_signal(signal.SIGINT)  # Ctrl-C
-        _, stderr = process.communicate(timeout=30)
-    lines = stderr.decode().strip().splitlines()
+        lines = stop_cli_server(process, signal.SIGINT)  # Ctrl-C
     assert lines[0] == f"serving scripted on ws://127.0.0.1:{port} (openpi protocol; Ctrl-C stops)"
-    assert process.returncode == 130 and "Traceback" not in stderr.decode()
+    assert lines[1].startswith("SIGINT: stopping;") and lines[2].startswith("stopped on SIGINT after")
+    assert process.returncode == 130 and not any("Traceback" in line for line in lines)
+
+
+def test_one_sigterm_right_after_a_learned_controllers_episode_stops_the_cli_server(task_env):
+    """The reported case: the client plays its (short) episode, hangs up, and the SIGTERM follows at once."""
+    process, port = start_cli_server("learned-state")
+    try:
+        remote = make_controller(f"openpi://127.0.0.1:{port}")
+        obs, _ = task_env.reset(seed=3, options={"target_layer": 1})
+        remote.reset([3])
+        for _ in range(DECISIONS):
+            obs = execute_chunk(task_env, remote.act(obs, [condition_prompt("oracle", 1)])[0][:8]).obs
+        remote.close()
+    finally:
+        lines = stop_cli_server(process, signal.SIGTERM)
+    assert lines[1].startswith("SIGTERM: stopping;") and lines[2].startswith("stopped on SIGTERM after")
+    assert process.returncode == 143 and not any("Traceback" in line for line in lines)
 
 
 def test_a_bad_controller_is_one_line():
@@ -193,3 +343,19 @@ def test_a_bad_controller_is_one_line():
     result = CliRunner().invoke(main, ["serve", "pi0", "--port", "1"], prog_name="sb3-memret")
     assert result.exit_code == 2 and "unknown controller 'pi0'" in result.output
     assert len(result.output.strip().splitlines()) == 1
+
+
+def test_a_taken_port_is_one_line():
+    from click.testing import CliRunner
+
+    from sb3_memret.cli import main
+
+    with socket.socket() as taken:
+        taken.bind(("127.0.0.1", 0))
+        taken.listen()
+        port = taken.getsockname()[1]
+        result = CliRunner().invoke(main, ["serve", "scripted", "--host", "127.0.0.1", "--port", str(port)],
+                                    prog_name="sb3-memret")
+    assert result.exit_code == 2 and "Error: Invalid value for --port: cannot serve on 127.0.0.1" in result.output
+    assert "address already in use" in result.output and "Traceback" not in result.output
+    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # serve() put the handlers back

@@ -16,12 +16,22 @@ generator) gets one instance per (client, slot), reset with the slot's seed when
 number changes; the instances are shallow copies of one built controller, sharing its weights
 (``reset`` replaces the per-episode state). A stateless controller is one shared instance. A
 request without those keys (a plain openpi client) is slot 0 of one continuing episode.
+
+Stopping: ``serve`` takes SIGINT and SIGTERM through the event loop, never as an exception raised wherever the
+main thread happens to be (a ``__del__`` would swallow it, a callback cut half-way would leave the shutdown waiting
+forever); one signal closes the connections, a second or ``STOP_GRACE`` seconds cut those that do not close.
 """
 
 from __future__ import annotations
 
+import asyncio
 import copy
-from typing import Any, Mapping
+import signal
+import sys
+import threading
+import time
+from contextlib import contextmanager
+from typing import Any, Callable, Coroutine, Iterator, Mapping
 
 import numpy as np
 
@@ -29,10 +39,13 @@ from sb3_memret.controllers import make_controller
 from sb3_memret.controllers.base import FrozenController
 from sb3_memret.controllers.observation import IMAGE_SHAPE, STATE_PARTS
 from sb3_memret.controllers.openpi import CAMERAS, CLIENT_KEY, ENV_KEY, EPISODE_KEY, EXTRA_STATE, SEED_KEY
+from sb3_memret.workers import STOP_SIGNALS, StopRequested
 
 STATE_KEY, PROMPT_KEY = "observation/state", "prompt"
 SIZES = {key: len(names) for _, key, names in STATE_PARTS}  # eef_state 8, drawer_opening 3, target_detection 8
 MAX_SLOTS = 4096  # per-slot controllers kept; the least recently used beyond this are dropped
+STOP_GRACE = 15.0  # s for open connections to close after a stop signal; websockets' closing handshake waits <= 10 s
+CUT_WAIT = 1.0  # s for cancelled server tasks to unwind before the loop closes
 
 
 class _RequestGroup(dict):
@@ -112,12 +125,97 @@ def _array(request: dict[str, Any], key: str, shape: tuple[int, ...], dtype: typ
     return value.astype(dtype)[None]
 
 
-def serve(policy: ControllerPolicy | str, host: str = "0.0.0.0", port: int = 8000) -> None:
-    """Serve a controller (a ``ControllerPolicy`` or a controller spec) on ws://host:port until interrupted."""
+def print_to_stderr(line: str) -> None:
+    """One line to standard error, where the CLI's other messages go."""
+    print(line, file=sys.stderr, flush=True)
+
+
+def serve(policy: ControllerPolicy | str, host: str = "0.0.0.0", port: int = 8000,
+          log: Callable[[str], None] = print_to_stderr) -> None:
+    """Serve a controller (a ``ControllerPolicy`` or a controller spec) on ws://host:port until SIGINT or SIGTERM,
+    then stop it (see ``serve_until_stopped``) and raise that signal's interrupt: KeyboardInterrupt for Ctrl-C,
+    ``StopRequested`` for SIGTERM. Only the main thread receives signals, so only it may call this."""
     from openpi_server import WebsocketPolicyServer
 
+    if threading.current_thread() is not threading.main_thread():
+        raise RuntimeError("serve() stops on SIGINT and SIGTERM, which only the main thread receives; in another "
+                           "thread run openpi_server.WebsocketPolicyServer(...).run() as a task and cancel it")
     policy = ControllerPolicy(policy) if isinstance(policy, str) else policy
-    WebsocketPolicyServer(policy, host=host, port=port, metadata=policy.metadata).serve_forever()
+    server = WebsocketPolicyServer(policy, host=host, port=port, metadata=policy.metadata)
+    loop = asyncio.new_event_loop()
+    signals: asyncio.Queue[int] = asyncio.Queue()
+    try:
+        with _signals_to(loop, signals):
+            signum = loop.run_until_complete(serve_until_stopped(server.run(), signals, log))
+    finally:
+        loop.close()
+    raise KeyboardInterrupt if signum == signal.SIGINT else StopRequested(signum)
 
 
-__all__ = ["ControllerPolicy", "serve"]
+async def serve_until_stopped(server: Coroutine[Any, Any, None], signals: asyncio.Queue[int],
+                              log: Callable[[str], None], grace: float = STOP_GRACE) -> int:
+    """Run ``server`` (openpi's ``WebsocketPolicyServer.run()``) until a signal number arrives in ``signals``, then
+    cancel it: it stops accepting and closes the open connections once any inference in progress has replied. Waits
+    for that up to ``grace`` seconds or until a second signal, then cuts what is left (its tasks are cancelled, given
+    ``CUT_WAIT`` seconds to unwind, and left behind) so that no connection keeps the process alive. Returns the first
+    signal's number."""
+    serving = asyncio.create_task(server)
+    first = asyncio.create_task(signals.get())
+    await asyncio.wait([serving, first], return_when=asyncio.FIRST_COMPLETED)
+    if not first.done():  # serving ended by itself: it could not listen (the port is taken, say)
+        await _cancel([first], CUT_WAIT)
+        serving.result()
+        raise RuntimeError("openpi's server stopped serving without a stop signal")
+    name, started = signal.Signals(first.result()).name, time.monotonic()
+    log(f"{name}: stopping; open connections close once any inference in progress has replied (a second "
+        f"{name}, or {grace:g} s, cuts them)")
+    serving.cancel()
+    second = asyncio.create_task(signals.get())
+    await asyncio.wait([serving, second], timeout=grace, return_when=asyncio.FIRST_COMPLETED)
+    if serving.done():
+        await _cancel([second], CUT_WAIT)
+        if not serving.cancelled() and serving.exception() is not None:
+            raise serving.exception()
+        log(f"stopped on {name} after {time.monotonic() - started:.1f} s")
+        return first.result()
+    why = f"a second {signal.Signals(second.result()).name}" if second.done() else f"{grace:g} s without closing"
+    left = [task for task in asyncio.all_tasks() if task is not asyncio.current_task()]
+    await _cancel(left, CUT_WAIT)
+    log(f"stopped on {name} after {time.monotonic() - started:.1f} s: {why} cut the connections still open")
+    return first.result()
+
+
+async def _cancel(tasks: list[asyncio.Task], wait: float) -> None:
+    """Cancel ``tasks`` until they end or ``wait`` seconds pass: a cancelled connection awaits its closing handshake
+    on the way out, which needs one more cancel (a task the loop drops while pending is logged as an error)."""
+    deadline = time.monotonic() + wait
+    pending = set(tasks)
+    while pending and time.monotonic() < deadline:
+        for task in pending:
+            task.cancel()
+        _, pending = await asyncio.wait(pending, timeout=min(0.05, max(deadline - time.monotonic(), 0)))
+
+
+@contextmanager
+def _signals_to(loop: asyncio.AbstractEventLoop, signals: asyncio.Queue[int]) -> Iterator[None]:
+    """Within, SIGINT and SIGTERM (unless ignored) put their number in ``signals`` from ``loop``'s own turn; the
+    previous handlers come back after.
+
+    A Python handler that raises (the CLI's SIGTERM, Ctrl-C's KeyboardInterrupt) runs at whatever line the main
+    thread is on. In an event loop that can be a transport's ``__del__``, which swallows the exception and with it
+    the stop (the server then serves on), or a callback cut half-way, after which the loop's shutdown waits forever
+    for a connection that will never report closed.
+    """
+    previous = {signum: signal.getsignal(signum) for signum in STOP_SIGNALS
+                if signal.getsignal(signum) is not signal.SIG_IGN}  # a background job's ignored Ctrl-C stays ignored
+    for signum in previous:
+        loop.add_signal_handler(signum, signals.put_nowait, signum)
+    try:
+        yield
+    finally:
+        for signum, handler in previous.items():
+            loop.remove_signal_handler(signum)
+            signal.signal(signum, handler)
+
+
+__all__ = ["ControllerPolicy", "serve", "serve_until_stopped"]
