@@ -94,6 +94,9 @@ register_task("SeqOfColors3-VLA-v0",
 register_task("TakeItBack-VLA-v0", _lazy("sb3_memret.tasks.mikasa.take_it_back", "TakeItBackTask", "TakeItBack-VLA-v0"))
 for _env_id in ("RememberShape5-VLA-v0", "RememberShape9-VLA-v0"):
     register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.remember_shape", "RememberShapeTask", _env_id))
+for _env_id in ("RememberShapeAndColor3x2-VLA-v0", "RememberShapeAndColor3x3-VLA-v0", "RememberShapeAndColor5x3-VLA-v0"):
+    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.remember_shape_and_color", "RememberShapeAndColorTask",
+                                 _env_id))
 for _env_id in ("ShellGameTouch-VLA-v0", "ShellGamePush-VLA-v0", "ShellGameColorLampTouch-VLA-v0",
                 "ShellGameShuffleTouch-VLA-v0", "ShellGameShuffleColorLampTouch-VLA-v0"):  # they need the YCB mug
     register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.shell_game", "shell_game_task", _env_id),
