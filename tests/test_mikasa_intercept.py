@@ -116,6 +116,9 @@ def test_the_truth_counts_a_written_speed_near_it(grab, grab_env):
     launch = float(grab_env.unwrapped.oracle_info[0, 1])
     assert truth.direction == "left" and truth.speed == pytest.approx(launch * 5 / 7, abs=0.006)
     assert grab.oracle_facts(episode) == [motion_fact(truth)]
+    # a reset's info may read the previous episode's grasp (stale finger contacts): success counts from steps only
+    held = {"success": torch.tensor([True])}
+    assert not grab.frames(grab_env, obs, held, reset=True)[0].success and grab.frames(grab_env, obs, held)[0].success
     key = (MemoryType.OTHER, "ball", "rolls")
     assert episode.true_facts[0][0] == key
     near = MemoryEntry.create(MemoryType.OTHER, "ball", "rolls", f"left at {round(truth.speed * 100) + 2} cm/s", 0)
@@ -150,6 +153,9 @@ def test_the_view_reports_the_ball_only_in_the_cameras_sight(grab_env, push):
         assert set(obs["extra"]) == {"tcp_pose", "ball_positions", "ball_visible", "goal_position"}
         assert not leaked_keys(obs, FORBIDDEN)
         assert torch.allclose(obs["extra"]["goal_position"][0], env.unwrapped.goal_region.pose.p[0])
+        names = push.demo_features(with_images=False)["observation.state"]["names"]
+        assert "ball_red_visible" in names and names[-3:] == ["goal_x", "goal_y", "goal_z"]
+        assert push.demo_frame(obs, with_images=False)["observation.state"].shape == (len(names),)
     finally:
         env.close()
 

@@ -7,14 +7,16 @@ is while the base camera has it in view, where the target is), never the simulat
 ``act`` re-reads the observation and the prompt. One observation shows where the ball is, not where it is going:
 the velocity comes only from the prompt's first fact that names a speed, whatever the fact is about (a decoy,
 ``the key rolls left at 30 cm/s.``, misleads it as a wrong fact would). With none it assumes ``default_speed``
-to the left (MIKASA launches every ball toward the robot's left): a guess, the middle of the task's speeds.
+to the left (MIKASA launches every ball toward the robot's left): a guess (the tasks give the middle of all their
+speeds).
 
 Plan, each call, with the ball predicted along its line at the prompt's velocity: while the ball is out of view,
 wait above where it comes in; once seen, fly with the gripper open (fingers either side of the ball's line, one
 ahead of it, one behind) to where the ball will be, matching its velocity, above its top; once over it, come down
-around it while keeping pace, and close the fingers on it at its centre's height. A wrong speed lets the ball slip
-from between the fingers during the descent (a fingertip lands on it or it rolls out ahead): the catch needs the
-ball's velocity to a few cm/s, which no single frame holds. Holding it (fingers closed on a 4 cm gap, the TCP at
+around it while keeping pace, and close the fingers on it at its centre's height. A speed too high by more than
+~7 cm/s overtakes the ball during the descent and a fingertip lands on it; one too low lets the ball roll into the
+leading finger, which still catches it (up to ~20 cm/s too low; a far slower pace leaves it behind). No single frame
+holds the speed. Holding it (fingers closed on a 4 cm gap, the TCP at
 the ball): InterceptGrab brakes and holds still (MIKASA's success: grasped and the arm static); Intercept carries
 it onto the target (MIKASA's success: the ball's centre within the target's 10 cm radius).
 
