@@ -97,6 +97,11 @@ for _env_id in ("RememberShape5-VLA-v0", "RememberShape9-VLA-v0"):
 for _env_id in ("RememberShapeAndColor3x2-VLA-v0", "RememberShapeAndColor3x3-VLA-v0", "RememberShapeAndColor5x3-VLA-v0"):
     register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.remember_shape_and_color", "RememberShapeAndColorTask",
                                  _env_id))
+for _class, _sizes in (("FindImposterColorTask", ("3", "5", "9")), ("FindImposterShapeTask", ("3", "5", "9")),
+                       ("FindImposterShapeAndColorTask", ("3x2", "3x3", "5x3"))):
+    for _size in _sizes:
+        _env_id = f"{_class.removesuffix('Task')}{_size}-VLA-v0"
+        register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.find_imposter", _class, _env_id))
 for _env_id in ("ShellGameTouch-VLA-v0", "ShellGamePush-VLA-v0", "ShellGameColorLampTouch-VLA-v0",
                 "ShellGameShuffleTouch-VLA-v0", "ShellGameShuffleColorLampTouch-VLA-v0"):  # they need the YCB mug
     register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.shell_game", "shell_game_task", _env_id),

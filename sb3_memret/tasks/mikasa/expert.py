@@ -113,17 +113,21 @@ class ScriptedTouchController(FrozenController):
     holds still. ``vocabulary[i]`` names candidate i of the detector (``extra/{key}_positions``,
     ``extra/{key}_visible``) and ``field`` is the fact's field that names it; RememberShape's expert
     is this controller with shapes. ``default``: the word it acts on when the prompt names none it knows
-    (None: it holds still)."""
+    (None: it holds still). With ``wait_for_all`` it heads for the named object only once every candidate
+    is in sight (the choice), and waits at its ready pose before: a cue shown alone is not touched where
+    no wrapper freezes the arm (MIKASA's -Long tasks)."""
 
     stateful = False
 
     def __init__(self, chunk_len: int = 8, gains: TouchGains | None = None,
                  vocabulary: Sequence[str] = COLOUR_NAMES, field: str = "colour",
-                 prompt_template: PromptTemplate = PROMPT_TEMPLATE, key: str = "cube", default: str | None = None):
+                 prompt_template: PromptTemplate = PROMPT_TEMPLATE, key: str = "cube", default: str | None = None,
+                 wait_for_all: bool = False):
         if default is not None and default not in vocabulary:
             raise ValueError(f"default {field} {default!r} is not one of {list(vocabulary)}")
         self.gains = gains or TouchGains()
         self.vocabulary, self.field, self.key, self.default = tuple(vocabulary), field, key, default
+        self.wait_for_all = wait_for_all
         self.spec = ControllerSpec(
             action_convention="pd_ee_delta_pose", chunk_len=chunk_len, action_dim=7, prompt_template=prompt_template
         )
@@ -139,8 +143,7 @@ class ScriptedTouchController(FrozenController):
         if len(prompts) != self._batch:
             raise RuntimeError(f"reset() was called for {self._batch} envs but act() got {len(prompts)} prompts")
         chunks = np.zeros((len(prompts), self.spec.chunk_len, self.spec.action_dim))
-        named = [named_word(p, self.field) for p in parsed]
-        words = [w if w in self.vocabulary else self.default for w in named]
+        words = self._chosen(parsed)
         if all(w is None for w in words):
             return chunks
         extra = obs["extra"]
@@ -152,9 +155,15 @@ class ScriptedTouchController(FrozenController):
             if word is None:
                 continue  # no cue fact (or a word it was never trained on) and no default: hold still
             index = self.vocabulary.index(word)
-            target = targets[i, index] if index < visible.shape[1] and visible[i, index] else None
+            choosing = not self.wait_for_all or bool(visible[i].all())
+            target = targets[i, index] if index < visible.shape[1] and visible[i, index] and choosing else None
             chunks[i] = self._chunk(tcp[i], velocity[i] * CONTROL_DT, target)
         return chunks
+
+    def _chosen(self, parsed: Sequence[ParsedPrompt]) -> list[str | None]:
+        """The word of the object each prompt sends it to: its fact's, else ``default`` (None: hold still)."""
+        named = [named_word(p, self.field) for p in parsed]
+        return [w if w in self.vocabulary else self.default for w in named]
 
     def _waypoint(self, pos: np.ndarray, cube: np.ndarray | None) -> np.ndarray:
         """Where to head next: the touch point, but never below the funnel over the cube (nor back up it)."""

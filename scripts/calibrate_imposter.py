@@ -1,0 +1,145 @@
+"""Measure the FindImposter shape prototypes, and score the FindImposter cue readers.
+
+``calibrate`` renders the cue frame (the reset frame: the cue phase lasts at least one step) of ``--episodes``
+episodes per shape task at development seeds ``--seed`` + i (6000 by default: neither MIKASA's evaluation seeds
+4242424242 + i nor the 5000 + i the figures are quoted at), finds each object in view as the reader does
+(``objects_in_view``), names it by the segmentation camera (ground truth, calibration only; an object whose pixels
+merge with another's is skipped) and writes each shape's mean and spread of ``shape_features`` to
+``sb3_memret/tasks/mikasa/imposter_prototypes.py``.
+
+``evaluate`` reads the cue frame of ``--episodes`` episodes per task at seeds ``--seed`` + i through the task's
+own reader (``FindImposterTask.read_cue``) and scores it against the segmentation camera: frames read exactly
+(the set of N - 1 shown), frames read as no set (objects merged or one out of sight), frames read wrong; and per
+word, the share of the objects shown that the reader named right (``assign_shown``).
+
+    .venv/bin/python scripts/calibrate_imposter.py calibrate [--episodes 200] [--seed 6000]
+    .venv/bin/python scripts/calibrate_imposter.py evaluate [--episodes 60] [--seed 5000] [--tasks ...]
+"""
+
+from __future__ import annotations
+
+import argparse
+from collections import Counter, defaultdict
+from pathlib import Path
+
+import numpy as np
+
+SHAPE_TASKS = ("FindImposterShape3-VLA-v0", "FindImposterShape5-VLA-v0", "FindImposterShape9-VLA-v0",
+               "FindImposterShapeAndColor3x2-VLA-v0", "FindImposterShapeAndColor3x3-VLA-v0",
+               "FindImposterShapeAndColor5x3-VLA-v0")
+ALL_TASKS = ("FindImposterColor3-VLA-v0", "FindImposterColor5-VLA-v0", "FindImposterColor9-VLA-v0") + SHAPE_TASKS
+OUT = Path(__file__).resolve().parents[1] / "sb3_memret" / "tasks" / "mikasa" / "imposter_prototypes.py"
+
+
+def cue_frames(task, seeds):
+    """(rgb, object index per pixel (-1: none)) of each seed's reset frame, from the raw env with segmentation."""
+    import gymnasium as gym
+
+    from sb3_memret.rendering import use_cpu_renderer
+
+    use_cpu_renderer()
+    import mikasa_robo_suite.vla.memory_envs  # noqa: F401
+
+    env = gym.make(task.name, num_envs=1, obs_mode="rgb+segmentation", control_mode="pd_ee_delta_pose",
+                   render_backend="cpu", sim_backend="cpu", reward_mode="normalized_dense", robot_uids="panda")
+    base = env.unwrapped
+    actors = base.cubes if hasattr(base, "cubes") else base.shape_actors
+    ids = {int(actors[k]._objs[0].per_scene_id): k for k in actors}
+    try:
+        for seed in seeds:
+            obs, _ = env.reset(seed=int(seed))
+            camera = obs["sensor_data"]["base_camera"]
+            seg = camera["segmentation"][0, ..., 0].numpy()
+            owner = np.full(seg.shape, -1)
+            for scene_id, k in ids.items():
+                owner[seg == scene_id] = k
+            yield camera["rgb"][0].numpy(), owner
+    finally:
+        env.close()
+
+
+def owner_of(blob: np.ndarray, owner: np.ndarray) -> int | None:
+    """The one object a blob's pixels belong to, or None when they belong to several (merged) or none."""
+    objects = set(np.unique(owner[blob]).tolist()) - {-1}
+    return objects.pop() if len(objects) == 1 else None
+
+
+def calibrate(episodes: int, seed: int) -> None:
+    from sb3_memret.tasks import make_task
+    from sb3_memret.tasks.mikasa.imposter_perception import objects_in_view, shape_features
+
+    tables, counts = {}, {}
+    for env_id in SHAPE_TASKS:
+        task = make_task(env_id)
+        features = defaultdict(list)
+        for rgb, owner in cue_frames(task, range(seed, seed + episodes)):
+            for seen in objects_in_view(rgb, 3):
+                k = owner_of(seen.mask, owner)
+                if k is not None:
+                    features[task.candidate(task.words[k])[1]].append(shape_features(rgb, seen.mask))
+        tables[env_id] = {shape: (np.mean(f, axis=0).round(4).tolist(), np.std(f, axis=0).round(4).tolist())
+                          for shape, f in features.items()}
+        counts[env_id] = {shape: len(f) for shape, f in features.items()}
+        print(env_id, counts[env_id], flush=True)
+    lines = [
+        '"""The FindImposter shape reader\'s prototypes: each shape\'s mean and spread of ``shape_features`` (in the',
+        "order of ``imposter_perception.FEATURES``) per task, over its objects in the cue frames of "
+        f"{episodes} episodes",
+        f"at development seeds {seed}..{seed + episodes - 1}, named by the segmentation camera. Written by",
+        f"``scripts/calibrate_imposter.py calibrate --episodes {episodes} --seed {seed}``; do not edit by hand.",
+        '"""', "", "PROTOTYPES: dict[str, dict[str, tuple[list[float], list[float]]]] = {",
+    ]
+    for env_id, table in tables.items():
+        lines.append(f"    # objects per shape: {counts[env_id]}")
+        lines.append(f"    {env_id!r}: {{")
+        for shape, (mean, spread) in table.items():
+            lines.append(f"        {shape!r}: (\n            {mean!r},\n            {spread!r}),")
+        lines.append("    },")
+    lines += ["}", ""]
+    OUT.write_text("\n".join(lines))
+    print(f"wrote {OUT}")
+
+
+def evaluate(tasks: list[str], episodes: int, seed: int) -> None:
+    from sb3_memret.tasks import make_task
+    from sb3_memret.tasks.mikasa.imposter_perception import assign_shown
+
+    for env_id in tasks:
+        task = make_task(env_id)
+        prototypes = None
+        if task.reads_shapes:
+            from sb3_memret.tasks.mikasa.imposter_prototypes import PROTOTYPES
+
+            prototypes = PROTOTYPES[env_id]
+        frames, named, right = Counter(), Counter(), Counter()
+        for rgb, owner in cue_frames(task, range(seed, seed + episodes)):
+            truth = tuple(task.words[k] for k in sorted(set(np.unique(owner).tolist()) - {-1}))
+            read = task.read_cue(rgb)
+            frames["exact" if read == truth else "no set" if read is None else "wrong"] += 1
+            for word in truth:
+                named[word] += 1
+            assigned = assign_shown(rgb, [task.candidate(w) for w in task.words], task.n_words - 1, prototypes)
+            for seen, j in assigned or ():
+                k = owner_of(seen.mask, owner)
+                right[task.words[j]] += k is not None and task.words[k] == task.words[j]
+        per_word = ", ".join(f"{w} {right[w]}/{named[w]}" for w in task.words)
+        print(f"{env_id}: cue frames read exactly {frames['exact']}/{episodes}, as no set {frames['no set']}, "
+              f"wrong {frames['wrong']}; objects named right per word (of those shown): {per_word}", flush=True)
+
+
+def main() -> None:
+    parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("command", choices=("calibrate", "evaluate"))
+    parser.add_argument("--episodes", type=int, default=None, help="default: 200 to calibrate, 60 to evaluate")
+    parser.add_argument("--seed", type=int, default=None,
+                        help="first seed: default 6000 to calibrate, 5000 to evaluate")
+    parser.add_argument("--tasks", nargs="+", default=list(ALL_TASKS))
+    args = parser.parse_args()
+    if args.command == "calibrate":
+        calibrate(args.episodes or 200, 6000 if args.seed is None else args.seed)
+    else:
+        evaluate(args.tasks, args.episodes or 60, 5000 if args.seed is None else args.seed)
+
+
+if __name__ == "__main__":
+    main()

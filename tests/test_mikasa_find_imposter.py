@@ -1,0 +1,189 @@
+"""MIKASA FindImposterColor/Shape/ShapeAndColor: the set reader, both fact wordings, the writer, the imposter expert."""
+
+import json
+
+import numpy as np
+import pytest
+import torch
+
+from mikasa_support import MIKASA_MISSING, leaked_keys
+
+pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
+
+from click.testing import CliRunner  # noqa: E402
+
+from sb3_memret.cli import main  # noqa: E402
+from sb3_memret.memory.schema import MemoryEntry, MemoryType  # noqa: E402
+from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
+from sb3_memret.prompts import build_prompt, parse_prompt  # noqa: E402
+from sb3_memret.tasks import make_task  # noqa: E402
+from sb3_memret.tasks.base import EnvFrame  # noqa: E402
+from sb3_memret.tasks.mikasa.find_imposter import (  # noqa: E402
+    FindImposterColorTask,
+    FindImposterShapeAndColorTask,
+    FindImposterShapeTask,
+    plural,
+    set_phrase,
+)
+from sb3_memret.tasks.mikasa.imposter_perception import split_in_two  # noqa: E402
+
+FORBIDDEN = ("oracle", "task_cue", "goal_")
+
+
+def _imposter(task, env, obs, info) -> str:
+    """The episode's imposter (the simulator's truth, for scoring only)."""
+    return task.episode(task.frames(env, obs, info, reset=True)[0]).group
+
+
+def test_the_nine_tasks_are_registered_with_mikasas_objects():
+    sizes = {"FindImposterColor3-VLA-v0": 3, "FindImposterColor9-VLA-v0": 9, "FindImposterShape5-VLA-v0": 5,
+             "FindImposterShapeAndColor3x2-VLA-v0": 6, "FindImposterShapeAndColor5x3-VLA-v0": 15}
+    for env_id, n in sizes.items():
+        assert len(make_task(env_id).words) == n
+    for family, ids in ((FindImposterColorTask, ("3", "5", "9")), (FindImposterShapeTask, ("3", "5", "9")),
+                        (FindImposterShapeAndColorTask, ("3x2", "3x3", "5x3"))):
+        for size in ids:
+            task = make_task(f"{family.__name__.removesuffix('Task')}{size}-VLA-v0")
+            assert type(task) is family and task.wording == "set"
+    assert make_task("FindImposterShape9-VLA-v0").words[-3:] == ("pyramid", "t shape", "crescent")
+    assert make_task("FindImposterShapeAndColor5x3-VLA-v0").max_control_steps == 40
+    assert make_task("FindImposterShapeAndColor3x3-VLA-v0").max_control_steps == 25
+    with pytest.raises(ValueError, match="unknown FindImposterColorTask env 'FindImposterColor4-VLA-v0'"):
+        FindImposterColorTask("FindImposterColor4-VLA-v0")
+    with pytest.raises(ValueError, match="unknown wording 'list'; expected one of \\['set', 'each'\\]"):
+        FindImposterColorTask("FindImposterColor3-VLA-v0", wording="list")
+    assert plural("key") == "keys" and plural("battery") == "batteries"
+    assert set_phrase(["a", "b", "c"]) == "a and b and c"
+
+
+@pytest.mark.parametrize("wording", ["set", "each"])
+def test_both_wordings_parse_and_the_expert_reads_the_imposter_from_them(wording):
+    cases = [(FindImposterColorTask("FindImposterColor3-VLA-v0", wording), "lime",
+              {"set": ["the shown cubes were red and blue."],
+               "each": ["the red cube was shown.", "the blue cube was shown."]}),
+             (FindImposterShapeTask("FindImposterShape9-VLA-v0", wording), "t shape",
+              {"set": ["the shown objects were a cube and a sphere and a cylinder and a cross and a torus and a "
+                       "star and a pyramid and a crescent."], "each": None}),
+             (FindImposterShapeAndColorTask("FindImposterShapeAndColor3x2-VLA-v0", wording), "red sphere",
+              {"set": ["the shown objects were a red cube and a lime cube and a blue cube and a lime sphere and a blue "
+                       "sphere."], "each": ["the red cube was shown.", "the lime cube was shown.",
+                                            "the blue cube was shown.", "the lime sphere was shown.",
+                                            "the blue sphere was shown."]})]
+    for task, imposter, expected in cases:
+        episode = task.episode(EnvFrame({}, {"imposter": imposter}, None, False))
+        oracle, wrong = task.oracle_facts(episode), task.wrong_facts(episode)
+        assert len(oracle) == (1 if wording == "set" else task.n_words - 1) and imposter not in " ".join(oracle)
+        if expected[wording] is not None:
+            assert oracle == expected[wording]
+        expert = task.expert()
+        for facts, meant in ((oracle, imposter), (wrong, task.words[(task.words.index(imposter) + 1) % task.n_words]),
+                             ([], task.words[0])):
+            parsed = parse_prompt(build_prompt(task.instruction(episode), facts, task.prompt_template),
+                                  task.prompt_template)
+            assert expert._chosen([parsed]) == [meant], (task.name, facts)
+        decoys = task.seed_memories(EnvFrame({}, {}, None, False), episode, np.random.default_rng(0), SeedingConfig())
+        assert len(decoys) == SeedingConfig().location_decoys
+        for entry in decoys:
+            parse_prompt(f"{task.instruction(episode)} {entry.text}", task.prompt_template)  # worded alike
+            assert not episode.is_true(entry)
+        true = [MemoryEntry.create(*key, value, 0) for key, value in episode.true_facts]
+        assert [e.text for e in true] == oracle and all(episode.is_true(e) for e in true)
+
+
+def test_the_writer_writes_the_first_set_it_sees_once_per_episode():
+    task = FindImposterColorTask("FindImposterColor3-VLA-v0", "each")
+    writer = task.writer()
+    assert writer.relations == {"shown": (MemoryType.OTHER, "was")}
+    reset = EnvFrame({}, {}, None, False, steps=0, percepts=[None])
+    chunk = EnvFrame({}, {}, None, False, steps=3, percepts=[("red", "lime"), ("red", "blue"), None])
+    assert writer.read(reset) == []
+    assert writer.read(chunk) == [(1, {("shown", "red cube"): "shown", ("shown", "lime cube"): "shown"})]
+    assert writer.read(chunk) == []  # written once: a later frame of N - 1 (an object behind the arm) changes nothing
+    assert writer.read(EnvFrame({}, {}, None, False, steps=0, percepts=[("lime", "blue")])) == [
+        (0, {("shown", "lime cube"): "shown", ("shown", "blue cube"): "shown"})]  # a new episode
+    set_writer = FindImposterColorTask("FindImposterColor3-VLA-v0").writer()
+    assert set_writer.relations == {"shown": (MemoryType.OTHER, "were")}
+    assert set_writer.read(EnvFrame({}, {}, None, False, steps=0, percepts=[("blue", "red")])) == [
+        (0, {("shown", "shown cubes"): "red and blue"})]
+
+
+@pytest.mark.parametrize("env_id, seeds", [("FindImposterColor5-VLA-v0", (5000, 5001)),
+                                           ("FindImposterShape3-VLA-v0", (5000, 5001)),
+                                           ("FindImposterShapeAndColor3x2-VLA-v0", (5000,))])
+def test_reads_the_shown_set_in_the_cue_and_nothing_after(env_id, seeds):
+    task = make_task(env_id)
+    env = task.make_env(obs_mode="rgb", sim_backend="cpu", robot_uids="panda")
+    try:
+        for seed in seeds:
+            obs, info = env.reset(seed=seed)
+            assert not leaked_keys(obs, FORBIDDEN)
+            base, imposter = env.unwrapped, _imposter(task, env, obs, info)
+            cue, hidden = int(base.cue_steps_per_env[0]), int(base.empty_steps_per_env[0])
+            shown = tuple(w for w in task.words if w != imposter)
+            for step in range(cue + hidden + 2):
+                assert task.perceive(env, obs) == (shown if step < cue else None), (seed, step)
+                obs, _, _, _, info = env.step(torch.zeros(1, 7))
+            assert bool(obs["extra"][f"{task.detector_key}_visible"].all())  # the choice: all N, the imposter too
+    finally:
+        env.close()
+
+
+def test_two_touching_objects_are_cut_apart():
+    blob = np.zeros((128, 128), bool)
+    blob[60:64, 50:54] = blob[61:63, 54:56] = blob[60:64, 56:60] = True  # two squares joined by a bridge
+    halves = sorted(split_in_two(blob), key=lambda h: np.argwhere(h)[:, 1].mean())
+    assert halves[0].sum() + halves[1].sum() == blob.sum() and min(h.sum() for h in halves) >= 16
+    assert np.argwhere(halves[0])[:, 1].max() <= 55 <= np.argwhere(halves[1])[:, 1].min()  # cut at the bridge
+    assert split_in_two(np.pad(np.ones((2, 3), bool), 10)) is None  # halves smaller than an object
+
+
+@pytest.mark.parametrize("env_id, wording", [("FindImposterColor3-VLA-v0", "set"),
+                                             ("FindImposterShapeAndColor3x2-VLA-v0", "each")])
+def test_the_expert_touches_the_imposter_with_the_oracle_facts_and_not_with_the_wrong(env_id, wording):
+    task = make_task(env_id)
+    task = type(task)(env_id, wording)
+    env = task.make_env(obs_mode="state_dict", sim_backend="cpu", robot_uids="panda")
+    expert = task.expert()
+    try:
+        expert.check_env(env)
+        for seed, condition in ((5000, "oracle"), (5001, "oracle"), (5002, "wrong")):
+            obs, info = env.reset(seed=seed)
+            episode = task.episode(EnvFrame({}, {"imposter": _imposter(task, env, obs, info)}, None, False))
+            facts = task.oracle_facts(episode) if condition == "oracle" else task.wrong_facts(episode)
+            prompt = build_prompt(task.instruction(episode), facts, task.prompt_template)
+            expert.reset([seed])
+            success = False
+            for step in range(task.max_control_steps):
+                if step % 4 == 0:
+                    chunk = expert.act(obs, [prompt])[0]
+                obs, _, _, _, info = env.step(torch.from_numpy(chunk[step % 4][None]).float())
+                success |= bool(info["success"][0])
+            assert success == (condition == "oracle"), (seed, condition)
+    finally:
+        env.close()
+
+
+def test_the_expert_waits_until_every_object_is_in_sight():
+    task = make_task("FindImposterColor3-VLA-v0")
+    expert = task.expert()
+    expert.reset([0, 1])
+    obs = {
+        "agent": {"qpos": np.tile([0, 0, 0, -2.09, 0, 2.09, 0.79, 0.04, 0.04], (2, 1)), "qvel": np.zeros((2, 9))},
+        "extra": {"tcp_pose": np.tile([-0.07, 0, 0.32, 0, 1, 0, 0], (2, 1)),
+                  "cube_positions": np.tile([[0.0, 0.2, 0.02], [0.0, -0.2, 0.02], [0.0, 0.0, 0.02]], (2, 1, 1)),
+                  "cube_visible": np.array([[True, True, True], [True, False, True]])},
+    }
+    prompt = build_prompt(task.instruction_text, ["the shown cubes were red and blue."], task.prompt_template)
+    chunks = expert.act(obs, [prompt, prompt])
+    assert chunks[0, 0, 1] < -0.5  # all in sight: toward lime, at -y
+    ready = expert.act({**obs, "extra": {**obs["extra"], "cube_visible": np.tile([True, False, True], (2, 1))}},
+                       [prompt, prompt])
+    assert np.allclose(ready[0], ready[1]) and abs(ready[0, 0, 1]) < 0.1  # the cue: to the ready pose, not to a cube
+
+
+def test_rollout_written_reads_the_set_from_the_camera():
+    result = CliRunner().invoke(main, ["rollout", "--task", "FindImposterColor3-VLA-v0", "--controller", "scripted",
+                                       "--condition", "written", "--episodes", "1", "--seeds", "dev", "--seed", "5000",
+                                       "--json"])
+    assert result.exit_code == 0, result.output
+    assert json.loads(result.output.strip().splitlines()[-1])["success"]["overall"] == 1.0
