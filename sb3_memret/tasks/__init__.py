@@ -102,6 +102,13 @@ for _class, _sizes in (("FindImposterColorTask", ("3", "5", "9")), ("FindImposte
     for _size in _sizes:
         _env_id = f"{_class.removesuffix('Task')}{_size}-VLA-v0"
         register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.find_imposter", _class, _env_id))
+for _module, _class, _sizes in (("remember_color", "RememberColorTask", ("3", "5", "9")),
+                                ("remember_shape", "RememberShapeTask", ("3", "5", "9")),
+                                ("remember_shape_and_color", "RememberShapeAndColorTask", ("3x2", "3x3", "5x3"))):
+    for _size in _sizes:  # MIKASA's 600-step variants of the cue tasks
+        _env_id = f"{_class.removesuffix('Task')}{_size}-Long-VLA-v0"
+        register_task(_env_id, _lazy(f"sb3_memret.tasks.mikasa.{_module}", _class, _env_id))
+
 for _env_id in ("ShellGameTouch-VLA-v0", "ShellGamePush-VLA-v0", "ShellGameColorLampTouch-VLA-v0",
                 "ShellGameShuffleTouch-VLA-v0", "ShellGameShuffleColorLampTouch-VLA-v0"):  # they need the YCB mug
     register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.shell_game", "shell_game_task", _env_id),

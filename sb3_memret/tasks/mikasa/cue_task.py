@@ -26,8 +26,19 @@ from sb3_memret.tasks.mikasa.expert import ScriptedTouchController
 EVAL_SEED = 4242424242  # MIKASA-Robo-VLA's first evaluation seed; episode i plays EVAL_SEED + i
 DEV_SEED = 5000  # the first development seed (training's evaluations, choices): never one of the protocol's
 EPISODE_STEPS = 25
+LONG_EPISODE_STEPS = 600  # MIKASA's -Long-VLA-v0 cue tasks: a cue of 10-100 steps, a delay of 50-450
 RENDERER_NEEDED = ("MIKASA's envs need a renderer even without cameras, and this task's writer reads the cue from "
                    "the base camera: pass --render-backend cpu (the software renderer of `make renderer`) or gpu")
+
+
+def is_long(env_id: str) -> bool:
+    """Whether ``env_id`` is one of MIKASA's -Long variants (``RememberColor3-Long-VLA-v0``)."""
+    return env_id.endswith("-Long-VLA-v0")
+
+
+def with_long(env_ids: Mapping[str, int]) -> dict[str, int]:
+    """``env_ids`` (short ids and their word counts) and their -Long variants."""
+    return {**env_ids, **{env_id.replace("-VLA-v0", "-Long-VLA-v0"): n for env_id, n in env_ids.items()}}
 
 
 class CueWriter:
@@ -73,7 +84,8 @@ class MikasaCueTask(Task):
     ``noop_before_manipulation`` (default True: MIKASA's ``CurriculumPhaseNoopActionWrapper``, no-op actions during
     the cue and delay phases, as its wrapper table gives the short Remember tasks), and the ``Task`` attributes set
     here: ``max_control_steps`` 25, ``replan_every`` 4, ``zoo_config`` (a section keyed by ``env_id``; a task of
-    your own passes its own YAML with ``--config``).
+    your own passes its own YAML with ``--config``). An ``env_id`` ending ``-Long-VLA-v0`` sets both
+    ``max_control_steps`` (600) and ``noop_before_manipulation`` (False) as MIKASA's -Long variants have them.
     """
 
     zoo_config = "memret_ppo_mikasa.yml"
@@ -92,11 +104,15 @@ class MikasaCueTask(Task):
     template: ClassVar[PromptTemplate]
     vocabulary: ClassVar[tuple[str, ...]]
     observation_wrapper: ClassVar[Callable[[gym.Env], gym.Env]]
-    noop_before_manipulation: ClassVar[bool] = True
+    noop_before_manipulation: bool = True
 
     def __init__(self, env_id: str, n_words: int):
-        """The task of MIKASA's env ``env_id`` (its name and config key), with the first ``n_words`` words in play."""
+        """The task of MIKASA's env ``env_id`` (its name and config key), with the first ``n_words`` words in play.
+        A -Long variant (``is_long``) lasts MIKASA's 600 steps, without the no-op wrapper (its wrapper table gives
+        the -Long tasks none)."""
         self.name, self.n_words = env_id, n_words
+        if is_long(env_id):
+            self.max_control_steps, self.noop_before_manipulation = LONG_EPISODE_STEPS, False
 
     @property
     def words(self) -> tuple[str, ...]:
@@ -187,9 +203,12 @@ class MikasaCueTask(Task):
         return [self.cue_fact.format(**{self.field: other})]
 
     def expert(self) -> ScriptedTouchController:
-        """The touch expert; without a fact it touches the first word's object, a guess (success at chance)."""
+        """The touch expert; without a fact it touches the first word's object, a guess (success at chance). Where
+        no wrapper freezes the arm in the cue and delay phases it waits at its ready pose until every object is in
+        sight: MIKASA's success is not gated on the phase, so touching the cue itself would count."""
         return ScriptedTouchController(vocabulary=self.words, field=self.field, prompt_template=self.template,
-                                       key=self.detector_key, default=self.words[0])
+                                       key=self.detector_key, default=self.words[0],
+                                       wait_for_all=not self.noop_before_manipulation)
 
     def demo_features(self, with_images: bool) -> dict[str, dict[str, Any]]:
         return demo_layout.demo_features(self.words, with_images, key=self.detector_key)
@@ -204,4 +223,5 @@ class MikasaCueTask(Task):
         return demo_layout.HAND_POSITION
 
 
-__all__ = ["CueWriter", "DEV_SEED", "EPISODE_STEPS", "EVAL_SEED", "MikasaCueTask", "RENDERER_NEEDED"]
+__all__ = ["CueWriter", "DEV_SEED", "EPISODE_STEPS", "EVAL_SEED", "LONG_EPISODE_STEPS", "MikasaCueTask",
+           "RENDERER_NEEDED", "is_long", "with_long"]

@@ -14,6 +14,11 @@ cubes' positions; the arm's initial joints.
 
 **Success:** MIKASA's: the TCP within 5 cm of the cue-coloured cube and the robot static, at any step.
 
+**-Long variants** (``RememberColor3/5/9-Long-VLA-v0``): MIKASA's 600-step versions, registered with the same
+class: a cue of 10-100 steps (5 and 9: 100), a delay of 50-450, and no no-op wrapper (MIKASA's wrapper table
+gives them none), so the arm may move in every phase; the expert waits at its ready pose until every cube is in
+sight (MIKASA's success is not gated on the phase: touching the cue itself would count).
+
 The writer sees every control step: it reads the cue's colour from the base camera's pixels
 (``read_cue_colour``) and writes ``the cue cube was {colour}.``; the bank's decoys are worded
 alike about other things. The controller sees ``ControllerObservation`` only (never
@@ -27,7 +32,7 @@ from typing import ClassVar
 import numpy as np
 
 from sb3_memret.memory.schema import MemoryType
-from sb3_memret.tasks.mikasa.cue_task import EVAL_SEED, MikasaCueTask
+from sb3_memret.tasks.mikasa.cue_task import EVAL_SEED, MikasaCueTask, with_long
 from sb3_memret.tasks.mikasa.expert import CUE_FACT, INSTRUCTION, PROMPT_TEMPLATE
 from sb3_memret.tasks.mikasa.perception import COLOUR_NAMES, ControllerObservation, read_cue_colour
 
@@ -44,7 +49,7 @@ class RememberColorTask(MikasaCueTask):
     observation_wrapper: ClassVar = ControllerObservation
 
     def __init__(self, env_id: str = "RememberColor3-VLA-v0"):
-        colours = {f"RememberColor{n}-VLA-v0": n for n in (3, 5, 9)}
+        colours = with_long({f"RememberColor{n}-VLA-v0": n for n in (3, 5, 9)})
         if env_id not in colours:
             raise ValueError(f"unknown RememberColor task {env_id!r}; expected one of {sorted(colours)}")
         super().__init__(env_id, colours[env_id])

@@ -18,6 +18,11 @@ objects' positions (which one stands where, and a jitter of about 1 cm); the arm
 **Success:** MIKASA's: the TCP within 5 cm of the cue-shaped object's centre and the robot static,
 at any step.
 
+**-Long variants** (``RememberShape3/5/9-Long-VLA-v0``): MIKASA's 600-step versions, registered with the same
+class: a cue of 10-100 steps, a delay of 50-450, and no no-op wrapper (MIKASA's wrapper table gives them none),
+so the arm may move in every phase; the expert waits at its ready pose until every object is in sight (MIKASA's
+success is not gated on the phase: touching the cue itself would count).
+
 The writer sees every control step: it reads the cue's shape from the base camera's pixels
 (``read_cue_shape``: its silhouette and shading) and writes ``the cue object was a {shape}.``; the
 bank's decoys are worded alike about other things (``the key was a sphere.``). The controller sees
@@ -33,7 +38,7 @@ import numpy as np
 
 from sb3_memret.memory.schema import MemoryType
 from sb3_memret.prompts import PromptTemplate, build_prompt
-from sb3_memret.tasks.mikasa.cue_task import MikasaCueTask
+from sb3_memret.tasks.mikasa.cue_task import MikasaCueTask, with_long
 from sb3_memret.tasks.mikasa.expert import ScriptedTouchController
 from sb3_memret.tasks.mikasa.shape_perception import SHAPE_NAMES, ShapeControllerObservation, read_cue_shape
 
@@ -47,7 +52,7 @@ INSTRUCTION = "observe the object's shape, wait, then touch the object of the sa
 FACT_TEMPLATE = "the {entity} was a {shape}."
 CUE_FACT = "the cue object was a {shape}."
 PROMPT_TEMPLATE = PromptTemplate(instructions=(INSTRUCTION,), fact_templates=(FACT_TEMPLATE,))
-SHAPE_TASKS = {f"RememberShape{n}-VLA-v0": n for n in (3, 5, 9)}
+SHAPE_TASKS = with_long({f"RememberShape{n}-VLA-v0": n for n in (3, 5, 9)})
 
 
 def shape_prompt(shape: str | None) -> str:

@@ -17,6 +17,11 @@ stands where, and a jitter of about 1 cm; the arm's initial joints.
 
 **Success:** MIKASA's: the TCP within 5 cm of the cue object's centre and the robot static, at any step.
 
+**-Long variants** (``RememberShapeAndColor3x2/3x3/5x3-Long-VLA-v0``): MIKASA's 600-step versions, registered
+with the same class: a cue of 10-100 steps, a delay of 50-450, and no no-op wrapper (MIKASA's wrapper table gives
+them none), so the arm may move in every phase; the expert waits at its ready pose until every object is in sight
+(MIKASA's success is not gated on the phase: touching the cue itself would count).
+
 The writer sees every control step: it reads the cue's shape (``read_cue_shape``: the silhouette, the same
 in every colour) and its colour (``read_cue_colour``) from the base camera's pixels and writes one fact naming
 both, ``the cue object was a red cube.``; the bank's decoys are worded alike about other things (``the key
@@ -33,7 +38,7 @@ import numpy as np
 
 from sb3_memret.memory.schema import MemoryType
 from sb3_memret.prompts import PromptTemplate, build_prompt
-from sb3_memret.tasks.mikasa.cue_task import MikasaCueTask
+from sb3_memret.tasks.mikasa.cue_task import MikasaCueTask, with_long
 from sb3_memret.tasks.mikasa.perception import COLOUR_NAMES, DetectorObservation, read_cue_colour
 from sb3_memret.tasks.mikasa.shape_perception import read_cue_shape
 
@@ -42,8 +47,8 @@ SHAPES: tuple[str, ...] = ("cube", "sphere", "t shape", "cross", "torus")
 COLOURS: tuple[str, ...] = COLOUR_NAMES[:3]  # red, lime, blue
 # Object i is shape i // 3 in colour i % 3: MIKASA's shape_color_dict, whose first N objects an env of N uses.
 OBJECTS: tuple[str, ...] = tuple(f"{colour} {shape}" for shape in SHAPES for colour in COLOURS)
-OBJECT_TASKS = {"RememberShapeAndColor3x2-VLA-v0": 6, "RememberShapeAndColor3x3-VLA-v0": 9,
-                "RememberShapeAndColor5x3-VLA-v0": 15}
+OBJECT_TASKS = with_long({"RememberShapeAndColor3x2-VLA-v0": 6, "RememberShapeAndColor3x3-VLA-v0": 9,
+                          "RememberShapeAndColor5x3-VLA-v0": 15})
 
 CUE_ENTITY = "cue object"
 CUE_RELATION = "was_a"  # linearised "was a": "the cue object was a red cube."
