@@ -167,6 +167,9 @@ def test_the_agent_plays_mikasas_harness_from_cameras_only(tmp_path, monkeypatch
     assert json.loads((tmp_path / "results.json").read_text()) == content
     again = run_benchmark(run, tmp_path, workers=1)
     assert again == content and len((tmp_path / "episodes.jsonl").read_text().splitlines()) == 3
+    from sb3_memret.benchmark.runner import rebuild
+
+    assert rebuild(tmp_path) == content  # the table again from the folder alone (`benchmark report`)
 
 
 LEARNER = """n_timesteps: 16

@@ -119,4 +119,18 @@ def learners(split: str | None, tasks: list[str] | None, controller: str, seed: 
                    on_outcome=lambda o: click.echo(f"{o.status} {o.env_id}: {o.detail}", err=True))
 
 
+@benchmark.command("report")
+@click.argument("run", type=click.Path(exists=True, file_okay=False, path_type=Path))
+def report_command(run: Path) -> None:
+    """Write RUN/results.json and RUN/report.md again from the run's episode log (a stopped run's table so far)."""
+    from sb3_memret.benchmark.report import write_report
+    from sb3_memret.benchmark.runner import rebuild
+
+    try:
+        content = rebuild(run)
+    except (FileNotFoundError, ValueError, KeyError) as err:
+        raise click.UsageError(f"{run} is not a benchmark run folder (results.json, protocol.json): {err}") from None
+    click.echo(str(write_report(content, run)))
+
+
 __all__ = ["benchmark"]

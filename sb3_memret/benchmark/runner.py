@@ -72,6 +72,7 @@ class Plan:
     controllers: dict[str, dict[str, str]] = field(default_factory=dict)  # env id -> {"name", "sha256", "reads"}
     task_digests: dict[str, str] = field(default_factory=dict)  # env id -> SHA-256 of its task's (writer's) code
     replan_every: dict[str, int] = field(default_factory=dict)  # env id -> control steps between controller calls
+    learners: Path | None = None  # the recall condition's learners folder
 
     def current(self, record: dict[str, Any]) -> bool:
         """Whether a logged episode was played by this plan's controller and task code (else it is played again)."""
@@ -149,7 +150,7 @@ def plan(protocol: Protocol, conditions: Iterable[str], split: str | None = None
     from sb3_memret.tasks import check_task_name, make_task
 
     tasks = select_tasks(split, list(env_ids) if env_ids is not None else None)
-    result = Plan(protocol, tasks, check_conditions(list(conditions)))
+    result = Plan(protocol, tasks, check_conditions(list(conditions)), learners=learners)
     for row in tasks:
         try:
             check_task_name(row.env_id)
@@ -343,6 +344,7 @@ def results(run: Plan, records: Iterable[dict[str, Any]]) -> dict[str, Any]:
         tasks[row.env_id] = entry
     protocol = {**asdict(run.protocol), "conditions": run.conditions, "seeds": seeds}
     protocol["policy_inputs"] = list(protocol["policy_inputs"])  # as results.json reads back
+    protocol["learners"] = None if run.learners is None else str(run.learners)
     return {"protocol": protocol, "tasks": tasks}
 
 
@@ -350,14 +352,15 @@ def run_benchmark(run: Plan, out: Path, learners: Path | None = None, workers: i
                   on_progress: Callable[[int, int], None] | None = None,
                   on_task_done: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
     """Play every pending unit of ``run`` into ``out`` (resuming what is there), rewriting ``results.json`` (and
-    calling ``on_task_done`` with it) whenever a task's last pending unit lands; the final results."""
+    calling ``on_task_done`` with it) whenever a task's condition has played its last pending unit; the final
+    results."""
     folder = RunFolder(out)
     folder.check_protocol(run.protocol)
     records = folder.episodes()
     pending = run.units(done_units(run, records))
     left = defaultdict(int)
     for unit in pending:
-        left[unit.env_id] += 1
+        left[unit.env_id, unit.condition] += 1
     total, finished = len(pending), 0
 
     def publish() -> dict[str, Any]:
@@ -374,13 +377,28 @@ def run_benchmark(run: Plan, out: Path, learners: Path | None = None, workers: i
         folder.log(record)
         records.append(record)
         finished += 1
-        left[record["env_id"]] -= 1
+        left[record["env_id"], record["condition"]] -= 1
         if on_progress is not None:
             on_progress(finished, total)
-        if left[record["env_id"]] == 0:
+        if left[record["env_id"], record["condition"]] == 0:
             content = publish()
     return content
 
 
+def rebuild(out: Path) -> dict[str, Any]:
+    """``results.json`` of the run in ``out`` made again from its episode log (its tasks, conditions and protocol
+    as the folder records them): what a stopped run had played, or a run's table after its code moved on."""
+    folder = RunFolder(out)
+    saved = json.loads((folder.out / RESULTS_FILE).read_text())
+    stored = json.loads((folder.out / PROTOCOL_FILE).read_text())
+    stored["policy_inputs"] = tuple(stored["policy_inputs"])
+    learners = saved["protocol"].get("learners")
+    run = plan(Protocol(**stored), saved["protocol"]["conditions"], env_ids=list(saved["tasks"]),
+               learners=Path(learners) if learners else None)
+    content = results(run, folder.episodes())
+    (folder.out / RESULTS_FILE).write_text(json.dumps(content, indent=2) + "\n")
+    return content
+
+
 __all__ = ["CONDITIONS", "Plan", "Protocol", "RunFolder", "Unit", "controller_digest", "done_units", "learner_path",
-           "plan", "play_units", "results", "run_benchmark"]
+           "plan", "play_units", "rebuild", "results", "run_benchmark"]
