@@ -121,8 +121,8 @@ def test_the_truth_counts_a_written_speed_near_it(grab, grab_env):
     assert not grab.frames(grab_env, obs, held, reset=True)[0].success and grab.frames(grab_env, obs, held)[0].success
     key = (MemoryType.OTHER, "ball", "rolls")
     assert episode.true_facts[0][0] == key
-    near = MemoryEntry.create(MemoryType.OTHER, "ball", "rolls", f"left at {round(truth.speed * 100) + 2} cm/s", 0)
-    far = MemoryEntry.create(MemoryType.OTHER, "ball", "rolls", f"left at {round(truth.speed * 100) + 5} cm/s", 0)
+    near = MemoryEntry.create(MemoryType.OTHER, "ball", "rolls", f"left at {round(truth.speed * 100) - 4} cm/s", 0)
+    far = MemoryEntry.create(MemoryType.OTHER, "ball", "rolls", f"left at {round(truth.speed * 100) + 6} cm/s", 0)
     back = MemoryEntry.create(MemoryType.OTHER, "ball", "rolls", f"right at {round(truth.speed * 100)} cm/s", 0)
     decoy = MemoryEntry.create(MemoryType.OTHER, "key", "rolls", episode.true_facts[0][1], 0)
     assert episode.is_true(near) and not episode.is_true(far) and not episode.is_true(back)

@@ -42,7 +42,7 @@ and Fast ones. A controller that blocked the ball's path and grasped it at rest 
 
 Truth, for metrics only: the rolling speed, 5/7 of ``oracle_info``'s y; a written fact is the true one when it is
 about the ball, names the right direction and a speed within ``SPEED_TOLERANCE`` (the reader's measured error is
-at most 2 cm/s); the oracle fact states the truth to the cm/s.
+at most 3 cm/s); the oracle fact states the truth to the cm/s.
 """
 
 from __future__ import annotations
@@ -99,7 +99,8 @@ VARIANTS: dict[str, InterceptVariant] = {
     for family, carry in (("Intercept", True), ("InterceptGrab", False)) for pace, launch in SPEEDS.items()}
 ROLLING_SPEEDS = (ROLLING * SPEEDS["Slow"][0], ROLLING * SPEEDS["Fast"][1])  # every variant's, m/s: 0.18-0.71
 EPISODE_STEPS = 60
-SPEED_TOLERANCE = 3  # cm/s: a written speed this close to the truth is the true fact (metrics only)
+SPEED_TOLERANCE = 5  # cm/s: a written speed this close to the truth is the true fact (metrics only); the reader's
+# error was at most 3 cm/s (mean -0.3 to -0.8) over 120 development episodes (scripts/intercept_probe.py)
 
 BALL_CENTRE_Z = 0.02  # the rolling ball's centre: its radius
 ROLLING_FROM = 3  # the first control step at which the ball rolls (it slides, or drops, before)
