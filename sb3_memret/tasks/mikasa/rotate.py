@@ -24,8 +24,9 @@ the peg's angle) is cast onto the plane of that face (z = 5 cm) through the came
 the principal axis of those points (``peg_on_table``): ``the peg started at 35 degrees.``, the angle of the axis
 from the table's x axis, counter-clockwise, in whole degrees from 0 to 179 (the halves look alike, so a camera
 cannot tell 35 from 215 degrees; nor need it: the rotation counts from the peg as it lay). Measured at the
-development seeds 5000-5099: the reading is off the simulator's angle by 0.25 degrees on average, 0.67 at the 95th
-percentile, 1.32 at most (rounding to whole degrees adds up to 0.5): well inside MIKASA's 5.7. Decoys are worded
+development seeds 5000-5099 (``scripts/rotate_reader_error.py``): the reading is off the simulator's angle by 0.25
+degrees on average, 0.67 at the 95th percentile, 1.32 at most (rounding to whole degrees adds up to 0.5, and
+MIKASA's instruction rounds the rotation to whole degrees, up to 0.5 more): well inside MIKASA's 5.7. Decoys are worded
 alike about other things (``the key started at 57 degrees.``). The controller sees ``RotateObservation`` only (never
 ``oracle_info`` or ``task_cue``), so the start reaches it only through its prompt, and the rotation only through the
 instruction.
@@ -33,6 +34,9 @@ instruction.
 **The instruction** is MIKASA's ``info["language_instruction"]`` of the episode's reset, lowercased into the prompt
 contract's form (``angle_deg`` holds a signed whole number: ``sb3_memret.prompts``); the task reads it there
 (``instruction_in_info``), never from ``task_cue``.
+
+**The expert** (``PegTurnController``, ``turn_expert``) pushes the peg round on Lenient (60 steps) and turns it in
+hand on Strict (90 steps, the centre kept in place); without a fact it takes the peg to have started at 0 degrees.
 """
 
 from __future__ import annotations
