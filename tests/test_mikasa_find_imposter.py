@@ -107,8 +107,8 @@ def test_the_writer_writes_the_first_set_it_sees_once_per_episode():
         (0, {("shown", "shown cubes"): "red and blue"})]
 
 
-@pytest.mark.parametrize("env_id, seeds", [("FindImposterColor5-VLA-v0", (5000, 5001)),
-                                           ("FindImposterShape3-VLA-v0", (5000, 5001)),
+@pytest.mark.parametrize("env_id, seeds", [("FindImposterColor5-VLA-v0", (5000,)),
+                                           ("FindImposterShape3-VLA-v0", (5001,)),
                                            ("FindImposterShapeAndColor3x2-VLA-v0", (5000,))])
 def test_reads_the_shown_set_in_the_cue_and_nothing_after(env_id, seeds):
     task = make_task(env_id)
@@ -138,7 +138,8 @@ def test_two_touching_objects_are_cut_apart():
 
 
 @pytest.mark.parametrize("env_id, wording", [("FindImposterColor3-VLA-v0", "set"),
-                                             ("FindImposterShapeAndColor3x2-VLA-v0", "each")])
+                                             ("FindImposterShapeAndColor3x2-VLA-v0", "each"),
+                                             ("FindImposterShapeAndColor5x3-VLA-v0", "set")])  # 5000, 5001: x > 0.18
 def test_the_expert_touches_the_imposter_with_the_oracle_facts_and_not_with_the_wrong(env_id, wording):
     task = make_task(env_id)
     task = type(task)(env_id, wording)
