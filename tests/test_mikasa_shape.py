@@ -1,4 +1,5 @@
-"""MIKASA RememberShape3/5/9: the pixel shape reader, the controller's view, the prompt contract, the expert, the task."""
+"""MIKASA RememberShape3/5/9: the pixel shape reader, the controller's view, the prompt contract, the expert, the
+task."""
 
 import numpy as np
 import pytest

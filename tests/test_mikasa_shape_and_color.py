@@ -126,7 +126,8 @@ def test_the_expert_touches_the_object_of_both_shape_and_colour(env_id):
                     chunk = expert.act(obs, [object_prompt(word)])[0]
                 obs, _, _, _, info = env.step(torch.from_numpy(chunk[step % 4][None]).float())
                 success |= bool(info["success"][0])
-            assert bool(obs["extra"]["object_visible"].all()) and obs["extra"]["object_visible"].shape[1] == SIZES[env_id]
+            visible = obs["extra"]["object_visible"]
+            assert bool(visible.all()) and visible.shape[1] == SIZES[env_id]
             assert success == (condition == "oracle"), (seed, condition, true)
     finally:
         env.close()
