@@ -350,6 +350,7 @@ def test_a_taken_port_is_one_line():
 
     from sb3_memret.cli import main
 
+    before = signal.getsignal(signal.SIGTERM)  # not SIG_DFL once an earlier test has started Ray in this process
     with socket.socket() as taken:
         taken.bind(("127.0.0.1", 0))
         taken.listen()
@@ -358,4 +359,4 @@ def test_a_taken_port_is_one_line():
                                     prog_name="sb3-memret")
     assert result.exit_code == 2 and "Error: Invalid value for --port: cannot serve on 127.0.0.1" in result.output
     assert "address already in use" in result.output and "Traceback" not in result.output
-    assert signal.getsignal(signal.SIGTERM) is signal.SIG_DFL  # serve() put the handlers back
+    assert signal.getsignal(signal.SIGTERM) is before  # serve() put the handlers back
