@@ -214,3 +214,24 @@ def test_recall_retrieves_from_the_writers_bank_in_the_harness(tmp_path):
     assert fact.startswith("the ") and fact.endswith(".") and " was " in fact
     missing = plan(Protocol(seed_set="dev", episodes=1), ["recall"], env_ids=[env_id], learners=tmp_path / "none")
     assert "no trained memory learner" in missing.refused_conditions[env_id, "recall"]
+    long = plan(Protocol(seed_set="dev", episodes=1), ["recall"], env_ids=["RememberColor3-Long-VLA-v0"],
+                learners=tmp_path / "learners")  # a -Long variant without a learner of its own: its short task's
+    assert not long.refused_conditions
+    cell = results(long, [])["tasks"]["RememberColor3-Long-VLA-v0"]["conditions"]["recall"]
+    assert cell["learner"] == str(tmp_path / "learners" / env_id / "final_model.zip")
+
+
+def test_a_condition_added_to_a_run_folder_keeps_its_table(tmp_path):
+    """A run of one condition (or task) into a folder whose results report others reports them all still, and
+    plays only its own units."""
+    from sb3_memret.benchmark.runner import RESULTS_FILE, plan, widened
+
+    protocol = Protocol(seed_set="dev", episodes=1)
+    first = plan(protocol, ["none", "oracle"], env_ids=["RememberColor3-VLA-v0", "TakeItBack-VLA-v0"])
+    (tmp_path / RESULTS_FILE).write_text(json.dumps(results(first, [])))
+    added = plan(protocol, ["wrong"], env_ids=["RememberColor3-VLA-v0"])
+    shown = widened(added, tmp_path)
+    assert shown.conditions == ["none", "oracle", "wrong"]
+    assert [row.env_id for row in shown.tasks] == ["RememberColor3-VLA-v0", "TakeItBack-VLA-v0"]
+    assert [(u.env_id, u.condition) for u in added.units(set())] == [("RememberColor3-VLA-v0", "wrong")]
+    assert widened(first, tmp_path) is first  # nothing to add

@@ -139,8 +139,14 @@ def _reason(err: BaseException) -> str:
 
 
 def learner_path(learners: Path | None, env_id: str) -> Path | None:
-    """Where the memory learner of ``env_id`` lies in a learners folder (``DIR/<env id>/final_model.zip``)."""
-    return None if learners is None else Path(learners) / env_id / LEARNER_FILE
+    """Where the memory learner of ``env_id`` lies in a learners folder: ``DIR/<env id>/final_model.zip``; for a
+    -Long variant without one of its own, its short task's (``DIR/RememberColor3-VLA-v0/``): the bank holds the same
+    facts, only the delay before they are needed grows, which is what its row measures."""
+    if learners is None:
+        return None
+    own = Path(learners) / env_id / LEARNER_FILE
+    short = Path(learners) / env_id.replace("-Long-VLA-v0", "-VLA-v0") / LEARNER_FILE
+    return short if env_id.endswith("-Long-VLA-v0") and not own.is_file() and short.is_file() else own
 
 
 def plan(protocol: Protocol, conditions: Iterable[str], split: str | None = None,
@@ -339,6 +345,8 @@ def results(run: Plan, records: Iterable[dict[str, Any]]) -> dict[str, Any]:
                                     "complete": len(played) == len(seeds)}
             if (row.env_id, condition) in errors and not cell["complete"]:
                 cell["error"] = errors[row.env_id, condition]
+            if condition == "recall":
+                cell["learner"] = str(learner_path(run.learners, row.env_id))
             conditions[condition] = cell
         entry["conditions"] = conditions
         tasks[row.env_id] = entry
@@ -346,6 +354,24 @@ def results(run: Plan, records: Iterable[dict[str, Any]]) -> dict[str, Any]:
     protocol["policy_inputs"] = list(protocol["policy_inputs"])  # as results.json reads back
     protocol["learners"] = None if run.learners is None else str(run.learners)
     return {"protocol": protocol, "tasks": tasks}
+
+
+def widened(run: Plan, out: Path) -> Plan:
+    """``run`` widened to every task and condition that the run folder's ``results.json`` already reports, so that
+    adding a condition (``recall`` once the learners exist) or a task to a run keeps its whole table; only ``run``'s
+    own units are played."""
+    saved = Path(out) / RESULTS_FILE
+    if not saved.is_file():
+        return run
+    content = json.loads(saved.read_text())
+    env_ids = [row.env_id for row in run.tasks]
+    env_ids += [env_id for env_id in content["tasks"] if env_id not in env_ids]
+    conditions = [c for c in CONDITIONS if c in run.conditions or c in content["protocol"]["conditions"]]
+    if len(env_ids) == len(run.tasks) and conditions == run.conditions:
+        return run
+    stored = content["protocol"].get("learners")
+    return plan(run.protocol, conditions, env_ids=env_ids,
+                learners=run.learners or (Path(stored) if stored else None))
 
 
 def run_benchmark(run: Plan, out: Path, learners: Path | None = None, workers: int = 1,
@@ -357,6 +383,7 @@ def run_benchmark(run: Plan, out: Path, learners: Path | None = None, workers: i
     folder = RunFolder(out)
     folder.check_protocol(run.protocol)
     records = folder.episodes()
+    shown = widened(run, out)
     pending = run.units(done_units(run, records))
     left = defaultdict(int)
     for unit in pending:
@@ -364,7 +391,7 @@ def run_benchmark(run: Plan, out: Path, learners: Path | None = None, workers: i
     total, finished = len(pending), 0
 
     def publish() -> dict[str, Any]:
-        content = results(run, records)
+        content = results(shown, records)
         (folder.out / RESULTS_FILE).write_text(json.dumps(content, indent=2) + "\n")
         if on_task_done is not None:
             on_task_done(content)
@@ -401,4 +428,4 @@ def rebuild(out: Path) -> dict[str, Any]:
 
 
 __all__ = ["CONDITIONS", "Plan", "Protocol", "RunFolder", "Unit", "controller_digest", "done_units", "learner_path",
-           "plan", "play_units", "rebuild", "results", "run_benchmark"]
+           "plan", "play_units", "rebuild", "results", "run_benchmark", "widened"]
