@@ -27,7 +27,7 @@ at every control step the ball's pixels (saturated red; the target's red is pink
 through the camera's calibration (``ball_on_table``); from the third step on (rolling) a line fitted to
 ``MIN_SIGHTINGS`` sightings spanning ``MIN_SPAN`` steps gives the speed, written once as ``the ball rolls left at
 37 cm/s.`` (cm/s: the prompt contract has no decimals), at steps 7-17 (a slow ball comes into view late). Decoys
-are worded alike about other things (``the key rolls left at 30 cm/s.``). The controller sees
+are worded alike about other things at any variant's speed (``the key rolls left at 30 cm/s.``). The controller sees
 ``InterceptObservation`` only: its joints, its hand, where the ball is while it is in the base camera's view (as a
 detector would report it: not while the ball is beyond the image's edge) and where the target is; never
 ``oracle_info`` (MIKASA's launch velocity), so the ball's velocity reaches it only through its prompt.
@@ -306,9 +306,11 @@ class InterceptTask(MikasaCueTask):
 
     def seed_memories(self, frame: EnvFrame, episode: Episode, rng: np.random.Generator, seeding: SeedingConfig,
                       facts: bool = True) -> list[MemoryEntry]:
-        """``seeding.location_decoys`` facts worded as the ball's about other things, each at a speed of the
-        task's (``the key rolls left at 30 cm/s.``); the ball's own fact comes only from what the camera saw."""
-        low, high = self.variant.rolling
+        """``seeding.location_decoys`` facts worded as the ball's about other things (``the key rolls left at 30
+        cm/s.``), each at a speed drawn from every variant's (18-71 cm/s): a decoy drawn from this variant's own
+        speeds would tell the expert the speed band, and it catches most balls on any speed in the band, so recall
+        would succeed without the ball's fact. The ball's own fact comes only from what the camera saw."""
+        low, high = ROLLING_SPEEDS
         vocab = sorted(set(seeding.vocabulary))
         return [MemoryEntry.create(MemoryType.OTHER, str(word), self.cue_relation,
                                    motion_value(Motion("left", float(rng.uniform(low, high)))), 0)
