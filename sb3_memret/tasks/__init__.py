@@ -119,6 +119,9 @@ for _env_id in ("InterceptSlow-VLA-v0", "InterceptMedium-VLA-v0", "InterceptFast
 for _env_id in ("RotateLenientPos-VLA-v0", "RotateLenientPosNeg-VLA-v0", "RotateStrictPos-VLA-v0",
                 "RotateStrictPosNeg-VLA-v0"):
     register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.rotate", "RotateTask", _env_id))
+for _env_id in ("BlinkCountButtonPressEasy-VLA-v0", "BlinkCountButtonPressMedium-VLA-v0"):  # they build MIKASA's lamp
+    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.blink_count", "BlinkCountTask", _env_id),
+                  lambda: importlib.import_module("sb3_memret.tasks.mikasa.lamp_asset").ensure_lamp_asset())
 
 __all__ = ["DEFAULT_TASK", "EnvFrame", "Episode", "Predicates", "Task", "Writer", "check_task_name",
            "make_task", "register_task", "task_names"]
