@@ -12,7 +12,9 @@ from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.objects import OBJECT_SETS
 from sb3_memret.memory.retention import RETENTION_RULES
 from sb3_memret.memory.schema import AGE_UNITS
-from sb3_memret.tasks import check_task_name
+from sb3_memret.tasks import DEFAULT_TASK, check_task_name, make_task
+
+ZOO_CONFIGS = Path(__file__).resolve().parents[1] / "zoo_configs"  # the shipped hyperparameters, one file per family
 
 Check = tuple[type | tuple[type, ...], Callable[[Any], bool], str]
 
@@ -130,6 +132,22 @@ def load_config(path: str | Path, env_id: str) -> TrainConfig:
         known = list(data) if isinstance(data, dict) else []
         raise MissingSectionError(f"{path}: no section for env id {env_id!r}; the file has {known}")
     return parse_section(data[env_id], env_id, where=str(path))
+
+
+def load_task_config(task: str = DEFAULT_TASK, path: Path | None = None) -> TrainConfig:
+    """The hyperparameters of ``task``: its section (``Task.config_key``) of ``path``, by default of the task's own
+    zoo config (``Task.zoo_config``). Without ``path``, a task that has no section there (a task of your own) is
+    told where they were looked for and how to pass them: no other task's section stands in for its own."""
+    the_task = make_task(task)
+    default = ZOO_CONFIGS / the_task.zoo_config
+    try:
+        return load_config(path or default, the_task.config_key)
+    except (FileNotFoundError, MissingSectionError) as err:
+        if path is not None:
+            raise
+        raise MissingSectionError(f"no hyperparameters for task {task!r}: its zoo config ({err}); pass --config "
+                                  f"FILE, a YAML with a section {the_task.config_key!r} (the task's config_key), e.g. "
+                                  "a section of zoo_configs/ copied and renamed") from None
 
 
 def parse_section(section: Any, env_id: str, where: str = "config") -> TrainConfig:

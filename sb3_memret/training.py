@@ -31,6 +31,7 @@ from sb3_memret.callbacks.checkpoint import checkpoints as list_checkpoints
 from sb3_memret.config import TrainConfig, parse_section
 from sb3_memret.controllers import FrozenController, make_controller
 from sb3_memret.envs.vec_env import make_recall_vec_env
+from sb3_memret.seeds import HELD_OUT_SEED
 from sb3_memret.tasks import DEFAULT_TASK, make_task
 from sb3_memret.evaluation import RetrievalReport
 from sb3_memret.policy.networks import HIDDEN
@@ -54,7 +55,7 @@ class RunOptions:
     resume: bool = False
     eval_episodes: int = 50
     eval_every: int = 5
-    eval_seed: int = 1_000_000
+    eval_seed: int = HELD_OUT_SEED
     progress_bar: bool = False
     log_formats: tuple[str, ...] = ("stdout", "csv", "tensorboard")
     render_backend: str = "none"  # image controllers need "cpu" or "gpu"

@@ -21,6 +21,7 @@ import yaml
 from sb3_memret.evaluation import RetrievalReport
 from sb3_memret.config import TrainConfig, parse_section
 from sb3_memret.controllers import FrozenController
+from sb3_memret.seeds import HELD_OUT_SEED
 from sb3_memret.training import RunOptions, train
 
 STUDY_FILE = "study.db"
@@ -73,7 +74,7 @@ class TuneOptions:
     seed: int = 0  # every trial trains with this seed; the sampler draws from it too
     eval_episodes: int = 20
     eval_every: int = 2
-    eval_seed: int = 1_000_000
+    eval_seed: int = HELD_OUT_SEED
     startup_trials: int = 5  # trials before the sampler models the space and the pruner may prune
     warmup_evaluations: int = 2  # evaluations a trial always gets before it may be pruned
     render_backend: str = "none"

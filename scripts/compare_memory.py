@@ -23,7 +23,7 @@ import yaml
 from stable_baselines3 import PPO
 
 from sb3_memret.evaluation import RetrievalReport, evaluate_retrieval
-from sb3_memret.cli import HELD_OUT_SEED
+from sb3_memret.seeds import HELD_OUT_SEED
 from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.objects import OBJECT_SETS
 from sb3_memret.envs.vec_env import make_recall_vec_env

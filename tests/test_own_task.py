@@ -16,7 +16,8 @@ import pytest
 import yaml
 from click.testing import CliRunner
 
-from sb3_memret.cli import load_task_config, main
+from sb3_memret.cli import main
+from sb3_memret.config import load_task_config
 from sb3_memret.tasks import make_task
 
 USER_MODULE = '''

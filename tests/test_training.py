@@ -177,7 +177,7 @@ def test_retrieval_is_learned_on_the_real_simulator():
     """Ten rounds of the default config from random initialisation: the greedy retriever picks the
     true cube memory and the sampling policy has moved well away from chance (scripts/bench_learning.py
     runs the full 24 rounds)."""
-    from sb3_memret.cli import load_task_config
+    from sb3_memret.config import load_task_config
     from sb3_memret.envs.vec_env import make_recall_vec_env
     from sb3_memret.evaluation import evaluate_retrieval
     from sb3_memret.policy.policy import MemoryRetrievalPolicy

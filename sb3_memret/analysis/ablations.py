@@ -28,6 +28,7 @@ from sb3_memret.envs.cabinet import LAYERS, check_layer
 from sb3_memret.parallel_rollout import EpisodeJob, run_jobs
 from sb3_memret.prompts import HOLDING_NOTHING_TEXT, INSTRUCTION, build_prompt, location_text
 from sb3_memret.rollout import DEFAULT_REPLAN_EVERY, EpisodeResult
+from sb3_memret.seeds import HELD_OUT_SEED
 
 REPLAN_INTERVALS: tuple[int, ...] = (5, 8, 10, 12, 16, 20, 24, 28, 32)
 WRONG_OBJECT = "key"
@@ -240,7 +241,7 @@ def run_ablation(
     spec: AblationSpec,
     controller: str = "scripted",
     episodes: int = 17,
-    seed: int = 1_000_000,
+    seed: int = HELD_OUT_SEED,
     n_envs: int = 1,
     render_backend: str = "none",
     on_episode: Callable[[EpisodeJob, EpisodeResult], None] | None = None,

@@ -15,6 +15,7 @@ from pathlib import Path
 from typing import Any, Callable
 
 from sb3_memret.analysis.ablations import ABLATIONS
+from sb3_memret.seeds import HELD_OUT_SEED
 from sb3_memret.tasks import DEFAULT_TASK
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.evaluation import RetrievalReport, evaluate_retrieval
@@ -67,7 +68,7 @@ def write_report(run: Path, options: ReportOptions | None = None,
     say("plotting learning curves")
     chance = retrieval_chance(run)
     plot_learning_curves(run, run / PLOT_FILE, chance=chance)
-    eval_seed = summary.get("eval_seed", 1_000_000)
+    eval_seed = summary.get("eval_seed", HELD_OUT_SEED)
     final = RetrievalReport.from_dict(summary["final_eval"]) if summary.get("final_eval") else None
     model = load_model(final_path)
     baselines = _baselines(model, final_path, final, eval_seed, options, say)

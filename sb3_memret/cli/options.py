@@ -1,0 +1,170 @@
+"""What the commands share: the ``--task``, ``--controller``, ``--render-backend`` and physics options, their
+callbacks and defaults, and checks of a run folder against the options."""
+
+from __future__ import annotations
+
+import json
+from pathlib import Path
+
+import click
+
+DEFAULT_TASK = "drawer"  # sb3_memret.tasks.DEFAULT_TASK
+TASK_CONTROLLER = ("  [default: the task's: learned-state on the drawer, the shipped camera-reading 'learned' on a task "
+                   "that has one, else scripted]")
+RUN_CONTROLLER = "  [default: the run's]"
+
+
+def default_controller(task: str | None) -> str:
+    """The controller a command runs on ``task`` when none is named (``Task.default_controller``)."""
+    from sb3_memret.tasks import make_task
+
+    return make_task(task or DEFAULT_TASK).default_controller
+
+
+def run_controller(folder: Path, task: str) -> str:
+    """The controller the run in ``folder`` was trained with (its summary.json), else ``task``'s default."""
+    summary = folder / "summary.json"
+    if summary.is_file():
+        name = json.loads(summary.read_text()).get("controller")
+        if name:
+            return name
+    return default_controller(task)
+
+
+def build_controller(ctx: click.Context, param: click.Parameter | None, value: str | None, task: str | None = None):
+    """The controller ``value`` names for ``task`` (default: the command's ``--task``, else the drawer); None
+    names the task's default controller."""
+    from sb3_memret.controllers import make_controller
+
+    task = task or ctx.params.get("task") or DEFAULT_TASK
+    try:
+        return make_controller(value or default_controller(task), task)
+    except (ValueError, OSError, ImportError, RuntimeError) as err:  # bad spec, server down, missing extra or weights
+        raise click.BadParameter(str(err), ctx=ctx, param=param) from err
+
+
+def resolve_render_backend(ctx: click.Context, param: click.Parameter, value: str | None) -> str:
+    """The render backend: by default the task's (``cpu`` for a task whose writer reads cameras, else
+    ``none``); ``cpu`` is refused here, with the install command, when the project's lavapipe is missing."""
+    if value is None:
+        task = ctx.params.get("task")
+        if task is None and any(p.name == "task" for p in ctx.command.params):
+            return None  # the run's task decides (train --resume, eval): resolved by the command
+        from sb3_memret.tasks import make_task
+
+        value = make_task(task or DEFAULT_TASK).default_render_backend
+    if value == "cpu":
+        from sb3_memret.rendering import RendererNotFoundError, use_cpu_renderer
+
+        try:
+            use_cpu_renderer()
+        except RendererNotFoundError as err:
+            raise click.BadParameter(str(err), ctx=ctx, param=param) from None
+    return value
+
+
+def camera_render_backend(ctx: click.Context, render_backend: str, controller) -> str:
+    """``render_backend``, or the software renderer where none was named and ``controller`` reads cameras."""
+    named = ctx.get_parameter_source("render_backend") is not click.core.ParameterSource.DEFAULT
+    if controller.spec.needs_images and render_backend == "none" and not named:
+        return resolve_render_backend(ctx, None, "cpu")
+    return render_backend
+
+
+def render_backend_option(command):
+    return click.option("--render-backend", type=click.Choice(["none", "cpu", "gpu"]), default=None,
+                        callback=resolve_render_backend,
+                        help="SAPIEN render backend; controllers that read camera images need cpu (the software "
+                             "renderer of `make renderer`) or gpu  [default: cpu for a controller that reads "
+                             "cameras, else the task's: none for the drawer, cpu for MIKASA's tasks, whose writer "
+                             "reads the cameras]")(command)
+
+
+class TaskName(click.ParamType):
+    """A registered task name or ``package.module:Class``; a task that cannot run here says why."""
+
+    name = "task"
+
+    def convert(self, value, param, ctx):
+        from sb3_memret.tasks import check_task_name
+
+        try:
+            return check_task_name(value)
+        except ValueError as err:
+            self.fail(str(err), param, ctx)
+
+
+def task_option(default: str | None = DEFAULT_TASK):
+    """``--task``: the memory task (parsed first, so the controller and render defaults follow it)."""
+    def decorate(command):
+        from sb3_memret.tasks import task_names
+
+        return click.option("--task", type=TaskName(), default=default, is_eager=True,
+                            show_default=default is not None,
+                            help=f"Memory task: one of {', '.join(task_names())}, or package.module:Class (a Task "
+                                 "of your own)." + ("" if default else "  [default: the run's]"))(command)
+    return decorate
+
+
+def check_physics(ctx: click.Context, param: click.Parameter, value):
+    """Refuse a Ray address beside a backend other than ray (checked once both values are known)."""
+    backend = value if param.name == "backend" else ctx.params.get("backend")
+    address = value if param.name == "ray_address" else ctx.params.get("ray_address")
+    if address is not None and backend not in (None, "auto", "ray"):
+        raise click.BadParameter(f"--ray-address {address!r} runs the physics on Ray, so --backend must be ray "
+                                 f"(or left out), not {backend!r}", ctx=ctx, param=param)
+    return value
+
+
+def physics_options(command):
+    """``--backend`` and ``--ray-address``: where the task physics runs, apart from the one controller."""
+    command = click.option("--ray-address", default=None, metavar="ADDR", callback=check_physics,
+                           help="Run the physics workers as Ray actors on this Ray cluster (e.g. ray://head:10001 "
+                                "or auto); implies --backend ray.")(command)
+    return click.option("--backend", type=click.Choice(["auto", "process", "gpu", "ray"]), default="auto",
+                        show_default=True, callback=check_physics,
+                        help="Where the task physics runs: auto (in-process for one env, else worker processes), "
+                             "process (one CPU worker per env), gpu (one batched ManiSkill GPU simulation), ray "
+                             "(Ray actors; a local Ray instance unless --ray-address). One controller call serves "
+                             "every env whatever the backend.")(command)
+
+
+def check_run_task(ctx: click.Context, task: str | None, run_task: str, where: Path, controller: str,
+              render_backend: str | None) -> str | None:
+    """Check the run at ``where``: ``--task`` must match its task, and ``controller`` is built on it. Returns the
+    render backend: ``render_backend``, or cpu where none was named and the controller reads cameras (else None:
+    the run's task's)."""
+    if task is not None and task != run_task:
+        raise click.BadParameter(f"{str(where)!r} was trained on task {run_task!r}, not {task!r}", param_hint="--task")
+    built = build_controller(ctx, None, controller, run_task)
+    if render_backend is None and built.spec.needs_images:
+        return resolve_render_backend(ctx, None, "cpu")
+    return render_backend
+
+
+def model_run(model_path: Path) -> Path:
+    """The run folder a model file sits in (the folder itself, or its parent for checkpoints/)."""
+    parent = Path(model_path).parent
+    return parent.parent if not (parent / "summary.json").exists() and (parent.parent / "summary.json").exists() \
+        else parent
+
+
+def load_models(paths: list[Path], param_hint: str) -> list:
+    from sb3_memret.policy.ppo import load_model
+
+    try:
+        return [load_model(path) for path in paths]
+    except ValueError as err:
+        raise click.BadParameter(str(err), param_hint=param_hint) from None
+
+
+def controller_spec(ctx: click.Context, param: click.Parameter, value: str | None) -> str | None:
+    """Check a controller spec in this process (kept in ``ctx.meta["controller"]``); envs built
+    elsewhere (workers) receive the string. None stays None in a command whose run decides (its task and
+    controller); elsewhere it becomes the task's default."""
+    if value is None and any(p.name == "task" and p.default is None for p in ctx.command.params):
+        return None
+    value = value or default_controller(ctx.params.get("task"))
+    ctx.meta["controller"] = build_controller(ctx, param, value)
+    return value
+

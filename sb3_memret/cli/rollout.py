@@ -1,0 +1,83 @@
+"""``sb3-memret rollout``: a frozen controller on a task under one prompt condition."""
+
+from __future__ import annotations
+
+import json
+import sys
+
+import click
+
+from sb3_memret.cli.options import (DEFAULT_TASK, TASK_CONTROLLER, build_controller, camera_render_backend,
+                                    render_backend_option, task_option)
+from sb3_memret.envs.cabinet import LAYERS
+
+
+@click.command()
+@task_option()
+@click.option("--controller", "controller", default=None, callback=build_controller,
+              help="Frozen controller to run: 'learned' (the task's shipped camera-reading policy), 'learned-state' "
+                   "(the drawer's policy on the simulator's state), 'learned:PATH', 'scripted' (the task's expert), "
+                   "'openpi://HOST:PORT' or 'lerobot:PATH'." + TASK_CONTROLLER)
+@click.option("--condition", type=click.Choice(["oracle", "none", "wrong", "written"]), default="oracle",
+              show_default=True,
+              help="Prompt: oracle tells what must be remembered (the cube's layer, the cue's colour), wrong names "
+                   "something else, none is the bare instruction, written carries every fact the task's writer has "
+                   "written so far in the episode (no retriever, no decoys: it checks the writer end to end).")
+@click.option("--episodes", type=click.IntRange(min=1), default=10, show_default=True,
+              help="Episodes per layer (the drawer), else episodes in all.")
+@click.option("--layer", type=click.IntRange(min=min(LAYERS), max=max(LAYERS)), default=None,
+              help="The drawer only: this layer (1 = top); default all three.")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="First episode seed (a task with protocol seeds, as MIKASA's, plays those instead, unless "
+                   "--seeds dev).")
+@click.option("--seeds", "seed_set", type=click.Choice(["protocol", "dev"]), default="protocol", show_default=True,
+              help="protocol: a task's benchmark seeds where it has them (MIKASA's 4242424242 + i, its test set); "
+                   "dev: --seed, --seed + 1, ... on every task, for development (e.g. --seed 5000).")
+@click.option("--replan-every", type=click.IntRange(min=1), default=None,
+              help="Control steps executed from each action chunk before replanning  [default: the task's "
+                   "(Task.replan_every): 8 on the drawer, 4 on MIKASA's tasks]")
+@click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
+@render_backend_option
+def rollout(task: str, controller, condition: str, episodes: int, layer: int | None, seed: int, seed_set: str,
+            replan_every: int | None, as_json: bool, render_backend: str) -> None:
+    """Run a frozen controller on a task under a prompt condition and print its success per group (the
+    drawer's layer, the cue's colour)."""
+    from sb3_memret.rollout import evaluate_condition, evaluate_task_condition, summarize
+    from sb3_memret.tasks import make_task
+
+    replan_every = replan_every or make_task(task).replan_every
+
+    render_backend = camera_render_backend(click.get_current_context(), render_backend, controller)
+    if task != DEFAULT_TASK and layer is not None:
+        raise click.BadParameter(f"--layer chooses a drawer; task {task!r} has none", param_hint="--layer")
+    layers = (layer,) if layer else LAYERS
+    total = episodes * len(layers) if task == DEFAULT_TASK else episodes
+    with click.progressbar(length=total, label=f"{condition} rollouts", file=sys.stderr) as bar:
+        try:
+            if task == DEFAULT_TASK and condition == "written":  # the same placements as the fixed prompts'
+                results = [result for one in layers for result in evaluate_task_condition(
+                    controller, condition, task, episodes, seed, replan_every, on_episode=lambda _: bar.update(1),
+                    render_backend=render_backend, reset_options={"target_layer": one})]
+            elif task == DEFAULT_TASK:
+                results = evaluate_condition(controller, condition, episodes, layers, seed, replan_every,
+                                             on_episode=lambda _: bar.update(1), render_backend=render_backend)
+            else:
+                results = evaluate_task_condition(controller, condition, task, episodes, seed, replan_every,
+                                                  on_episode=lambda _: bar.update(1), render_backend=render_backend,
+                                                  protocol_seeds=seed_set == "protocol")
+        except ValueError as err:
+            raise click.UsageError(str(err)) from err
+    summary = summarize(results)
+    if as_json:
+        click.echo(json.dumps({"task": task, "condition": condition, "episodes": len(results),
+                               "seeds": [r.seed for r in results], "success": summary["success"],
+                               "median_steps_to_success": summary["median_steps_to_success"]}))
+        return
+    group = "layer" if task == DEFAULT_TASK else "group"
+    click.echo(f"task: {task}   condition: {condition}   episodes: {len(results)}")
+    click.echo(f"| {group} | episodes | success | median steps to success |")
+    click.echo("|---|---|---|---|")
+    for key, rate in summary["success"].items():
+        steps = summary["median_steps_to_success"][key]
+        click.echo(f"| {key} | {summary['episodes'][key]} | {rate:.0%} | {'-' if steps is None else f'{steps:.0f}'} |")
+

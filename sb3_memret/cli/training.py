@@ -1,0 +1,188 @@
+"""``sb3-memret train`` and ``tune``: the memory learner's PPO runs and hyperparameter search."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+import click
+
+from sb3_memret.cli.options import (DEFAULT_TASK, TASK_CONTROLLER, build_controller, default_controller,
+                                    physics_options, render_backend_option, resolve_render_backend, run_controller,
+                                    task_option)
+from sb3_memret.seeds import HELD_OUT_SEED
+
+EXPERIMENTS = ("recall",)
+
+
+@click.command()
+@click.argument("experiment", type=click.Choice(list(EXPERIMENTS)), metavar="EXPERIMENT")
+@task_option(default=None)
+@click.option("--config", "config_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="rl-zoo-style YAML keyed by task (its section named by the task's config_key, its name; a task "
+                   "of your own passes its own YAML)  [default: the task's file in zoo_configs/ of the source tree: "
+                   "memret_ppo.yml for the drawer, memret_ppo_mikasa.yml for MIKASA's tasks]")
+@click.option("--controller", default=None,
+              help="Frozen controller the memory serves ('scripted': the task's expert; 'learned': its camera-reading "
+                   "policy, with --render-backend cpu)" + TASK_CONTROLLER + "; a resumed run keeps its own.")
+@click.option("--n-envs", type=click.IntRange(min=1), default=None,
+              help="Parallel envs; a round holds n_envs x n_steps decisions, so with many envs give the config "
+                   "calibration_coef: 1.0 or fewer n_steps (README: 16 envs)  [default: config]")
+@click.option("--timesteps", type=click.IntRange(min=1), default=None, help="Decisions in all  [default: config]")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Run folder  [default: runs/<experiment>-seed<seed>, runs/<experiment>-<task>-seed<seed> for "
+                   "another task than the drawer]")
+@click.option("--resume", is_flag=True, help="Continue the run in --out from its last checkpoint.")
+@click.option("--retriever-from", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+              help="Start the retriever from this model file's (e.g. a run of another benchmark task); the "
+                   "retention critic starts fresh.")
+@click.option("--eval-episodes", type=click.IntRange(min=1), default=50, show_default=True,
+              help="Held-out episodes per evaluation.")
+@click.option("--eval-every", type=click.IntRange(min=1), default=5, show_default=True,
+              help="Evaluate every N rounds (and at the end).")
+@click.option("--progress/--no-progress", default=True, show_default=True,
+              help="Show a progress bar (without it, SB3 prints every round's statistics).")
+@render_backend_option
+@physics_options
+@click.pass_context
+def train(ctx: click.Context, experiment: str, task: str | None, config_path: Path | None, controller: str,
+          n_envs: int | None, timesteps: int | None, seed: int, out: Path | None, resume: bool,
+          retriever_from: Path | None, eval_episodes: int, eval_every: int, progress: bool, render_backend: str,
+          backend: str, ray_address: str | None) -> None:
+    """Train the retriever and retention networks with PPO on EXPERIMENT (recall: what the task's controller
+    must know, the drawer's layer or a cue's colour, reaches it only through a retrieved memory)."""
+    from sb3_memret.config import load_task_config
+    from sb3_memret.tasks import make_task
+    from sb3_memret.training import RunOptions, format_history, load_run_config, start_retriever, train as run_training
+    from sb3_memret.workers import exit_status
+
+    name = task or DEFAULT_TASK
+    out = out or Path("runs") / (f"{experiment}-seed{seed}" if name == DEFAULT_TASK else f"{experiment}-{name}-seed{seed}")
+    if resume and (out / "config.yml").exists():
+        saved = load_run_config(out).env_kwargs.get("task", DEFAULT_TASK)
+        if task is not None and task != saved:
+            raise click.BadParameter(f"the run in {str(out)!r} is of task {saved!r}, not {task!r}", param_hint="--task")
+        name = saved
+    the_task = make_task(name)
+    config = None
+    if not resume or config_path or timesteps:
+        # a resume without --config keeps its run's own hyperparameters (--timesteps may lengthen it)
+        from_run = resume and config_path is None and (out / "config.yml").exists()
+        try:
+            config = load_run_config(out) if from_run else load_task_config(name, config_path)
+        except (FileNotFoundError, ValueError) as err:
+            raise click.BadParameter(str(err), param_hint="--config") from err
+        if config.env_kwargs.get("task", name) != name:
+            raise click.BadParameter(f"section {the_task.config_key!r} of the config is for task "
+                                     f"{config.env_kwargs['task']!r}, not {name!r}; pass --config FILE with a "
+                                     f"section {the_task.config_key!r} for it", param_hint="--config")
+        config.env_kwargs["task"] = name
+        if n_envs is not None:
+            config.ppo["n_envs"] = n_envs
+        if timesteps is not None:
+            config.ppo["n_timesteps"] = timesteps
+    controller = controller or (run_controller(out, name) if resume else the_task.default_controller)
+    built = build_controller(ctx, None, controller, name)
+    # a controller that reads cameras gets the software renderer unless a backend is named
+    render_backend = render_backend or resolve_render_backend(ctx, None, "cpu" if built.spec.needs_images
+                                                       else the_task.default_render_backend)
+    options = RunOptions(out=out, controller=controller, seed=seed, resume=resume, retriever_from=retriever_from,
+                         eval_episodes=eval_episodes, eval_every=eval_every, eval_seed=HELD_OUT_SEED, progress_bar=progress,
+                         render_backend=render_backend, backend=backend, ray_address=ray_address,
+                         # the bar and the closing table say enough; without the bar, SB3's per-round dumps
+                         log_formats=("csv", "tensorboard") if progress else ("stdout", "csv", "tensorboard"))
+    if retriever_from is not None:
+        try:
+            start_retriever(config, options)
+        except ValueError as err:
+            raise click.BadParameter(str(err), param_hint="--retriever-from") from err
+    try:
+        result = run_training(config, options, built)
+    except (FileExistsError, FileNotFoundError) as err:
+        raise click.UsageError(str(err)) from err
+    click.echo(format_history(result.history))
+    click.echo(f"\n{result.num_timesteps} decisions, {result.rounds} rounds in {result.wall_seconds / 60:.1f} min; "
+               f"run folder {result.out}")
+    if result.interrupted:
+        click.echo(f"stopped by {result.stopped_by}: saved {result.model_path}; continue with "
+                   f"sb3-memret train {experiment} --out {result.out} --resume", err=True)
+        sys.exit(exit_status(result.stopped_by))
+    click.echo(f"model: {result.model_path} (load with stable_baselines3.PPO.load)")
+    click.echo(f"report: sb3-memret report {result.out}")
+
+
+@click.command()
+@click.argument("experiment", type=click.Choice(list(EXPERIMENTS)), metavar="EXPERIMENT")
+@task_option()
+@click.option("--config", "config_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
+              help="Zoo config whose section is the starting point (everything the search does not vary)  "
+                   "[default: the task's file in zoo_configs/]")
+@click.option("--controller", default=None,
+              help="Frozen controller the memory serves ('scripted': the task's expert)." + TASK_CONTROLLER)
+@click.option("--trials", type=click.IntRange(min=1), default=20, show_default=True,
+              help="Trials to run now (a study in --out continues with more).")
+@click.option("--timesteps", type=click.IntRange(min=1), default=None, help="Decisions per trial  [default: config]")
+@click.option("--n-envs", type=click.IntRange(min=1), default=None, help="Parallel envs  [default: config]")
+@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
+              help="Training seed of every trial, and the sampler's.")
+@click.option("--eval-episodes", type=click.IntRange(min=1), default=20, show_default=True,
+              help="Held-out episodes per evaluation (what the trials are compared and pruned on).")
+@click.option("--eval-every", type=click.IntRange(min=1), default=2, show_default=True, help="Evaluate every N rounds.")
+@click.option("--startup-trials", type=click.IntRange(min=0), default=5, show_default=True,
+              help="Random trials before the TPE sampler models the space and the median pruner may prune.")
+@click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
+              help="Study folder: study.db, trial-N/ run folders, trials.csv, best_config.yml  "
+                   "[default: runs/tune-<experiment>-<task>]")
+@render_backend_option
+@click.pass_context
+def tune(ctx: click.Context, experiment: str, task: str, config_path: Path | None, controller: str, trials: int,
+         timesteps: int | None, n_envs: int | None, seed: int, eval_episodes: int, eval_every: int, startup_trials: int,
+         out: Path | None, render_backend: str) -> None:
+    """Search the learner's hyperparameters on EXPERIMENT with Optuna, as rl-zoo does: TPE sampling, a median
+    pruner on the held-out evaluations, and the best trial written as a zoo config (OUT/best_config.yml,
+    ready for `train --config`). Trials are compared on their mean held-out greedy accuracy over the run
+    (retrieval learned early and kept). An interrupted search continues when the same command runs again."""
+    try:
+        import optuna  # noqa: F401
+    except ImportError:
+        raise click.UsageError("tune needs Optuna: pip install 'sb3-memret[tune]' (or optuna)") from None
+    from sb3_memret.config import load_task_config
+    from sb3_memret.tuning import BEST_CONFIG, TRIALS_FILE, TuneOptions, tune as run_tune
+    from sb3_memret.workers import exit_status
+
+    try:
+        config = load_task_config(task, config_path)
+    except (FileNotFoundError, ValueError) as err:
+        raise click.BadParameter(str(err), param_hint="--config") from err
+    config.env_kwargs["task"] = task
+    if n_envs is not None:
+        config.ppo["n_envs"] = n_envs
+    if timesteps is not None:
+        config.ppo["n_timesteps"] = timesteps
+    out = out or Path("runs") / f"tune-{experiment}-{task}"
+    controller = controller or default_controller(task)
+    built = build_controller(ctx, None, controller, task)
+    options = TuneOptions(out=out, trials=trials, controller=controller, seed=seed, eval_episodes=eval_episodes,
+                          eval_every=eval_every, eval_seed=HELD_OUT_SEED, startup_trials=startup_trials,
+                          render_backend=render_backend)
+
+    def on_trial(trial) -> None:
+        value = "-" if trial.value is None else f"{trial.value:.3f}"
+        click.echo(f"trial {trial.number}: {trial.state.name.lower()}, mean greedy accuracy {value}, {trial.params}",
+                   err=True)
+
+    try:
+        study = run_tune(config, options, built, on_trial=on_trial)
+    except KeyboardInterrupt as err:
+        click.echo(f"stopped ({err or 'Ctrl-C'}); the study in {out} continues when the same command runs again",
+                   err=True)
+        sys.exit(exit_status(str(err) or "Ctrl-C"))
+    best = out / BEST_CONFIG
+    click.echo(f"{len(study.trials)} trials in {out / TRIALS_FILE}")
+    if best.exists():
+        click.echo(f"best: trial {study.best_trial.number}, mean greedy accuracy {study.best_value:.3f}; "
+                   f"config {best} (sb3-memret train {experiment} --task {task} --config {best})")
+    else:
+        click.echo("no trial completed yet, so no best config", err=True)
+
