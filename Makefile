@@ -8,7 +8,7 @@ RENDERER ?= .renderer
 is_py312 = $(shell $(1) -c 'import sys; assert sys.version_info[:2] == (3, 12)' >/dev/null 2>&1 && echo yes)
 PYTHON ?= $(firstword $(foreach p,python3.12 $(wildcard $(HOME)/.pyenv/versions/3.12*/bin/python3.12),$(if $(call is_py312,$(p)),$(p))))
 
-.PHONY: install renderer train test bench controller controller-objects controller-camera controller-mikasa clean
+.PHONY: install renderer train test docs bench controller controller-objects controller-camera controller-mikasa clean
 
 $(VENV)/.installed: setup.cfg pyproject.toml constraints.txt
 	@test -n "$(PYTHON)" || { echo "error: no Python 3.12 found; install one (e.g. pyenv install 3.12) or pass PYTHON=/path/to/python3.12" >&2; exit 1; }
@@ -37,6 +37,16 @@ train: install
 
 test: install renderer
 	$(PY) -m pytest $(PYTEST_ARGS)
+
+# The documentation site (docs/: Sphinx and MyST): the guides, the API reference from the docstrings, the results
+# pages generated from benchmarks/**/results.json. Warnings are errors. Open docs/_build/html/index.html.
+$(VENV)/.docs-installed: docs/requirements.txt $(VENV)/.installed
+	$(PY) -m pip install --quiet -c constraints.txt -r docs/requirements.txt
+	touch $@
+
+docs: install $(VENV)/.docs-installed
+	$(PY) -m sphinx -W --keep-going -q -b html docs docs/_build/html
+	@echo "docs/_build/html/index.html"
 
 # Rebuild the drawer's shipped state controller (`--controller learned-state`): 240 expert episodes (half with action
 # noise, clean labels), then behaviour cloning; about 8 minutes on 2 CPU cores.

@@ -86,16 +86,18 @@ class DrawerCubeTakeOutEnv(BaseEnv):
     seed's task); ``objects`` and ``n_objects`` hide several (``sb3_memret.envs.objects``).
 
     **Randomizations:**
+
     - the target's layer is uniform over {1, 2, 3} (fix it with ``options={"target_layer": L}``)
     - which ``n_objects`` of ``objects`` the episode uses is uniform, and so is which of them is
       the target (fix it with ``options={"target": name}``); the others go to distinct other layers
       (or fix them all with ``options={"placement": {name: layer, ...}, "target": name}``)
-    - each object's position in its drawer: 4-9 cm behind the inner front, |y| <= 8 cm
+    - each object's position in its drawer: 4-9 cm behind the inner front, ``|y| <= 8 cm``
     - each object's yaw is uniform in [-pi/6, pi/6]
     - the arm's joint positions get N(0, ``robot_init_qpos_noise``) noise around the rest pose
     - all drawers start closed; the cabinet itself never moves
 
     **Success Conditions:**
+
     - the target's centre is outside every drawer's interior box, and
     - it is raised above the cabinet top (``lift_height``) or pulled past the cabinet front
       (``front_margin`` in front of its face).

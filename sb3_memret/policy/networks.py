@@ -34,7 +34,7 @@ def mlp(in_dim: int, hidden: int = HIDDEN) -> nn.Sequential:
 
 
 class RelevanceMLP(nn.Module):
-    """Task-aware retriever: scores memory m for instruction g from [h_g, h_m, |h_g-h_m|, h_g*h_m]."""
+    """Task-aware retriever: scores memory m for instruction g from ``[h_g, h_m, |h_g - h_m|, h_g * h_m]``."""
 
     def __init__(self, embedding_dim: int = EMBEDDING_DIM, hidden: int = HIDDEN):
         super().__init__()
@@ -54,7 +54,7 @@ class RelevanceMLP(nn.Module):
 class SetRetriever(nn.Module):
     """Set-structured retriever: the seed's per-memory score plus a correction read from the whole bank.
 
-    Each slot's features are the seed MLP's hidden layers over [h_g, h_m, |h_g-h_m|, h_g*h_m] (the
+    Each slot's features are the seed MLP's hidden layers over ``[h_g, h_m, |h_g - h_m|, h_g * h_m]`` (the
     instruction g is in every token); its score is the MLP's head on them plus a context term: ``layers``
     rounds of pre-norm self-attention over the valid slots only (no positions: permuting the slots permutes
     the scores, and any bank size works), then a head that starts at zero. So at initialisation it scores

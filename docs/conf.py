@@ -1,0 +1,58 @@
+"""Sphinx configuration of sb3-memret's documentation (``make docs``: warnings are errors).
+
+Why Sphinx with MyST: the API reference must come from the docstrings (autodoc and autosummary import the
+package and render what its modules say, as stable-baselines3's and ManiSkill's manuals do), and the hand-written
+pages stay Markdown like the README they came from (MyST-parser). Both are plain pip packages pinned in
+``docs/requirements.txt``; the build needs no other tool (no Graphviz, no Mermaid, no network): the figures are
+committed PNGs or SVGs written by hand.
+
+Before Sphinx reads a page, ``generate_cli.py`` writes the command reference from the installed command's own help,
+so it cannot drift from what it describes.
+"""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+
+DOCS = Path(__file__).resolve().parent
+sys.path.insert(0, str(DOCS))
+
+import generate_cli  # noqa: E402  (docs/, on the path above)
+
+import sb3_memret  # noqa: E402
+
+generate_cli.main(DOCS / "cli.md")
+
+project = "sb3-memret"
+author = "the sb3-memret authors"
+release = version = sb3_memret.__version__
+
+extensions = [
+    "myst_parser",
+    "sphinx.ext.autodoc",
+    "sphinx.ext.autosummary",
+    "sphinx.ext.viewcode",
+]
+source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
+exclude_patterns = ["_build", "requirements.txt"]
+templates_path = ["_templates"]
+
+myst_enable_extensions = ["colon_fence", "deflist"]
+myst_heading_anchors = 3
+
+# API reference: one page per module (docs/_templates/autosummary/module.rst), members defined in that module only
+# (``ignore-module-all``: a package that re-exports a name does not document it twice). Every optional stack is
+# installed by `make install` (torch, ManiSkill, SAPIEN, lerobot, ray, optuna, openpi-client, mikasa-robo-suite), so
+# nothing is mocked: a module that does not import fails the build.
+autosummary_generate = True
+autosummary_imported_members = False
+autodoc_default_options = {"members": True, "show-inheritance": True, "ignore-module-all": True}
+autodoc_member_order = "bysource"
+autodoc_typehints = "description"
+autodoc_inherit_docstrings = False  # an override without a docstring of its own shows none (not gymnasium's, torch's)
+autodoc_mock_imports: list[str] = []
+
+html_theme = "furo"
+html_title = f"sb3-memret {release}"
+html_static_path = ["_static"]
