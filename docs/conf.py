@@ -6,8 +6,9 @@ pages stay Markdown like the README they came from (MyST-parser). Both are plain
 ``docs/requirements.txt``; the build needs no other tool (no Graphviz, no Mermaid, no network): the figures are
 committed PNGs or SVGs written by hand.
 
-Before Sphinx reads a page, ``generate_cli.py`` writes the command reference from the installed command's own help,
-so it cannot drift from what it describes.
+Before Sphinx reads a page, ``generate_results.py`` writes ``docs/results/`` from the result files committed under
+``benchmarks/`` (never typed), and ``generate_cli.py`` writes the command reference from the installed command's own
+help, so neither can drift from what it describes.
 """
 
 from __future__ import annotations
@@ -19,9 +20,11 @@ DOCS = Path(__file__).resolve().parent
 sys.path.insert(0, str(DOCS))
 
 import generate_cli  # noqa: E402  (docs/, on the path above)
+import generate_results  # noqa: E402
 
 import sb3_memret  # noqa: E402
 
+generate_results.main(DOCS.parent, DOCS / "results")
 generate_cli.main(DOCS / "cli.md")
 
 project = "sb3-memret"

@@ -1,0 +1,173 @@
+"""Write the documentation's results pages (``docs/results/``) from the result files committed under ``benchmarks/``.
+
+Every ``benchmarks/**/results.json`` (what ``sb3-memret benchmark mikasa`` writes into its run folder) becomes one
+page: its tables come from the benchmark's own renderer (``sb3_memret.benchmark.report.render_report``), its figure
+from ``plot_success``, each table names the file it came from, and the page gives the command that produces (and
+resumes) the run, rebuilt from the run's recorded protocol. The run folder's episode log (``episodes.jsonl``) adds a
+table of what was played. Nothing on these pages is typed by hand: a figure changes only with the files.
+
+Run by ``docs/conf.py`` before Sphinx reads the pages; ``python docs/generate_results.py`` writes them alone.
+"""
+
+from __future__ import annotations
+
+import json
+import shlex
+from collections import defaultdict
+from pathlib import Path
+from typing import Any, Mapping
+
+RESULTS_FILE, EPISODES_FILE, PROTOCOL_FILE = "results.json", "episodes.jsonl", "protocol.json"
+BENCHMARKS = "benchmarks"
+
+
+def _write(path: Path, text: str) -> None:
+    """Write ``text`` unless ``path`` holds it already (an unchanged page keeps its time stamp: Sphinx skips it)."""
+    if not path.is_file() or path.read_text() != text:
+        path.write_text(text)
+
+
+def slug(run: Path) -> str:
+    """The page name of a run folder relative to ``benchmarks/`` (``mikasa/short-scripted-protocol`` ->
+    ``mikasa-short-scripted-protocol``)."""
+    return "-".join(run.parts)
+
+
+def split_of(tasks: Mapping[str, Any]) -> str | None:
+    """The split whose every task the run holds, exactly; None when the run names its tasks (``--tasks``)."""
+    from sb3_memret.benchmark.manifest import select_tasks
+
+    splits = {t.get("split") for t in tasks.values()}
+    if len(splits) != 1:
+        return None
+    split = splits.pop()
+    return split if [row.env_id for row in select_tasks(split)] == list(tasks) else None
+
+
+def command(content: Mapping[str, Any], folder: str) -> str:
+    """The ``sb3-memret benchmark mikasa`` command line that plays (or resumes) this run into ``folder``."""
+    protocol, tasks = content["protocol"], content["tasks"]
+    split = split_of(tasks)
+    args = ["sb3-memret", "benchmark", "mikasa"]
+    args += ["--split", split] if split else ["--tasks", ",".join(tasks)]
+    args += ["--controller", protocol["controller"], "--conditions", ",".join(protocol["conditions"]),
+             "--seeds", protocol["seed_set"], "--episodes", str(protocol["episodes"])]
+    if protocol.get("replan_every") is not None:
+        args += ["--replan-every", str(protocol["replan_every"])]
+    if protocol.get("learners"):
+        args += ["--learners", protocol["learners"]]
+    args += ["--out", folder]
+    return " ".join(shlex.quote(a) for a in args)
+
+
+def episode_table(log: Path, source: str) -> list[str]:
+    """What the episode log holds, per task and condition: episodes, successes, mean return and steps, and how
+    many versions of the task's code and of its controller played them (a digest each)."""
+    cells: dict[tuple[str, str], list[dict[str, Any]]] = defaultdict(list)
+    for line in log.read_text().splitlines():
+        if line.strip():
+            record = json.loads(line)
+            cells[record["env_id"], record["condition"]].append(record)
+    if not cells:
+        return []
+    lines = ["## Episode log", "",
+             "Every episode the run played, as its log records it (a resumed run only adds to it; an episode whose "
+             "task or controller code has changed since is played again, so a cell may hold more than one version).",
+             "", "| task | condition | episodes logged | successes | mean return | mean steps | task code versions | "
+             "controller versions |", "|---|---|---|---|---|---|---|---|"]
+    for (env_id, condition), records in cells.items():
+        played = [r for r in records if "error" not in r]
+        errors = len(records) - len(played)
+        wins = sum(bool(r["success"]) for r in played)
+        mean_return = sum(r["return"] for r in played) / len(played) if played else float("nan")
+        mean_steps = sum(r["steps"] for r in played) / len(played) if played else float("nan")
+        logged = f"{len(played)}" + (f" (+{errors} errors)" if errors else "")
+        lines.append(f"| {env_id} | {condition} | {logged} | {wins} | {mean_return:.2f} | {mean_steps:.1f} | "
+                     f"{len({r.get('task_sha256') for r in played})} | "
+                     f"{len({r.get('controller_sha256') for r in played})} |")
+    lines += ["", f"Source: `{source}`.", ""]
+    return lines
+
+
+def _with_sources(report: str, source: str, figure: str) -> list[str]:
+    """``render_report``'s markdown with a source line after each table and the figure pointed at ``figure``."""
+    from sb3_memret.benchmark.report import FIGURE_FILE
+
+    out: list[str] = []
+    lines = report.splitlines()
+    for i, line in enumerate(lines):
+        out.append(line.replace(f"]({FIGURE_FILE})", f"]({figure})"))
+        ends_table = line.startswith("|") and (i + 1 == len(lines) or not lines[i + 1].startswith("|"))
+        if ends_table:
+            out += ["", f"Source: `{source}`."]
+    return out
+
+
+def run_page(root: Path, results: Path, out: Path) -> tuple[str, dict[str, Any]]:
+    """Write the page (and figure) of one run folder's ``results.json`` into ``out``; its page name and content."""
+    from sb3_memret.benchmark.report import plot_success, render_report
+
+    content = json.loads(results.read_text())
+    run = results.parent.relative_to(root)
+    name = slug(run.relative_to(BENCHMARKS))
+    figure = f"{name}.png"
+    plot_success(content, out / figure)
+    source = f"{run.as_posix()}/{RESULTS_FILE}"
+    report = _with_sources(render_report(content), source, figure)
+    title, body = report[0], report[1:]
+    files = sorted(p.name for p in results.parent.iterdir() if p.is_file())
+    lines = [title, "",
+             f"Generated from `{source}` when the documentation was built; the tables and the figure are that "
+             "file's, drawn by the benchmark's own report renderer. The run was made, and resumes, with:", "",
+             "```bash", command(content, run.as_posix()), "```", "",
+             f"`sb3-memret benchmark report {run.as_posix()}` makes `results.json` and `report.md` again from the "
+             "run's episode log.", *body]
+    log = results.parent / EPISODES_FILE
+    if log.is_file():
+        lines += episode_table(log, f"{run.as_posix()}/{EPISODES_FILE}")
+    lines += ["## Files", "", f"The run folder `{run.as_posix()}/` holds: " + ", ".join(f"`{f}`" for f in files) +
+              f" (`{PROTOCOL_FILE}`: the settings the run was started with; `report.md` and `success.png`: the "
+              "benchmark's own rendering of the same results).", ""]
+    _write(out / f"{name}.md", "\n".join(lines))
+    return name, content
+
+
+def _progress(content: Mapping[str, Any]) -> str:
+    cells = [cell for t in content["tasks"].values() for cell in t.get("conditions", {}).values()]
+    complete = sum(bool(cell.get("complete")) for cell in cells)
+    return f"{complete} of {len(cells)}"
+
+
+def main(root: Path, out: Path) -> list[Path]:
+    """Write ``out/index.md`` and a page per committed benchmark run under ``root/benchmarks``; the pages."""
+    root, out = Path(root), Path(out)
+    out.mkdir(parents=True, exist_ok=True)
+    runs = sorted((root / BENCHMARKS).glob(f"**/{RESULTS_FILE}"))
+    pages = [run_page(root, results, out) for results in runs]
+    lines = ["# Results", "",
+             "One page per benchmark run committed under `benchmarks/`, generated from its `results.json` when the "
+             "documentation is built (`docs/generate_results.py`). A run in progress shows the cells it has "
+             "completed.", ""]
+    if pages:
+        lines += ["| run | benchmark | controller | seeds | conditions | tasks | cells complete |",
+                  "|---|---|---|---|---|---|---|"]
+        for name, content in pages:
+            p = content["protocol"]
+            lines.append(f"| [{name}]({name}.md) | {p['benchmark']} | `{p['controller']}` | {p['seed_set']} "
+                         f"({p['episodes']} a cell) | {', '.join(p['conditions'])} | {len(content['tasks'])} | "
+                         f"{_progress(content)} |")
+        lines += ["", "```{toctree}", ":hidden:", "", *[name for name, _ in pages], "```", ""]
+    else:
+        lines += ["No benchmark run is committed yet.", ""]
+    _write(out / "index.md", "\n".join(lines))
+    keep = {"index.md", *(f"{name}.md" for name, _ in pages), *(f"{name}.png" for name, _ in pages)}
+    for stale in out.iterdir():
+        if stale.name not in keep:
+            stale.unlink()
+    return [out / "index.md", *(out / f"{name}.md" for name, _ in pages)]
+
+
+if __name__ == "__main__":
+    docs = Path(__file__).resolve().parent
+    for page in main(docs.parent, docs / "results"):
+        print(page)
