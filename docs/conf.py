@@ -7,8 +7,8 @@ pages stay Markdown like the README they came from (MyST-parser). Both are plain
 committed PNGs or SVGs written by hand.
 
 Before Sphinx reads a page, ``generate_results.py`` writes ``docs/results/`` from the result files committed under
-``benchmarks/`` (never typed), and ``generate_cli.py`` writes the command reference from the installed command's own
-help, so neither can drift from what it describes.
+``benchmarks/`` (never typed), ``generate_cli.py`` writes the command reference from the installed command's own
+help, and ``generate_tasks.py`` the table of tasks from the task registry, so none can drift from what it describes.
 """
 
 from __future__ import annotations
@@ -21,11 +21,13 @@ sys.path.insert(0, str(DOCS))
 
 import generate_cli  # noqa: E402  (docs/, on the path above)
 import generate_results  # noqa: E402
+import generate_tasks  # noqa: E402
 
 import sb3_memret  # noqa: E402
 
 generate_results.main(DOCS.parent, DOCS / "results")
 generate_cli.main(DOCS / "cli.md")
+generate_tasks.main(DOCS / "task_list.md")
 
 project = "sb3-memret"
 author = "the sb3-memret authors"
@@ -38,7 +40,7 @@ extensions = [
     "sphinx.ext.viewcode",
 ]
 source_suffix = {".md": "markdown", ".rst": "restructuredtext"}
-exclude_patterns = ["_build", "requirements.txt"]
+exclude_patterns = ["_build", "requirements.txt", "task_list.md"]  # task_list.md: included by tasks.md
 templates_path = ["_templates"]
 
 myst_enable_extensions = ["colon_fence", "deflist"]

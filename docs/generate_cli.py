@@ -17,7 +17,8 @@ SCRIPT = "sb3-memret"
 HEADER = """# Command reference
 
 Every command of `{script}` with its options, as `{script} COMMAND --help` prints them (this page is generated
-from the installed command when the documentation is built).
+from the installed command when the documentation is built). The guides say when to use which: [getting
+started](getting-started.md), [training](training.md), [the benchmark](benchmark.md).
 """
 
 

@@ -147,7 +147,8 @@ def main(root: Path, out: Path) -> list[Path]:
     lines = ["# Results", "",
              "One page per benchmark run committed under `benchmarks/`, generated from its `results.json` when the "
              "documentation is built (`docs/generate_results.py`). A run in progress shows the cells it has "
-             "completed.", ""]
+             "completed; the protocol is on [the benchmark page](../benchmark.md). Figures measured by hand during "
+             "development are on [the notes page](../notes.md), with their dates.", ""]
     if pages:
         lines += ["| run | benchmark | controller | seeds | conditions | tasks | cells complete |",
                   "|---|---|---|---|---|---|---|"]
