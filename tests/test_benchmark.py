@@ -199,6 +199,8 @@ def test_recall_retrieves_from_the_writers_bank_in_the_harness(tmp_path):
     from sb3_memret.config import parse_section
 
     env_id = "RememberColor3-VLA-v0"
+    (tmp_path / "learners" / env_id).mkdir(parents=True)
+    (tmp_path / "learners" / env_id / "config.yml").write_text("{}\n")  # a run stopped before its first checkpoint
     outcomes = train_learners([env_id, "ShellGameTouch-VLA-v0"], tmp_path / "learners", eval_episodes=1,
                               load_config=lambda name: parse_section(yaml.safe_load(LEARNER), name))
     assert [o.status for o in outcomes] == ["trained", "refused"]

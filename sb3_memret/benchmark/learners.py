@@ -1,9 +1,10 @@
 """The memory learners the ``recall`` condition needs: one ``train recall`` run per task of a split, into
 ``DIR/<env id>/``, each on its task's zoo config, one after another; a finished run is kept, an interrupted one
-resumes from its last checkpoint."""
+resumes from its last checkpoint, and one stopped before its first checkpoint starts again."""
 
 from __future__ import annotations
 
+import shutil
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Callable
@@ -47,6 +48,8 @@ def train_learners(env_ids: list[str], out: Path, controller: str = "scripted", 
                 outcome = LearnerOutcome(env_id, "refused", str(err).splitlines()[0])
             else:
                 resume = latest_checkpoint(folder / "checkpoints") is not None
+                if not resume and folder.exists():  # a run stopped before its first checkpoint: nothing learned
+                    shutil.rmtree(folder)
                 options = RunOptions(out=folder, controller=controller, seed=seed, resume=resume,
                                      eval_episodes=eval_episodes, render_backend=task.default_render_backend,
                                      log_formats=("csv",))
