@@ -46,6 +46,13 @@ def state_env(medium):
     env.close()
 
 
+@pytest.fixture(scope="module")
+def rgb_env(medium):
+    env = medium.make_env(obs_mode="rgb", render_backend="cpu", sim_backend="cpu", robot_uids="panda")
+    yield env
+    env.close()
+
+
 def _prompt(task, count):
     facts = [] if count is None else [CUE_FACT.format(count=count_value(count))]
     return build_prompt(task.instruction_text, facts, task.prompt_template)
@@ -115,26 +122,22 @@ def test_the_writer_counts_dark_to_lit_changes_until_the_cue_ends():
 
 
 @pytest.mark.parametrize("seed", [DEV_SEED, DEV_SEED + 8])  # Medium's 2 and 5 blinks
-def test_the_camera_counts_the_blinks(medium, seed):
+def test_the_camera_counts_the_blinks(medium, rgb_env, seed):
     """The blinks read from the base camera's frames at every step (the arm at rest), written as the phase lamp
     turns green, equal MIKASA's count."""
-    env = medium.make_env(obs_mode="rgb", render_backend="cpu", sim_backend="cpu", robot_uids="panda")
-    try:
-        obs, info = env.reset(seed=seed)
-        (frame,) = medium.frames(env, obs, info, reset=True)
-        frame.percepts = [medium.perceive(env, obs)]
-        writer, written = medium.writer(), []
-        assert writer.read(frame) == [] and frame.percepts == [(False, False)]
-        cue_end = int(env.unwrapped.cue_steps_per_env[0])
-        for step in range(1, cue_end + 1):
-            obs, *_ = env.step(torch.zeros(1, 7))
-            later = EnvFrame({}, None, None, False, steps=1, percepts=[medium.perceive(env, obs)])
-            written += [(step, predicates) for _, predicates in writer.read(later)]
-        truth = medium.episode(frame).true_facts[0][1]
-        assert written == [(cue_end, {("blinks", "blue lamp"): truth})]
-        assert truth == count_value(int(env.unwrapped.target_blinks[0]))
-    finally:
-        env.close()
+    obs, info = rgb_env.reset(seed=seed)
+    (frame,) = medium.frames(rgb_env, obs, info, reset=True)
+    frame.percepts = [medium.perceive(rgb_env, obs)]
+    writer, written = medium.writer(), []
+    assert writer.read(frame) == [] and frame.percepts == [(False, False)]
+    cue_end = int(rgb_env.unwrapped.cue_steps_per_env[0])
+    for step in range(1, cue_end + 1):
+        obs, *_ = rgb_env.step(torch.zeros(1, 7))
+        later = EnvFrame({}, None, None, False, steps=1, percepts=[medium.perceive(rgb_env, obs)])
+        written += [(step, predicates) for _, predicates in writer.read(later)]
+    truth = medium.episode(frame).true_facts[0][1]
+    assert written == [(cue_end, {("blinks", "blue lamp"): truth})]
+    assert truth == count_value(int(rgb_env.unwrapped.target_blinks[0]))
 
 
 def test_the_view_shows_the_buttons_and_the_phase_lamp_only(medium, state_env):
@@ -218,6 +221,30 @@ def test_the_task_runs_through_the_rollout(medium):
     results = evaluate_task_condition(task.expert(), "written", task, episodes=2, seed=DEV_SEED + 8,
                                       protocol_seeds=False)
     assert [(r.layer, r.success) for r in results] == [("twice", True), ("once", True)]
+
+
+def test_the_count_is_written_and_retrieved(encoder):
+    """Recall with the true slot: the writer's fact reaches the bank from the camera as the cue ends, is the true one,
+    and the expert presses through it (one blink: its guess without a fact would succeed too, so the fact must be
+    the one retrieved at every decision after it)."""
+    from sb3_memret.envs.vec_env import make_recall_vec_env
+
+    venv = make_recall_vec_env(1, {"task": EASY, "controller": "scripted", "encoder": encoder, "replan_every": 4,
+                                   "capacity": 6, "location_decoys": 5, "render_backend": "cpu"}, seed=0)
+    try:
+        venv.set_task_seeds([[DEV_SEED + 9]])
+        venv.reset()
+        memory = venv.venv.memories[0]
+        done, success, hits, texts = False, False, 0, []
+        while not done:  # until the fact is written, the empty last slot: no decoy reaches the prompt
+            slot = memory.true_slot()
+            texts = [e.text for e in memory.bank.entries if e.entity == "blue lamp"]  # before the auto-reset
+            _, _, dones, infos = venv.step(np.array([[slot if slot >= 0 else 5]]))
+            done, success = bool(dones[0]), success or bool(infos[0]["success"])
+            hits += slot >= 0 and bool(infos[0]["retrieved_true"])
+        assert texts == ["the blue lamp blinked once."] and hits >= 3 and success, (texts, hits)
+    finally:
+        venv.close()
 
 
 @pytest.mark.slow
