@@ -27,7 +27,7 @@ EXPERIMENTS = ("recall",)
                    "policy, with --render-backend cpu)" + TASK_CONTROLLER + "; a resumed run keeps its own.")
 @click.option("--n-envs", type=click.IntRange(min=1), default=None,
               help="Parallel envs; a round holds n_envs x n_steps decisions, so with many envs give the config "
-                   "calibration_coef: 1.0 or fewer n_steps (README: 16 envs)  [default: config]")
+                   "calibration_coef: 1.0 or fewer n_steps (docs: scaling out)  [default: config]")
 @click.option("--timesteps", type=click.IntRange(min=1), default=None, help="Decisions in all  [default: config]")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,

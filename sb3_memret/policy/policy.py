@@ -57,7 +57,7 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
     drawer's learned controller, above; RememberShape3's camera controller; on the tests' K = 2 toy task at 10x
     the paper's step and entropy bonus it fell back on 2 seeds of 4, episode draws on none:
     ``scripts/exploration_stability.py``). Neither steadies SeqOfColors3, whose advantages favour the wrong
-    facts (README, Tasks).
+    facts (docs: tasks).
 
     ``retriever_lr_scale`` scales the retriever's learning rate against the critic's (0 freezes it: a
     warm-started retriever that must not drift while the retention critic learns).
