@@ -122,6 +122,9 @@ for _env_id in ("RotateLenientPos-VLA-v0", "RotateLenientPosNeg-VLA-v0", "Rotate
 for _env_id in ("BlinkCountButtonPressEasy-VLA-v0", "BlinkCountButtonPressMedium-VLA-v0"):  # they build MIKASA's lamp
     register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.blink_count", "BlinkCountTask", _env_id),
                   lambda: importlib.import_module("sb3_memret.tasks.mikasa.lamp_asset").ensure_lamp_asset())
+register_task("GatherAndRecall1-VLA-v0",  # needs the lamp bulb mesh
+              _lazy("sb3_memret.tasks.mikasa.gather_and_recall", "GatherAndRecallTask", "GatherAndRecall1-VLA-v0"),
+              lambda: importlib.import_module("sb3_memret.tasks.mikasa.lamp_asset").ensure_lamp_asset())
 
 __all__ = ["DEFAULT_TASK", "EnvFrame", "Episode", "Predicates", "Task", "Writer", "check_task_name",
            "make_task", "register_task", "task_names"]

@@ -1,0 +1,221 @@
+"""MIKASA GatherAndRecall1: the flash read from pixels, the controller's view, the prompt contract, the gather-and-press
+expert, the task in the memory loop. Development seeds (5000+) only."""
+
+import numpy as np
+import pytest
+import torch
+
+from mikasa_support import MIKASA_MISSING, leaked_keys
+
+pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
+
+from sb3_memret.controllers.base import as_numpy  # noqa: E402
+from sb3_memret.memory.schema import MemoryType  # noqa: E402
+from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
+from sb3_memret.prompts import build_prompt, parse_prompt  # noqa: E402
+from sb3_memret.rollout import evaluate_task_condition  # noqa: E402
+from sb3_memret.tasks import make_task  # noqa: E402
+from sb3_memret.tasks.mikasa.cue_task import DEV_SEED  # noqa: E402
+from sb3_memret.tasks.mikasa.gather_and_recall import (  # noqa: E402
+    FLASH_COLOURS,
+    INSTRUCTION,
+    PROMPT_TEMPLATE,
+    GatherAndRecallTask,
+    read_flash,
+)
+
+TASK = "GatherAndRecall1-VLA-v0"
+FORBIDDEN = ("oracle", "flash", "lamp", "pressed", "on_disc", "goal")
+
+
+@pytest.fixture(scope="module")
+def task():
+    return GatherAndRecallTask()
+
+
+@pytest.fixture(scope="module")
+def rgb_env(task):
+    env = task.make_env(obs_mode="rgb", render_backend="cpu", sim_backend="cpu", robot_uids="panda")
+    yield env
+    env.close()
+
+
+def _prompt(colour):
+    return build_prompt(INSTRUCTION, [] if colour is None else [f"the flash was {colour}."], PROMPT_TEMPLATE)
+
+
+def _play(env, expert, seed, colour, on_step=None):
+    """One episode with the expert prompted with ``colour``'s fact (None: none); MIKASA's success once."""
+    obs, info = env.reset(seed=seed)
+    prompt = _prompt(colour)
+    expert.reset([seed])
+    success, chunk = False, None
+    for step in range(200):
+        if step % 4 == 0:
+            chunk = expert.act(obs, [prompt])[0]
+        obs, _, terminated, truncated, info = env.step(torch.from_numpy(chunk[step % 4][None]).float())
+        success |= bool(info["success"][0])
+        if on_step is not None:
+            on_step(obs, info)
+        if bool(terminated[0]) or bool(truncated[0]):
+            break
+    return success
+
+
+def test_the_instruction_is_mikasas(rgb_env):
+    stated = rgb_env.unwrapped.LANGUAGE_INSTRUCTION.lower().replace(". ", "; ")
+    assert stated == INSTRUCTION
+
+
+def test_read_flash_needs_a_lit_bulb(rgb_env):
+    obs, _ = rgb_env.reset(seed=DEV_SEED)
+    rgb = as_numpy(obs["sensor_data"]["base_camera"]["rgb"])[0]
+    assert read_flash(rgb) is None  # the lamp is white, the red cube and the caps are not lit
+    for index, colour in enumerate(FLASH_COLOURS):
+        lit = rgb.copy()
+        lit[100:110, 80:90] = 3
+        lit[100:110, 80:90, index] = 255
+        assert read_flash(lit) == colour
+    mixed = rgb.copy()
+    mixed[100:110, 80:90] = (255, 3, 3)
+    mixed[100:110, 85:90] = (3, 3, 255)
+    assert read_flash(mixed) is None
+    with pytest.raises(ValueError, match="one \\(H, W, 3\\) frame"):
+        read_flash(rgb[None])
+
+
+def test_the_reader_sees_the_flash_and_nothing_else(rgb_env, task):
+    """Every frame of an episode (the expert holding the true fact) read against MIKASA's lamp state."""
+    frames = {"flash": 0, "right": 0, "other": 0}
+
+    def check(obs, info):
+        read = read_flash(as_numpy(obs["sensor_data"]["base_camera"]["rgb"])[0])
+        if bool(info["flash_active"][0]):
+            frames["flash"] += 1
+            frames["right"] += read == FLASH_COLOURS[int(info["flash_color"][0])]
+        else:
+            frames["other"] += read is not None
+
+    rgb_env.reset(seed=DEV_SEED + 1)
+    truth = FLASH_COLOURS[int(rgb_env.unwrapped.flash_color[0])]
+    assert _play(rgb_env, task.expert(), DEV_SEED + 1, truth, check)
+    assert frames["flash"] >= 8 and frames["right"] == frames["flash"] and frames["other"] == 0, frames
+
+
+def test_wrapper_exposes_only_the_controllers_view(task):
+    env = task.make_env(obs_mode="state_dict", render_backend="cpu", sim_backend="cpu", robot_uids="panda")
+    try:
+        raw = env.unwrapped.get_obs()
+        assert leaked_keys(raw, FORBIDDEN)  # the raw state holds the answer ...
+        obs, _ = env.reset(seed=DEV_SEED)
+        assert not leaked_keys(obs, FORBIDDEN)  # ... the controller's view does not
+        assert set(obs["extra"]) == {"tcp_pose", "button_positions", "button_visible", "cube_position",
+                                     "disc_position"}
+        buttons = obs["extra"]["button_positions"][0].numpy()
+        assert np.allclose(np.diff(buttons[:, 1]), 0.14, atol=1e-4)  # red, green, blue, 14 cm apart to the left
+        assert np.allclose(obs["extra"]["disc_position"][0, 1].numpy() - buttons[1, 1], 0, atol=1e-4)
+    finally:
+        env.close()
+
+
+def test_prompts_parse_with_the_flash_fact():
+    for colour in FLASH_COLOURS:
+        (fact,) = parse_prompt(_prompt(colour), PROMPT_TEMPLATE).facts
+        assert dict(fact.fields) == {"entity": "flash", "colour": colour}
+    with pytest.raises(ValueError, match="matches no trained template"):
+        parse_prompt(f"{INSTRUCTION} the cube started at the left.", PROMPT_TEMPLATE)
+
+
+def test_task_contract(rgb_env, task):
+    assert make_task(TASK).name == TASK and task.perceives_every_step and task.max_control_steps == 200
+    assert task.development_seeds(2) == [DEV_SEED, DEV_SEED + 1]
+    with pytest.raises(ValueError, match="GatherAndRecall1-VLA-v0"):
+        GatherAndRecallTask("GatherAndRecall3-VLA-v0")
+    obs, info = rgb_env.reset(seed=DEV_SEED)
+    (frame,) = task.frames(rgb_env, obs, info, reset=True)
+    episode = task.episode(frame)
+    colour = episode.group
+    assert colour == FLASH_COLOURS[int(rgb_env.unwrapped.flash_color[0])]
+    assert episode.true_facts == (((MemoryType.OTHER, "flash", "was"), colour),)
+    assert task.oracle_facts(episode) == [f"the flash was {colour}."]
+    (wrong,) = task.wrong_facts(episode)
+    assert wrong.startswith("the flash was ") and colour not in wrong
+    for fact in task.oracle_facts(episode) + task.wrong_facts(episode):
+        parse_prompt(f"{task.instruction(episode)} {fact}", task.prompt_template)
+    decoys = task.seed_memories(frame, episode, np.random.default_rng(0), SeedingConfig())
+    assert len(decoys) == SeedingConfig().location_decoys
+    for entry in decoys:
+        assert entry.entity != "flash" and entry.value in FLASH_COLOURS
+        assert entry.text == f"the {entry.entity} was {entry.value}."
+        parse_prompt(f"{INSTRUCTION} {entry.text}", PROMPT_TEMPLATE)
+    names = task.demo_features(with_images=False)["observation.state"]["names"]
+    assert "button_green_x" in names and names[-6:] == ["cube_x", "cube_y", "cube_z", "disc_x", "disc_y", "disc_z"]
+    assert task.demo_frame(obs, with_images=False)["observation.state"].shape == (len(names),)
+
+
+def test_expert_heads_for_the_cube_then_for_the_named_button(task):
+    expert = task.expert()
+    expert.reset([1, 2])
+    qpos = np.tile([0, 0, 0, -2.09, 0, 2.09, 0.79, 0.04, 0.04], (2, 1))
+    buttons = np.tile([[-0.2, -0.02, 0.015], [-0.2, 0.12, 0.015], [-0.2, 0.26, 0.015]], (2, 1, 1))
+    obs = {"agent": {"qpos": qpos, "qvel": np.zeros((2, 9))},
+           "extra": {"tcp_pose": np.tile([0.0, 0.0, 0.2, 0, 1, 0, 0], (2, 1)),
+                     "cube_position": np.array([[-0.06, -0.26, 0.02], [-0.06, -0.26, 0.02]]),
+                     "disc_position": np.tile([0.02, 0.12, 0.003], (2, 1)),
+                     "button_positions": buttons, "button_visible": np.ones((2, 3), bool)}}
+    chunks = expert.act(obs, [_prompt("blue"), _prompt(None)])
+    assert chunks.shape == (2, 8, 7)
+    assert np.all(chunks[:, 0, 1] < 0) and np.all(chunks[:, 0, 6] == 1.0)  # toward the cube, gripper open
+    # the cube resting on the disc, the hand above it: to the button the prompt names, else the red one
+    placed = {**obs, "extra": {**obs["extra"], "tcp_pose": np.tile([0.02, 0.12, 0.15, 0, 1, 0, 0], (2, 1)),
+                               "cube_position": np.tile([0.02, 0.12, 0.026], (2, 1))}}
+    chunks = expert.act(placed, [_prompt("blue"), _prompt(None)])
+    assert chunks[0, 0, 1] > 0.3 and chunks[1, 0, 1] < -0.3 and np.all(chunks[:, 0, 0] < 0)
+    assert np.all(chunks[:, :, 6] == -1.0)  # pressing with the fingers closed
+
+
+def test_expert_presses_the_true_colour_only(task):
+    env = task.make_env(obs_mode="state_dict", render_backend="cpu", sim_backend="cpu", robot_uids="panda")
+    try:
+        expert = task.expert()
+        expert.check_env(env)
+        seed = DEV_SEED + 2
+        env.reset(seed=seed)
+        truth = FLASH_COLOURS[int(env.unwrapped.flash_color[0])]
+        other = FLASH_COLOURS[(FLASH_COLOURS.index(truth) + 1) % 3]
+        assert _play(env, expert, seed, truth)
+        assert not _play(env, expert, seed, other)
+    finally:
+        env.close()
+
+
+def test_the_written_fact_reaches_the_expert():
+    """``rollout --condition written``: the writer reads the flash from the camera and the expert presses its button."""
+    results = evaluate_task_condition(make_task(TASK).expert(), "written", TASK, episodes=2, seed=DEV_SEED + 3,
+                                      protocol_seeds=False)
+    assert [r.success for r in results] == [True, True] and all(r.steps < 100 for r in results)
+
+
+def test_the_flash_fact_is_written_and_retrieved(encoder):
+    """Recall with the true slot on one episode: the fact enters the bank once the lamp has flashed, names the
+    episode's colour, and the expert succeeds through it."""
+    from sb3_memret.envs.vec_env import make_recall_vec_env
+
+    venv = make_recall_vec_env(1, {"task": TASK, "controller": "scripted", "encoder": encoder, "replan_every": 4,
+                                   "capacity": 6, "location_decoys": 5, "render_backend": "cpu"}, seed=0)
+    try:
+        venv.set_task_seeds([[DEV_SEED + 5]])
+        venv.reset()
+        memory = venv.venv.memories[0]
+        colour = memory.truth.group
+        fact = f"the flash was {colour}."
+        assert fact not in [e.text for e in memory.bank.entries]  # not before the lamp has flashed
+        done, success, written = False, False, False
+        while not done:
+            slot = memory.true_slot() if written else 0
+            _, _, dones, infos = venv.step(np.array([[slot]]))
+            done, success = bool(dones[0]), bool(infos[0]["success"])
+            written = written or fact in [e.text for e in memory.bank.entries]
+        assert written and success and infos[0]["group"] == colour
+    finally:
+        venv.close()
