@@ -1,10 +1,11 @@
 """Memory tasks behind one interface (``Task``), and the registry that ``--task`` names them by.
 
-Built in: ``drawer`` (DrawerCubeTakeOut-v1, the seed's task) and MIKASA-Robo-VLA's memory tasks
-(``RememberColor3-VLA-v0`` ..., ``RememberShape3-VLA-v0``, ``SeqOfColors3-VLA-v0``, ``TakeItBack-VLA-v0``; the
-``mikasa-robo-suite`` package, installed by ``make install``).
-A task of your own is one module: subclass ``Task`` and ``register_task("name", MyTask)``; see the
-README's "Adding a task". Task modules import only when a task is made, so listing names is cheap.
+Built in: ``drawer`` (DrawerCubeTakeOut-v1, the seed's task) and MIKASA-Robo-VLA's memory tasks of its short
+split and the cue family's -Long variants (``RememberColor3-VLA-v0``, ``FindImposterShape9-VLA-v0``,
+``InterceptSlow-VLA-v0``, ... ``task_names()`` lists them; the ``mikasa-robo-suite`` package, installed by ``make
+install``). A task of your own is one module: subclass ``Task`` and ``register_task("name", MyTask)``, or name it
+``package.module:Class``; see the docs' "Writing your own task". Task modules import only when a task is made, so
+listing names is cheap.
 """
 
 from __future__ import annotations
