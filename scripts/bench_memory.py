@@ -17,8 +17,9 @@ import numpy as np
 from sb3_memret.controllers import ScriptedDrawerController
 from sb3_memret.memory.bank import MemoryBank
 from sb3_memret.memory.encoder import MiniLMEncoder
-from sb3_memret.memory.seeding import seed_memories
-from sb3_memret.memory.writer import BoundingBoxPredicateExtractor, EventCompiler
+from sb3_memret.memory.writer import EventCompiler
+from sb3_memret.tasks.drawer.seeding import seed_memories
+from sb3_memret.tasks.drawer.writer import RELATIONS, BoundingBoxPredicateExtractor
 from sb3_memret.prompts import condition_prompt
 from sb3_memret.rollout import make_task_env
 
@@ -29,7 +30,7 @@ def run(episodes: int) -> list[tuple[float, float]]:
     """(memory seconds, control seconds) for every decision step of every episode."""
     env, controller = make_task_env(), ScriptedDrawerController()
     encoder = MiniLMEncoder()
-    extractor, compiler, bank = BoundingBoxPredicateExtractor(), EventCompiler(encoder), MemoryBank(6)
+    extractor, compiler, bank = BoundingBoxPredicateExtractor(), EventCompiler(encoder, RELATIONS), MemoryBank(6)
     timings = []
     for episode in range(episodes):
         layer = episode % 3 + 1

@@ -14,7 +14,8 @@ from sb3_memret.envs.physics import TaskRunner
 from sb3_memret.envs.recall_memory import EpisodeMemory
 from sb3_memret.memory.schema import MemoryType
 from sb3_memret.prompts import PromptTemplate
-from sb3_memret.memory.seeding import SeedingConfig, location_memory
+from sb3_memret.memory.seeding import SeedingConfig
+from sb3_memret.tasks.drawer.seeding import location_memory
 from sb3_memret.policy.networks import RetentionScorer
 
 

@@ -2,7 +2,9 @@ import numpy as np
 import pytest
 
 from sb3_memret.memory.schema import MemoryType
-from sb3_memret.memory.seeding import SeedingConfig, is_true_memory, seed_memories
+from sb3_memret.envs.objects import CATALOGUE
+from sb3_memret.memory.seeding import SeedingConfig
+from sb3_memret.tasks.drawer.seeding import is_true_memory, seed_memories
 from sb3_memret.prompts import INSTRUCTION, INSTRUCTION_TEMPLATE, PromptTemplate, build_prompt, instruction_text, parse_prompt
 
 
@@ -32,7 +34,10 @@ def test_seeding_is_reproducible_and_shuffled():
 
 def test_bad_config_is_refused():
     with pytest.raises(ValueError, match="must not contain task objects"):
-        SeedingConfig(vocabulary=("cube", "key", "mug", "fork", "pen"))
+        SeedingConfig(vocabulary=("cube", "key", "mug", "fork", "pen")).check_task_objects(CATALOGUE)
+    with pytest.raises(ValueError, match="must not contain task objects"):  # the drawer checks what it seeds with
+        seed_memories({"cube": 1}, "cube", np.random.default_rng(0), SeedingConfig(vocabulary=("cube", "key", "mug",
+                                                                                               "fork", "pen")))
     with pytest.raises(ValueError, match="need at least 5 distinct decoy objects"):
         SeedingConfig(vocabulary=("key", "mug"))
 

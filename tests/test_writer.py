@@ -7,7 +7,8 @@ from mani_skill.utils.structs.pose import Pose
 
 from sb3_memret.envs.physics import EnvFrame, to_numpy
 from sb3_memret.memory.schema import MemoryType
-from sb3_memret.memory.writer import UNKNOWN, BoundingBoxPredicateExtractor, EventCompiler, ViewPredicateExtractor
+from sb3_memret.memory.writer import UNKNOWN, EventCompiler
+from sb3_memret.tasks.drawer.writer import RELATIONS, BoundingBoxPredicateExtractor, ViewPredicateExtractor
 
 
 class FakeEncoder:
@@ -21,7 +22,7 @@ class FakeEncoder:
 
 def test_compiler_emits_only_on_change():
     encoder = FakeEncoder()
-    compiler = EventCompiler(encoder)
+    compiler = EventCompiler(encoder, RELATIONS)
     preds = {("location", "cube"): "drawer layer 2", ("holding", "robot"): "nothing"}
     first = compiler.update(preds, 0)
     assert [e.text for e in first] == ["the cube is in drawer layer 2.", "the robot is holding nothing."]
@@ -37,7 +38,7 @@ def test_compiler_emits_only_on_change():
 
 
 def test_unknown_values_are_not_written_and_bad_relations_refused():
-    compiler = EventCompiler()
+    compiler = EventCompiler(None, RELATIONS)
     assert compiler.update({("location", "cube"): "unknown"}, 0) == []
     with pytest.raises(ValueError, match="unknown predicate relation 'colour'"):
         compiler.update({("colour", "cube"): "red"}, 0)
@@ -54,7 +55,7 @@ def test_extractor_names_the_right_layer_in_the_real_sim(task_env, layer):
 def test_extractor_changes_when_cube_is_lifted_out(task_env):
     task_env.reset(seed=0, options={"target_layer": 2})
     base = task_env.unwrapped
-    extractor, compiler = BoundingBoxPredicateExtractor(), EventCompiler()
+    extractor, compiler = BoundingBoxPredicateExtractor(), EventCompiler(None, RELATIONS)
     compiler.update(extractor.extract(base.privileged_state()), 0)
     base.objects[0].set_pose(Pose.create_from_pq(torch.tensor([[base.layout.front_x - 0.2, 0.0, 0.5]])))
     entries = compiler.update(extractor.extract(base.privileged_state()), 8)

@@ -16,11 +16,13 @@ from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.memory.bank import MemoryBank
 from sb3_memret.memory.encoder import EMBEDDING_DIM, MiniLMEncoder
 from sb3_memret.memory.schema import MemoryEntry, MemoryType, check_age_unit
-from sb3_memret.memory.seeding import SeedingConfig, hearsay_memories
-from sb3_memret.memory.writer import EventCompiler, ViewPredicateExtractor
+from sb3_memret.memory.seeding import SeedingConfig
+from sb3_memret.memory.writer import EventCompiler
 from sb3_memret.prompts import PromptTemplate, build_prompt
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import EnvFrame, Episode
+from sb3_memret.tasks.drawer.seeding import hearsay_memories
+from sb3_memret.tasks.drawer.writer import ViewPredicateExtractor
 
 MODES = ("recall", "oracle", "none")
 # where the placed objects' facts come from: the episode's placement (the seed's), or what the robot saw

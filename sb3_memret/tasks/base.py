@@ -28,11 +28,11 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_memret.memory.schema import Key, MemoryEntry, MemoryType
+from sb3_memret.memory.writer import Predicates
 
 if TYPE_CHECKING:
     from sb3_memret.memory.seeding import SeedingConfig
 
-Predicates = dict[tuple[str, str], str]
 RENDER_BACKENDS = ("none", "cpu", "gpu")
 
 

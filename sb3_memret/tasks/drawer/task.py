@@ -16,26 +16,13 @@ import numpy as np
 from sb3_memret.controllers.base import RENDER_HINT
 from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.memory.schema import MemoryEntry, MemoryType
-from sb3_memret.memory.seeding import SeedingConfig, seed_memories
-from sb3_memret.memory.writer import RELATIONS, BoundingBoxPredicateExtractor, ViewPredicateExtractor
+from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.prompts import PromptTemplate, instruction_text, location_text
-from sb3_memret.tasks.base import EnvFrame, Episode, Predicates, Task, check_render_backend
+from sb3_memret.tasks.base import EnvFrame, Episode, Task, check_render_backend
+from sb3_memret.tasks.drawer.seeding import seed_memories
+from sb3_memret.tasks.drawer.writer import DrawerWriter
 
 ENV_ID = "DrawerCubeTakeOut-v1"
-
-
-class DrawerWriter:
-    """Reads the drawer's predicates at the end of each chunk: from the privileged state (``seeded``)
-    or from what a camera sees (``observed``)."""
-
-    relations = RELATIONS
-
-    def __init__(self, source: str = "seeded"):
-        self.source = source
-        self.extractor = BoundingBoxPredicateExtractor() if source == "seeded" else ViewPredicateExtractor()
-
-    def read(self, frame: EnvFrame) -> list[tuple[int, Predicates]]:
-        return [(frame.steps, self.extractor.extract(frame if self.source == "observed" else frame.state))]
 
 
 class DrawerTask(Task):
@@ -134,4 +121,4 @@ class DrawerTask(Task):
         return PROPRIO_NAMES
 
 
-__all__ = ["DrawerTask", "DrawerWriter", "ENV_ID"]
+__all__ = ["DrawerTask", "ENV_ID"]
