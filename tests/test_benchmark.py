@@ -3,6 +3,7 @@ episodes in MIKASA's own harness with the agent as its policy."""
 
 from __future__ import annotations
 
+import hashlib
 import json
 from collections import Counter
 from collections.abc import Mapping
@@ -211,6 +212,11 @@ def test_recall_retrieves_from_the_writers_bank_in_the_harness(tmp_path):
     content = run_benchmark(run, tmp_path / "run", tmp_path / "learners", workers=1)
     assert content["tasks"][env_id]["conditions"]["recall"]["episodes"] == 1
     record, = (json.loads(line) for line in (tmp_path / "run" / "episodes.jsonl").read_text().splitlines())
+    model = tmp_path / "learners" / env_id / "final_model.zip"
+    assert record["learner_sha256"] == hashlib.sha256(model.read_bytes()).hexdigest()
+    cell = content["tasks"][env_id]["conditions"]["recall"]
+    assert cell["learner_sha256"] == record["learner_sha256"] and cell["learner_training"]["rounds"] >= 1
+    assert not run.current({**record, "learner_sha256": "another learner"})  # played with another model: again
     instruction = "observe the cube's color, wait, then touch the cube of the same color."
     fact = record["prompt"].removeprefix(instruction + " ")
     assert fact.startswith("the ") and fact.endswith(".") and " was " in fact

@@ -73,12 +73,14 @@ class Plan:
     task_digests: dict[str, str] = field(default_factory=dict)  # env id -> SHA-256 of its task's (writer's) code
     replan_every: dict[str, int] = field(default_factory=dict)  # env id -> control steps between controller calls
     learners: Path | None = None  # the recall condition's learners folder
+    learner_digests: dict[str, str] = field(default_factory=dict)  # env id -> SHA-256 of its learner's model file
 
     def current(self, record: dict[str, Any]) -> bool:
         """Whether a logged episode was played by this plan's controller and task code (else it is played again)."""
         env_id = record["env_id"]
         return (env_id in self.controllers and record.get("controller_sha256") == self.controllers[env_id]["sha256"]
-                and record.get("task_sha256") == self.task_digests[env_id])
+                and record.get("task_sha256") == self.task_digests[env_id]
+                and (record["condition"] != "recall" or record.get("learner_sha256") == self.learner_digests.get(env_id)))
 
     def units(self, done: set[Unit]) -> list[Unit]:
         seeds = self.protocol.seeds()
@@ -149,6 +151,22 @@ def learner_path(learners: Path | None, env_id: str) -> Path | None:
     return short if env_id.endswith("-Long-VLA-v0") and not own.is_file() and short.is_file() else own
 
 
+def learner_record(run: Plan, env_id: str) -> dict[str, Any]:
+    """What a recall cell says of its learner: the model file, its SHA-256 (an episode counts only for the learner
+    it was played with), and its training run's rounds and final held-out figures (development seeds)."""
+    path = learner_path(run.learners, env_id)
+    entry: dict[str, Any] = {"learner": str(path), "learner_sha256": run.learner_digests.get(env_id)}
+    summary = path.parent / "summary.json" if path is not None else None
+    if summary is not None and summary.is_file():
+        saved = json.loads(summary.read_text())
+        final = saved.get("final_eval") or {}
+        entry["learner_training"] = {"rounds": saved.get("rounds"), "seed": saved.get("seed"),
+                                     "eval_episodes": final.get("episodes"),
+                                     "eval_success": (final.get("success") or {}).get("overall"),
+                                     "eval_greedy_accuracy": final.get("greedy_accuracy")}
+    return entry
+
+
 def plan(protocol: Protocol, conditions: Iterable[str], split: str | None = None,
          env_ids: Iterable[str] | None = None, learners: Path | None = None) -> Plan:
     """Select the tasks (by split or ids) and decide, without simulating, which can run here and why not."""
@@ -175,6 +193,8 @@ def plan(protocol: Protocol, conditions: Iterable[str], split: str | None = None
             result.refused_conditions[row.env_id, "recall"] = (
                 f"no trained memory learner: expected {path}" if path is not None else
                 "no learners folder given (--learners DIR, with DIR/<env id>/final_model.zip)")
+        elif "recall" in result.conditions:
+            result.learner_digests[row.env_id] = hashlib.sha256(path.read_bytes()).hexdigest()
     return result
 
 
@@ -346,7 +366,7 @@ def results(run: Plan, records: Iterable[dict[str, Any]]) -> dict[str, Any]:
             if (row.env_id, condition) in errors and not cell["complete"]:
                 cell["error"] = errors[row.env_id, condition]
             if condition == "recall":
-                cell["learner"] = str(learner_path(run.learners, row.env_id))
+                cell.update(learner_record(run, row.env_id))
             conditions[condition] = cell
         entry["conditions"] = conditions
         tasks[row.env_id] = entry
@@ -401,6 +421,8 @@ def run_benchmark(run: Plan, out: Path, learners: Path | None = None, workers: i
     for record in play_units(pending, run.protocol, learners, workers):
         record.update(controller_sha256=run.controllers[record["env_id"]]["sha256"],
                       task_sha256=run.task_digests[record["env_id"]])
+        if record["condition"] == "recall":
+            record["learner_sha256"] = run.learner_digests[record["env_id"]]
         folder.log(record)
         records.append(record)
         finished += 1
