@@ -243,3 +243,13 @@ def test_a_condition_added_to_a_run_folder_keeps_its_table(tmp_path):
     assert [row.env_id for row in shown.tasks] == ["RememberColor3-VLA-v0", "TakeItBack-VLA-v0"]
     assert [(u.env_id, u.condition) for u in added.units(set())] == [("RememberColor3-VLA-v0", "wrong")]
     assert widened(first, tmp_path) is first  # nothing to add
+
+
+def test_a_task_without_an_implementation_is_refused_with_its_reason():
+    from sb3_memret.benchmark.runner import plan
+
+    run = plan(Protocol(seed_set="dev", episodes=1), ["none"],
+               env_ids=["TimedTransferEasy-VLA-v0", "BatteriesCheckerEasy-3-VLA-v0"])
+    assert "time since the lamp turned green" in run.refused["TimedTransferEasy-VLA-v0"]
+    assert run.refused["BatteriesCheckerEasy-3-VLA-v0"] == "no sb3-memret task implements it yet"
+    assert run.units(set()) == []
