@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import sys
 from collections import Counter
 from collections.abc import Mapping
 
@@ -105,6 +106,27 @@ def test_code_digests_name_the_code_that_acts():
     assert task_digest(colour) == task_digest(make_task("RememberColor5-VLA-v0"))  # one class, one code
     assert task_digest(colour) != task_digest(shape)
     assert code_digest(type(colour.expert())) == code_digest(type(shape.expert()))  # the same touch expert
+
+
+def test_a_code_digest_counts_imported_names_not_their_home(tmp_path, monkeypatch):
+    import importlib.util
+
+    from sb3_memret.benchmark.runner import code_digest
+
+    def digest(source: str) -> str:
+        """The digest of class ``Probe`` in a module of the project's namespace holding ``source``."""
+        path = tmp_path / "probe.py"
+        path.write_text(source + "class Probe:\n    def act(self):\n        return helper('a')\n")
+        spec = importlib.util.spec_from_file_location("sb3_memret.digest_probe", path)
+        module = importlib.util.module_from_spec(spec)
+        monkeypatch.setitem(sys.modules, spec.name, module)
+        spec.loader.exec_module(module)
+        return code_digest(module.Probe)
+
+    home = digest("from os.path import basename as helper\n")
+    assert digest("from posixpath import basename as helper\n") == home  # the helper moved: nothing to replay
+    assert digest("from os.path import dirname as helper\n") != home  # another helper acts
+    assert digest("import os.path as helper\n") != home
 
 
 def test_a_run_folder_resumes_only_under_its_protocol(tmp_path):

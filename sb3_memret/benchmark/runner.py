@@ -93,9 +93,10 @@ INTERFACE_MODULES = ("sb3_memret.tasks.base", "sb3_memret.controllers.base")  # 
 
 def code_digest(*classes: type) -> str:
     """SHA-256 of the code of ``classes`` and their sb3-memret base classes: each defining module's syntax tree
-    without its docstrings, so an edited comment or docstring leaves it as it was and a changed line does not. The
-    two interface modules (``Task``, ``FrozenController``) are left out: they grow with every new task hook, and a
-    long run's episodes should not be replayed for a hook its tasks do not use."""
+    without its docstrings, so an edited comment or docstring leaves it as it was and a changed line does not. A
+    ``from X import name`` counts by the names it binds, not by ``X``: a helper moved to another module replays
+    nothing. The two interface modules (``Task``, ``FrozenController``) are left out: they grow with every new task
+    hook, and a long run's episodes should not be replayed for a hook its tasks do not use."""
     modules = sorted({k.__module__ for cls in classes for k in cls.__mro__
                       if k.__module__.startswith("sb3_memret") and k.__module__ not in INTERFACE_MODULES})
     digest = hashlib.sha256()
@@ -106,6 +107,8 @@ def code_digest(*classes: type) -> str:
             if isinstance(body, list) and body and isinstance(body[0], ast.Expr) \
                     and isinstance(body[0].value, ast.Constant) and isinstance(body[0].value.value, str):
                 node.body = body[1:] or [ast.Pass()]
+            if isinstance(node, ast.ImportFrom):
+                node.module, node.level = None, 0
         digest.update(name.encode())
         digest.update(ast.dump(tree).encode())
     return digest.hexdigest()
