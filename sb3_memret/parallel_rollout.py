@@ -1,7 +1,7 @@
 """Controller episodes over many task envs and ONE controller, and a plain worker-process map.
 
 ``run_jobs`` plays episode jobs (a prompt, a placement, a replan interval) in ``n_envs`` task
-envs placed by a physics backend (``sb3_memret.envs.physics``: worker processes, a batched GPU
+envs placed by a physics backend (``sb3_memret.physics``: worker processes, a batched GPU
 simulation or Ray actors) while one controller in this process serves them all: one ``act``
 call per round for every env. Results come back in job order whatever order they finish in.
 ``map_in_workers`` runs any work in spawned worker processes (the demonstrations use it).
@@ -19,7 +19,10 @@ from typing import Callable, Sequence, TypeVar
 
 from sb3_memret.controllers import make_controller
 from sb3_memret.controllers.base import FrozenController
-from sb3_memret.envs.physics import EnvFrame, ResetRequest, make_physics, stack_obs
+from sb3_memret.tasks.base import EnvFrame
+from sb3_memret.physics.backends import ResetRequest
+from sb3_memret.physics import make_physics
+from sb3_memret.obs_trees import stack_obs
 from sb3_memret.prompts import parse_prompt
 from sb3_memret.rollout import DEFAULT_REPLAN_EVERY, EpisodeResult, task_env_kwargs
 from sb3_memret.workers import START_METHOD, WorkerDiedError, init_worker_process, torch_threads

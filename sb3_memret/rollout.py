@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-from contextlib import nullcontext
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence
 
@@ -10,10 +9,13 @@ import gymnasium as gym
 import numpy as np
 
 import sb3_memret.envs.drawer_cube  # noqa: F401  (registers DrawerCubeTakeOut-v1)
-from sb3_memret.controllers.base import FrozenController, as_numpy
+from sb3_memret.controllers.base import FrozenController
 from sb3_memret.envs.cabinet import LAYERS, check_layer
 from sb3_memret.memory.schema import Key
 from sb3_memret.memory.writer import EventCompiler
+from sb3_memret.obs_trees import stack_obs
+from sb3_memret.physics.backends import TaskRunner
+from sb3_memret.physics.chunks import execute_chunk
 from sb3_memret.prompts import CONDITIONS, build_prompt, check_fixed_condition, condition_prompt
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import RENDER_BACKENDS, EnvFrame, Episode, check_render_backend
@@ -30,52 +32,10 @@ class EpisodeResult:
     steps: int  # control steps until success (the drawer ends there), or the episode's length
 
 
-@dataclass
-class ChunkOutcome:
-    """Where executing (a prefix of) an action chunk left the task env."""
-
-    obs: Any
-    info: dict
-    steps: int  # control steps executed
-    terminated: bool
-    truncated: bool
-    reward: float = 0.0  # the env's reward summed over the executed steps
-    succeeded: bool = False  # whether the env reported success at any executed step
-    percepts: list[Any] = field(default_factory=list)  # perceive(env, obs) after each step, when asked for
-
-
 def make_task_env(obs_mode: str = "state_dict", render_backend: str = "none", **kwargs) -> gym.Env:
     """DrawerCubeTakeOut-v1 as a frozen controller consumes it (CPU physics; cameras only with a
     render backend, ``"cpu"`` being the project's lavapipe)."""
     return DrawerTask().make_env(obs_mode=obs_mode, render_backend=render_backend, **kwargs)
-
-
-def execute_chunk(env: gym.Env, actions: Sequence[np.ndarray] | np.ndarray,
-                  perceive: Callable[[gym.Env, Any], Any] | None = None) -> ChunkOutcome:
-    """Execute ``actions`` in order until the episode ends.
-
-    A controller reads the observation only when it is next called, so an env that can pause its
-    sensors (``sensors_paused``) renders only for the one after the last action (the next decision).
-    ``perceive(env, obs)`` is called after every step (a writer that must see every step: then
-    nothing is paused) and its answers are the outcome's ``percepts``.
-    """
-    paused = getattr(env.unwrapped, "sensors_paused", None)
-    obs, info, steps, terminated, truncated = None, {}, 0, False, False
-    reward, succeeded, percepts = 0.0, False, []
-    for i, action in enumerate(actions):
-        pause = paused is not None and perceive is None and i < len(actions) - 1
-        with paused() if pause else nullcontext():
-            obs, r, term, trunc, info = env.step(action)
-        steps += 1
-        reward += float(np.sum(as_numpy(r)))
-        succeeded = succeeded or bool(np.any(as_numpy(info.get("success", False))))
-        if perceive is not None:
-            percepts.append(perceive(env, obs))
-        terminated, truncated = bool(np.any(as_numpy(term))), bool(np.any(as_numpy(trunc)))
-        if terminated or truncated:
-            break
-    return ChunkOutcome(obs, info, steps, terminated, truncated, reward, succeeded, percepts)
-
 
 
 def task_env_kwargs(controller: FrozenController, render_backend: str = "none", task: Task | None = None) -> dict[str, str]:
@@ -234,8 +194,6 @@ def play_task_episodes(
     the controller replanning every ``replan_every`` control steps (None: the task's ``Task.replan_every``) with the
     instruction and ``schedule``'s facts of that decision; ``schedule`` observes every frame. Success is the task's
     (once per episode)."""
-    from sb3_memret.envs.physics import TaskRunner, stack_obs
-
     replan_every = replan_every or task.replan_every
     if not 1 <= replan_every <= controller.spec.chunk_len:
         raise ValueError(f"replan_every must be in [1, {controller.spec.chunk_len}] (the chunk length), got {replan_every}")
@@ -307,6 +265,6 @@ def summarize(results: Iterable[EpisodeResult]) -> dict:
     return summary
 
 
-__all__ = ["ChunkOutcome", "ConditionFacts", "EpisodeResult", "FactSchedule", "RENDER_BACKENDS", "WrittenFacts",
-           "condition_schedule", "evaluate_condition", "evaluate_task_condition", "execute_chunk", "make_task_env",
-           "play_task_episodes", "run_episode", "summarize", "task_env_kwargs"]
+__all__ = ["ConditionFacts", "EpisodeResult", "FactSchedule", "RENDER_BACKENDS", "WrittenFacts", "condition_schedule",
+           "evaluate_condition", "evaluate_task_condition", "make_task_env", "play_task_episodes", "run_episode",
+           "summarize", "task_env_kwargs"]

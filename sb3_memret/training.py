@@ -59,7 +59,7 @@ class RunOptions:
     progress_bar: bool = False
     log_formats: tuple[str, ...] = ("stdout", "csv", "tensorboard")
     render_backend: str = "none"  # image controllers need "cpu" or "gpu"
-    backend: str = "auto"  # where the physics runs (sb3_memret.envs.physics.BACKENDS)
+    backend: str = "auto"  # where the physics runs (sb3_memret.physics.BACKENDS)
     ray_address: str | None = None  # a Ray cluster for backend "ray"
     retriever_from: Path | None = None  # a new run's retriever starts from this model file's
     evaluation_listeners: tuple[Any, ...] = ()  # told of every held-out evaluation (RetrievalEvalCallback.listeners)

@@ -32,7 +32,7 @@ import torch
 
 from sb3_memret.controllers import FrozenController, make_controller
 from sb3_memret.controllers.learned import LearnedController, default_checkpoint
-from sb3_memret.envs.physics import stack_obs, to_numpy
+from sb3_memret.obs_trees import stack_obs, to_numpy
 from sb3_memret.envs.vec_env import RecallVecEnv, make_recall_vec_env
 from sb3_memret.prompts import condition_prompt
 from sb3_memret.rollout import make_task_env, task_env_kwargs

@@ -18,7 +18,8 @@ import numpy as np
 
 from sb3_memret.controllers import ScriptedDrawerController
 from sb3_memret.prompts import condition_prompt
-from sb3_memret.rollout import execute_chunk, make_task_env
+from sb3_memret.physics.chunks import execute_chunk
+from sb3_memret.rollout import make_task_env
 
 
 def every_step(env, actions: np.ndarray) -> tuple[dict, bool]:

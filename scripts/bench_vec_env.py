@@ -32,7 +32,7 @@ from stable_baselines3.common.vec_env import SubprocVecEnv, VecEnv
 
 from sb3_memret.controllers import make_controller
 from sb3_memret.envs import RECALL_ENV_ID
-from sb3_memret.envs.physics import stack_obs, to_numpy
+from sb3_memret.obs_trees import stack_obs, to_numpy
 from sb3_memret.envs.vec_env import RecallVecEnv
 from sb3_memret.prompts import condition_prompt
 from sb3_memret.rollout import make_task_env, task_env_kwargs

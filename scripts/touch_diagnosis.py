@@ -21,7 +21,8 @@ import torch
 
 from sb3_memret.controllers import make_controller
 from sb3_memret.controllers.learned import LearnedController
-from sb3_memret.envs.physics import TaskRunner, stack_obs
+from sb3_memret.physics.backends import TaskRunner
+from sb3_memret.obs_trees import stack_obs
 from sb3_memret.prompts import build_prompt
 from sb3_memret.rollout import task_env_kwargs
 from sb3_memret.tasks import make_task

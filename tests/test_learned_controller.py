@@ -18,7 +18,8 @@ from sb3_memret.controllers.observation import IMAGE_KEYS, PROPRIO_NAMES, STATE_
 from sb3_memret.weights import WeightsNotLoadedError
 from sb3_memret.envs.objects import OBJECT_SETS
 from sb3_memret.prompts import condition_prompt
-from sb3_memret.rollout import execute_chunk, make_task_env, run_episode
+from sb3_memret.physics.chunks import execute_chunk
+from sb3_memret.rollout import make_task_env, run_episode
 
 SMALL = {"hidden_dim": 32, "n_layers": 2, "text_dim": 16, "text_heads": 2, "chunk_len": 8}
 

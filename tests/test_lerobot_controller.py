@@ -154,7 +154,7 @@ def test_tiny_pi05_with_adapter_acts_end_to_end(tiny_pi05, load):
 
 def test_tiny_pi05_acts_on_rendered_camera_images(load, rgb_task_env):
     """A few decisions on the real task with both cameras rendered on the CPU; the images matter."""
-    from sb3_memret.rollout import execute_chunk
+    from sb3_memret.physics.chunks import execute_chunk
 
     controller = load()
     obs, _ = rgb_task_env.reset(seed=3, options={"target_layer": 2})

@@ -148,7 +148,7 @@ def test_one_slot_restarts_alone_and_a_copy_is_a_new_client(serve):
 def test_a_few_decisions_on_rendered_camera_images(serve, rgb_task_env):
     """The real task with both cameras rendered on the CPU: what reaches the server is the rendered
     frames, unchanged, at every decision, and the server's actions drive the robot."""
-    from sb3_memret.rollout import execute_chunk
+    from sb3_memret.physics.chunks import execute_chunk
 
     server = serve(lambda request, n: {"actions": np.tile([0.5, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], (10, 1))})
     controller = OpenPIController("127.0.0.1", server.port, limits=FAST)

@@ -5,8 +5,9 @@ import numpy as np
 import pytest
 
 from sb3_memret.controllers.scripted import ScriptedDrawerController
-from sb3_memret.envs.physics import (BatchedSimPhysics, EnvFrame, InProcessPhysics, ResetRequest, TaskRunner,
-                                     select_obs, stack_obs)
+from sb3_memret.physics.backends import BatchedSimPhysics, InProcessPhysics, ResetRequest, TaskRunner
+from sb3_memret.tasks.base import EnvFrame
+from sb3_memret.obs_trees import select_obs, stack_obs
 from sb3_memret.rollout import task_env_kwargs
 
 KWARGS = task_env_kwargs(ScriptedDrawerController())

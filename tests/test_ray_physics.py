@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import ray
 
-from sb3_memret.envs.ray_physics import RayPhysics
+from sb3_memret.physics.ray_actors import RayPhysics
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.parallel_rollout import EpisodeJob, run_jobs
 from sb3_memret.prompts import condition_prompt
@@ -30,7 +30,7 @@ def test_a_killed_actor_is_restarted_and_replays_its_episode(local_ray, encoder,
     assert isinstance(physics, RayPhysics)
     try:
         on_ray.reset(), in_processes.reset()
-        with caplog.at_level(logging.WARNING, logger="sb3_memret.envs.ray_physics"):
+        with caplog.at_level(logging.WARNING, logger="sb3_memret.physics.ray_actors"):
             for step in range(6):
                 if step == 3:  # mid-episode: three chunks executed since the reset
                     os.kill(physics.pids()[1], signal.SIGKILL)

@@ -10,7 +10,7 @@ from stable_baselines3.common.env_checker import check_env
 from sb3_memret.envs import RECALL_ENV_ID
 from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.envs.objects import OBJECT_SETS
-from sb3_memret.envs.physics import TaskRunner
+from sb3_memret.physics.backends import TaskRunner
 from sb3_memret.envs.recall_memory import EpisodeMemory
 from sb3_memret.memory.schema import MemoryType
 from sb3_memret.prompts import PromptTemplate

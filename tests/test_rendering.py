@@ -7,7 +7,7 @@ import pytest
 import torch
 
 from sb3_memret.rendering import RENDERER_DIR_ENV, RendererNotFoundError, use_cpu_renderer
-from sb3_memret.rollout import execute_chunk
+from sb3_memret.physics.chunks import execute_chunk
 
 CAMERAS = ("base_camera", "hand_camera")
 

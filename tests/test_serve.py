@@ -27,7 +27,8 @@ from sb3_memret.controllers.base import as_numpy  # noqa: E402
 from sb3_memret.controllers.openpi import PolicyServerClient, PolicyServerError  # noqa: E402
 from sb3_memret.controllers.scripted import ScriptedDrawerController  # noqa: E402
 from sb3_memret.prompts import condition_prompt  # noqa: E402
-from sb3_memret.rollout import evaluate_condition, execute_chunk  # noqa: E402
+from sb3_memret.rollout import evaluate_condition  # noqa: E402
+from sb3_memret.physics.chunks import execute_chunk
 from sb3_memret.stage1.serve import ControllerPolicy, serve, serve_until_stopped  # noqa: E402
 from sb3_memret.workers import StopRequested, stop_signals_interrupt  # noqa: E402
 

@@ -10,7 +10,8 @@ import numpy as np
 import pytest
 
 from sb3_memret.controllers.scripted import ScriptedDrawerController
-from sb3_memret.envs.physics import InProcessPhysics, ProcessPhysics, make_physics
+from sb3_memret.physics.backends import InProcessPhysics, ProcessPhysics
+from sb3_memret.physics import make_physics
 from sb3_memret.envs.vec_env import RecallVecEnv, make_recall_vec_env
 from sb3_memret.policy.networks import RetentionScorer
 from sb3_memret.workers import WorkerDiedError

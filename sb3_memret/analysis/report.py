@@ -43,7 +43,7 @@ class ReportOptions:
     n_envs: int = 2
     trace_seed: int | None = None  # None: the run's held-out evaluation seed
     render_backend: str | None = None  # None: the run's task's default
-    backend: str = "auto"  # where the baselines' physics runs (sb3_memret.envs.physics.BACKENDS)
+    backend: str = "auto"  # where the baselines' physics runs (sb3_memret.physics.BACKENDS)
     ray_address: str | None = None
 
 

@@ -174,7 +174,7 @@ class MemoryAgent:
     def forward(self, obs: Mapping[str, Any]) -> np.ndarray:
         """The next action (7,) for the harness's observation (its ``rgb`` and ``proprio`` only are read)."""
         from sb3_memret.benchmark.view import HarnessView
-        from sb3_memret.envs.physics import stack_obs
+        from sb3_memret.obs_trees import stack_obs
 
         if self._seed is None:
             raise RuntimeError("begin(seed) the episode before the harness calls forward()")

@@ -1,7 +1,7 @@
 """The memory side of one recall env: its bank, its writer, the prompt it builds and what it observes.
 
 The decision env keeps one ``EpisodeMemory`` per env in the trainer process, beside the one
-controller; the physics that feeds it frames runs elsewhere (``sb3_memret.envs.physics``).
+controller; the physics that feeds it frames runs elsewhere (``sb3_memret.physics``).
 """
 
 from __future__ import annotations

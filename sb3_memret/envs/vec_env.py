@@ -1,7 +1,7 @@
 """RecallVecEnv: N recall envs served by ONE frozen controller call per decision round.
 
 The memory banks, writers, encoder, retention critic and the frozen controller live here, in
-the trainer process; the task physics runs in a backend (``sb3_memret.envs.physics``): worker
+the trainer process; the task physics runs in a backend (``sb3_memret.physics``): worker
 processes on the CPU, one batched ManiSkill env on the GPU, or Ray actors. One decision round::
 
     slots (N, K) ──banks──▶ N prompts ──controller.act(obs[N], prompts[N])──▶ chunks (N, H, 7)
@@ -33,7 +33,9 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvS
 from sb3_memret.controllers import FrozenController, make_controller
 from sb3_memret.envs.household import Household, HouseholdConfig
 from sb3_memret.envs.objects import object_set
-from sb3_memret.envs.physics import PhysicsBackend, ResetRequest, make_physics, stack_obs
+from sb3_memret.physics.backends import PhysicsBackend, ResetRequest
+from sb3_memret.physics import make_physics
+from sb3_memret.obs_trees import stack_obs
 from sb3_memret.envs.recall_memory import EpisodeMemory, check_memory_source, check_mode, observation_space
 from sb3_memret.memory.bank import importance_scorer
 from sb3_memret.memory.encoder import MiniLMEncoder
@@ -71,7 +73,7 @@ class RecallVecEnv(VecEnv):
     its reward sums the env's reward over them (or shapes from the first state to the last). With
     ``retrieve_on_write`` an env's decision ends early at the replan whose frames wrote a fact to its bank.
 
-    ``backend`` picks where the physics runs (``sb3_memret.envs.physics.BACKENDS``; ``auto``:
+    ``backend`` picks where the physics runs (``sb3_memret.physics.BACKENDS``; ``auto``:
     in-process for one env, worker processes for several); ``ray_address`` a Ray cluster.
     ``controller_calls`` counts ``controller.act`` calls: one per replan round (R per decision round).
 
@@ -419,7 +421,7 @@ def make_recall_vec_env(n_envs: int = 1, env_kwargs: dict[str, Any] | None = Non
     """``RecallVecEnv`` with ``n_envs`` envs behind a ``VecMonitor`` (episode return/length logs).
 
     Env ``i`` is seeded with ``seed + i``; ``backend`` and ``ray_address`` place the physics
-    (``sb3_memret.envs.physics.make_physics``).
+    (``sb3_memret.physics.make_physics``).
     """
     if n_envs < 1:
         raise ValueError(f"n_envs must be >= 1, got {n_envs}")

@@ -29,6 +29,7 @@ import numpy as np
 
 from sb3_memret.memory.schema import Key, MemoryEntry, MemoryType
 from sb3_memret.memory.writer import Predicates
+from sb3_memret.obs_trees import select_obs, to_numpy
 
 if TYPE_CHECKING:
     from sb3_memret.memory.seeding import SeedingConfig
@@ -220,8 +221,6 @@ class Task(ABC):
 
     def controller_inputs(self, obs: Any, n_envs: int, with_images: bool) -> dict[str, np.ndarray]:
         """``demo_frame`` of every env of a batched controller observation, stacked: (n_envs, ...) per feature."""
-        from sb3_memret.envs.physics import select_obs, to_numpy
-
         obs = to_numpy(obs)
         frames = [self.demo_frame(select_obs(obs, i), with_images) for i in range(n_envs)]
         return {key: np.stack([frame[key] for frame in frames]) for key in frames[0]}

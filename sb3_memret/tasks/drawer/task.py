@@ -55,7 +55,7 @@ class DrawerTask(Task):
         return {"obs_mode": "rgb", "render_backend": render_backend}
 
     def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
-        from sb3_memret.envs.physics import select_obs, to_numpy
+        from sb3_memret.obs_trees import select_obs, to_numpy
 
         base = env.unwrapped
         state = base.privileged_state()

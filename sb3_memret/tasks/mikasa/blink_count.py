@@ -173,7 +173,7 @@ class BlinkCountTask(MikasaCueTask):
                                 render_backend=render_backend, **kwargs)
 
     def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
-        from sb3_memret.envs.physics import select_obs, to_numpy
+        from sb3_memret.obs_trees import select_obs, to_numpy
 
         obs = to_numpy(obs)
         blinks = as_numpy(env.unwrapped.target_blinks).reshape(-1)  # privileged: for metrics only

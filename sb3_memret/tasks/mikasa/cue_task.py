@@ -160,7 +160,7 @@ class MikasaCueTask(Task):
                 "robot_uids": "panda_wristcam" if needs_images else "panda"}
 
     def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
-        from sb3_memret.envs.physics import select_obs, to_numpy
+        from sb3_memret.obs_trees import select_obs, to_numpy
 
         obs = to_numpy(obs)
         truth = as_numpy(getattr(env.unwrapped, self.truth_attribute)).reshape(-1)  # privileged: for metrics only

@@ -275,7 +275,7 @@ class InterceptTask(MikasaCueTask):
 
     # ------------------------------------------------------------ simulation
     def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
-        from sb3_memret.envs.physics import select_obs, to_numpy
+        from sb3_memret.obs_trees import select_obs, to_numpy
 
         obs = to_numpy(obs)
         launch = as_numpy(env.unwrapped.oracle_info).reshape(-1, 3)  # privileged: for metrics only

@@ -174,7 +174,7 @@ class RotateTask(MikasaCueTask):
         self.template = PromptTemplate(instructions=(self.instruction_text,), fact_templates=(FACT_TEMPLATE,))
 
     def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
-        from sb3_memret.envs.physics import select_obs, to_numpy
+        from sb3_memret.obs_trees import select_obs, to_numpy
 
         obs = to_numpy(obs)
         base = env.unwrapped

@@ -160,7 +160,7 @@ class SeqOfColorsTask(MikasaCueTask):
         return read_cue_colour(rgb, N_COLOURS)
 
     def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
-        from sb3_memret.envs.physics import select_obs, to_numpy
+        from sb3_memret.obs_trees import select_obs, to_numpy
 
         obs = to_numpy(obs)
         base = env.unwrapped  # privileged: for metrics only

@@ -611,7 +611,7 @@ class ShellGameTask(MikasaCueTask):
         return as_numpy(base.oracle_info).reshape(n_envs, 1).astype(int)  # MIKASA's final slot of the ball's cup
 
     def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
-        from sb3_memret.envs.physics import select_obs, to_numpy
+        from sb3_memret.obs_trees import select_obs, to_numpy
 
         obs = to_numpy(obs)
         success = as_numpy(info["success"]).reshape(-1)

@@ -139,7 +139,7 @@ class TakeItBackTask(MikasaCueTask):
         super().__init__(env_id, len(SIDES))
 
     def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
-        from sb3_memret.envs.physics import select_obs, to_numpy
+        from sb3_memret.obs_trees import select_obs, to_numpy
 
         obs = to_numpy(obs)
         base = env.unwrapped

@@ -1,14 +1,13 @@
-"""Where the decision envs' physics runs, apart from the memory and the controller.
+"""The physics backends that run on this machine, and the task runner every CPU worker holds.
 
 The trainer keeps the memory banks, the writers, the encoder and ONE frozen controller; the
-task envs (DrawerCubeTakeOut-v1) live in a physics backend that resets them and executes
+task envs live in a physics backend that resets them and executes
 action chunks, and answers with an ``EnvFrame`` per env: what the controller will observe,
 the privileged state the writer reads, the potential and how the chunk ended.
 
 Backends: ``InProcessPhysics`` (task envs in this process: one env, tests), ``ProcessPhysics``
 (one spawned worker process per env on the CPU), ``BatchedSimPhysics`` (one ManiSkill env with
-``num_envs=N``, for ``sim_backend="gpu"``) and ``RayPhysics`` (Ray actors, in
-``sb3_memret.envs.ray_physics``). ``make_physics`` builds one by name.
+``num_envs=N``, for ``sim_backend="gpu"``); ``RayPhysics`` (Ray actors) is in ``ray_actors``.
 """
 
 from __future__ import annotations
@@ -24,6 +23,8 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from sb3_memret.obs_trees import to_numpy
+from sb3_memret.physics.chunks import execute_chunk
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import EnvFrame
 from sb3_memret.workers import START_METHOD, WorkerDiedError, exit_description, init_worker_process
@@ -54,28 +55,6 @@ class ResetRequest:
     options: Mapping[str, Any] = field(default_factory=dict)
 
 
-def to_numpy(tree: Any) -> Any:
-    """A nested observation with every tensor as a numpy array (cheap to pickle, device-free)."""
-    if isinstance(tree, Mapping):
-        return {key: to_numpy(value) for key, value in tree.items()}
-    return tree.detach().cpu().numpy() if hasattr(tree, "detach") else np.asarray(tree)
-
-
-def stack_obs(frames: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
-    """Batch-of-one observations concatenated into one batched observation, in the given order."""
-    first = frames[0]
-    if isinstance(first, Mapping):
-        return {key: stack_obs([frame[key] for frame in frames]) for key in first}
-    return np.concatenate(frames, axis=0)
-
-
-def select_obs(tree: Any, index: int) -> Any:
-    """Env ``index`` of a batched observation, keeping a batch dimension of one."""
-    if isinstance(tree, Mapping):
-        return {key: select_obs(value, index) for key, value in tree.items()}
-    return tree[index:index + 1]
-
-
 class TaskRunner:
     """One env of a task that resets and plays chunks: what every CPU physics worker runs. It keeps
     the episode's success once (a task whose episodes go on after success, as MIKASA's do, counts it)."""
@@ -97,8 +76,6 @@ class TaskRunner:
         return frame
 
     def execute(self, actions: np.ndarray) -> EnvFrame:
-        from sb3_memret.rollout import execute_chunk
-
         outcome = execute_chunk(self.env, actions, self.task.perceive if self.task.perceives_every_step else None)
         frame, = self.task.frames(self.env, outcome.obs, outcome.info)
         self.succeeded = self.succeeded or outcome.succeeded or frame.success
@@ -348,31 +325,5 @@ class BatchedSimPhysics(PhysicsBackend):
         self.env.close()
 
 
-def make_physics(backend: str, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int,
-                 ray_address: str | None = None, task: Task | str = "drawer") -> PhysicsBackend:
-    """The physics backend ``backend`` names (one of ``BACKENDS``): ``auto`` is in-process for one env and
-    worker processes for several (Ray when a ``ray_address`` is given); ``gpu`` one batched GPU simulation;
-    ``ray`` Ray actors at ``ray_address`` (None: ``$RAY_ADDRESS`` or a local Ray instance)."""
-    if backend not in BACKENDS:
-        raise ValueError(f"unknown physics backend {backend!r}; expected one of {list(BACKENDS)}")
-    if num_envs < 1:
-        raise ValueError(f"num_envs must be >= 1, got {num_envs}")
-    if ray_address is not None and backend == "auto":
-        backend = "ray"
-    if ray_address is not None and backend != "ray":
-        raise ValueError(f"a Ray address ({ray_address!r}) needs the ray backend, not {backend!r}")
-    if backend == "auto":
-        backend = "inprocess" if num_envs == 1 else "process"
-    if backend == "inprocess":
-        return InProcessPhysics(num_envs, task_kwargs, max_control_steps, task)
-    if backend == "process":
-        return ProcessPhysics(num_envs, task_kwargs, max_control_steps, task)
-    if backend == "gpu":
-        return BatchedSimPhysics(num_envs, task_kwargs, max_control_steps, task)
-    from sb3_memret.envs.ray_physics import RayPhysics
-
-    return RayPhysics(num_envs, task_kwargs, max_control_steps, address=ray_address, task=task)
-
-
-__all__ = ["BACKENDS", "BatchedSimPhysics", "EnvFrame", "InProcessPhysics", "PhysicsBackend", "ProcessPhysics",
-           "ResetRequest", "TaskEnvInfo", "TaskRunner", "make_physics", "select_obs", "stack_obs", "to_numpy"]
+__all__ = ["BACKENDS", "BatchedSimPhysics", "InProcessPhysics", "PhysicsBackend", "ProcessPhysics", "ResetRequest",
+           "TaskEnvInfo", "TaskRunner"]

@@ -21,7 +21,8 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from sb3_memret.tasks import Task
-from sb3_memret.envs.physics import EnvFrame, PhysicsBackend, ResetRequest, TaskEnvInfo, TaskRunner
+from sb3_memret.tasks.base import EnvFrame
+from sb3_memret.physics.backends import PhysicsBackend, ResetRequest, TaskEnvInfo, TaskRunner
 from sb3_memret.workers import WorkerDiedError
 
 logger = logging.getLogger(__name__)
