@@ -8,8 +8,8 @@ from typing import Any, Callable
 
 import yaml
 
-from sb3_memret.envs.cabinet import LAYERS
-from sb3_memret.envs.objects import OBJECT_SETS
+from sb3_memret.tasks.drawer.cabinet import LAYERS
+from sb3_memret.tasks.drawer.objects import OBJECT_SETS
 from sb3_memret.memory.retention import RETENTION_RULES
 from sb3_memret.memory.schema import AGE_UNITS
 from sb3_memret.tasks import DEFAULT_TASK, check_task_name, make_task

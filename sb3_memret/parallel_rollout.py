@@ -17,7 +17,7 @@ from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass
 from typing import Callable, Sequence, TypeVar
 
-from sb3_memret.controllers import make_controller
+from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers.base import FrozenController
 from sb3_memret.tasks.base import EnvFrame
 from sb3_memret.physics.backends import ResetRequest

@@ -17,7 +17,6 @@ import re
 from dataclasses import dataclass
 from typing import Sequence
 
-from sb3_memret.envs.cabinet import LAYERS, check_layer
 from sb3_memret.memory.schema import NOTHING, OUTSIDE, SPECIAL_TEXTS, TEMPLATES, MemoryType
 
 INSTRUCTION_TEMPLATE = "pick out the {entity}."
@@ -90,11 +89,6 @@ def instruction_text(target: str) -> str:
     return build_prompt(INSTRUCTION_TEMPLATE.format(entity=target), [], PromptTemplate((INSTRUCTION_TEMPLATE,)))
 
 
-def location_text(entity: str, layer: int) -> str:
-    """The memory text that places ``entity`` in drawer ``layer``."""
-    return LAYER_LOCATION_TEMPLATE.format(entity=entity, layer=check_layer(layer))
-
-
 def holding_text(value: str) -> str:
     return HOLDING_NOTHING_TEXT if value == NOTHING else HOLDING_TEMPLATE.format(value=value)
 
@@ -136,23 +130,6 @@ def check_fixed_condition(condition: str) -> str:
     return condition
 
 
-def condition_prompt(condition: str, layer: int, target: str = "cube") -> str:
-    """The prompt of a controller-evaluation condition for ``target`` in ``layer``.
-
-    oracle names the right layer, wrong names another one (the next layer, cyclically),
-    none is the bare instruction.
-    """
-    check_fixed_condition(condition)
-    check_layer(layer)
-    instruction = instruction_text(target)
-    template = PromptTemplate((instruction,))
-    if condition == "oracle":
-        return build_prompt(instruction, [location_text(target, layer)], template)
-    if condition == "wrong":
-        return build_prompt(instruction, [location_text(target, layer % len(LAYERS) + 1)], template)
-    return instruction  # none
-
-
 @functools.lru_cache(maxsize=None)
 def _template_regex(template: str) -> re.Pattern:
     """A template like 'the {entity} is in drawer layer {layer}.' as an exact-match regex."""
@@ -167,9 +144,5 @@ def _template_regex(template: str) -> re.Pattern:
 def _parse_fact(sentence: str, prompt: str, template: PromptTemplate) -> Fact:
     for fact_template in template.fact_templates:
         if m := _template_regex(fact_template).fullmatch(sentence):
-            fact = Fact(fact_template, tuple(m.groupdict().items()))
-            if fact.layer is not None and fact.layer not in LAYERS:
-                raise ValueError(f"memory {sentence!r} in prompt {prompt!r} names drawer layer {fact.layer}; "
-                                 f"layers are {list(LAYERS)}")
-            return fact
+            return Fact(fact_template, tuple(m.groupdict().items()))
     raise ValueError(f"memory {sentence!r} in prompt {prompt!r} matches no trained template; accepted {template.describe()}")

@@ -8,15 +8,16 @@ from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence
 import gymnasium as gym
 import numpy as np
 
-import sb3_memret.envs.drawer_cube  # noqa: F401  (registers DrawerCubeTakeOut-v1)
+import sb3_memret.tasks.drawer.drawer_cube  # noqa: F401  (registers DrawerCubeTakeOut-v1)
 from sb3_memret.controllers.base import FrozenController
-from sb3_memret.envs.cabinet import LAYERS, check_layer
+from sb3_memret.tasks.drawer.cabinet import LAYERS, check_layer
 from sb3_memret.memory.schema import Key
 from sb3_memret.memory.writer import EventCompiler
 from sb3_memret.obs_trees import stack_obs
 from sb3_memret.physics.backends import TaskRunner
 from sb3_memret.physics.chunks import execute_chunk
-from sb3_memret.prompts import CONDITIONS, build_prompt, check_fixed_condition, condition_prompt
+from sb3_memret.prompts import CONDITIONS, build_prompt, check_fixed_condition
+from sb3_memret.tasks.drawer.prompts import condition_prompt
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import RENDER_BACKENDS, EnvFrame, Episode, check_render_backend
 from sb3_memret.tasks.drawer import DrawerTask

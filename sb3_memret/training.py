@@ -29,7 +29,8 @@ from sb3_memret.callbacks import (RetrievalEvalCallback, RolloutRetrievalCallbac
                                   RunProgressCallback, latest_checkpoint)
 from sb3_memret.callbacks.checkpoint import checkpoints as list_checkpoints
 from sb3_memret.config import TrainConfig, parse_section
-from sb3_memret.controllers import FrozenController, make_controller
+from sb3_memret.controllers import FrozenController
+from sb3_memret.controller_specs import make_controller
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.seeds import HELD_OUT_SEED
 from sb3_memret.tasks import DEFAULT_TASK, make_task

@@ -17,7 +17,7 @@ import numpy as np
 import sapien
 from sapien.wrapper.actor_builder import ActorBuilder
 
-import sb3_memret.envs.drawer_cube  # noqa: F401  (registers DrawerCubeTakeOut-v1)
+import sb3_memret.tasks.drawer.drawer_cube  # noqa: F401  (registers DrawerCubeTakeOut-v1)
 
 
 def drop_visual_shapes() -> None:

@@ -30,11 +30,13 @@ from typing import Any
 import numpy as np
 import torch
 
-from sb3_memret.controllers import FrozenController, make_controller
+from sb3_memret.controllers import FrozenController
+from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers.learned import LearnedController, default_checkpoint
 from sb3_memret.obs_trees import stack_obs, to_numpy
 from sb3_memret.envs.vec_env import RecallVecEnv, make_recall_vec_env
-from sb3_memret.prompts import condition_prompt
+from sb3_memret.tasks.drawer import DrawerTask
+from sb3_memret.tasks.drawer.prompts import condition_prompt
 from sb3_memret.rollout import make_task_env, task_env_kwargs
 
 SEED = 1_000_000
@@ -75,7 +77,7 @@ class Result:
 def build_controller(name: str, device: str) -> FrozenController:
     """The controller ``name`` names; the drawer's shipped learned checkpoints run on ``device``."""
     if name in ("learned", "learned-state"):
-        return LearnedController(default_checkpoint(name), device=device)
+        return LearnedController(default_checkpoint(name), DrawerTask(), device=device)
     return make_controller(name)
 
 

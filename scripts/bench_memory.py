@@ -14,13 +14,13 @@ import time
 
 import numpy as np
 
-from sb3_memret.controllers import ScriptedDrawerController
+from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
 from sb3_memret.memory.bank import MemoryBank
 from sb3_memret.memory.encoder import MiniLMEncoder
 from sb3_memret.memory.writer import EventCompiler
 from sb3_memret.tasks.drawer.seeding import seed_memories
 from sb3_memret.tasks.drawer.writer import RELATIONS, BoundingBoxPredicateExtractor
-from sb3_memret.prompts import condition_prompt
+from sb3_memret.tasks.drawer.prompts import condition_prompt
 from sb3_memret.rollout import make_task_env
 
 REPLAN_EVERY = 8

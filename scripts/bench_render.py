@@ -16,8 +16,8 @@ from pathlib import Path
 
 import numpy as np
 
-from sb3_memret.controllers import ScriptedDrawerController
-from sb3_memret.prompts import condition_prompt
+from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
+from sb3_memret.tasks.drawer.prompts import condition_prompt
 from sb3_memret.physics.chunks import execute_chunk
 from sb3_memret.rollout import make_task_env
 

@@ -30,11 +30,11 @@ import numpy as np
 import psutil
 from stable_baselines3.common.vec_env import SubprocVecEnv, VecEnv
 
-from sb3_memret.controllers import make_controller
+from sb3_memret.controller_specs import make_controller
 from sb3_memret.envs import RECALL_ENV_ID
 from sb3_memret.obs_trees import stack_obs, to_numpy
 from sb3_memret.envs.vec_env import RecallVecEnv
-from sb3_memret.prompts import condition_prompt
+from sb3_memret.tasks.drawer.prompts import condition_prompt
 from sb3_memret.rollout import make_task_env, task_env_kwargs
 from sb3_memret.tasks.base import RENDER_BACKENDS
 from sb3_memret.workers import init_worker_process
@@ -44,7 +44,7 @@ SEED = 1_000_000
 
 def _recall_env(controller: str, render_backend: str) -> Callable[[], gym.Env]:
     def make() -> gym.Env:
-        import sb3_memret.envs.drawer_cube  # noqa: F401  (registers DrawerCubeTakeOut-v1)
+        import sb3_memret.tasks.drawer.drawer_cube  # noqa: F401  (registers DrawerCubeTakeOut-v1)
 
         init_worker_process()
         return gym.make(RECALL_ENV_ID, controller=controller, render_backend=render_backend)

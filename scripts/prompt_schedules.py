@@ -23,7 +23,7 @@ from typing import Sequence
 
 import numpy as np
 
-from sb3_memret.controllers import make_controller
+from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers.base import FrozenController
 from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.rollout import EpisodeResult, FactSchedule, play_task_episodes

@@ -19,7 +19,7 @@ from collections import Counter
 import numpy as np
 import torch
 
-from sb3_memret.controllers import make_controller
+from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers.learned import LearnedController
 from sb3_memret.physics.backends import TaskRunner
 from sb3_memret.obs_trees import stack_obs

@@ -37,7 +37,7 @@ def task_env():
 @pytest.fixture(scope="module")
 def objects_env():
     """DrawerCubeTakeOut-v1 with three objects of the training set, one per drawer."""
-    from sb3_memret.envs.objects import OBJECT_SETS
+    from sb3_memret.tasks.drawer.objects import OBJECT_SETS
 
     env = make_task_env(robot_init_qpos_noise=0.0, objects=OBJECT_SETS["train"], n_objects=3)
     yield env

@@ -316,7 +316,7 @@ def test_wording_spec_rewords_only_the_oracle_fact_and_waives_the_contract():
 
 
 def test_wording_cells_reach_the_controller_unchecked(task_env):
-    from sb3_memret.controllers.scripted import ScriptedDrawerController
+    from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
     from sb3_memret.rollout import run_episode
 
     prompt = "pick out the cube. the cube is in layer 3."

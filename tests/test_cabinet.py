@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from sb3_memret.envs.cabinet import LAYERS, CabinetLayout, check_layer
+from sb3_memret.tasks.drawer.cabinet import LAYERS, CabinetLayout, check_layer
 
 
 def test_layers_are_stacked_top_to_bottom_without_overlap():

@@ -5,13 +5,8 @@ import sys
 
 import pytest
 
-from sb3_memret.controllers import (
-    CONTROLLER_SPECS,
-    ScriptedDrawerController,
-    make_controller,
-    parse_lerobot_spec,
-    parse_openpi_spec,
-)
+from sb3_memret.controller_specs import CONTROLLER_SPECS, make_controller, parse_lerobot_spec, parse_openpi_spec
+from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
 from sb3_memret.controllers.shipped import SHIPPED
 
 

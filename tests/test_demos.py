@@ -7,8 +7,9 @@ import numpy as np
 import pytest
 
 from sb3_memret.controllers.observation import IMAGE_KEYS, STATE_NAMES
-from sb3_memret.controllers.scripted import ScriptedDrawerController
-from sb3_memret.prompts import INSTRUCTION, condition_prompt, parse_prompt
+from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
+from sb3_memret.prompts import INSTRUCTION, parse_prompt
+from sb3_memret.tasks.drawer.prompts import condition_prompt
 from sb3_memret.stage1.demos import DemoEpisode, PromptMix, plan_episodes, read_episode_log, record_demos, record_episode
 
 DETECTION = slice(STATE_NAMES.index("target_visible"), STATE_NAMES.index("target_qz") + 1)

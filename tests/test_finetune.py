@@ -7,11 +7,12 @@ import numpy as np
 import torch
 import pytest
 
-from sb3_memret.controllers import make_controller
+from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers.learned import LearnedPolicyConfig
 from sb3_memret.controllers.learned.modeling import pointer_ambiguity
 from sb3_memret.controllers.observation import PROPRIO_NAMES, STATE_NAMES
-from sb3_memret.prompts import INSTRUCTION, condition_prompt
+from sb3_memret.prompts import INSTRUCTION
+from sb3_memret.tasks.drawer.prompts import condition_prompt
 from sb3_memret.stage1.demos import DemoEpisode, record_demos
 from sb3_memret.stage1.finetune import (
     Demonstrations,

@@ -3,9 +3,9 @@
 import numpy as np
 import pytest
 
-from sb3_memret.envs.cabinet import LAYERS
-from sb3_memret.envs.household import Household, HouseholdConfig
-from sb3_memret.envs.objects import OBJECT_SETS
+from sb3_memret.tasks.drawer.cabinet import LAYERS
+from sb3_memret.tasks.drawer.household import Household, HouseholdConfig
+from sb3_memret.tasks.drawer.objects import OBJECT_SETS
 
 OBJECTS = OBJECT_SETS["train"]
 

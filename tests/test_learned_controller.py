@@ -10,14 +10,16 @@ import pytest
 import torch
 from safetensors.torch import load_file, save_file
 
-from sb3_memret.controllers import make_controller
+from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers.learned import LearnedController, LearnedPolicy, LearnedPolicyConfig, default_checkpoint
 from sb3_memret.controllers.learned.configuration import perceived_objects
 from sb3_memret.controllers.learned.modeling import ObjectPointer
 from sb3_memret.controllers.observation import IMAGE_KEYS, PROPRIO_NAMES, STATE_DIM, STATE_NAMES
 from sb3_memret.weights import WeightsNotLoadedError
-from sb3_memret.envs.objects import OBJECT_SETS
-from sb3_memret.prompts import condition_prompt
+from sb3_memret.tasks import make_task
+from sb3_memret.tasks.drawer import DrawerTask
+from sb3_memret.tasks.drawer.objects import OBJECT_SETS
+from sb3_memret.tasks.drawer.prompts import condition_prompt
 from sb3_memret.physics.chunks import execute_chunk
 from sb3_memret.rollout import make_task_env, run_episode
 
@@ -41,7 +43,7 @@ def state_obs(batch: int = 2, rng: np.random.Generator | None = None) -> dict:
 
 def test_checkpoint_round_trips_exactly(tmp_path):
     policy = saved_policy(tmp_path)
-    controller = LearnedController(tmp_path)
+    controller = LearnedController(tmp_path, DrawerTask())
     controller.reset([0, 1])
     obs, prompts = state_obs(), [condition_prompt("oracle", 1), condition_prompt("none", 2)]
     inputs = controller.processor(obs, prompts)
@@ -57,7 +59,7 @@ def test_missing_tensor_fails_loudly(tmp_path):
     tensors.pop("state_std")
     save_file(tensors, tmp_path / "model.safetensors")
     with pytest.raises(WeightsNotLoadedError, match="1 missing: state_std"):
-        LearnedController(tmp_path)
+        LearnedController(tmp_path, DrawerTask())
 
 
 def test_tensor_of_another_shape_fails_loudly(tmp_path):
@@ -65,24 +67,24 @@ def test_tensor_of_another_shape_fails_loudly(tmp_path):
     config = json.loads((tmp_path / "config.json").read_text())
     (tmp_path / "config.json").write_text(json.dumps({**config, "hidden_dim": 48}))
     with pytest.raises(WeightsNotLoadedError, match="does not fit its config"):
-        LearnedController(tmp_path)
+        LearnedController(tmp_path, DrawerTask())
 
 
 def test_bad_config_and_folder_are_refused(tmp_path):
     with pytest.raises(FileNotFoundError, match="not a folder"):
-        LearnedController(tmp_path / "nowhere")
+        LearnedController(tmp_path / "nowhere", DrawerTask())
     saved_policy(tmp_path)
     config = json.loads((tmp_path / "config.json").read_text())
     (tmp_path / "config.json").write_text(json.dumps({**config, "dropout": 0.1}))
     with pytest.raises(ValueError, match=r"unknown keys \['dropout'\]"):
-        LearnedController(tmp_path)
+        LearnedController(tmp_path, DrawerTask())
     with pytest.raises(ValueError, match="malformed learned controller"):
         make_controller("learned:")
 
 
 def test_drifted_prompt_is_refused(tmp_path):
     saved_policy(tmp_path)
-    controller = LearnedController(tmp_path)
+    controller = LearnedController(tmp_path, DrawerTask())
     controller.reset([0])
     with pytest.raises(ValueError, match="matches no trained template"):
         controller.act(state_obs(1), ["pick out the cube. the cube is inside drawer layer 2."])
@@ -93,7 +95,7 @@ def test_drifted_prompt_is_refused(tmp_path):
 
 def test_image_policy_reads_both_cameras(tmp_path):
     saved_policy(tmp_path, image_features=tuple(IMAGE_KEYS), image_size=16)
-    controller = LearnedController(tmp_path)
+    controller = LearnedController(tmp_path, DrawerTask())
     assert controller.spec.needs_images
     controller.reset([0])
     obs = state_obs(1)
@@ -181,11 +183,11 @@ def test_a_checkpoint_runs_only_on_its_task_and_state_layout(tmp_path):
     saved_policy(tmp_path)
     config = json.loads((tmp_path / "config.json").read_text())
     with pytest.raises(ValueError, match="trained on task 'drawer', not 'RememberColor3-VLA-v0'"):
-        LearnedController(tmp_path, task="RememberColor3-VLA-v0")
+        LearnedController(tmp_path, make_task("RememberColor3-VLA-v0"))
     (tmp_path / "config.json").write_text(json.dumps({**config, "state_names": ["tcp_x", *config["state_names"][1:-1],
                                                                                   "cube_speed"]}))
     with pytest.raises(ValueError, match=r"no state entries \['cube_speed'\]"):
-        LearnedController(tmp_path)
+        LearnedController(tmp_path, DrawerTask())
 
 
 def test_a_camera_policy_reads_the_hands_state_and_both_cameras(tmp_path):
@@ -199,7 +201,7 @@ def test_a_camera_policy_reads_the_hands_state_and_both_cameras(tmp_path):
     policy.set_perceived_stats(torch.randn(len(perceived)), torch.rand(len(perceived)) + 0.5)
     policy.save_pretrained(tmp_path)
     assert {"perceived_mean", "perceived_std", "perception.weight"} <= set(load_file(tmp_path / "model.safetensors"))
-    controller = LearnedController(tmp_path)
+    controller = LearnedController(tmp_path, DrawerTask())
     controller.reset([0])
     rng = np.random.default_rng(1)
     obs = state_obs(1, rng)

@@ -119,7 +119,7 @@ def test_demos_of_a_mikasa_task_are_a_lerobot_dataset_whose_prompts_carry_the_fa
 def test_a_pointer_camera_policy_finetunes_on_mikasa_demos_and_logs_its_ambiguity(every_step_demos, tmp_path):
     """``finetune --pointer`` on a MIKASA task: the pointer groups the perceived cubes, its ambiguity is logged
     (log 3 at most for three cubes), and the checkpoint loads as a controller with its pointer."""
-    from sb3_memret.controllers import make_controller
+    from sb3_memret.controller_specs import make_controller
     from sb3_memret.stage1.finetune import read_log
 
     out = tmp_path / "policy"

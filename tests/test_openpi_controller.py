@@ -21,7 +21,7 @@ from sb3_memret.controllers.openpi import (  # noqa: E402
     ServerLimits,
     pi05_libero_request,
 )
-from sb3_memret.prompts import condition_prompt  # noqa: E402
+from sb3_memret.tasks.drawer.prompts import condition_prompt  # noqa: E402
 
 FAST = ServerLimits(connect_timeout=1.0, infer_timeout=0.3, attempts=2, backoff=0.05)
 PI05_KEYS = {"observation/image", "observation/wrist_image", "observation/state", "prompt"}

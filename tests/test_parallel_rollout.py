@@ -7,7 +7,7 @@ import pytest
 
 from sb3_memret import parallel_rollout
 from sb3_memret.parallel_rollout import EpisodeJob, run_jobs
-from sb3_memret.prompts import condition_prompt
+from sb3_memret.tasks.drawer.prompts import condition_prompt
 from sb3_memret.workers import WorkerDiedError
 
 # The slow episode (a wrong layer plays to the 400-step limit) comes first, so with two workers
@@ -84,7 +84,7 @@ def test_replan_interval_longer_than_a_chunk_is_refused(n_envs):
 def test_one_controller_call_per_round_serves_every_env(monkeypatch):
     """Two envs, one controller: every act call carries both envs, and there are as many calls as the
     longest env's rounds (not one per env per round)."""
-    from sb3_memret.controllers.scripted import ScriptedDrawerController
+    from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
 
     controller = ScriptedDrawerController()
     batches = []

@@ -4,7 +4,7 @@ checked against a plain task env."""
 import numpy as np
 import pytest
 
-from sb3_memret.controllers.scripted import ScriptedDrawerController
+from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
 from sb3_memret.physics.backends import BatchedSimPhysics, InProcessPhysics, ResetRequest, TaskRunner
 from sb3_memret.tasks.base import EnvFrame
 from sb3_memret.obs_trees import select_obs, stack_obs

@@ -1,18 +1,8 @@
 import pytest
 
-from sb3_memret.prompts import (
-    HOLDING_TEMPLATE,
-    INSTRUCTION,
-    INSTRUCTION_TEMPLATE,
-    LAYER_LOCATION_TEMPLATE,
-    PromptTemplate,
-    build_prompt,
-    condition_prompt,
-    holding_text,
-    instruction_text,
-    location_text,
-    parse_prompt,
-)
+from sb3_memret.prompts import (HOLDING_TEMPLATE, INSTRUCTION, INSTRUCTION_TEMPLATE, LAYER_LOCATION_TEMPLATE,
+                                PromptTemplate, build_prompt, holding_text, instruction_text, parse_prompt)
+from sb3_memret.tasks.drawer.prompts import location_text
 
 
 def test_round_trip_of_instruction_and_memories():
@@ -45,7 +35,6 @@ def test_layer_follows_first_location_fact_whatever_the_object():
         "pick out the cube.  the cube is in drawer layer 2.",  # double space
         "pick out the cube. the cube is in drawer layer 2",  # no full stop
         "pick out the cube. the cube is in drawer 2.",  # wording drift
-        "pick out the cube. the cube is in drawer layer 4.",  # no such layer
         " pick out the cube.",  # leading space
         "grab the cube.",  # unknown instruction
         "",
@@ -63,18 +52,6 @@ def test_template_restricts_accepted_facts():
         parse_prompt("pick out the cube. the robot is holding the key.", only_locations)
 
 
-def test_condition_prompts():
-    assert condition_prompt("oracle", 3) == "pick out the cube. the cube is in drawer layer 3."
-    assert condition_prompt("none", 2) == INSTRUCTION
-    for layer in (1, 2, 3):
-        wrong = parse_prompt(condition_prompt("wrong", layer)).layer
-        assert wrong is not None and wrong != layer
-    with pytest.raises(ValueError, match="unknown condition 'maybe'"):
-        condition_prompt("maybe", 1)
-    with pytest.raises(ValueError, match="drawer layer must be one of"):
-        condition_prompt("oracle", 0)
-
-
 def test_instruction_templates_take_any_object_word_and_name_the_target():
     general = PromptTemplate((INSTRUCTION_TEMPLATE,))
     parsed = parse_prompt("pick out the tin. the tin is in drawer layer 3.", general)
@@ -85,4 +62,3 @@ def test_instruction_templates_take_any_object_word_and_name_the_target():
     with pytest.raises(ValueError, match="starts with 'pick up the tin.'"):
         parse_prompt("pick up the tin.", general)
     assert instruction_text("soap") == "pick out the soap."
-    assert condition_prompt("wrong", 3, "dice") == "pick out the dice. the dice is in drawer layer 1."

@@ -8,8 +8,8 @@ import pytest
 from stable_baselines3.common.env_checker import check_env
 
 from sb3_memret.envs import RECALL_ENV_ID
-from sb3_memret.envs.cabinet import LAYERS
-from sb3_memret.envs.objects import OBJECT_SETS
+from sb3_memret.tasks.drawer.cabinet import LAYERS
+from sb3_memret.tasks.drawer.objects import OBJECT_SETS
 from sb3_memret.physics.backends import TaskRunner
 from sb3_memret.envs.recall_memory import EpisodeMemory
 from sb3_memret.memory.schema import MemoryType

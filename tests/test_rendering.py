@@ -73,7 +73,7 @@ def test_a_drawer_env_made_through_gymnasium_sets_up_the_cpu_renderer_itself():
     import subprocess
     import sys
 
-    code = ("import gymnasium as gym, sb3_memret.envs.drawer_cube\n"
+    code = ("import gymnasium as gym, sb3_memret.tasks.drawer.drawer_cube\n"
             "env = gym.make('DrawerCubeTakeOut-v1', obs_mode='rgb', render_backend='cpu')\n"
             "obs, _ = env.reset(seed=0)\n"
             "print(tuple(obs['sensor_data']['base_camera']['rgb'].shape))\n")

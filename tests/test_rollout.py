@@ -4,7 +4,7 @@ import numpy as np
 import pytest
 
 from sb3_memret.controllers.base import ControllerSpec, FrozenController
-from sb3_memret.controllers.scripted import ScriptedDrawerController
+from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
 from sb3_memret.envs.recall import DrawerRecallEnv
 from sb3_memret.rollout import evaluate_condition, task_env_kwargs
 

@@ -22,11 +22,11 @@ import websockets.sync.client  # noqa: E402
 from openpi_client import msgpack_numpy  # noqa: E402
 from openpi_server import WebsocketPolicyServer  # noqa: E402
 
-from sb3_memret.controllers import make_controller  # noqa: E402
+from sb3_memret.controller_specs import make_controller  # noqa: E402
 from sb3_memret.controllers.base import as_numpy  # noqa: E402
 from sb3_memret.controllers.openpi import PolicyServerClient, PolicyServerError  # noqa: E402
-from sb3_memret.controllers.scripted import ScriptedDrawerController  # noqa: E402
-from sb3_memret.prompts import condition_prompt  # noqa: E402
+from sb3_memret.tasks.drawer.expert import ScriptedDrawerController  # noqa: E402
+from sb3_memret.tasks.drawer.prompts import condition_prompt  # noqa: E402
 from sb3_memret.rollout import evaluate_condition  # noqa: E402
 from sb3_memret.physics.chunks import execute_chunk
 from sb3_memret.stage1.serve import ControllerPolicy, serve, serve_until_stopped  # noqa: E402

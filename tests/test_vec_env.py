@@ -9,7 +9,7 @@ import sys
 import numpy as np
 import pytest
 
-from sb3_memret.controllers.scripted import ScriptedDrawerController
+from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
 from sb3_memret.physics.backends import InProcessPhysics, ProcessPhysics
 from sb3_memret.physics import make_physics
 from sb3_memret.envs.vec_env import RecallVecEnv, make_recall_vec_env

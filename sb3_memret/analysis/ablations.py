@@ -24,9 +24,10 @@ from typing import Any, Callable, Sequence
 import numpy as np
 
 from sb3_memret.controllers.base import FrozenController
-from sb3_memret.envs.cabinet import LAYERS, check_layer
+from sb3_memret.tasks.drawer.cabinet import LAYERS, check_layer
 from sb3_memret.parallel_rollout import EpisodeJob, run_jobs
-from sb3_memret.prompts import HOLDING_NOTHING_TEXT, INSTRUCTION, build_prompt, location_text
+from sb3_memret.prompts import HOLDING_NOTHING_TEXT, INSTRUCTION, build_prompt
+from sb3_memret.tasks.drawer.prompts import location_text
 from sb3_memret.rollout import DEFAULT_REPLAN_EVERY, EpisodeResult
 from sb3_memret.seeds import HELD_OUT_SEED
 

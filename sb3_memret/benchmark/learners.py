@@ -27,7 +27,7 @@ def train_learners(env_ids: list[str], out: Path, controller: str = "scripted", 
     """Train (or resume, or keep) the memory learner of each task in ``env_ids`` into ``out/<env id>``.
     Held-out evaluations during training play the task's development seeds, never the benchmark's."""
     from sb3_memret.config import load_task_config
-    from sb3_memret.controllers import make_controller
+    from sb3_memret.controller_specs import make_controller
     from sb3_memret.tasks import check_task_name, make_task
     from sb3_memret.callbacks import latest_checkpoint
     from sb3_memret.training import RunOptions, train

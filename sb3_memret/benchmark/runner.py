@@ -183,7 +183,7 @@ def learner_record(run: Plan, env_id: str) -> dict[str, Any]:
 def plan(protocol: Protocol, conditions: Iterable[str], split: str | None = None,
          env_ids: Iterable[str] | None = None, learners: Path | None = None) -> Plan:
     """Select the tasks (by split or ids) and decide, without simulating, which can run here and why not."""
-    from sb3_memret.controllers import make_controller
+    from sb3_memret.controller_specs import make_controller
     from sb3_memret.tasks import check_task_name, make_task
 
     tasks = select_tasks(split, list(env_ids) if env_ids is not None else None)
@@ -226,7 +226,7 @@ class _Worker:
     def agent(self, env_id: str, condition: str) -> Any:
         from sb3_memret.benchmark import harness
         from sb3_memret.benchmark.agent import MemoryAgent, MemoryLearner
-        from sb3_memret.controllers import make_controller
+        from sb3_memret.controller_specs import make_controller
         from sb3_memret.memory.encoder import MiniLMEncoder
         from sb3_memret.tasks import make_task
 

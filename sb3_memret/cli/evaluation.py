@@ -13,8 +13,8 @@ from sb3_memret.cli.options import (DEFAULT_TASK, RUN_CONTROLLER, TASK_CONTROLLE
                                     camera_render_backend, check_run_task, controller_spec, default_controller,
                                     load_models, model_run, physics_options, render_backend_option,
                                     resolve_render_backend, run_controller, task_option)
-from sb3_memret.envs.cabinet import LAYERS
-from sb3_memret.envs.objects import OBJECT_SETS
+from sb3_memret.tasks.drawer.cabinet import LAYERS
+from sb3_memret.tasks.drawer.objects import OBJECT_SETS
 from sb3_memret.seeds import HELD_OUT_SEED
 from sb3_memret.memory.retention import RETENTION_RULES
 

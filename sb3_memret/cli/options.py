@@ -34,7 +34,7 @@ def run_controller(folder: Path, task: str) -> str:
 def build_controller(ctx: click.Context, param: click.Parameter | None, value: str | None, task: str | None = None):
     """The controller ``value`` names for ``task`` (default: the command's ``--task``, else the drawer); None
     names the task's default controller."""
-    from sb3_memret.controllers import make_controller
+    from sb3_memret.controller_specs import make_controller
 
     task = task or ctx.params.get("task") or DEFAULT_TASK
     try:

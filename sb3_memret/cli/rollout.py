@@ -9,7 +9,7 @@ import click
 
 from sb3_memret.cli.options import (DEFAULT_TASK, TASK_CONTROLLER, build_controller, camera_render_backend,
                                     render_backend_option, task_option)
-from sb3_memret.envs.cabinet import LAYERS
+from sb3_memret.tasks.drawer.cabinet import LAYERS
 
 
 @click.command()

@@ -8,8 +8,8 @@ from pathlib import Path
 import click
 
 from sb3_memret.cli.options import DEFAULT_TASK, build_controller, render_backend_option, task_option
-from sb3_memret.envs.cabinet import LAYERS
-from sb3_memret.envs.objects import OBJECT_SETS
+from sb3_memret.tasks.drawer.cabinet import LAYERS
+from sb3_memret.tasks.drawer.objects import OBJECT_SETS
 from sb3_memret.seeds import DEMO_SEED
 
 

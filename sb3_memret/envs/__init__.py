@@ -1,5 +1,5 @@
 """Simulated tasks and the decision env. Light on purpose: importing the package registers only the
-decision env's gymnasium id; ``import sb3_memret.envs.drawer_cube`` registers DrawerCubeTakeOut-v1 with
+decision env's gymnasium id; ``import sb3_memret.tasks.drawer.drawer_cube`` registers DrawerCubeTakeOut-v1 with
 ManiSkill (as importing a ManiSkill task module does), so constants such as the drawer's ``LAYERS``
 load without ManiSkill or torch."""
 

@@ -12,7 +12,7 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from gymnasium import spaces
 
-from sb3_memret.envs.cabinet import LAYERS
+from sb3_memret.tasks.drawer.cabinet import LAYERS
 from sb3_memret.memory.bank import MemoryBank
 from sb3_memret.memory.encoder import EMBEDDING_DIM, MiniLMEncoder
 from sb3_memret.memory.schema import MemoryEntry, MemoryType, check_age_unit

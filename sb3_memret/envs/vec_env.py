@@ -30,9 +30,10 @@ from gymnasium.utils import seeding as gym_seeding
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvStepReturn
 
-from sb3_memret.controllers import FrozenController, make_controller
-from sb3_memret.envs.household import Household, HouseholdConfig
-from sb3_memret.envs.objects import object_set
+from sb3_memret.controllers import FrozenController
+from sb3_memret.controller_specs import make_controller
+from sb3_memret.tasks.drawer.household import Household, HouseholdConfig
+from sb3_memret.tasks.drawer.objects import object_set
 from sb3_memret.physics.backends import PhysicsBackend, ResetRequest
 from sb3_memret.physics import make_physics
 from sb3_memret.obs_trees import stack_obs
@@ -77,14 +78,14 @@ class RecallVecEnv(VecEnv):
     in-process for one env, worker processes for several); ``ray_address`` a Ray cluster.
     ``controller_calls`` counts ``controller.act`` calls: one per replan round (R per decision round).
 
-    ``objects`` (a named set of ``sb3_memret.envs.objects.OBJECT_SETS`` or a list of objects) and
+    ``objects`` (a named set of ``sb3_memret.tasks.drawer.objects.OBJECT_SETS`` or a list of objects) and
     ``n_objects`` hide several objects in the drawers; the instruction names one, the target, and
     the bank holds where each of them is, so the retriever must read the instruction.
     ``location_decoys`` and ``holding_decoys`` set how many decoy facts seed each bank.
     ``memory_source="observed"``: the objects' facts come only from what the robot saw, in an
     observation phase that opens each drawer once before the episode (``EpisodeMemory``).
 
-    ``long_term_capacity > 0``: each env is a household (``sb3_memret.envs.household``) whose
+    ``long_term_capacity > 0``: each env is a household (``sb3_memret.tasks.drawer.household``) whose
     objects stay in their drawers across episodes and are rearranged with ``move_probability``
     per episode; a long-term store of that many slots, before the per-episode ``capacity`` slots,
     keeps what the robot saw across episodes, and ``hearsay_per_episode`` facts about other things

@@ -40,15 +40,16 @@ from typing import Any, Callable, Iterable, Sequence
 
 import numpy as np
 
-from sb3_memret.controllers import make_controller
+from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers.base import FrozenController
 from sb3_memret.controllers.observation import (ACTION_CHUNK_KEY, ACTION_KEY, CHUNK_PAD_KEY, IMAGE_KEYS, IMAGE_SHAPE,
                                                 STATE_KEY, TASK_KEY, camera_images, dataset_features,
                                                 observation_state, resize_images)
-from sb3_memret.controllers.scripted import Phase, ScriptedDrawerController
-from sb3_memret.envs.cabinet import LAYERS
-from sb3_memret.envs.objects import object_set
-from sb3_memret.prompts import INSTRUCTION_TEMPLATE, PromptTemplate, build_prompt, instruction_text, location_text
+from sb3_memret.tasks.drawer.expert import Phase, ScriptedDrawerController
+from sb3_memret.tasks.drawer.cabinet import LAYERS
+from sb3_memret.tasks.drawer.objects import object_set
+from sb3_memret.prompts import INSTRUCTION_TEMPLATE, PromptTemplate, build_prompt, instruction_text
+from sb3_memret.tasks.drawer.prompts import location_text
 from sb3_memret.rollout import DEFAULT_REPLAN_EVERY, RENDER_BACKENDS, make_task_env
 
 FPS = 20  # pd_ee_delta_pose control frequency of DrawerCubeTakeOut-v1

@@ -35,7 +35,7 @@ from typing import Any, Callable, Coroutine, Iterator, Mapping
 
 import numpy as np
 
-from sb3_memret.controllers import make_controller
+from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers.base import FrozenController
 from sb3_memret.controllers.observation import IMAGE_SHAPE, STATE_PARTS
 from sb3_memret.controllers.openpi import CAMERAS, CLIENT_KEY, ENV_KEY, EPISODE_KEY, EXTRA_STATE, SEED_KEY

@@ -21,7 +21,7 @@ from typing import Callable, Sequence
 
 import numpy as np
 
-from sb3_memret.controllers import make_controller
+from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers.base import FrozenController, as_numpy
 from sb3_memret.controllers.observation import ACTION_CHUNK_KEY, ACTION_KEY, CHUNK_PAD_KEY, TASK_KEY, chunk_features
 from sb3_memret.prompts import build_prompt

@@ -30,6 +30,7 @@ import numpy as np
 from sb3_memret.memory.schema import Key, MemoryEntry, MemoryType
 from sb3_memret.memory.writer import Predicates
 from sb3_memret.obs_trees import select_obs, to_numpy
+from sb3_memret.prompts import ParsedPrompt
 
 if TYPE_CHECKING:
     from sb3_memret.memory.seeding import SeedingConfig
@@ -224,6 +225,10 @@ class Task(ABC):
         obs = to_numpy(obs)
         frames = [self.demo_frame(select_obs(obs, i), with_images) for i in range(n_envs)]
         return {key: np.stack([frame[key] for frame in frames]) for key in frames[0]}
+
+    def check_prompt(self, prompt: ParsedPrompt) -> None:
+        """Refuse, naming it, a parsed prompt whose values this task has no place for (the drawer: a layer its
+        cabinet lacks), before a controller acts on it; the default accepts every prompt the template parses."""
 
     @property
     def default_controller(self) -> str:

@@ -3,19 +3,17 @@
 from __future__ import annotations
 
 from pathlib import Path
-from typing import TYPE_CHECKING, Sequence
+from typing import Sequence
 
 import numpy as np
 import torch
 
 from sb3_memret.controllers.base import ControllerSpec, FrozenController, Obs
 from sb3_memret.controllers.learned.modeling import LearnedPolicy
-from sb3_memret.controllers.learned.processing import LearnedPolicyProcessor, PromptTokenizer
+from sb3_memret.controllers.learned.processing import InputLayout, LearnedPolicyProcessor, PromptTokenizer
 from sb3_memret.controllers.shipped import default_checkpoint
 from sb3_memret.prompts import ParsedPrompt
 
-if TYPE_CHECKING:
-    from sb3_memret.tasks import Task
 
 class LearnedController(FrozenController):
     """A LearnedPolicy checkpoint acting on the task's state (and cameras, if it was trained on them).
@@ -25,16 +23,13 @@ class LearnedController(FrozenController):
 
     stateful = False
 
-    def __init__(self, checkpoint: str | Path | None = None, device: str = "cpu",
-                 tokenizer: PromptTokenizer | None = None, task: "str | Task | None" = None):
-        from sb3_memret.tasks import make_task
-
+    def __init__(self, checkpoint: str | Path | None, task: InputLayout, device: str = "cpu",
+                 tokenizer: PromptTokenizer | None = None):
         self.checkpoint = Path(checkpoint) if checkpoint is not None else default_checkpoint()
         self.device = torch.device(device)
         self.policy = LearnedPolicy.from_pretrained(self.checkpoint, self.device)
         config = self.policy.config
-        self.processor = LearnedPolicyProcessor(config, make_task(task if task is not None else config.task), tokenizer,
-                                                self.device)
+        self.processor = LearnedPolicyProcessor(config, task, tokenizer, self.device)
         self.spec = ControllerSpec(
             action_convention=config.action_convention,
             chunk_len=config.chunk_len,
@@ -54,6 +49,8 @@ class LearnedController(FrozenController):
     def _act(self, obs: Obs, prompts: Sequence[str], parsed: Sequence[ParsedPrompt]) -> np.ndarray:
         if self._num_envs != len(prompts):
             raise RuntimeError(f"reset() was called for {self._num_envs} envs but act() got {len(prompts)} prompts")
+        for prompt in parsed:
+            self.processor.task.check_prompt(prompt)  # a value the task has no place for: refused, not guessed at
         inputs = self.processor(obs, prompts)
         prompt = self.policy.encode_prompts(inputs["tokens"], inputs["token_mask"])
         features = self.policy.camera_features(inputs["images"])

@@ -7,7 +7,7 @@ same uint8 rounding the demonstrations were stored with.
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING, Sequence
+from typing import Any, Protocol, Sequence
 
 import numpy as np
 import torch
@@ -16,9 +16,20 @@ from sb3_memret.controllers.base import Obs
 from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig
 from sb3_memret.controllers.observation import STATE_KEY, resize_image_tensor
 from sb3_memret.memory.encoder import MiniLMEncoder
+from sb3_memret.prompts import ParsedPrompt
 
-if TYPE_CHECKING:
-    from sb3_memret.tasks import Task
+
+class InputLayout(Protocol):
+    """What a learned controller reads of its task (a ``Task`` has it): its name, the names of its state
+    features, and the controller's inputs per env of a batched observation."""
+
+    name: str
+
+    def state_names(self) -> Sequence[str]: ...
+
+    def controller_inputs(self, obs: Any, n_envs: int, with_images: bool) -> dict[str, np.ndarray]: ...
+
+    def check_prompt(self, prompt: ParsedPrompt) -> None: ...
 
 
 class PromptTokenizer:
@@ -58,7 +69,7 @@ def state_columns(available: Sequence[str], wanted: Sequence[str], where: str) -
 class LearnedPolicyProcessor:
     """Builds the policy's inputs, on ``device``, from a batched task observation and the prompts."""
 
-    def __init__(self, config: LearnedPolicyConfig, task: "Task", tokenizer: PromptTokenizer | None = None,
+    def __init__(self, config: LearnedPolicyConfig, task: InputLayout, tokenizer: PromptTokenizer | None = None,
                  device: str | torch.device = "cpu"):
         if task.name != config.task:
             raise ValueError(f"the learned controller was trained on task {config.task!r}, not {task.name!r}")

@@ -7,8 +7,8 @@ from typing import Mapping
 
 import numpy as np
 
-from sb3_memret.envs.cabinet import LAYERS, check_layer
-from sb3_memret.envs.objects import CATALOGUE
+from sb3_memret.tasks.drawer.cabinet import LAYERS, check_layer
+from sb3_memret.tasks.drawer.objects import CATALOGUE
 from sb3_memret.memory.schema import MemoryEntry, MemoryType
 from sb3_memret.memory.seeding import SeedingConfig
 

@@ -14,11 +14,12 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_memret.controllers.base import RENDER_HINT
-from sb3_memret.envs.cabinet import LAYERS
 from sb3_memret.memory.schema import MemoryEntry, MemoryType
 from sb3_memret.memory.seeding import SeedingConfig
-from sb3_memret.prompts import PromptTemplate, instruction_text, location_text
+from sb3_memret.prompts import ParsedPrompt, PromptTemplate, instruction_text
 from sb3_memret.tasks.base import EnvFrame, Episode, Task, check_render_backend
+from sb3_memret.tasks.drawer.cabinet import LAYERS
+from sb3_memret.tasks.drawer.prompts import check_prompt_layer, location_text
 from sb3_memret.tasks.drawer.seeding import seed_memories
 from sb3_memret.tasks.drawer.writer import DrawerWriter
 
@@ -39,7 +40,7 @@ class DrawerTask(Task):
 
     def make_env(self, *, max_episode_steps: int | None = None, num_envs: int = 1, obs_mode: str = "state_dict",
                  render_backend: str = "none", **kwargs: Any) -> gym.Env:
-        import sb3_memret.envs.drawer_cube  # noqa: F401  (registers DrawerCubeTakeOut-v1)
+        import sb3_memret.tasks.drawer.drawer_cube  # noqa: F401  (registers DrawerCubeTakeOut-v1)
 
         if max_episode_steps is not None:
             kwargs["max_episode_steps"] = max_episode_steps
@@ -98,9 +99,12 @@ class DrawerTask(Task):
         return "learned-state"
 
     def expert(self):
-        from sb3_memret.controllers.scripted import ScriptedDrawerController
+        from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
 
         return ScriptedDrawerController()
+
+    def check_prompt(self, prompt: ParsedPrompt) -> None:
+        check_prompt_layer(prompt)
 
     def demo_features(self, with_images: bool) -> dict[str, dict[str, Any]]:
         from sb3_memret.controllers.observation import dataset_features

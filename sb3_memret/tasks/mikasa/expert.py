@@ -46,14 +46,14 @@ FACT_TEMPLATE = "the {entity} was {colour}."
 CUE_FACT = "the cue cube was {colour}."
 PROMPT_TEMPLATE = PromptTemplate(instructions=(INSTRUCTION,), fact_templates=(FACT_TEMPLATE,))
 
-# ManiSkill 3.0.1 pd_ee_delta_pose (as in controllers/scripted.py): translation = action * 0.1 m,
+# ManiSkill 3.0.1 pd_ee_delta_pose (as in tasks/drawer/expert.py): translation = action * 0.1 m,
 # rotation = action * -0.1 rad, both in the base frame (world-aligned here: the base is at x = -0.615).
 POS_SCALE = 0.1
 ROT_SCALE = -0.1
 CONTROL_DT = 0.05  # 20 Hz control
 DRIVE_GAIN = 0.243  # TCP step per commanded translation (fitted)
 COAST_GAIN = 0.378  # TCP step per (velocity * CONTROL_DT) at the step's start (fitted)
-TURN_GAIN = 0.39  # the rotation's share per step (controllers/scripted.py's PLANT_GAIN)
+TURN_GAIN = 0.39  # the rotation's share per step (tasks/drawer/expert.py's PLANT_GAIN)
 R_DOWN = Rotation.from_matrix(np.diag([1.0, -1.0, -1.0]))  # the reset pose: pointing down, fingers along y
 
 

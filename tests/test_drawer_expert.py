@@ -4,10 +4,11 @@ import gymnasium as gym
 import numpy as np
 import pytest
 
-from sb3_memret.controllers import ScriptedDrawerController, make_controller
-from sb3_memret.controllers.scripted import PLANT_GAIN, POS_SCALE, ROT_SCALE, Perception, Phase
-from sb3_memret.envs.cabinet import LAYERS
-from sb3_memret.prompts import condition_prompt
+from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
+from sb3_memret.controller_specs import make_controller
+from sb3_memret.tasks.drawer.expert import PLANT_GAIN, POS_SCALE, ROT_SCALE, Perception, Phase
+from sb3_memret.tasks.drawer.cabinet import LAYERS
+from sb3_memret.tasks.drawer.prompts import condition_prompt
 from sb3_memret.rollout import make_task_env, run_episode
 
 

@@ -23,7 +23,8 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from sb3_memret.controllers.base import ControllerSpec, FrozenController, Obs, as_numpy
-from sb3_memret.envs.cabinet import LAYERS, CabinetLayout
+from sb3_memret.tasks.drawer.cabinet import LAYERS, CabinetLayout
+from sb3_memret.tasks.drawer.prompts import check_prompt_layer
 from sb3_memret.prompts import INSTRUCTION_TEMPLATE, ParsedPrompt, PromptTemplate
 
 # ManiSkill 3.0.1 pd_ee_delta_pose: translation = action * 0.1 m in the base frame; rotation =
@@ -148,7 +149,7 @@ class ScriptedDrawerController(FrozenController):
             raise RuntimeError(f"reset() was called for {len(self._plans)} envs but act() got {len(prompts)} prompts")
         chunks = []
         for i, (plan, prompt) in enumerate(zip(self._plans, parsed)):
-            layer = prompt.layer or LAYERS[0]
+            layer = check_prompt_layer(prompt) or LAYERS[0]
             seen = Perception.from_obs(obs, i)
             if layer != plan.layer:
                 self._retarget(plan, layer)

@@ -18,8 +18,8 @@ from mani_skill.utils.geometry.rotation_conversions import quaternion_to_axis_an
 from mani_skill.utils.registration import register_env
 from mani_skill.utils.structs.pose import Pose
 
-from sb3_memret.envs.cabinet import LAYERS, CabinetLayout, build_cabinet, check_layer
-from sb3_memret.envs.objects import ObjectSpec, object_specs
+from sb3_memret.tasks.drawer.cabinet import LAYERS, CabinetLayout, build_cabinet, check_layer
+from sb3_memret.tasks.drawer.objects import ObjectSpec, object_specs
 from sb3_memret.rewards import staged_potential
 
 PARK_X = -1.0  # objects an episode does not use wait on the floor behind the robot, out of its reach
@@ -83,7 +83,7 @@ class DrawerCubeTakeOutEnv(BaseEnv):
     most one per drawer; the instruction names one of them, the target, which the robot must
     open its drawer for and take out. Which drawer is not observable until it is open, so a
     policy has to be told (or remember) the layer. By default the only object is a cube (the
-    seed's task); ``objects`` and ``n_objects`` hide several (``sb3_memret.envs.objects``).
+    seed's task); ``objects`` and ``n_objects`` hide several (``sb3_memret.tasks.drawer.objects``).
 
     **Randomizations:**
 

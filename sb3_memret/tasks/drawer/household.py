@@ -12,7 +12,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from sb3_memret.envs.cabinet import LAYERS
+from sb3_memret.tasks.drawer.cabinet import LAYERS
 
 
 @dataclass(frozen=True)
