@@ -13,6 +13,7 @@ help, and ``generate_tasks.py`` the table of tasks from the task registry, so no
 
 from __future__ import annotations
 
+import importlib.util
 import sys
 from pathlib import Path
 
@@ -29,8 +30,30 @@ generate_results.main(DOCS.parent, DOCS / "results")
 generate_cli.main(DOCS / "cli.md")
 generate_tasks.main(DOCS / "task_list.md")
 
+
+def drop_stale_api_pages(folder: Path) -> list[Path]:
+    """Delete the API pages (``docs/_autosummary/*.rst``, git-ignored) of modules that no longer exist.
+
+    autosummary writes a page for every module it finds and rewrites the ones it knows, but never deletes the page of
+    a module that was moved or removed; Sphinx would then fail on that page (its module does not import, and no
+    toctree names it). A page whose module is still there is kept, so an unchanged page is not read again."""
+    dropped = []
+    for page in sorted(folder.glob("sb3_memret*.rst")):
+        try:
+            exists = importlib.util.find_spec(page.stem) is not None
+        except ImportError:  # a parent package that is gone
+            exists = False
+        if not exists:
+            page.unlink()
+            dropped.append(page)
+    return dropped
+
+
+drop_stale_api_pages(DOCS / "_autosummary")
+
 project = "sb3-memret"
 author = "the sb3-memret authors"
+copyright = f"2026, {author}"  # noqa: A001  (Sphinx's name; the theme's footer prints it)
 release = version = sb3_memret.__version__
 
 extensions = [
@@ -61,3 +84,4 @@ autodoc_mock_imports: list[str] = []
 html_theme = "furo"
 html_title = f"sb3-memret {release}"
 html_static_path = ["_static"]
+html_css_files = ["tables.css"]  # the registered-tasks table, a little smaller (docs/tasks.md)

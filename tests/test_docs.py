@@ -49,8 +49,12 @@ class Block:
         return f"{self.page.relative_to(ROOT)}:{self.line}"
 
 
+CODE_DIRECTIVE = re.compile(r"\{code-block\}\s*(\w*)")  # ```{code-block} python, with options such as :caption:
+
+
 def blocks(page: Path) -> list[Block]:
-    """The fenced code blocks of a Markdown page, each with the ``% key: value`` marks on the lines just above it."""
+    """The fenced code blocks of a Markdown page (```python, or ```{code-block} python with its ``:option:`` lines),
+    each with the ``% key: value`` marks on the lines just above it."""
     lines, found, marks, i = page.read_text().splitlines(), [], {}, 0
     while i < len(lines):
         line = lines[i]
@@ -59,8 +63,16 @@ def blocks(page: Path) -> list[Block]:
             marks[key.strip()] = value.strip()
         elif line.startswith("```"):  # a code block (```python) or a MyST directive (```{toctree}): skipped whole
             end = next(j for j in range(i + 1, len(lines)) if lines[j].strip() == "```")
-            if re.fullmatch(r"\w*", line.strip()[3:]):
-                found.append(Block(page, i + 1, line.strip()[3:], "\n".join(lines[i + 1:end]), marks))
+            info = line.strip()[3:]
+            if re.fullmatch(r"\w*", info):
+                found.append(Block(page, i + 1, info, "\n".join(lines[i + 1:end]), marks))
+            elif directive := CODE_DIRECTIVE.fullmatch(info):
+                start = i + 1
+                while start < end and lines[start].startswith(":"):  # the directive's options
+                    start += 1
+                if start < end and not lines[start].strip():  # the blank line that ends them
+                    start += 1
+                found.append(Block(page, start, directive.group(1), "\n".join(lines[start:end]), marks))
             marks, i = {}, end
         elif line.strip():
             marks = {}
