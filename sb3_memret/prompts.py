@@ -17,12 +17,13 @@ import re
 from dataclasses import dataclass
 from typing import Sequence
 
-from sb3_memret.memory.schema import NOTHING, OUTSIDE, SPECIAL_TEXTS, TEMPLATES, MemoryType
+from sb3_memret.memory.schema import NOTHING, SPECIAL_TEXTS, TEMPLATES, MemoryType
 
 INSTRUCTION_TEMPLATE = "pick out the {entity}."
 INSTRUCTION = INSTRUCTION_TEMPLATE.format(entity="cube")  # the seed's task: the only object is a cube
 LAYER_LOCATION_TEMPLATE = TEMPLATES[MemoryType.OBJECT_LOCATION].replace("{value}", "drawer layer {layer}")
-OUTSIDE_TEMPLATE = SPECIAL_TEXTS[(MemoryType.OBJECT_LOCATION, OUTSIDE)]
+OUTSIDE = "outside"  # the location value of an object in no drawer, worded by OUTSIDE_TEMPLATE
+OUTSIDE_TEMPLATE = "the {entity} is out of the drawers."
 HOLDING_TEMPLATE = TEMPLATES[MemoryType.HOLDING]
 HOLDING_NOTHING_TEXT = SPECIAL_TEXTS[(MemoryType.HOLDING, NOTHING)]
 # controller-evaluation prompts: the true facts, none, wrong ones (the same at every decision), or the facts the task's

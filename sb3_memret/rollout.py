@@ -155,7 +155,7 @@ class WrittenFacts(FactSchedule):
     def __init__(self, task: Task):
         self.task = task
         self.writer = task.writer()  # one writer for the schedule's episodes, as one env's in the decision env
-        self.compiler = EventCompiler(None, self.writer.relations)
+        self.compiler = EventCompiler(None, self.writer.relations, task.wordings)
         self._facts: dict[Key, str] = {}
         self.t = 0  # control steps into the episode
 

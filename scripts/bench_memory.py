@@ -14,6 +14,7 @@ import time
 
 import numpy as np
 
+from sb3_memret.tasks.drawer import DrawerTask
 from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
 from sb3_memret.memory.bank import MemoryBank
 from sb3_memret.memory.encoder import MiniLMEncoder
@@ -30,7 +31,7 @@ def run(episodes: int) -> list[tuple[float, float]]:
     """(memory seconds, control seconds) for every decision step of every episode."""
     env, controller = make_task_env(), ScriptedDrawerController()
     encoder = MiniLMEncoder()
-    extractor, compiler, bank = BoundingBoxPredicateExtractor(), EventCompiler(encoder, RELATIONS), MemoryBank(6)
+    extractor, compiler, bank = BoundingBoxPredicateExtractor(), EventCompiler(encoder, RELATIONS, DrawerTask.wordings), MemoryBank(6)
     timings = []
     for episode in range(episodes):
         layer = episode % 3 + 1

@@ -1,7 +1,8 @@
 import pytest
 
 from sb3_memret.memory.schema import IMPORTANCE, TEMPLATES, MemoryEntry, MemoryType, linearize
-from sb3_memret.prompts import PromptTemplate, build_prompt, INSTRUCTION
+from sb3_memret.prompts import INSTRUCTION, PromptTemplate, build_prompt
+from sb3_memret.tasks.drawer import DrawerTask
 
 
 def test_six_types_each_with_template_and_importance():
@@ -19,7 +20,7 @@ def test_texts_are_exactly_the_controller_prompts():
     holding = MemoryEntry.create(MemoryType.HOLDING, "robot", "holding", "cube", timestamp=3)
     assert holding.text == "the robot is holding the cube."
     assert MemoryEntry.create(MemoryType.HOLDING, "robot", "holding", "nothing", 0).text == "the robot is holding nothing."
-    out = MemoryEntry.create(MemoryType.OBJECT_LOCATION, "cube", "is_in", "outside", 0)
+    out = MemoryEntry.create(MemoryType.OBJECT_LOCATION, "cube", "is_in", "outside", 0, wordings=DrawerTask.wordings)
     assert out.text == "the cube is out of the drawers."
     # everything the writer emits for this task passes the scripted controller's prompt contract
     build_prompt(INSTRUCTION, [cube.text, holding.text, out.text], PromptTemplate())
@@ -35,3 +36,13 @@ def test_other_types_have_readable_templates():
 def test_fields_must_be_lowercase_words(bad):
     with pytest.raises(ValueError, match="lowercase"):
         linearize(MemoryType.OBJECT_LOCATION, bad, "is_in", "drawer layer 1")
+
+
+def test_a_task_words_its_own_values_and_the_schema_knows_no_task():
+    generic = linearize(MemoryType.OBJECT_LOCATION, "cube", "is_in", "outside")
+    assert generic == "the cube is in outside."  # the schema's template: no drawer wording in memory/
+    drawer = linearize(MemoryType.OBJECT_LOCATION, "cube", "is_in", "outside", DrawerTask.wordings)
+    assert drawer == "the cube is out of the drawers."
+    entry = MemoryEntry.create(MemoryType.OBJECT_LOCATION, "cube", "is_in", "outside", 3, wordings=DrawerTask.wordings)
+    assert entry.text == drawer
+    assert linearize(MemoryType.HOLDING, "robot", "holding", "nothing") == "the robot is holding nothing."

@@ -9,6 +9,7 @@ from sb3_memret.tasks.base import EnvFrame
 from sb3_memret.obs_trees import to_numpy
 from sb3_memret.memory.schema import MemoryType
 from sb3_memret.memory.writer import UNKNOWN, EventCompiler
+from sb3_memret.tasks.drawer import DrawerTask
 from sb3_memret.tasks.drawer.writer import RELATIONS, BoundingBoxPredicateExtractor, ViewPredicateExtractor
 
 
@@ -56,7 +57,7 @@ def test_extractor_names_the_right_layer_in_the_real_sim(task_env, layer):
 def test_extractor_changes_when_cube_is_lifted_out(task_env):
     task_env.reset(seed=0, options={"target_layer": 2})
     base = task_env.unwrapped
-    extractor, compiler = BoundingBoxPredicateExtractor(), EventCompiler(None, RELATIONS)
+    extractor, compiler = BoundingBoxPredicateExtractor(), EventCompiler(None, RELATIONS, DrawerTask.wordings)
     compiler.update(extractor.extract(base.privileged_state()), 0)
     base.objects[0].set_pose(Pose.create_from_pq(torch.tensor([[base.layout.front_x - 0.2, 0.0, 0.5]])))
     entries = compiler.update(extractor.extract(base.privileged_state()), 8)

@@ -102,7 +102,7 @@ class EpisodeMemory:
         self.age_unit = check_age_unit(age_unit)
         self.episode = 0  # episodes started so far (a household's tasks)
         self.writer = self.task.writer(source)
-        self.compiler = EventCompiler(encoder, self.writer.relations)
+        self.compiler = EventCompiler(encoder, self.writer.relations, self.task.wordings)
         self.clock = 0  # control steps of the earlier episodes (long-term times run on)
         self.t = 0
         self.truth: Episode | None = None  # the episode's ground truth (metrics only)

@@ -7,6 +7,7 @@ a memory whose text drifts from these templates is refused by ``sb3_memret.promp
 from __future__ import annotations
 
 import enum
+from typing import Mapping
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -22,9 +23,8 @@ class MemoryType(enum.IntEnum):
 
 
 NOTHING = "nothing"
-OUTSIDE = "outside"
 
-# One template per type; a few values read better with their own wording.
+# One template per type; a few values read better with their own wording (a task adds its own: ``Task.wordings``).
 TEMPLATES: dict[MemoryType, str] = {
     MemoryType.OBJECT_LOCATION: "the {entity} is in {value}.",
     MemoryType.HOLDING: "the robot is holding the {value}.",
@@ -34,7 +34,6 @@ TEMPLATES: dict[MemoryType, str] = {
     MemoryType.OTHER: "the {entity} {relation} {value}.",
 }
 SPECIAL_TEXTS: dict[tuple[MemoryType, str], str] = {
-    (MemoryType.OBJECT_LOCATION, OUTSIDE): "the {entity} is out of the drawers.",
     (MemoryType.HOLDING, NOTHING): "the robot is holding nothing.",
 }
 
@@ -60,12 +59,16 @@ def check_age_unit(unit: str) -> str:
     return unit
 
 
-def linearize(mtype: MemoryType, entity: str, relation: str, value: str) -> str:
-    """The memory's text, from its type's template; lowercase words only."""
+Wordings = Mapping[tuple[MemoryType, str], str]  # (type, value) -> the template that value reads better in
+
+
+def linearize(mtype: MemoryType, entity: str, relation: str, value: str, wordings: Wordings | None = None) -> str:
+    """The memory's text, from ``wordings``' template for its type and value, else the schema's; lowercase words
+    only."""
     for word in (entity, relation, value):
         if not word or word != word.lower() or word.strip() != word or "." in word:
             raise ValueError(f"memory fields must be non-empty lowercase words without full stops, got {word!r}")
-    template = SPECIAL_TEXTS.get((mtype, value), TEMPLATES[MemoryType(mtype)])
+    template = (wordings or {}).get((mtype, value)) or SPECIAL_TEXTS.get((mtype, value), TEMPLATES[MemoryType(mtype)])
     return template.format(entity=entity, relation=relation.replace("_", " "), value=value)
 
 
@@ -91,10 +94,10 @@ class MemoryEntry:
 
     @classmethod
     def create(cls, mtype: MemoryType, entity: str, relation: str, value: str, timestamp: int,
-               embedding: np.ndarray | None = None) -> "MemoryEntry":
-        """A complete entry: text from the template, importance from the type prior, unused."""
+               embedding: np.ndarray | None = None, wordings: Wordings | None = None) -> "MemoryEntry":
+        """A complete entry: text from the template (``linearize``), importance from the type prior, unused."""
         mtype = MemoryType(mtype)
-        return cls(mtype, entity, relation, value, int(timestamp), linearize(mtype, entity, relation, value),
+        return cls(mtype, entity, relation, value, int(timestamp), linearize(mtype, entity, relation, value, wordings),
                    embedding, IMPORTANCE[mtype], 0)
 
     def with_embedding(self, embedding: np.ndarray) -> "MemoryEntry":

@@ -7,7 +7,7 @@ from typing import Mapping, Protocol
 
 import numpy as np
 
-from sb3_memret.memory.schema import MemoryEntry, MemoryType
+from sb3_memret.memory.schema import MemoryEntry, MemoryType, Wordings
 
 UNKNOWN = "unknown"
 Predicates = dict[tuple[str, str], str]  # (relation, entity) -> value: what a task's writer read in one frame
@@ -22,12 +22,15 @@ class EventCompiler:
 
     Every predicate starts as ``unknown``, so the first reading of an episode is written.
     ``relations`` maps each predicate relation to the memory type and entry relation it becomes
-    (the task's writer declares them: ``Writer.relations``).
+    (the task's writer declares them: ``Writer.relations``); ``wordings`` are the task's own templates for
+    some values (``Task.wordings``).
     """
 
-    def __init__(self, encoder: TextEncoder | None, relations: Mapping[str, tuple[MemoryType, str]]):
+    def __init__(self, encoder: TextEncoder | None, relations: Mapping[str, tuple[MemoryType, str]],
+                 wordings: Wordings | None = None):
         self.encoder = encoder
         self.relations = relations
+        self.wordings = wordings
         self._previous: Predicates = {}
 
     def reset(self) -> None:
@@ -41,7 +44,7 @@ class EventCompiler:
             if value == UNKNOWN or self._previous.get((relation, entity), UNKNOWN) == value:
                 continue
             mtype, entry_relation = self.relations[relation]
-            entries.append(MemoryEntry.create(mtype, entity, entry_relation, value, timestamp))
+            entries.append(MemoryEntry.create(mtype, entity, entry_relation, value, timestamp, wordings=self.wordings))
         self._previous.update({key: value for key, value in predicates.items() if value != UNKNOWN})
         if entries and self.encoder is not None:
             vectors = self.encoder.encode([e.text for e in entries])

@@ -128,6 +128,8 @@ class Task(ABC):
     #: (MIKASA's Rotate names a new angle every episode there): ``frames`` reads it from the reset's info, and
     #: MIKASA's harness, which keeps the reset's info from its policy, is asked for that key (``benchmark.agent``)
     instruction_in_info: ClassVar[bool] = False
+    #: the task's own wording of some facts, (type, value) -> template (the drawer: an object out of its drawers)
+    wordings: ClassVar[Mapping[tuple[MemoryType, str], str]] = {}
 
     @property
     def config_key(self) -> str:

@@ -16,7 +16,7 @@ import numpy as np
 from sb3_memret.controllers.base import RENDER_HINT
 from sb3_memret.memory.schema import MemoryEntry, MemoryType
 from sb3_memret.memory.seeding import SeedingConfig
-from sb3_memret.prompts import ParsedPrompt, PromptTemplate, instruction_text
+from sb3_memret.prompts import OUTSIDE, OUTSIDE_TEMPLATE, ParsedPrompt, PromptTemplate, instruction_text
 from sb3_memret.tasks.base import EnvFrame, Episode, Task, check_render_backend
 from sb3_memret.tasks.drawer.cabinet import LAYERS
 from sb3_memret.tasks.drawer.prompts import check_prompt_layer, location_text
@@ -33,6 +33,7 @@ class DrawerTask(Task):
     zoo_config = "memret_ppo.yml"
     features = frozenset({"objects", "observed", "household", "observe_potential"})
     max_control_steps = 400
+    wordings = {(MemoryType.OBJECT_LOCATION, OUTSIDE): OUTSIDE_TEMPLATE}  # "the cube is out of the drawers."
 
     @property
     def config_key(self) -> str:
