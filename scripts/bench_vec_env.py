@@ -33,7 +33,7 @@ from stable_baselines3.common.vec_env import SubprocVecEnv, VecEnv
 from sb3_memret.controller_specs import make_controller
 from sb3_memret.envs import RECALL_ENV_ID
 from sb3_memret.obs_trees import stack_obs, to_numpy
-from sb3_memret.envs.vec_env import RecallVecEnv
+from sb3_memret.envs.vec_env import recall_vec_env
 from sb3_memret.tasks.drawer.prompts import condition_prompt
 from sb3_memret.rollout import make_task_env, task_env_kwargs
 from sb3_memret.tasks.base import RENDER_BACKENDS
@@ -114,7 +114,7 @@ class TimedController:
 
 def one_controller(controller: str, n: int, backend: str, render_backend: str) -> Config:
     timed = TimedController(make_controller(controller))
-    venv = RecallVecEnv(n, controller=timed.controller, backend=backend, render_backend=render_backend)
+    venv = recall_vec_env(n, controller=timed.controller, backend=backend, render_backend=render_backend)
     physics = venv.physics
     pids = physics.pids() if backend == "ray" else [p.pid for p in physics.processes]
     return Config(venv, pids, timed)

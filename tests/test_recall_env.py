@@ -8,13 +8,16 @@ import pytest
 from stable_baselines3.common.env_checker import check_env
 
 from sb3_memret.envs import RECALL_ENV_ID
-from sb3_memret.tasks.drawer.cabinet import LAYERS
-from sb3_memret.tasks.drawer.objects import OBJECT_SETS
-from sb3_memret.physics.backends import TaskRunner
+from sb3_memret.envs.configs import MemoryConfig
 from sb3_memret.envs.recall_memory import EpisodeMemory
 from sb3_memret.memory.schema import MemoryType
-from sb3_memret.prompts import PromptTemplate
 from sb3_memret.memory.seeding import SeedingConfig
+from sb3_memret.physics.backends import TaskRunner
+from sb3_memret.prompts import PromptTemplate
+from sb3_memret.tasks.drawer import DrawerTask
+from sb3_memret.tasks.drawer.cabinet import LAYERS
+from sb3_memret.tasks.drawer.household import HouseholdConfig
+from sb3_memret.tasks.drawer.objects import OBJECT_SETS
 from sb3_memret.tasks.drawer.seeding import location_memory
 from sb3_memret.policy.networks import RetentionScorer
 
@@ -24,6 +27,15 @@ def recall_env(encoder):
     env = gym.make(RECALL_ENV_ID, encoder=encoder, max_control_steps=80)
     yield env
     env.close()
+
+
+def _long_term(long_term_capacity: int, age_unit: str = "steps") -> MemoryConfig:
+    """Three per-episode slots after a long-term store, written from what the robot saw, no decoys."""
+    return MemoryConfig(3, long_term_capacity, "observed", age_unit=age_unit, seeding=SeedingConfig(location_decoys=0))
+
+
+def _household(**lives) -> DrawerTask:
+    return DrawerTask(household=HouseholdConfig(**lives))
 
 
 def test_sb3_check_env_passes(recall_env):
@@ -112,8 +124,8 @@ def test_held_out_objects_are_never_in_a_training_bank(encoder):
 def test_observed_memory_comes_from_what_the_robot_saw_alone(encoder):
     kwargs = dict(objects=OBJECT_SETS["train"], n_objects=3)
     runner = TaskRunner({"obs_mode": "state_dict", "render_backend": "none", **kwargs}, 80)
-    memory = EpisodeMemory(6, "recall", encoder, lambda entries, ages: np.ones(len(entries)), PromptTemplate(),
-                           SeedingConfig(location_decoys=2), source="observed")
+    config = MemoryConfig(6, source="observed", seeding=SeedingConfig(location_decoys=2))
+    memory = EpisodeMemory(config, "recall", encoder, lambda entries, ages: np.ones(len(entries)), PromptTemplate())
     frame = runner.reset(7, {})
     placed, target = frame.state.placed(), frame.state.target_name()
     memory.start(frame, np.random.default_rng(0))
@@ -128,9 +140,9 @@ def test_observed_memory_comes_from_what_the_robot_saw_alone(encoder):
 def test_long_term_slots_come_first_and_a_needed_fact_can_be_gone(encoder):
     runner = TaskRunner({"obs_mode": "state_dict", "render_backend": "none", "objects": OBJECT_SETS["train"],
                          "n_objects": 3}, 80)
-    memory = EpisodeMemory(3, "recall", encoder, lambda entries, ages: np.array([e.timestamp for e in entries], float),
-                           PromptTemplate(), SeedingConfig(location_decoys=0), source="observed", long_term_capacity=3,
-                           hearsay=1)
+    memory = EpisodeMemory(_long_term(3), "recall", encoder,
+                           lambda entries, ages: np.array([e.timestamp for e in entries], float), PromptTemplate(),
+                           _household(hearsay_per_episode=1))
     frame = runner.reset(0, {"placement": {"tin": 2, "cube": 1, "box": 3}, "target": "tin"})
     memory.start(frame, np.random.default_rng(0), moved=True)
     assert [e.entity for e in memory.long_term.entries] != [] and len(memory.long_term) == 1  # one hearsay fact
@@ -157,8 +169,8 @@ def test_what_the_store_kept_is_counted_before_the_glimpse_and_a_refused_sightin
     runner = TaskRunner({"obs_mode": "state_dict", "render_backend": "none", "objects": OBJECT_SETS["train"],
                          "n_objects": 3}, 80)
     oldest_first = lambda entries, ages: -np.array([e.timestamp for e in entries], float)  # refuses every newcomer
-    memory = EpisodeMemory(3, "recall", encoder, oldest_first, PromptTemplate(), SeedingConfig(location_decoys=0),
-                           source="observed", long_term_capacity=2, hearsay=0)
+    memory = EpisodeMemory(_long_term(2), "recall", encoder, oldest_first, PromptTemplate(),
+                           _household(hearsay_per_episode=0))
     frame = runner.reset(0, {"placement": {"tin": 2, "cube": 1, "box": 3}, "target": "tin"})
     memory.start(frame, np.random.default_rng(0), moved=True)
     fact = lambda name, layer, t: location_memory(name, layer, t).with_embedding(
@@ -183,9 +195,9 @@ def test_what_the_store_kept_is_counted_before_the_glimpse_and_a_refused_sightin
 def test_a_household_glimpse_writes_what_is_in_the_drawers_looked_into_and_nothing_else(encoder, glimpses):
     runner = TaskRunner({"obs_mode": "state_dict", "render_backend": "none", "objects": OBJECT_SETS["train"],
                          "n_objects": 3}, 80)
-    memory = EpisodeMemory(3, "recall", encoder, lambda entries, ages: np.array([e.timestamp for e in entries], float),
-                           PromptTemplate(), SeedingConfig(location_decoys=0), source="observed", long_term_capacity=3,
-                           glimpses=glimpses)
+    memory = EpisodeMemory(_long_term(3), "recall", encoder,
+                           lambda entries, ages: np.array([e.timestamp for e in entries], float), PromptTemplate(),
+                           _household(hearsay_per_episode=0, glimpses_per_episode=glimpses))
     placement = {"tin": 2, "cube": 1, "box": 3}
     frame = runner.reset(0, {"placement": placement, "target": "tin"})
     seen_layers = set()
@@ -210,8 +222,8 @@ def test_ages_count_control_steps_or_tasks_alike_for_the_critic_and_the_observat
         scored.append(np.asarray(ages))
         return -np.asarray(ages, dtype=float)
 
-    memory = EpisodeMemory(3, "recall", encoder, newest_first, PromptTemplate(), SeedingConfig(location_decoys=0),
-                           source="observed", long_term_capacity=2, hearsay=0, age_unit=unit)
+    memory = EpisodeMemory(_long_term(2, age_unit=unit), "recall", encoder, newest_first, PromptTemplate(),
+                           _household(hearsay_per_episode=0))
     frame = runner.reset(0, {"placement": {"tin": 2, "cube": 1, "box": 3}, "target": "tin"})
     fact = lambda name, layer: location_memory(name, layer, memory.now).with_embedding(
         encoder.encode_one(f"the {name} is in drawer layer {layer}."))

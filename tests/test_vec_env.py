@@ -12,7 +12,7 @@ import pytest
 from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
 from sb3_memret.physics.backends import InProcessPhysics, ProcessPhysics
 from sb3_memret.physics import make_physics
-from sb3_memret.envs.vec_env import RecallVecEnv, make_recall_vec_env
+from sb3_memret.envs.vec_env import make_recall_vec_env, recall_vec_env
 from sb3_memret.policy.networks import RetentionScorer
 from sb3_memret.workers import WorkerDiedError
 
@@ -107,7 +107,7 @@ def test_one_env_stays_in_process_and_bad_arguments_are_refused(encoder):
 
 
 def test_stepping_before_reset_is_refused(encoder):
-    venv = RecallVecEnv(1, encoder=encoder, **SHORT)
+    venv = recall_vec_env(1, encoder=encoder, **SHORT)
     try:
         with pytest.raises(RuntimeError, match="reset the envs before stepping them"):
             venv.step(np.zeros((1, 1), dtype=np.int64))
@@ -153,7 +153,7 @@ HOUSEHOLD = dict(objects="train", n_objects=3, memory_source="observed", capacit
 
 
 def test_a_household_remembers_across_tasks_and_a_learning_episode_spans_several(encoder):
-    venv = RecallVecEnv(1, mode="oracle", controller=ScriptedDrawerController(), encoder=encoder,
+    venv = recall_vec_env(1, mode="oracle", controller=ScriptedDrawerController(), encoder=encoder,
                               max_control_steps=400, retention="fifo", observe_potential=True, **HOUSEHOLD)
     assert venv.observation_space["memories"].shape == (6, 384) and venv.action_space.nvec.tolist() == [6]
     venv.seed(3)
@@ -186,16 +186,16 @@ def test_a_household_remembers_across_tasks_and_a_learning_episode_spans_several
 
 def test_household_refusals(encoder):
     with pytest.raises(ValueError, match="long-term store is written from what the robot sees"):
-        RecallVecEnv(1, encoder=encoder, **{**HOUSEHOLD, "memory_source": "seeded"})
-    venv = RecallVecEnv(1, encoder=encoder, **HOUSEHOLD)
+        recall_vec_env(1, encoder=encoder, **{**HOUSEHOLD, "memory_source": "seeded"})
+    venv = recall_vec_env(1, encoder=encoder, **HOUSEHOLD)
     with pytest.raises(ValueError, match="a household decides where its objects are"):
         venv.reset_envs([0], options=[{"target_layer": 2}])
     venv.close()
     with pytest.raises(ValueError, match="unknown retention rule 'newest'"):
-        RecallVecEnv(1, encoder=encoder, retention="newest")
+        recall_vec_env(1, encoder=encoder, retention="newest")
     with pytest.raises(ValueError, match="unknown age unit 'days'"):
-        RecallVecEnv(1, encoder=encoder, age_unit="days")
-    venv = RecallVecEnv(1, encoder=encoder, **HOUSEHOLD, age_unit="tasks")
+        recall_vec_env(1, encoder=encoder, age_unit="days")
+    venv = recall_vec_env(1, encoder=encoder, **HOUSEHOLD, age_unit="tasks")
     with pytest.raises(ValueError, match="reads ages in 'steps', but this env counts them in 'tasks'"):
         venv.set_retention_weights(RetentionScorer().state_dict(), "steps")
     venv.close()

@@ -83,6 +83,7 @@ class RecalledFacts:
     critic evicting."""
 
     def __init__(self, task: Task, learner: MemoryLearner, template: Any, encoder: Any, seed: int):
+        from sb3_memret.envs.configs import MemoryConfig
         from sb3_memret.envs.recall_memory import EpisodeMemory
         from sb3_memret.memory.seeding import SeedingConfig
 
@@ -90,8 +91,9 @@ class RecalledFacts:
         seeding = dataclasses.replace(SeedingConfig(), **{k: settings[k] for k in ("location_decoys", "holding_decoys")
                                                           if settings.get(k) is not None})
         self.learner, self.seed = learner, seed
-        self.memory = EpisodeMemory(settings["capacity"], "recall", encoder, learner.keep_scores, template, seeding,
-                                    settings.get("memory_source", "seeded"), age_unit=settings["age_unit"], task=task)
+        config = MemoryConfig(settings["capacity"], source=settings.get("memory_source", "seeded"),
+                              age_unit=settings["age_unit"], seeding=seeding)
+        self.memory = EpisodeMemory(config, "recall", encoder, learner.keep_scores, template, task)
 
     def start(self, frame: EnvFrame, episode: Episode) -> None:
         self.memory.start(frame, np.random.default_rng(self.seed))

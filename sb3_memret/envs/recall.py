@@ -13,8 +13,8 @@ from typing import Any
 import gymnasium as gym
 import numpy as np
 
-from sb3_memret.envs.recall_memory import MODES
-from sb3_memret.envs.vec_env import RecallVecEnv
+from sb3_memret.envs.configs import MODES
+from sb3_memret.envs.vec_env import recall_vec_env
 from sb3_memret.memory.bank import MemoryBank
 
 __all__ = ["DrawerRecallEnv", "MODES"]
@@ -23,17 +23,16 @@ __all__ = ["DrawerRecallEnv", "MODES"]
 class DrawerRecallEnv(gym.Env):
     """Retrieval decisions over a bounded language memory for a frozen controller (one env).
 
-    Takes ``RecallVecEnv``'s arguments (mode, controller, capacity, k, replan_every,
-    gamma, success_bonus, max_control_steps, render_backend, seeding, encoder, task_kwargs,
-    objects, n_objects, location_decoys, holding_decoys, memory_source); see it for the modes,
-    the action and the reward. ``reset(options={"target_layer": L, "target": name})`` fixes the
+    Takes a run's flat ``env_kwargs`` (``sb3_memret.envs.configs.split_env_kwargs``: the task and its options,
+    the controller, the memory's, the decisions' and the physics' fields); see ``RecallVecEnv`` for the modes,
+    the action and the reward; its physics runs in this process. ``reset(options={"target_layer": L, "target": name})`` fixes the
     target's drawer (and, with several objects, the target).
     """
 
     metadata = {"render_modes": []}
 
     def __init__(self, **kwargs: Any):
-        self.venv = RecallVecEnv(1, backend="inprocess", **kwargs)
+        self.venv = recall_vec_env(1, **{**kwargs, "backend": "inprocess"})
         self.observation_space, self.action_space = self.venv.observation_space, self.venv.action_space
 
     @property

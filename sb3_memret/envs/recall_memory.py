@@ -13,10 +13,10 @@ import numpy as np
 from gymnasium import spaces
 
 from sb3_memret.tasks.drawer.cabinet import LAYERS
+from sb3_memret.envs.configs import MemoryConfig, check_mode
 from sb3_memret.memory.bank import MemoryBank
 from sb3_memret.memory.encoder import EMBEDDING_DIM, MiniLMEncoder
-from sb3_memret.memory.schema import MemoryEntry, MemoryType, check_age_unit
-from sb3_memret.memory.seeding import SeedingConfig
+from sb3_memret.memory.schema import MemoryEntry, MemoryType
 from sb3_memret.memory.writer import EventCompiler
 from sb3_memret.prompts import PromptTemplate, build_prompt
 from sb3_memret.tasks import Task, make_task
@@ -24,23 +24,8 @@ from sb3_memret.tasks.base import EnvFrame, Episode
 from sb3_memret.tasks.drawer.seeding import hearsay_memories
 from sb3_memret.tasks.drawer.writer import ViewPredicateExtractor
 
-MODES = ("recall", "oracle", "none")
-# where the placed objects' facts come from: the episode's placement (the seed's), or what the robot saw
-MEMORY_SOURCES = ("seeded", "observed")
 # keep-scores of a bank's entries given their ages (the retention critic, or a fixed rule)
 KeepScorer = Callable[[Sequence[MemoryEntry], np.ndarray], np.ndarray]
-
-
-def check_mode(mode: str) -> str:
-    if mode not in MODES:
-        raise ValueError(f"unknown mode {mode!r}; expected one of {list(MODES)}")
-    return mode
-
-
-def check_memory_source(source: str) -> str:
-    if source not in MEMORY_SOURCES:
-        raise ValueError(f"unknown memory source {source!r}; expected one of {list(MEMORY_SOURCES)}")
-    return source
 
 
 def observation_space(capacity: int, potential: bool = False) -> spaces.Dict:
@@ -72,11 +57,11 @@ class EpisodeMemory:
     object was seen, and during the episode an object's location is written only while a camera
     sees it (``ViewPredicateExtractor``).
 
-    ``long_term_capacity > 0`` (observed only; a household's episodes): a long-term store that
+    ``config.long_term_capacity > 0`` (observed only; a household's episodes): a long-term store that
     survives episode resets sits before the per-episode bank in the slots the retriever sees.
-    Where objects were seen in drawers goes there, with ``hearsay`` facts about other things each
-    episode; instead of the observation phase the robot looks into ``glimpses`` drawers drawn at
-    random, so what it knows of the others it saw in earlier episodes.
+    Where objects were seen in drawers goes there, with the task household's hearsay facts about other
+    things each episode; instead of the observation phase the robot looks into the household's glimpsed
+    drawers, drawn at random, so what it knows of the others it saw in earlier episodes.
     Times run on across episodes. ``age_unit``: a memory's age is the control steps since it was
     written (``"steps"``) or the episodes, a household's tasks (``"tasks"``): objects move only between
     tasks, so a fact's age in tasks is what says how likely it is to be stale. Measured before the glimpse, so they count what retention kept:
@@ -85,23 +70,19 @@ class EpisodeMemory:
     holds the target's true fact; ``stale_fact_kept``, it holds a fact placing the target elsewhere.
     """
 
-    def __init__(self, capacity: int, mode: str, encoder: MiniLMEncoder, keep_scorer: KeepScorer,
-                 template: PromptTemplate, seeding: SeedingConfig | None = None, source: str = "seeded",
-                 long_term_capacity: int = 0, hearsay: int = 0, glimpses: int = 0, age_unit: str = "steps",
-                 task: Task | str = "drawer"):
+    def __init__(self, config: MemoryConfig, mode: str, encoder: MiniLMEncoder, keep_scorer: KeepScorer,
+                 template: PromptTemplate, task: Task | str = "drawer"):
         self.mode = check_mode(mode)
         self.task = make_task(task)
-        self.source = check_memory_source(source)
-        if long_term_capacity and source != "observed":
-            raise ValueError("a long-term store is written from what the robot sees: use memory_source='observed'")
+        self.source, self.seeding, self.age_unit = config.source, config.seeding, config.age_unit
         self.encoder, self.keep_scorer, self.template = encoder, keep_scorer, template
-        self.seeding = seeding or SeedingConfig()
-        self.bank = MemoryBank(capacity)
-        self.long_term = MemoryBank(long_term_capacity) if long_term_capacity else None
-        self.hearsay, self.glimpses = hearsay, glimpses
-        self.age_unit = check_age_unit(age_unit)
+        self.bank = MemoryBank(config.capacity)
+        self.long_term = MemoryBank(config.long_term_capacity) if config.long_term_capacity else None
+        lives = self.task.household if self.long_term is not None else None  # a household's (the drawer's)
+        self.hearsay = lives.hearsay_per_episode if lives else 0
+        self.glimpses = lives.glimpses_per_episode if lives else 0
         self.episode = 0  # episodes started so far (a household's tasks)
-        self.writer = self.task.writer(source)
+        self.writer = self.task.writer(self.source)
         self.compiler = EventCompiler(encoder, self.writer.relations, self.task.wordings)
         self.clock = 0  # control steps of the earlier episodes (long-term times run on)
         self.t = 0
@@ -298,5 +279,4 @@ class EpisodeMemory:
         return info
 
 
-__all__ = ["EpisodeMemory", "KeepScorer", "MEMORY_SOURCES", "MODES", "check_memory_source", "check_mode",
-           "observation_space"]
+__all__ = ["EpisodeMemory", "KeepScorer", "observation_space"]

@@ -30,19 +30,17 @@ from gymnasium.utils import seeding as gym_seeding
 from stable_baselines3.common.vec_env import VecEnv, VecMonitor
 from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvStepReturn
 
-from sb3_memret.controllers import FrozenController
 from sb3_memret.controller_specs import make_controller
-from sb3_memret.tasks.drawer.household import Household, HouseholdConfig
-from sb3_memret.tasks.drawer.objects import object_set
-from sb3_memret.physics.backends import PhysicsBackend, ResetRequest
-from sb3_memret.physics import make_physics
-from sb3_memret.obs_trees import stack_obs
-from sb3_memret.envs.recall_memory import EpisodeMemory, check_memory_source, check_mode, observation_space
+from sb3_memret.controllers import FrozenController
+from sb3_memret.envs.configs import DecisionConfig, MemoryConfig, PhysicsConfig, split_env_kwargs
+from sb3_memret.envs.recall_memory import EpisodeMemory, observation_space
 from sb3_memret.memory.bank import importance_scorer
 from sb3_memret.memory.encoder import MiniLMEncoder
-from sb3_memret.memory.schema import MemoryEntry, check_age_unit
-from sb3_memret.memory.retention import FIXED_RULES, check_retention
-from sb3_memret.memory.seeding import SeedingConfig
+from sb3_memret.memory.retention import FIXED_RULES
+from sb3_memret.memory.schema import MemoryEntry
+from sb3_memret.obs_trees import stack_obs
+from sb3_memret.physics import make_physics
+from sb3_memret.physics.backends import PhysicsBackend, ResetRequest
 from sb3_memret.policy.networks import RetentionScorer
 from sb3_memret.rewards import absorbing_success_value, shaped_reward
 from sb3_memret.rollout import task_env_kwargs
@@ -74,124 +72,68 @@ class RecallVecEnv(VecEnv):
     its reward sums the env's reward over them (or shapes from the first state to the last). With
     ``retrieve_on_write`` an env's decision ends early at the replan whose frames wrote a fact to its bank.
 
-    ``backend`` picks where the physics runs (``sb3_memret.physics.BACKENDS``; ``auto``:
-    in-process for one env, worker processes for several); ``ray_address`` a Ray cluster.
+    What the env is made of comes in three frozen configs (``sb3_memret.envs.configs``): ``memory`` (capacity,
+    a long-term store, where facts come from, what evicts, ages, decoys), ``decisions`` (mode, k, replanning,
+    the reward's gamma and bonus, tasks per learning episode, the observed potential) and ``physics`` (where
+    the task envs run and what renders). The ``task`` owns its own options: the drawer's objects (several
+    hidden, the instruction naming the target, so the retriever must read it) and its households.
     ``controller_calls`` counts ``controller.act`` calls: one per replan round (R per decision round).
 
-    ``objects`` (a named set of ``sb3_memret.tasks.drawer.objects.OBJECT_SETS`` or a list of objects) and
-    ``n_objects`` hide several objects in the drawers; the instruction names one, the target, and
-    the bank holds where each of them is, so the retriever must read the instruction.
-    ``location_decoys`` and ``holding_decoys`` set how many decoy facts seed each bank.
-    ``memory_source="observed"``: the objects' facts come only from what the robot saw, in an
-    observation phase that opens each drawer once before the episode (``EpisodeMemory``).
+    ``memory.source="observed"``: the objects' facts come only from what the robot saw, in an observation phase
+    that opens each drawer once before the episode (``EpisodeMemory``). ``memory.long_term_capacity > 0``: each
+    env is a household (``sb3_memret.tasks.drawer.household``) whose objects stay in their drawers across
+    episodes and are sometimes rearranged; a long-term store of that many slots, before the per-episode slots,
+    keeps what the robot saw across episodes. ``decisions.tasks_per_episode``: tasks (each a reset of the
+    physics, ``info["task_done"]``) per learning episode, so that what memory keeps for a later task is
+    credited to the decisions that kept it; a learning episode ends as a time-limit truncation.
 
-    ``long_term_capacity > 0``: each env is a household (``sb3_memret.tasks.drawer.household``) whose
-    objects stay in their drawers across episodes and are rearranged with ``move_probability``
-    per episode; a long-term store of that many slots, before the per-episode ``capacity`` slots,
-    keeps what the robot saw across episodes, and ``hearsay_per_episode`` facts about other things
-    reach it each episode; the robot looks into ``glimpses_per_episode`` drawers, drawn at random, before
-    each. ``retention`` picks what evicts: the learned critic or a fixed rule
-    (``sb3_memret.memory.retention``: fifo, lru, prior). ``tasks_per_episode``: tasks (each a reset of
-    the physics, ``info["task_done"]``) per learning episode, so that what memory keeps for a later
-    task is credited to the decisions that kept it; a learning episode ends as a time-limit truncation.
-
-    ``observe_potential``: each observation also carries ``potential``, (1 - gamma) * Phi(s) of the
+    ``decisions.observe_potential``: each observation also carries ``potential``, (1 - gamma) * Phi(s) of the
     state the decision is taken in, so the critic need not explain the shaping from memories alone
-    (``MemoryRetrievalPolicy``). A finished task's potential was paid in full by its last reward, so
-    its terminal observation carries the next task's starting potential, from which the household goes on.
-
-    ``age_unit``: the memories' ages the observation carries (and the critic evicts by), in control
-    steps or in tasks (``EpisodeMemory``); the policy must read the same unit (its ``age_unit``).
+    (``MemoryRetrievalPolicy``). A finished task's potential was paid in full by its last reward, so its
+    terminal observation carries the next task's starting potential, from which the household goes on.
+    ``memory.age_unit``: the memories' ages the observation carries (and the critic evicts by), in control
+    steps or in tasks; the policy must read the same unit (its ``age_unit``).
     """
 
-    def __init__(
-        self,
-        num_envs: int = 1,
-        mode: str = "recall",
-        controller: str | FrozenController = "scripted",
-        capacity: int = 6,
-        k: int = 1,
-        replan_every: int | None = None,
-        replans_per_decision: int = 1,
-        retrieve_on_write: bool = False,
-        gamma: float = 0.97,
-        success_bonus: float = 0.0,
-        max_control_steps: int | None = None,
-        render_backend: str = "none",
-        seeding: SeedingConfig | None = None,
-        encoder: MiniLMEncoder | None = None,
-        task_kwargs: dict[str, Any] | None = None,
-        objects: str | Sequence[str] = "cube",
-        n_objects: int = 1,
-        location_decoys: int | None = None,
-        holding_decoys: int | None = None,
-        memory_source: str = "seeded",
-        long_term_capacity: int = 0,
-        move_probability: float = 0.2,
-        hearsay_per_episode: int = 2,
-        glimpses_per_episode: int = 0,
-        retention: str = "learned",
-        tasks_per_episode: int = 1,
-        observe_potential: bool = False,
-        age_unit: str = "steps",
-        backend: str = "auto",
-        ray_address: str | None = None,
-        task: str | Task = DEFAULT_TASK,
-    ):
-        check_mode(mode)
+    def __init__(self, num_envs: int = 1, task: str | Task = DEFAULT_TASK, controller: str | FrozenController = "scripted",
+                 memory: MemoryConfig = MemoryConfig(), decisions: DecisionConfig = DecisionConfig(),
+                 physics: PhysicsConfig = PhysicsConfig(), encoder: MiniLMEncoder | None = None):
         self.task = make_task(task)
-        self.task.check_options(objects=objects != "cube" or n_objects != 1, observed=memory_source == "observed",
-                                household=long_term_capacity > 0, observe_potential=observe_potential)
-        check_memory_source(memory_source)
-        self.retention_rule = check_retention(retention)
-        if tasks_per_episode < 1:
-            raise ValueError(f"tasks_per_episode must be >= 1, got {tasks_per_episode}")
-        self.tasks_per_episode = tasks_per_episode
-        if long_term_capacity < 0:
-            raise ValueError(f"long_term_capacity must be >= 0, got {long_term_capacity}")
-        slots = capacity + long_term_capacity
-        if not 1 <= k <= slots:
-            raise ValueError(f"k must be in [1, slots={slots}], got {k}")
-        self.mode, self.slots, self.k = mode, slots, k
-        replan_every = replan_every or self.task.replan_every  # None: the task's clock
-        self.replan_every, self.gamma, self.success_bonus = replan_every, gamma, success_bonus
+        self.task.check_options(observed=memory.source == "observed", household=memory.long_term_capacity > 0,
+                                observe_potential=decisions.observe_potential)
+        self.memory_config, self.decisions, self.physics_config = memory, decisions, physics
+        self.retention_rule = memory.retention
+        self.tasks_per_episode = decisions.tasks_per_episode
+        if not decisions.k <= memory.slots:
+            raise ValueError(f"k must be in [1, slots={memory.slots}], got {decisions.k}")
+        self.mode, self.slots, self.k = decisions.mode, memory.slots, decisions.k
+        replan_every = decisions.replan_every or self.task.replan_every  # None: the task's clock
+        self.replan_every, self.gamma, self.success_bonus = replan_every, decisions.gamma, decisions.success_bonus
         if self.task.ends_at_success and self.task.success_reward is None:
             raise ValueError(f"task {self.task.name!r} ends its episodes at success but sets no success_reward: "
                              "the reward its env pays at each step after success is needed to value the cut-off steps")
-        self.max_control_steps = max_control_steps or self.task.max_control_steps
+        self.max_control_steps = decisions.max_control_steps or self.task.max_control_steps
         self.controller = make_controller(controller, self.task) if isinstance(controller, str) else controller
         if not 1 <= replan_every <= self.controller.spec.chunk_len:
             raise ValueError(f"replan_every must be in [1, {self.controller.spec.chunk_len}], got {replan_every}")
-        if replans_per_decision < 1:
-            raise ValueError(f"replans_per_decision must be >= 1, got {replans_per_decision}")
-        self.replans_per_decision, self.retrieve_on_write = replans_per_decision, bool(retrieve_on_write)
-        objects_kwargs = {"objects": object_set(objects), "n_objects": n_objects} if "objects" in self.task.features else {}
-        task_kwargs = {**task_env_kwargs(self.controller, render_backend, self.task), **objects_kwargs,
-                       **(task_kwargs or {})}
-        seeding = seeding or SeedingConfig()
-        decoys = {k: v for k, v in (("location_decoys", location_decoys), ("holding_decoys", holding_decoys))
-                  if v is not None}
-        seeding = dataclasses.replace(seeding, **decoys) if decoys else seeding
+        self.replans_per_decision, self.retrieve_on_write = decisions.replans_per_decision, decisions.retrieve_on_write
+        task_kwargs = {**task_env_kwargs(self.controller, physics.render_backend, self.task), **physics.task_kwargs}
         self.encoder = encoder or MiniLMEncoder()
         self.retention: RetentionScorer | None = None
-        self.observe_potential = observe_potential
-        self.age_unit = check_age_unit(age_unit)
-        super().__init__(num_envs, observation_space(slots, observe_potential), spaces.MultiDiscrete([slots] * k))
-        household = HouseholdConfig(move_probability, hearsay_per_episode, glimpses_per_episode)
-        self.households = [Household(object_set(objects), n_objects, household) for _ in range(num_envs)] \
-            if long_term_capacity else None
-        self.physics: PhysicsBackend = make_physics(backend, num_envs, task_kwargs,
-                                                    self.max_control_steps, ray_address,
-                                                    self.task)
+        self.observe_potential = decisions.observe_potential
+        self.age_unit = memory.age_unit
+        super().__init__(num_envs, observation_space(self.slots, self.observe_potential),
+                         spaces.MultiDiscrete([self.slots] * self.k))
+        self.households = [self.task.new_household() for _ in range(num_envs)] if memory.long_term_capacity else None
+        self.physics: PhysicsBackend = make_physics(physics.backend, num_envs, task_kwargs, self.max_control_steps,
+                                                    physics.ray_address, self.task)
         try:
             self.controller.check_env(self.physics.env_info)
         except ValueError:
             self.physics.close()
             raise
         template = self.controller.spec.prompt_template
-        self.memories = [EpisodeMemory(capacity, mode, self.encoder, self.keep_scores, template, seeding, memory_source,
-                                       long_term_capacity, hearsay_per_episode, glimpses_per_episode, age_unit,
-                                       self.task)
+        self.memories = [EpisodeMemory(memory, self.mode, self.encoder, self.keep_scores, template, self.task)
                          for _ in range(num_envs)]
         self.rngs: list[np.random.Generator | None] = [None] * num_envs
         self.task_seed_queues: list[list[int]] = [[] for _ in range(num_envs)]
@@ -417,19 +359,23 @@ class RecallVecEnv(VecEnv):
         return {key: np.stack([obs[key] for obs in observations]) for key in observations[0]}
 
 
+def recall_vec_env(num_envs: int = 1, **env_kwargs: Any) -> RecallVecEnv:
+    """``RecallVecEnv`` from a run's flat ``env_kwargs`` (``sb3_memret.envs.configs.split_env_kwargs``)."""
+    task, rest, memory, decisions, physics = split_env_kwargs(env_kwargs)
+    return RecallVecEnv(num_envs, task, memory=memory, decisions=decisions, physics=physics, **rest)
+
+
 def make_recall_vec_env(n_envs: int = 1, env_kwargs: dict[str, Any] | None = None, seed: int | None = None,
                         backend: str = "auto", ray_address: str | None = None) -> VecMonitor:
-    """``RecallVecEnv`` with ``n_envs`` envs behind a ``VecMonitor`` (episode return/length logs).
-
-    Env ``i`` is seeded with ``seed + i``; ``backend`` and ``ray_address`` place the physics
-    (``sb3_memret.physics.make_physics``).
-    """
+    """``RecallVecEnv`` with ``n_envs`` envs behind a ``VecMonitor`` (episode return/length logs), from a run's
+    flat ``env_kwargs``. Env ``i`` is seeded with ``seed + i``; ``backend`` and ``ray_address`` place the physics
+    (``sb3_memret.physics.make_physics``)."""
     if n_envs < 1:
         raise ValueError(f"n_envs must be >= 1, got {n_envs}")
-    venv = RecallVecEnv(n_envs, backend=backend, ray_address=ray_address, **dict(env_kwargs or {}))
+    venv = recall_vec_env(n_envs, **{**dict(env_kwargs or {}), "backend": backend, "ray_address": ray_address})
     if seed is not None:
         venv.seed(seed)
     return VecMonitor(venv)
 
 
-__all__ = ["RecallVecEnv", "make_recall_vec_env"]
+__all__ = ["RecallVecEnv", "make_recall_vec_env", "recall_vec_env"]

@@ -42,7 +42,7 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
     shaping potential (env ``observe_potential``), the value is that mean minus the potential: the
     shaped value is the unshaped one minus the potential (Ng et al., 1999), so the keep-scores model
     only what the task's future is worth, not how far the current task has got. ``age_unit`` is
-    the unit of the memories' ages the env observes (``RecallVecEnv(age_unit=...)``).
+    the unit of the memories' ages the env observes (``MemoryConfig.age_unit``, ``sb3_memret.envs.configs``).
 
     ``predict(obs, deterministic=True)`` is greedy retrieval (top-K by score).
 

@@ -110,6 +110,8 @@ class Task(ABC):
     zoo_config: ClassVar[str] = "memret_ppo.yml"
     #: decision-env options beyond the generic ones that this task implements
     features: ClassVar[frozenset[str]] = frozenset()
+    #: the task's own options (``with_options``), set in a run's ``env_kwargs`` beside the decision env's
+    options: ClassVar[tuple[str, ...]] = ()
     #: whether the physics calls ``perceive`` after every control step (else frames carry no percepts)
     perceives_every_step: ClassVar[bool] = False
     #: the render backend a run gets when none is named: "none" unless the task itself must see
@@ -250,6 +252,15 @@ class Task(ABC):
         checkpoints and variants), disjoint from ``evaluation_seeds``, which give the final figure only; None: the
         evaluation seed decides, as for ``evaluation_seeds``."""
         return None
+
+    def with_options(self, **options: Any) -> "Task":
+        """This task with its own ``options`` set (the drawer: its objects, its households); an option the task
+        does not take is refused, naming it and the ones it takes."""
+        unknown = sorted(set(options) - set(self.options))
+        if unknown:
+            raise ValueError(f"task {self.name!r} has no option {unknown}; its options are "
+                             f"{list(self.options) or 'none'}")
+        return self
 
     def check_options(self, **options: Any) -> None:
         """Refuse decision-env options this task does not implement, naming them."""

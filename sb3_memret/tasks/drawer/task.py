@@ -8,7 +8,8 @@ reported per layer.
 
 from __future__ import annotations
 
-from typing import Any, Mapping
+from dataclasses import replace
+from typing import Any, Mapping, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -19,6 +20,8 @@ from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.prompts import OUTSIDE, OUTSIDE_TEMPLATE, ParsedPrompt, PromptTemplate, instruction_text
 from sb3_memret.tasks.base import EnvFrame, Episode, Task, check_render_backend
 from sb3_memret.tasks.drawer.cabinet import LAYERS
+from sb3_memret.tasks.drawer.household import Household, HouseholdConfig
+from sb3_memret.tasks.drawer.objects import object_set
 from sb3_memret.tasks.drawer.prompts import check_prompt_layer, location_text
 from sb3_memret.tasks.drawer.seeding import seed_memories
 from sb3_memret.tasks.drawer.writer import DrawerWriter
@@ -31,9 +34,32 @@ class DrawerTask(Task):
 
     name = "drawer"
     zoo_config = "memret_ppo.yml"
-    features = frozenset({"objects", "observed", "household", "observe_potential"})
+    features = frozenset({"observed", "household", "observe_potential"})
+    options = ("objects", "n_objects", "move_probability", "hearsay_per_episode", "glimpses_per_episode")
     max_control_steps = 400
     wordings = {(MemoryType.OBJECT_LOCATION, OUTSIDE): OUTSIDE_TEMPLATE}  # "the cube is out of the drawers."
+
+    def __init__(self, objects: str | Sequence[str] = "cube", n_objects: int = 1,
+                 household: HouseholdConfig = HouseholdConfig()):
+        """``objects`` (a named set of ``OBJECT_SETS`` or a list of catalogue objects) and ``n_objects`` of them
+        hidden in the drawers, one per drawer; ``household``: how a household lives (with a long-term store)."""
+        self.objects = object_set(objects)
+        most = min(len(self.objects), len(LAYERS))
+        if not 1 <= n_objects <= most:
+            raise ValueError(f"n_objects must be in [1, {most}] (one object per drawer, of {list(self.objects)}), "
+                             f"got {n_objects}")
+        self.n_objects, self.household = n_objects, household
+
+    def new_household(self) -> Household:
+        """One env's household of this task's objects (a long-term store's episodes)."""
+        return Household(self.objects, self.n_objects, self.household)
+
+    def with_options(self, **options: Any) -> "DrawerTask":
+        super().with_options(**options)
+        lives = {k: options.pop(k) for k in ("move_probability", "hearsay_per_episode", "glimpses_per_episode")
+                 if k in options}
+        return DrawerTask(options.get("objects", self.objects), options.get("n_objects", self.n_objects),
+                          replace(self.household, **lives))
 
     @property
     def config_key(self) -> str:
@@ -45,6 +71,8 @@ class DrawerTask(Task):
 
         if max_episode_steps is not None:
             kwargs["max_episode_steps"] = max_episode_steps
+        kwargs.setdefault("objects", self.objects)
+        kwargs.setdefault("n_objects", self.n_objects)
         return gym.make(ENV_ID, obs_mode=obs_mode, render_backend=render_backend, num_envs=num_envs, **kwargs)
 
     def env_kwargs(self, needs_images: bool, render_backend: str) -> dict[str, Any]:

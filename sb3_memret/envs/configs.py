@@ -1,0 +1,148 @@
+"""The decision env's settings in three frozen configs, each checked when it is made: what every env's memory
+holds and forgets (``MemoryConfig``), how a retrieval decision meets the controller and the reward
+(``DecisionConfig``), and where the task envs run (``PhysicsConfig``). The task owns its own options (the drawer:
+objects, households). A run saves them as its config's flat ``env_kwargs`` (rl-zoo's form), which
+``split_env_kwargs`` reads back into the task and the three configs."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field, fields
+from typing import Any, Mapping
+
+from sb3_memret.memory.retention import check_retention
+from sb3_memret.memory.schema import check_age_unit
+from sb3_memret.memory.seeding import SeedingConfig
+from sb3_memret.physics import BACKENDS
+from sb3_memret.tasks import DEFAULT_TASK, Task, make_task
+from sb3_memret.tasks.base import check_render_backend
+
+
+MODES = ("recall", "oracle", "none")
+# where the placed objects' facts come from: the episode's placement (the seed's), or what the robot saw
+MEMORY_SOURCES = ("seeded", "observed")
+
+
+def check_mode(mode: str) -> str:
+    if mode not in MODES:
+        raise ValueError(f"unknown mode {mode!r}; expected one of {list(MODES)}")
+    return mode
+
+
+def check_memory_source(source: str) -> str:
+    if source not in MEMORY_SOURCES:
+        raise ValueError(f"unknown memory source {source!r}; expected one of {list(MEMORY_SOURCES)}")
+    return source
+
+
+@dataclass(frozen=True)
+class MemoryConfig:
+    """Each env's memory: ``capacity`` per-episode slots after ``long_term_capacity`` slots that outlive episodes
+    (a household's; written from what the robot saw, so ``source="observed"``), where the facts come from
+    (``source``: the episode's placement, or what the robot saw), what evicts (``retention``: the learned critic or
+    a fixed rule), the unit of a memory's age (``age_unit``) and the decoys each bank starts with (``seeding``)."""
+
+    capacity: int = 6
+    long_term_capacity: int = 0
+    source: str = "seeded"
+    retention: str = "learned"
+    age_unit: str = "steps"
+    seeding: SeedingConfig = field(default_factory=SeedingConfig)
+
+    def __post_init__(self) -> None:
+        if self.capacity < 1:
+            raise ValueError(f"capacity must be >= 1, got {self.capacity}")
+        if self.long_term_capacity < 0:
+            raise ValueError(f"long_term_capacity must be >= 0, got {self.long_term_capacity}")
+        check_memory_source(self.source)
+        if self.long_term_capacity and self.source != "observed":
+            raise ValueError("a long-term store is written from what the robot sees: use memory_source='observed'")
+        check_retention(self.retention)
+        check_age_unit(self.age_unit)
+
+    @property
+    def slots(self) -> int:
+        """The slots the retriever chooses among: the long-term store's, then the episode's."""
+        return self.capacity + self.long_term_capacity
+
+
+@dataclass(frozen=True)
+class DecisionConfig:
+    """One retrieval decision: the ``mode`` (recall; oracle and none for baselines), ``k`` slots retrieved, the
+    controller replanning every ``replan_every`` control steps (None: the task's) ``replans_per_decision`` times
+    per decision, a decision ending early at a written fact (``retrieve_on_write``); its reward discounted by
+    ``gamma`` with ``success_bonus`` on success; ``tasks_per_episode`` tasks per learning episode; whether the
+    observation carries the shaping potential (``observe_potential``); episodes cut at ``max_control_steps``
+    (None: the task's)."""
+
+    mode: str = "recall"
+    k: int = 1
+    replan_every: int | None = None
+    replans_per_decision: int = 1
+    retrieve_on_write: bool = False
+    gamma: float = 0.97
+    success_bonus: float = 0.0
+    tasks_per_episode: int = 1
+    observe_potential: bool = False
+    max_control_steps: int | None = None
+
+    def __post_init__(self) -> None:
+        check_mode(self.mode)
+        for name in ("k", "replans_per_decision", "tasks_per_episode"):
+            if getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1, got {getattr(self, name)}")
+        for name in ("replan_every", "max_control_steps"):
+            if getattr(self, name) is not None and getattr(self, name) < 1:
+                raise ValueError(f"{name} must be >= 1 or None (the task's), got {getattr(self, name)}")
+        if not 0.0 < self.gamma <= 1.0:
+            raise ValueError(f"gamma must be in (0, 1], got {self.gamma}")
+        if self.success_bonus < 0:
+            raise ValueError(f"success_bonus must be >= 0, got {self.success_bonus}")
+
+
+@dataclass(frozen=True)
+class PhysicsConfig:
+    """Where the task envs run (``backend``: ``sb3_memret.physics.BACKENDS``; ``ray_address``: a Ray cluster),
+    what renders their cameras (``render_backend``) and any further keyword arguments for the task's env."""
+
+    backend: str = "auto"
+    ray_address: str | None = None
+    render_backend: str = "none"
+    task_kwargs: Mapping[str, Any] = field(default_factory=dict)
+
+    def __post_init__(self) -> None:
+        if self.backend not in BACKENDS:
+            raise ValueError(f"unknown physics backend {self.backend!r}; expected one of {list(BACKENDS)}")
+        if self.ray_address is not None and self.backend not in ("auto", "ray"):
+            raise ValueError(f"a Ray address ({self.ray_address!r}) needs the ray backend, not {self.backend!r}")
+        check_render_backend(self.render_backend)
+
+
+def _fields(cls: type) -> set[str]:
+    return {f.name for f in fields(cls)}
+
+
+def split_env_kwargs(env_kwargs: Mapping[str, Any]) -> tuple[Task, dict[str, Any], MemoryConfig, DecisionConfig,
+                                                               PhysicsConfig]:
+    """A run's flat ``env_kwargs`` as the task (with its own options), the rest (``controller``, ``encoder``) and
+    the three configs. ``memory_source`` is ``MemoryConfig.source``; ``location_decoys`` and ``holding_decoys``
+    override the ``seeding`` config's counts; a key no config or task takes is refused, naming it."""
+    kwargs = dict(env_kwargs)
+    memory_keys, decision_keys, physics_keys = _fields(MemoryConfig), _fields(DecisionConfig), _fields(PhysicsConfig)
+    if "memory_source" in kwargs:
+        kwargs["source"] = kwargs.pop("memory_source")
+    decoys = {k: kwargs.pop(k) for k in ("location_decoys", "holding_decoys") if kwargs.get(k) is not None}
+    kwargs.pop("location_decoys", None), kwargs.pop("holding_decoys", None)
+    seeding = kwargs.pop("seeding", None) or SeedingConfig()
+    if decoys:
+        seeding = SeedingConfig(**{**{f.name: getattr(seeding, f.name) for f in fields(seeding)}, **decoys})
+    memory = MemoryConfig(seeding=seeding, **{k: kwargs.pop(k) for k in list(kwargs) if k in memory_keys - {"seeding"}})
+    decisions = DecisionConfig(**{k: kwargs.pop(k) for k in list(kwargs) if k in decision_keys})
+    physics = PhysicsConfig(**{k: kwargs.pop(k) for k in list(kwargs) if k in physics_keys})
+    task = make_task(kwargs.pop("task", DEFAULT_TASK))
+    rest = {k: kwargs.pop(k) for k in ("controller", "encoder") if k in kwargs}
+    task = task.with_options(**kwargs)  # what is left is the task's own, or refused by it
+    return task, rest, memory, decisions, physics
+
+
+__all__ = ["DecisionConfig", "MEMORY_SOURCES", "MODES", "MemoryConfig", "PhysicsConfig", "check_memory_source", "check_mode",
+           "split_env_kwargs"]
