@@ -8,7 +8,7 @@ from mani_skill.utils.structs.pose import Pose
 
 import sb3_memret.tasks.drawer.drawer_cube  # noqa: F401  (registers DrawerCubeTakeOut-v1)
 from sb3_memret.tasks.drawer.cabinet import LAYERS
-from sb3_memret.tasks.drawer.drawer_cube import layer_containing
+from sb3_memret.tasks.drawer.state import layer_containing
 from sb3_memret.tasks.drawer.objects import OBJECT_SETS
 from sb3_memret.rewards import PHI_MAX
 from sb3_memret.rollout import make_task_env

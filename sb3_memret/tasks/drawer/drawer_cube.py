@@ -4,7 +4,6 @@ with a Franka Panda."""
 from __future__ import annotations
 
 from contextlib import contextmanager
-from dataclasses import dataclass
 from typing import Any, Iterator
 
 import numpy as np
@@ -20,58 +19,12 @@ from mani_skill.utils.structs.pose import Pose
 
 from sb3_memret.tasks.drawer.cabinet import LAYERS, CabinetLayout, build_cabinet, check_layer
 from sb3_memret.tasks.drawer.objects import ObjectSpec, object_specs
+from sb3_memret.tasks.drawer.state import DrawerCubeState, layer_containing
 from sb3_memret.rewards import staged_potential
 
 PARK_X = -1.0  # objects an episode does not use wait on the floor behind the robot, out of its reach
 GRASP_QUERY_RADIUS = 0.1  # m between TCP and target centre beyond which no grasp is possible
 IMAGE_SIZE = 224
-
-
-@dataclass
-class DrawerCubeState:
-    """Privileged simulator state for the memory writer and the reward (batched, numpy).
-
-    Only the writer and the reward may read this; controllers see observations only.
-    """
-
-    target_pos: np.ndarray  # (B, 3) the object the instruction names
-    target_quat: np.ndarray  # (B, 4) wxyz
-    target_layer: np.ndarray  # (B,) layer the episode placed the target in (1 = top)
-    object_names: np.ndarray  # (B, M) str: the task's objects, in its order
-    object_layer: np.ndarray  # (B, M) layer each object was placed in, 0 if this episode leaves it out
-    object_pos: np.ndarray  # (B, M, 3)
-    target_index: np.ndarray  # (B,) the target's index into the objects
-    layer_boxes: np.ndarray  # (B, 3, 2, 3) per layer: (low, high) corners of the interior
-    drawer_qpos: np.ndarray  # (B, 3) opening of drawers 1..3 in metres
-    grasped: np.ndarray  # (B,) bool: both fingers press on the target
-    eef_pos: np.ndarray  # (B, 3) tool centre point
-    eef_quat: np.ndarray  # (B, 4) wxyz
-
-    def select(self, index: int) -> "DrawerCubeState":
-        """Env ``index`` alone, as a batch of one."""
-        return DrawerCubeState(**{name: value[index:index + 1] for name, value in vars(self).items()})
-
-    @property
-    def target_in_layer(self) -> np.ndarray:
-        """(B,) the layer whose interior box holds the target's centre, 0 if none."""
-        return layer_containing(self.target_pos, self.layer_boxes)
-
-    def target_name(self, index: int = 0) -> str:
-        return str(self.object_names[index, self.target_index[index]])
-
-    def placed(self, index: int = 0) -> dict[str, int]:
-        """Env ``index``'s objects in this episode by name, with the layer each was placed in."""
-        return {str(name): int(layer) for name, layer in zip(self.object_names[index], self.object_layer[index])
-                if layer > 0}
-
-
-def layer_containing(points: np.ndarray, boxes: np.ndarray) -> np.ndarray:
-    """Index (1-based) of the box containing each point, 0 where none does.
-
-    ``points`` is (B, 3) and ``boxes`` (B, L, 2, 3); boxes of one env never overlap.
-    """
-    inside = np.all((points[:, None] >= boxes[:, :, 0]) & (points[:, None] <= boxes[:, :, 1]), axis=-1)
-    return np.where(inside.any(axis=1), inside.argmax(axis=1) + 1, 0)
 
 
 @register_env("DrawerCubeTakeOut-v1", max_episode_steps=400)

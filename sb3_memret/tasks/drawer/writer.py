@@ -8,7 +8,7 @@ from typing import Sequence
 import numpy as np
 
 from sb3_memret.tasks.drawer.cabinet import LAYERS, CabinetLayout
-from sb3_memret.tasks.drawer.drawer_cube import DrawerCubeState, layer_containing
+from sb3_memret.tasks.drawer.state import DrawerCubeState, layer_containing
 from sb3_memret.memory.schema import NOTHING, MemoryType
 from sb3_memret.prompts import OUTSIDE
 from sb3_memret.memory.writer import UNKNOWN, Predicates
