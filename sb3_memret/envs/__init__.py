@@ -1,7 +1,6 @@
-"""Simulated tasks and the decision env. Light on purpose: importing the package registers only the
-decision env's gymnasium id; ``import sb3_memret.tasks.drawer.drawer_cube`` registers DrawerCubeTakeOut-v1 with
-ManiSkill (as importing a ManiSkill task module does), so constants such as the drawer's ``LAYERS``
-load without ManiSkill or torch."""
+"""The decision env: retrieval decisions over a bounded language memory for a frozen controller (``vec_env``, N
+envs; ``recall``, one gymnasium env), each env's memory (``recall_memory``) and its configs (``configs``). Light on
+purpose: importing the package registers only the decision env's gymnasium id."""
 
 import gymnasium
 
