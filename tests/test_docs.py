@@ -168,13 +168,30 @@ def _inline_code(page: Path) -> list[tuple[int, str]]:
     return spans
 
 
+def _shell_commands(text: str) -> list[tuple[int, str]]:
+    """A shell block's commands, each with the line it starts on: a line ending in `` \\`` goes on in the next."""
+    commands, parts, start = [], [], 1
+    for k, line in enumerate(text.splitlines(), 1):
+        if not parts:
+            start = k
+        if line.endswith(" \\") and not line.lstrip().startswith("#"):  # a comment's backslash continues nothing
+            parts.append(line[:-2].strip())
+            continue
+        commands.append((start, " ".join([*parts, line.strip()])))
+        parts = []
+    if parts:
+        commands.append((start, " ".join(parts)))
+    return commands
+
+
 def _command_lines() -> list[tuple[str, str]]:
-    """Every shell line and inline code span of the pages and the README, with where it is."""
+    """Every shell command (its continuation lines joined) and inline code span of the pages and the README, with
+    where it is."""
     found = []
     for page in ALL_TEXTS:
         for block in blocks(page):
             if block.lang in SHELL_LANGS:
-                found += [(f"{block.where}+{k}", line) for k, line in enumerate(block.text.splitlines(), 1)]
+                found += [(f"{block.where}+{k}", line) for k, line in _shell_commands(block.text)]
         found += [(f"{page.relative_to(ROOT)}:{n}", span) for n, span in _inline_code(page)]
     return found
 
