@@ -53,6 +53,7 @@ def demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fr
     zero until the cube's drawer is open), action (the expert's 7-D end-effector delta pose), task
     (the exact prompt), and with --render-backend cpu|gpu the two cameras as
     observation.images.image / observation.images.wrist_image.
+
     \b
     Prompts in the data: the bare instruction (the expert opens the top drawer) in 20% of episodes,
     and "pick out the cube. the cube is in drawer layer L." naming the cube's layer (60%) or
@@ -62,6 +63,7 @@ def demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fr
     labels), and --learner makes a DAgger round. Ctrl-C keeps every episode saved so far.
     With --objects train --n-objects 3 three objects hide in the drawers and the prompts name the
     target ("pick out the tin. the tin is in drawer layer L.").
+
     \b
     Other tasks (--task RememberColor3-VLA-v0 ...): the task's own frame layout (MIKASA: joints,
     hand pose, the object detector, both 128x128 cameras), episodes at seeds seed.. with the bare
