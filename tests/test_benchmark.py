@@ -251,6 +251,19 @@ def test_recall_retrieves_from_the_writers_bank_in_the_harness(tmp_path):
     assert cell["learner"] == str(tmp_path / "learners" / env_id / "final_model.zip")
 
 
+def test_a_learner_that_lands_while_the_table_plays_is_found(tmp_path):
+    from sb3_memret.benchmark.runner import learners_landed, plan
+
+    env_id = "RememberColor3-VLA-v0"
+    run = plan(Protocol(seed_set="dev", episodes=1), ["none", "recall"], env_ids=[env_id], learners=tmp_path)
+    assert (env_id, "recall") in run.refused_conditions and learners_landed(run) == []
+    (tmp_path / env_id).mkdir()
+    (tmp_path / env_id / "final_model.zip").write_bytes(b"a learner")  # `benchmark learners` finished it meanwhile
+    assert learners_landed(run) == [env_id]
+    again = plan(run.protocol, ["none", "recall"], env_ids=[env_id], learners=tmp_path)
+    assert not again.refused_conditions and learners_landed(again) == []
+
+
 def test_a_condition_added_to_a_run_folder_keeps_its_table(tmp_path):
     """A run of one condition (or task) into a folder whose results report others reports them all still, and
     plays only its own units."""

@@ -164,6 +164,13 @@ def learner_path(learners: Path | None, env_id: str) -> Path | None:
     return short if env_id.endswith("-Long-VLA-v0") and not own.is_file() and short.is_file() else own
 
 
+def learners_landed(run: Plan) -> list[str]:
+    """The tasks whose recall condition ``run`` refused for want of a learner that its learners folder now holds
+    (``benchmark learners`` training beside the benchmark): a new plan plays their recall episodes."""
+    return [env_id for (env_id, condition) in run.refused_conditions if condition == "recall"
+            and (path := learner_path(run.learners, env_id)) is not None and path.is_file()]
+
+
 def learner_record(run: Plan, env_id: str) -> dict[str, Any]:
     """What a recall cell says of its learner: the model file, its SHA-256 (an episode counts only for the learner
     it was played with), and its training run's rounds and final held-out figures (development seeds)."""
@@ -463,4 +470,5 @@ def rebuild(out: Path) -> dict[str, Any]:
 
 
 __all__ = ["CONDITIONS", "Plan", "Protocol", "RunFolder", "Unit", "controller_digest", "done_units", "learner_path",
+           "learners_landed",
            "plan", "play_units", "rebuild", "results", "run_benchmark", "widened"]

@@ -56,11 +56,13 @@ def mikasa(split: str | None, tasks: list[str] | None, episodes: int, controller
            seed_set: str, learners: Path | None, replan_every: int | None, workers: int, out: Path,
            progress: bool) -> None:
     """MIKASA-Robo-VLA's protocol through its own harness: every task of a split (or --tasks), each prompt
-    condition, success once over seeded episodes; writes OUT/results.json and OUT/report.md (resumable)."""
+    condition, success once over seeded episodes; writes OUT/results.json and OUT/report.md (resumable). A
+    learner that lands in --learners while the table plays (`benchmark learners` beside it) gets its recall
+    episodes in a further pass."""
     from tqdm import tqdm
 
     from sb3_memret.benchmark.report import write_report
-    from sb3_memret.benchmark.runner import Protocol, plan, run_benchmark
+    from sb3_memret.benchmark.runner import Protocol, learners_landed, plan, run_benchmark
 
     if split is not None and tasks is not None:
         raise click.UsageError("give --split or --tasks, not both")
@@ -82,8 +84,15 @@ def mikasa(split: str | None, tasks: list[str] | None, episodes: int, controller
         bar.update(done - bar.n)
 
     try:
-        content = run_benchmark(run, out, learners, workers, on_progress,
-                                on_task_done=lambda content: write_report(content, out))
+        while True:
+            content = run_benchmark(run, out, learners, workers, on_progress,
+                                    on_task_done=lambda content: write_report(content, out))
+            landed = learners_landed(run)
+            if not landed:
+                break
+            click.echo(f"learners landed for {', '.join(landed)}: playing their recall episodes", err=True)
+            run = plan(protocol, conditions, split, tasks, learners)
+            bar.reset()
     except ValueError as err:
         raise click.UsageError(str(err)) from None
     finally:
