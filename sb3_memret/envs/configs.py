@@ -6,7 +6,7 @@ objects, households). A run saves them as its config's flat ``env_kwargs`` (rl-z
 
 from __future__ import annotations
 
-from dataclasses import dataclass, field, fields
+from dataclasses import dataclass, field, fields, replace
 from typing import Any, Mapping
 
 from sb3_memret.memory.retention import check_retention
@@ -130,11 +130,8 @@ def split_env_kwargs(env_kwargs: Mapping[str, Any]) -> tuple[Task, dict[str, Any
     memory_keys, decision_keys, physics_keys = _fields(MemoryConfig), _fields(DecisionConfig), _fields(PhysicsConfig)
     if "memory_source" in kwargs:
         kwargs["source"] = kwargs.pop("memory_source")
-    decoys = {k: kwargs.pop(k) for k in ("location_decoys", "holding_decoys") if kwargs.get(k) is not None}
-    kwargs.pop("location_decoys", None), kwargs.pop("holding_decoys", None)
-    seeding = kwargs.pop("seeding", None) or SeedingConfig()
-    if decoys:
-        seeding = SeedingConfig(**{**{f.name: getattr(seeding, f.name) for f in fields(seeding)}, **decoys})
+    decoys = {k: v for k in ("location_decoys", "holding_decoys") if (v := kwargs.pop(k, None)) is not None}
+    seeding = replace(kwargs.pop("seeding", None) or SeedingConfig(), **decoys)
     memory = MemoryConfig(seeding=seeding, **{k: kwargs.pop(k) for k in list(kwargs) if k in memory_keys - {"seeding"}})
     decisions = DecisionConfig(**{k: kwargs.pop(k) for k in list(kwargs) if k in decision_keys})
     physics = PhysicsConfig(**{k: kwargs.pop(k) for k in list(kwargs) if k in physics_keys})
