@@ -26,6 +26,23 @@ def _is_task(value: str) -> bool:
     return True
 
 
+def _are_tasks(value: list | dict) -> bool:
+    """Whether ``value`` lists tasks for one learner (``tasks:``): two or more task names, each as ``task`` takes
+    it; as a mapping, each name's env settings of its own (``{InterceptSlow-VLA-v0: {success_bonus: 1.0}}``)."""
+    names = list(value)
+    if len(names) < 2 or len(set(names)) != len(names):
+        raise ValueError("a learner across tasks needs two or more distinct tasks (one task: env_kwargs.task)")
+    for name in names:
+        if not isinstance(name, str):
+            raise ValueError(f"a task name must be a string, got {name!r}")
+        check_task_name(name)
+    if isinstance(value, dict):
+        for name, own in value.items():
+            _validate(own or {}, {k: v for k, v in ENV_KEYS.items() if k not in MULTI_TASK_SHARED + ("task", "tasks")},
+                      f"tasks.{name}")
+    return True
+
+
 def _positive_int() -> Check:
     return (int, lambda v: v >= 1, "an integer >= 1")
 
@@ -61,6 +78,8 @@ POLICY_KEYS: dict[str, Check] = {
 }
 ENV_KEYS: dict[str, Check] = {
     "task": (str, _is_task, "a registered task or package.module:Class naming a Task of your own"),
+    "tasks": ((list, dict), _are_tasks, "a list of tasks for one learner across them, or a mapping from each to "
+              "its own env settings"),
     "mode": (str, lambda v: v in ("recall", "oracle", "none"), "one of 'recall', 'oracle', 'none'"),
     "capacity": _positive_int(),
     "k": _positive_int(),
@@ -86,6 +105,10 @@ ENV_KEYS: dict[str, Check] = {
 }
 
 
+# what every task of a learner across tasks shares: one observation and action space, one critic's age unit
+MULTI_TASK_SHARED = ("capacity", "long_term_capacity", "k", "observe_potential", "age_unit")
+
+
 class MissingSectionError(ValueError):
     """A config file without a section for the env id (task) asked for."""
 
@@ -105,7 +128,14 @@ class TrainConfig:
 
     @property
     def n_envs(self) -> int:
+        """Parallel envs (a learner across tasks: per task)."""
         return self.ppo.get("n_envs", 1)
+
+    @property
+    def task_names(self) -> list[str]:
+        """The tasks this config trains on: its ``tasks``, else its one ``task``."""
+        return list(self.env_kwargs["tasks"]) if "tasks" in self.env_kwargs else \
+            [self.env_kwargs.get("task", DEFAULT_TASK)]
 
     def algo_kwargs(self) -> dict[str, Any]:
         """Keyword arguments for MemRetPPO (everything but the run length and env count)."""
@@ -150,6 +180,26 @@ def load_task_config(task: str = DEFAULT_TASK, path: Path | None = None) -> Trai
                                   "a section of zoo_configs/ copied and renamed") from None
 
 
+def resolve_task_settings(config: TrainConfig) -> TrainConfig:
+    """``config`` with a ``tasks`` list made a mapping: each task's env settings of its own, taken from the task's
+    own zoo section (its keys that the shared section leaves unset, ``MULTI_TASK_SHARED`` excepted), so a run folder
+    records what each task played with. A mapping, or a single task, comes back as it is; a task with no section of
+    its own plays with the shared settings alone."""
+    tasks = config.env_kwargs.get("tasks")
+    if not isinstance(tasks, list):
+        return config
+    settings = {}
+    for name in tasks:
+        try:
+            own = load_task_config(name).env_kwargs
+        except MissingSectionError:
+            own = {}
+        settings[name] = {key: value for key, value in own.items()
+                          if key not in config.env_kwargs and key not in MULTI_TASK_SHARED + ("task",)}
+    return TrainConfig(config.env_id, dict(config.ppo), dict(config.policy_kwargs),
+                       {**config.env_kwargs, "tasks": settings})
+
+
 def parse_section(section: Any, env_id: str, where: str = "config") -> TrainConfig:
     if not isinstance(section, dict):
         raise ValueError(f"{where}: section {env_id!r} must be a mapping, got {type(section).__name__}")
@@ -159,6 +209,8 @@ def parse_section(section: Any, env_id: str, where: str = "config") -> TrainConf
     ppo = _validate(section, PPO_KEYS, f"{where}: {env_id}")
     if "n_timesteps" not in ppo:
         raise ValueError(f"{where}: {env_id} must set n_timesteps")
+    if "task" in env_kwargs and "tasks" in env_kwargs:
+        raise ValueError(f"{where}: {env_id}.env_kwargs sets both task and tasks; one task or a list of them")
     slots = env_kwargs.get("capacity", 6) + env_kwargs.get("long_term_capacity", 0)
     if "k" in env_kwargs and env_kwargs["k"] > slots:
         raise ValueError(f"{where}: {env_id}.env_kwargs: k={env_kwargs['k']} exceeds capacity={slots}")

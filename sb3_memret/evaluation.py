@@ -84,11 +84,13 @@ def evaluate_retrieval(
     samples: int = 32,
     on_episode: Callable[[dict[str, Any]], None] | None = None,
     task_seeds: Sequence[int] | None = None,
+    held_out: str = "evaluation",
 ) -> RetrievalReport:
     """Run ``n_episodes`` (split over the envs of ``venv`` as SB3's ``evaluate_policy`` does) and
     score retrieval and success. ``seed`` reseeds the envs first so the episodes are reproducible.
-    The task envs start at ``task_seeds`` (default: the task's protocol seeds, e.g. MIKASA's
-    4242424242 + i, where it has them), each seed played once, in contiguous blocks per env.
+    The task envs start at ``task_seeds``, each seed played once, in contiguous blocks per env; by default at
+    each env's task's ``held_out`` seeds where it has them (``RecallVecEnv.held_out_seed_blocks``): "evaluation",
+    its protocol's (MIKASA's 4242424242 + i), or "development" (what training chooses checkpoints on).
     The model's retention critic is pushed to the envs first, so it evicts as it did in training.
     Its random draws (the sampled-fraction estimate, stochastic actions) come from a generator of its own,
     seeded by ``seed``: an evaluation leaves torch's global random state, and so training, as it found it."""
@@ -106,13 +108,16 @@ def evaluate_retrieval(
     hits = sampled = entropy = decisions = 0.0
     rewards_total, steps_total = 0.0, 0
     episodes: list[dict[str, Any]] = []
-    if task_seeds is None and hasattr(venv, "task"):
-        task_seeds = venv.task.evaluation_seeds(n_episodes)
+    blocks = None
     if task_seeds is not None:
         if len(task_seeds) < n_episodes:
             raise ValueError(f"{n_episodes} episodes need as many task seeds, got {len(task_seeds)}")
         starts = np.concatenate([[0], np.cumsum(targets)])
-        venv.env_method("set_task_seeds", [list(task_seeds[starts[i]:starts[i + 1]]) for i in range(n)])
+        blocks = [list(task_seeds[starts[i]:starts[i + 1]]) for i in range(n)]
+    elif hasattr(venv, "held_out_seed_blocks"):
+        blocks = venv.held_out_seed_blocks(targets, held_out)
+    if blocks is not None:
+        venv.env_method("set_task_seeds", blocks)
     if seed is not None:
         venv.seed(seed)
     obs = venv.reset()
@@ -154,7 +159,7 @@ def evaluate_retrieval(
                     returns[i], evicted[i], lengths[i] = 0.0, False, 0
     finally:
         policy.set_training_mode(was_training)
-        if task_seeds is not None:
+        if blocks is not None:
             venv.env_method("set_task_seeds", [[] for _ in range(n)])
     return _report(episodes, decisions, hits, sampled, entropy, rewards_total / max(steps_total, 1), deterministic)
 

@@ -31,7 +31,7 @@ from sb3_memret.callbacks.checkpoint import checkpoints as list_checkpoints
 from sb3_memret.config import TrainConfig, parse_section
 from sb3_memret.controllers import FrozenController
 from sb3_memret.controller_specs import make_controller
-from sb3_memret.envs.vec_env import make_recall_vec_env
+from sb3_memret.envs.multi_task import make_decision_vec_env
 from sb3_memret.seeds import HELD_OUT_SEED
 from sb3_memret.tasks import DEFAULT_TASK, make_task
 from sb3_memret.evaluation import RetrievalReport
@@ -118,7 +118,8 @@ def eval_env_kwargs(model: MemRetPPO, model_path: Path, mode: str, controller: s
             kwargs = dict(load_run_config(folder).env_kwargs)
             break
     nvec = model.action_space.nvec
-    render_backend = render_backend or make_task(kwargs.get("task", DEFAULT_TASK)).default_render_backend
+    first_task = next(iter(kwargs["tasks"])) if "tasks" in kwargs else kwargs.get("task", DEFAULT_TASK)
+    render_backend = render_backend or make_task(first_task).default_render_backend
     kwargs.update(mode=mode, controller=controller, gamma=model.gamma, k=len(nvec), render_backend=render_backend,
                   capacity=int(nvec[0]) - kwargs.get("long_term_capacity", 0),
                   observe_potential="potential" in model.observation_space.spaces, age_unit=model.policy.age_unit)
@@ -165,14 +166,16 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
         save_run_config(config, out / CONFIG_FILE)
 
     env_kwargs = env_kwargs_for(config, options.controller, options.render_backend)
-    controller = controller or make_controller(options.controller, config.env_kwargs.get("task", DEFAULT_TASK))
-    env_kwargs["controller"] = controller
+    if controller is None and "tasks" not in config.env_kwargs:  # across tasks, each task makes its own by name
+        controller = make_controller(options.controller, config.env_kwargs.get("task", DEFAULT_TASK))
+    env_kwargs["controller"] = controller or options.controller
     done_steps = list_checkpoints(checkpoints)[-1][0] if options.resume else 0
     placement = {"backend": options.backend, "ray_address": options.ray_address}
-    venv = make_recall_vec_env(config.n_envs, env_kwargs, seed=options.seed + done_steps, **placement)  # fresh on resume
+    venv = make_decision_vec_env(config.n_envs, env_kwargs, seed=options.seed + done_steps, **placement)  # fresh on resume
     try:
         # the held-out envs share the controller's weights; a shallow copy keeps their episodes' state apart
-        eval_env = make_recall_vec_env(config.n_envs, {**env_kwargs, "controller": copy.copy(controller)}, **placement)
+        eval_env = make_decision_vec_env(config.n_envs, {**env_kwargs, "controller": copy.copy(env_kwargs["controller"])},
+                                         **placement)
     except BaseException:
         venv.close()
         raise

@@ -45,15 +45,22 @@ def check_conditions(conditions: Sequence[str]) -> list[str]:
 
 
 class MemoryLearner:
-    """A trained memory learner (``sb3-memret train recall``'s model) and the bank settings of its run."""
+    """A trained memory learner (``sb3-memret train recall``'s model) and the bank settings of its run (for a
+    learner across tasks, those ``task`` played with)."""
 
-    def __init__(self, path: Path, controller: str):
+    def __init__(self, path: Path, controller: str, task: str | None = None):
+        from sb3_memret.envs.multi_task import task_env_kwargs
         from sb3_memret.policy.ppo import load_model
         from sb3_memret.training import eval_env_kwargs
 
         self.path = Path(path)
         self.model = load_model(self.path)
         self.settings = eval_env_kwargs(self.model, self.path, "recall", controller, "cpu")
+        if "tasks" in self.settings:  # a learner across tasks: the settings ``task`` played with
+            per_task = task_env_kwargs(self.settings)
+            if task not in per_task:
+                raise ValueError(f"{self.path}: a learner across tasks {list(per_task)}, not trained on {task!r}")
+            self.settings = per_task[task]
         if self.settings.get("observe_potential"):
             raise ValueError(f"{self.path}: a learner whose critic observes the shaping potential reads simulator "
                              "state at run time; the benchmark's agent may read cameras and proprioception only")

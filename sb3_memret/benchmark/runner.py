@@ -153,15 +153,43 @@ def _reason(err: BaseException, env_id: str) -> str:
     return text.removeprefix("task ").split(" is not available: ")[-1]
 
 
+def split_tasks(split: str) -> tuple[list[str], dict[str, str]]:
+    """The tasks of MIKASA-Robo-VLA's ``split`` that run here, in the manifest's order, and why each of the others
+    does not (a missing asset, no sb3-memret task)."""
+    from sb3_memret.tasks import check_task_name
+
+    runnable, refused = [], {}
+    for row in select_tasks(split):
+        try:
+            runnable.append(check_task_name(row.env_id))
+        except ValueError as err:
+            refused[row.env_id] = _reason(err, row.env_id)
+    return runnable, refused
+
+
 def learner_path(learners: Path | None, env_id: str) -> Path | None:
     """Where the memory learner of ``env_id`` lies in a learners folder: ``DIR/<env id>/final_model.zip``; for a
     -Long variant without one of its own, its short task's (``DIR/RememberColor3-VLA-v0/``): the bank holds the same
-    facts, only the delay before they are needed grows, which is what its row measures."""
+    facts, only the delay before they are needed grows, which is what its row measures. ``learners`` may also be
+    one model file, a learner across tasks (``train recall --tasks``), which serves every task."""
     if learners is None:
         return None
+    if Path(learners).is_file():
+        return Path(learners)
     own = Path(learners) / env_id / LEARNER_FILE
     short = Path(learners) / env_id.replace("-Long-VLA-v0", "-VLA-v0") / LEARNER_FILE
     return short if env_id.endswith("-Long-VLA-v0") and not own.is_file() and short.is_file() else own
+
+
+def learner_tasks(path: Path) -> list[str] | None:
+    """The tasks of a learner across tasks (its run folder's config), or None for a one-task learner."""
+    from sb3_memret.training import CONFIG_FILE, load_run_config
+
+    for folder in (path.parent, path.parent.parent):
+        if (folder / CONFIG_FILE).is_file():
+            tasks = load_run_config(folder).env_kwargs.get("tasks")
+            return list(tasks) if tasks is not None else None
+    return None
 
 
 def learners_landed(run: Plan) -> list[str]:
@@ -209,10 +237,13 @@ def plan(protocol: Protocol, conditions: Iterable[str], split: str | None = None
         result.task_digests[row.env_id] = task_digest(task)
         result.replan_every[row.env_id] = protocol.replan_every or task.replan_every
         path = learner_path(learners, row.env_id)
+        trained_on = learner_tasks(path) if path is not None and path.is_file() else None
         if "recall" in result.conditions and (path is None or not path.is_file()):
             result.refused_conditions[row.env_id, "recall"] = (
                 f"no trained memory learner: expected {path}" if path is not None else
                 "no learners folder given (--learners DIR, with DIR/<env id>/final_model.zip)")
+        elif "recall" in result.conditions and trained_on is not None and row.env_id not in trained_on:
+            result.refused_conditions[row.env_id, "recall"] = f"the learner across tasks {path} was not trained on it"
         elif "recall" in result.conditions:
             result.learner_digests[row.env_id] = hashlib.sha256(path.read_bytes()).hexdigest()
     return result
@@ -246,7 +277,7 @@ class _Worker:
         if condition not in self.agents:
             task = make_task(env_id)
             self.encoder = self.encoder or MiniLMEncoder()
-            learner = MemoryLearner(learner_path(self.learners, env_id), self.protocol.controller) \
+            learner = MemoryLearner(learner_path(self.learners, env_id), self.protocol.controller, env_id) \
                 if condition == "recall" else None
             agent = MemoryAgent(task, make_controller(self.protocol.controller, task), condition,
                                 self.protocol.replan_every or task.replan_every, learner, self.encoder)

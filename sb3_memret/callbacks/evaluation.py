@@ -83,10 +83,8 @@ class RetrievalEvalCallback(BaseCallback):
         for listener in self.listeners:
             listener.evaluation_started(self.round, self.n_eval_episodes)
         try:
-            task = getattr(self.eval_env, "task", None)  # training chooses on development seeds, never the protocol's
-            seeds = task.development_seeds(self.n_eval_episodes) if task is not None else None
-            report = evaluate_retrieval(
-                self.model, self.eval_env, self.n_eval_episodes, seed=self.eval_seed, task_seeds=seeds,
+            report = evaluate_retrieval(  # training chooses on development seeds, never the protocol's
+                self.model, self.eval_env, self.n_eval_episodes, seed=self.eval_seed, held_out="development",
                 on_episode=lambda _: [listener.evaluation_episode() for listener in self.listeners])
         except BaseException:
             for listener in self.listeners:

@@ -43,8 +43,9 @@ def benchmark() -> None:
 @click.option("--seeds", "seed_set", type=click.Choice(sorted(SEED_SETS)), default="protocol", show_default=True,
               help="protocol: the benchmark's test seeds 4242424242 + i (the final figure only); dev: 5000 + i, "
                    "for choosing checkpoints and variants.")
-@click.option("--learners", type=click.Path(file_okay=False, path_type=Path), default=None,
-              help="For recall: a folder with a trained memory learner per task, DIR/<env id>/final_model.zip.")
+@click.option("--learners", type=click.Path(path_type=Path), default=None,
+              help="For recall: a folder with a trained memory learner per task, DIR/<env id>/final_model.zip, or "
+                   "one learner across tasks' model file (train recall --tasks), for every task it was trained on.")
 @click.option("--replan-every", type=click.IntRange(min=1), default=None,
               help="Control steps between controller calls  [default: each task's]")
 @click.option("--workers", type=click.IntRange(min=1), default=min(2, os.cpu_count() or 1), show_default=True,

@@ -13,11 +13,18 @@ from sb3_memret.cli.options import (DEFAULT_TASK, TASK_CONTROLLER, build_control
 from sb3_memret.seeds import HELD_OUT_SEED
 
 EXPERIMENTS = ("recall",)
+EXPERIMENT_ACROSS = "recall-across"  # a learner across tasks' default run folder: runs/recall-across-<tasks>-seed<seed>
+MULTITASK_CONFIG, MULTITASK_SECTION = "memret_ppo_multitask.yml", "multitask"
 
 
 @click.command()
 @click.argument("experiment", type=click.Choice(list(EXPERIMENTS)), metavar="EXPERIMENT")
 @task_option(default=None)
+@click.option("--tasks", default=None, metavar="LIST",
+              help="One learner across tasks instead of --task: a comma list of tasks, or mikasa:SPLIT (every "
+                   "task of MIKASA-Robo-VLA's short / medium / long split that runs here). Its hyperparameters "
+                   "are the config's 'multitask' section (zoo_configs/memret_ppo_multitask.yml); each task keeps "
+                   "the env settings of its own section; --n-envs counts envs per task.")
 @click.option("--config", "config_path", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="rl-zoo-style YAML keyed by task (its section named by the task's config_key, its name; a task "
                    "of your own passes its own YAML)  [default: the task's file in zoo_configs/ of the source tree: "
@@ -46,17 +53,35 @@ EXPERIMENTS = ("recall",)
 @render_backend_option
 @physics_options
 @click.pass_context
-def train(ctx: click.Context, experiment: str, task: str | None, config_path: Path | None, controller: str,
-          n_envs: int | None, timesteps: int | None, seed: int, out: Path | None, resume: bool,
+def train(ctx: click.Context, experiment: str, task: str | None, tasks: str | None, config_path: Path | None,
+          controller: str, n_envs: int | None, timesteps: int | None, seed: int, out: Path | None, resume: bool,
           retriever_from: Path | None, eval_episodes: int, eval_every: int, progress: bool, render_backend: str,
           backend: str, ray_address: str | None) -> None:
     """Train the retriever and retention networks with PPO on EXPERIMENT (recall: what the task's controller
     must know, the drawer's layer or a cue's colour, reaches it only through a retrieved memory)."""
     from sb3_memret.config import load_task_config
     from sb3_memret.tasks import make_task
-    from sb3_memret.training import RunOptions, format_history, load_run_config, start_retriever, train as run_training
+    from sb3_memret.training import RunOptions, load_run_config, start_retriever, train as run_training
     from sb3_memret.workers import exit_status
 
+    if tasks is not None and task is not None:
+        raise click.BadParameter("name one task (--task) or several (--tasks), not both", param_hint="--tasks")
+    if tasks is not None or (resume and out is not None and (out / "config.yml").exists()
+                             and "tasks" in load_run_config(out).env_kwargs):
+        config, options = across_tasks_run(tasks, config_path, controller, n_envs, timesteps, seed, out, resume,
+                                           RunOptions(out=out or Path("."), seed=seed, resume=resume,
+                                                      retriever_from=retriever_from, eval_episodes=eval_episodes,
+                                                      eval_every=eval_every, eval_seed=HELD_OUT_SEED,
+                                                      progress_bar=progress, backend=backend,
+                                                      ray_address=ray_address,
+                                                      log_formats=_log_formats(progress)),
+                                           render_backend, ctx)
+        try:
+            result = run_training(config, options)
+        except (FileExistsError, FileNotFoundError) as err:
+            raise click.UsageError(str(err)) from err
+        _report_run(experiment, result, exit_status)
+        return
     name = task or DEFAULT_TASK
     out = out or Path("runs") / (f"{experiment}-seed{seed}" if name == DEFAULT_TASK else f"{experiment}-{name}-seed{seed}")
     if resume and (out / "config.yml").exists():
@@ -90,8 +115,7 @@ def train(ctx: click.Context, experiment: str, task: str | None, config_path: Pa
     options = RunOptions(out=out, controller=controller, seed=seed, resume=resume, retriever_from=retriever_from,
                          eval_episodes=eval_episodes, eval_every=eval_every, eval_seed=HELD_OUT_SEED, progress_bar=progress,
                          render_backend=render_backend, backend=backend, ray_address=ray_address,
-                         # the bar and the closing table say enough; without the bar, SB3's per-round dumps
-                         log_formats=("csv", "tensorboard") if progress else ("stdout", "csv", "tensorboard"))
+                         log_formats=_log_formats(progress))
     if retriever_from is not None:
         try:
             start_retriever(config, options)
@@ -101,6 +125,89 @@ def train(ctx: click.Context, experiment: str, task: str | None, config_path: Pa
         result = run_training(config, options, built)
     except (FileExistsError, FileNotFoundError) as err:
         raise click.UsageError(str(err)) from err
+    _report_run(experiment, result, exit_status)
+
+
+def _log_formats(progress: bool) -> tuple[str, ...]:
+    """The bar and the closing table say enough; without the bar, SB3's per-round dumps too."""
+    return ("csv", "tensorboard") if progress else ("stdout", "csv", "tensorboard")
+
+
+def across_tasks_run(tasks: str | None, config_path: Path | None, controller: str | None, n_envs: int | None,
+                     timesteps: int | None, seed: int, out: Path | None, resume: bool, options,
+                     render_backend: str | None, ctx: click.Context):
+    """The config and run options of one learner across ``tasks`` (``--tasks``; a resumed run keeps its own):
+    the config's ``multitask`` section, each task's env settings of its own, a controller made per task."""
+    import dataclasses
+
+    from sb3_memret.config import ZOO_CONFIGS, load_config, resolve_task_settings
+    from sb3_memret.tasks import make_task
+    from sb3_memret.training import load_run_config
+
+    names = parse_tasks(tasks) if tasks is not None else None
+    label = tasks.replace(":", "-") if tasks and tasks.startswith("mikasa:") else f"{len(names or [])}-tasks"
+    out = out or Path("runs") / f"{EXPERIMENT_ACROSS}-{label}-seed{seed}"
+    saved = load_run_config(out) if resume and (out / "config.yml").exists() else None
+    if saved is not None and names is not None and list(saved.env_kwargs["tasks"]) != names:
+        raise click.BadParameter(f"the run in {str(out)!r} is across tasks {list(saved.env_kwargs['tasks'])}, not "
+                                 f"{names}", param_hint="--tasks")
+    config = None
+    if not resume or config_path or timesteps:
+        try:
+            config = saved if saved is not None and config_path is None else \
+                load_config(config_path or ZOO_CONFIGS / MULTITASK_CONFIG, MULTITASK_SECTION)
+        except (FileNotFoundError, ValueError) as err:
+            raise click.BadParameter(str(err), param_hint="--config") from err
+        if names is not None:
+            config.env_kwargs.pop("task", None)
+            config.env_kwargs["tasks"] = names
+        if "tasks" not in config.env_kwargs:
+            raise click.BadParameter(f"section {MULTITASK_SECTION!r} lists no tasks: pass --tasks", param_hint="--tasks")
+        config = resolve_task_settings(config)
+        if n_envs is not None:
+            config.ppo["n_envs"] = n_envs
+        if timesteps is not None:
+            config.ppo["n_timesteps"] = timesteps
+    names = list((config or saved).env_kwargs["tasks"])
+    controller = controller or (run_controller(out, names[0]) if resume else "scripted")
+    if render_backend is None:  # cameras for any task whose writer reads them
+        backends = {make_task(name).default_render_backend for name in names}
+        render_backend = resolve_render_backend(ctx, None, next(iter(backends - {"none"}), "none"))
+    return config, dataclasses.replace(options, out=out, controller=controller, render_backend=render_backend)
+
+
+def parse_tasks(value: str) -> list[str]:
+    """``--tasks``: a comma list of tasks (each as ``--task`` takes it), or ``mikasa:SPLIT``, the tasks of that
+    split of MIKASA-Robo-VLA that run here (those that cannot are named, with why, on stderr)."""
+    from sb3_memret.tasks import check_task_name
+
+    if value.startswith("mikasa:"):
+        from sb3_memret.benchmark.runner import split_tasks
+
+        try:
+            names, refused = split_tasks(value.removeprefix("mikasa:"))
+        except ValueError as err:
+            raise click.BadParameter(str(err), param_hint="--tasks") from None
+        for name, why in refused.items():
+            click.echo(f"left out {name}: {why}", err=True)
+        return names
+    names = [name.strip() for name in value.split(",") if name.strip()]
+    if len(names) < 2 or len(set(names)) != len(names):
+        raise click.BadParameter(f"{value!r}: a learner across tasks needs two or more distinct tasks, comma "
+                                 "separated (one task: --task)", param_hint="--tasks")
+    for name in names:
+        try:
+            check_task_name(name)
+        except ValueError as err:
+            raise click.BadParameter(str(err), param_hint="--tasks") from None
+    return names
+
+
+def _report_run(experiment: str, result, exit_status) -> None:
+    """The run's evaluation table and where its files are; an interrupted run says how to resume, and exits
+    with the status of what stopped it."""
+    from sb3_memret.training import format_history
+
     click.echo(format_history(result.history))
     click.echo(f"\n{result.num_timesteps} decisions, {result.rounds} rounds in {result.wall_seconds / 60:.1f} min; "
                f"run folder {result.out}")

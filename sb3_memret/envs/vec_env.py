@@ -48,6 +48,8 @@ from sb3_memret.tasks import DEFAULT_TASK, Task, make_task
 from sb3_memret.tasks.base import EnvFrame
 from sb3_memret.workers import torch_threads
 
+HELD_OUT_KINDS = ("evaluation", "development")  # a task's seeds for the final figure, and for choosing
+
 
 class RecallVecEnv(VecEnv):
     """Retrieval decisions over a bounded language memory for a frozen controller on any ``task``,
@@ -189,6 +191,20 @@ class RecallVecEnv(VecEnv):
             if bad:
                 raise ValueError(f"task seeds must be integers in [0, 2**32), got {bad!r}")
         self.task_seed_queues = [[int(s) for s in seeds] for seeds in per_env]
+
+    def held_out_seed_blocks(self, counts: Sequence[int], kind: str) -> list[list[int]] | None:
+        """Per env, the task seeds of its ``counts[i]`` held-out episodes: contiguous blocks of the task's ``kind``
+        seeds ("evaluation": its benchmark protocol's; "development": those to choose checkpoints on), or None
+        where the task has none (the evaluation seed then decides)."""
+        if kind not in HELD_OUT_KINDS:
+            raise ValueError(f"unknown held-out seed kind {kind!r}; expected one of {list(HELD_OUT_KINDS)}")
+        if len(counts) != self.num_envs:
+            raise ValueError(f"counts must give each of the {self.num_envs} envs its episodes, got {len(counts)}")
+        seeds = getattr(self.task, f"{kind}_seeds")(int(sum(counts)))
+        if seeds is None:
+            return None
+        starts = np.concatenate([[0], np.cumsum(counts)]).astype(int)
+        return [list(seeds[starts[i]:starts[i + 1]]) for i in range(self.num_envs)]
 
     def reset_envs(self, env_ids: Sequence[int], seeds: Sequence[int | None] | None = None,
                    options: Sequence[dict[str, Any]] | None = None) -> dict[int, dict[str, Any]]:
@@ -378,4 +394,4 @@ def make_recall_vec_env(n_envs: int = 1, env_kwargs: dict[str, Any] | None = Non
     return VecMonitor(venv)
 
 
-__all__ = ["RecallVecEnv", "make_recall_vec_env", "recall_vec_env"]
+__all__ = ["HELD_OUT_KINDS", "RecallVecEnv", "make_recall_vec_env", "recall_vec_env"]
