@@ -12,8 +12,10 @@ slot picks are uniformly random). It reports the median window, the range, and t
 - the controller's time per call and its share of the trainer's wall time;
 - with ``--ray``, the same VecEnv on N local Ray actors.
 
-Usage: ``python scripts/bench_vec_env.py [--controller learned-state] [--n-envs 1 2 4] [--rounds 40] [--ray]
-[--render-backend cpu|gpu]`` (a camera controller needs a render backend).
+Usage: ``python scripts/bench_vec_env.py [--task drawer] [--controller learned-state] [--n-envs 1 2 4]
+[--rounds 40] [--ray] [--render-backend cpu|gpu]`` (a camera controller needs a render backend; the
+SubprocVecEnv baseline, DrawerRecall-v0, runs on the drawer only). ``--task RememberColor3-VLA-v0 --controller
+learned --render-backend cpu`` measures camera ``train recall`` on a MIKASA task.
 It also times the controller alone at batch 1 and batch N on recorded observations.
 """
 
@@ -34,8 +36,9 @@ from sb3_memret.controller_specs import make_controller
 from sb3_memret.envs import RECALL_ENV_ID
 from sb3_memret.obs_trees import stack_obs, to_numpy
 from sb3_memret.envs.vec_env import recall_vec_env
-from sb3_memret.tasks.drawer.prompts import condition_prompt
-from sb3_memret.rollout import make_task_env, task_env_kwargs
+from sb3_memret.prompts import build_prompt
+from sb3_memret.rollout import task_env_kwargs
+from sb3_memret.tasks import DEFAULT_TASK, make_task
 from sb3_memret.tasks.base import RENDER_BACKENDS
 from sb3_memret.workers import init_worker_process
 
@@ -112,9 +115,9 @@ class TimedController:
         self.seconds, self.calls = 0.0, 0
 
 
-def one_controller(controller: str, n: int, backend: str, render_backend: str) -> Config:
-    timed = TimedController(make_controller(controller))
-    venv = recall_vec_env(n, controller=timed.controller, backend=backend, render_backend=render_backend)
+def one_controller(controller: str, n: int, backend: str, render_backend: str, task: str = DEFAULT_TASK) -> Config:
+    timed = TimedController(make_controller(controller, task))
+    venv = recall_vec_env(n, task=task, controller=timed.controller, backend=backend, render_backend=render_backend)
     physics = venv.physics
     pids = physics.pids() if backend == "ray" else [p.pid for p in physics.processes]
     return Config(venv, pids, timed)
@@ -125,15 +128,19 @@ def per_worker_controllers(controller: str, n: int, render_backend: str) -> Conf
     return Config(venv, [p.pid for p in venv.processes])
 
 
-def controller_alone(controller: str, batch: int, render_backend: str, calls: int = 30) -> float:
-    """Milliseconds per ``act`` call at ``batch`` envs, on observations of real episodes."""
-    ctrl = make_controller(controller)
-    env = make_task_env(**task_env_kwargs(ctrl, render_backend))
-    obs, _ = env.reset(seed=SEED)
-    frame = to_numpy(obs)
+def controller_alone(controller: str, batch: int, render_backend: str, task_name: str = DEFAULT_TASK,
+                     calls: int = 30) -> float:
+    """Milliseconds per ``act`` call at ``batch`` envs, on the observation of a real episode's start with its
+    oracle prompt."""
+    task = make_task(task_name)
+    ctrl = make_controller(controller, task)
+    env = task.make_env(**task_env_kwargs(ctrl, render_backend, task))
+    obs, info = env.reset(seed=SEED)
+    frame, = task.frames(env, obs, info, reset=True)
     env.close()
-    batched = stack_obs([frame] * batch)
-    prompts = [condition_prompt("oracle", 1 + i % 3) for i in range(batch)]
+    batched = stack_obs([to_numpy(frame.obs)] * batch)
+    episode = task.episode(frame)
+    prompts = [build_prompt(task.instruction(episode), task.oracle_facts(episode), ctrl.spec.prompt_template)] * batch
     ctrl.reset(list(range(batch)))
     ctrl.act(batched, prompts)
     start = time.perf_counter()
@@ -144,6 +151,7 @@ def controller_alone(controller: str, batch: int, render_backend: str, calls: in
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    parser.add_argument("--task", default=DEFAULT_TASK)
     parser.add_argument("--controller", default="learned-state")
     parser.add_argument("--n-envs", type=int, nargs="+", default=[1, 2, 4])
     parser.add_argument("--rounds", type=int, default=25, help="decision rounds per measured window")
@@ -154,14 +162,16 @@ def main() -> None:
     parser.add_argument("--render-backend", choices=RENDER_BACKENDS, default="none",
                         help="SAPIEN render backend: cpu or gpu for a controller that reads cameras")
     args = parser.parse_args()
-    print(f"{os.cpu_count()} CPU cores, controller {args.controller}, render backend {args.render_backend}, "
+    baseline = not args.skip_baseline and args.task == DEFAULT_TASK  # DrawerRecall-v0 is the drawer's
+    print(f"{os.cpu_count()} CPU cores, task {args.task}, controller {args.controller}, render backend "
+          f"{args.render_backend}, "
           f"{args.rounds} rounds after {args.warmup}\n")
 
     print("| envs | batch-1 act ms | batch-N act ms |")
     print("|---|---|---|")
-    one = controller_alone(args.controller, 1, args.render_backend)
+    one = controller_alone(args.controller, 1, args.render_backend, args.task)
     for n in args.n_envs:
-        print(f"| {n} | {one:.2f} | {controller_alone(args.controller, n, args.render_backend):.2f} |")
+        print(f"| {n} | {one:.2f} | {controller_alone(args.controller, n, args.render_backend, args.task):.2f} |")
 
     if args.ray:
         import logging
@@ -172,11 +182,11 @@ def main() -> None:
     configs: dict[tuple[str, int], Config] = {}
     try:
         for n in args.n_envs:
-            configs[("process", n)] = one_controller(args.controller, n, "process", args.render_backend)
-            if not args.skip_baseline:
+            configs[("process", n)] = one_controller(args.controller, n, "process", args.render_backend, args.task)
+            if baseline:
                 configs[("subproc", n)] = per_worker_controllers(args.controller, n, args.render_backend)
             if args.ray and n > 1:
-                configs[("ray", n)] = one_controller(args.controller, n, "ray", args.render_backend)
+                configs[("ray", n)] = one_controller(args.controller, n, "ray", args.render_backend, args.task)
         for config in configs.values():
             config.start(args.warmup)
         for _ in range(args.windows):  # interleaved, so slow drifts of a shared machine hit every path alike
