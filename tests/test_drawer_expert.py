@@ -124,3 +124,30 @@ def test_action_convention_matches_the_simulator(task_env):
     assert yaw[2] == pytest.approx(10 * turn, rel=0.25)
     assert np.abs(yaw[:2]).max() < 0.03
     assert after.tcp_pos[0] - before.tcp_pos[0] == pytest.approx(10 * move, rel=0.25)
+
+
+@pytest.mark.parametrize("phase", [Phase.DESCEND])
+def test_a_drawer_pushed_half_shut_under_the_hand_is_opened_again(controller, phase):
+    """A state the expert's own episodes never reach but a learned controller's do (DAgger labels it): the named
+    drawer slides half shut while the hand goes for the cube. The expert goes back to the handle, opens it again
+    and takes the cube out, instead of reaching into the shut drawer."""
+    env = make_task_env(max_episode_steps=800)
+    obs, _ = env.reset(seed=21, options={"target_layer": 3})
+    controller.reset([21])
+    prompt, info, pushed = condition_prompt("oracle", 3), {}, False
+    for _ in range(0, 800, 8):
+        chunk = controller.act(obs, [prompt])[0][:8]
+        if not pushed and controller.phases() == [phase]:
+            cabinet = env.unwrapped.cabinet
+            qpos = cabinet.get_qpos().clone()
+            qpos[0, 2] = 0.08  # layer 3 from fully open (0.27 m) to 8 cm
+            cabinet.set_qpos(qpos)
+            pushed = True
+            obs, *_ = env.step(np.array([0, 0, 0, 0, 0, 0, 1], dtype=np.float32))  # hold still: a fresh look
+            chunk = controller.act(obs, [prompt])[0][:8]  # the expert decides again, as DAgger asks it to
+        for action in chunk:
+            obs, _, terminated, truncated, info = env.step(action)
+        if terminated or truncated:
+            break
+    env.close()
+    assert pushed and info["success"].item()
