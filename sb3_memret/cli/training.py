@@ -68,7 +68,7 @@ def train(ctx: click.Context, experiment: str, task: str | None, tasks: str | No
         raise click.BadParameter("name one task (--task) or several (--tasks), not both", param_hint="--tasks")
     if tasks is not None or (resume and out is not None and (out / "config.yml").exists()
                              and "tasks" in load_run_config(out).env_kwargs):
-        config, options = across_tasks_run(tasks, config_path, controller, n_envs, timesteps, seed, out, resume,
+        config, options = across_tasks_run(tasks, config_path, controller, n_envs, timesteps, out,
                                            RunOptions(out=out or Path("."), seed=seed, resume=resume,
                                                       retriever_from=retriever_from, eval_episodes=eval_episodes,
                                                       eval_every=eval_every, eval_seed=HELD_OUT_SEED,
@@ -134,8 +134,8 @@ def _log_formats(progress: bool) -> tuple[str, ...]:
 
 
 def across_tasks_run(tasks: str | None, config_path: Path | None, controller: str | None, n_envs: int | None,
-                     timesteps: int | None, seed: int, out: Path | None, resume: bool, options,
-                     render_backend: str | None, ctx: click.Context):
+                     timesteps: int | None, out: Path | None, options, render_backend: str | None,
+                     ctx: click.Context):
     """The config and run options of one learner across ``tasks`` (``--tasks``; a resumed run keeps its own):
     the config's ``multitask`` section, each task's env settings of its own, a controller made per task."""
     import dataclasses
@@ -144,6 +144,7 @@ def across_tasks_run(tasks: str | None, config_path: Path | None, controller: st
     from sb3_memret.tasks import make_task
     from sb3_memret.training import load_run_config
 
+    seed, resume = options.seed, options.resume
     names = parse_tasks(tasks) if tasks is not None else None
     label = tasks.replace(":", "-") if tasks and tasks.startswith("mikasa:") else f"{len(names or [])}-tasks"
     out = out or Path("runs") / f"{EXPERIMENT_ACROSS}-{label}-seed{seed}"

@@ -134,7 +134,7 @@ class MultiTaskVecEnv(VecEnv):
         return [self._part_of(i).get_attr(attr_name)[0] for i in self._get_indices(indices)]
 
     def set_attr(self, attr_name: str, value: Any, indices: VecEnvIndices = None) -> None:
-        for part in {id(self._part_of(i)): self._part_of(i) for i in self._get_indices(indices)}.values():
+        for part in {self._part_of(i) for i in self._get_indices(indices)}:
             part.set_attr(attr_name, value)
 
     def env_method(self, method_name: str, *method_args, indices: VecEnvIndices = None, **method_kwargs) -> list[Any]:
