@@ -146,9 +146,9 @@ def test_tasks_whose_spaces_differ_cannot_share_a_learner(encoder):
 def test_one_learner_reads_the_instruction_to_serve_both_tasks(venv):
     """PPO learns, from each task's own reward, to retrieve the light's fact in one task and the lamp's in the
     other; before training, greedy retrieval cannot be right in both."""
-    model = MemRetPPO(env=venv, n_steps=64, batch_size=32, gae_lambda=0.7, learning_rate=3e-3, seed=0)
+    model = MemRetPPO(env=venv, n_steps=64, batch_size=32, gae_lambda=0.7, learning_rate=1e-3, seed=0)
     before = evaluate_retrieval(model, venv, 20, seed=1000)
-    model.learn(2048)
+    model.learn(3072)  # at learning rate 3e-3 and 2048 steps, 2 of 6 seeds stalled below 90%; this setting: 8 of 8
     after = evaluate_retrieval(model, venv, 20, seed=1000)
     assert after.greedy_accuracy >= 0.9 > before.greedy_accuracy
     assert after.episodes_per_group == {LightTask.name: 10, LampTask.name: 10}
