@@ -8,6 +8,8 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any, Mapping
 
+from sb3_memret.benchmark.published import published_section
+
 REPORT_FILE, FIGURE_FILE = "report.md", "success.png"
 
 
@@ -88,6 +90,9 @@ def render_report(content: Mapping[str, Any]) -> str:
             done = _complete({i: tasks[i] for i in ids}, c)
             cells.append(f"{_mean(list(done.values()))} ({len(done)})" if done else "")
         lines.append(f"| {memory_type} | {len(ids)} | " + " | ".join(cells) + " |")
+    best = "recall" if "recall" in conditions else conditions[-1]  # what a memory method is compared on
+    lines += published_section({env_id: _cell(t["conditions"].get(best)) for env_id, t in tasks.items()
+                                if "conditions" in t}, protocol["controller"], best)
     refused = [(env_id, t["refused"]) for env_id, t in tasks.items() if "refused" in t]
     refused += [(f"{env_id} ({c})", cell.get("refused") or cell.get("error"))
                 for env_id, t in tasks.items() for c, cell in t.get("conditions", {}).items()

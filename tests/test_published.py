@@ -1,0 +1,38 @@
+"""The published figures the benchmark report puts beside a run's own."""
+
+from __future__ import annotations
+
+import pytest
+
+from sb3_memret.benchmark.published import PUBLISHED, published_figures, published_section
+
+
+def test_every_published_figure_names_its_task_its_source_and_how_it_was_read():
+    figures = published_figures()
+    assert {f.vla_task for f in figures} == {f"RememberColor{n}-VLA-v0" for n in (3, 5, 9)}
+    for f in figures:
+        assert f.task == f.vla_task.replace("-VLA-v0", "-v0")  # the older tasks, never passed off as the VLA ones
+        assert 0 <= f.success <= 1 and f.episodes > 0 and "arXiv:" in f.source
+        assert f.read_from in ("paper table", "quoted by others")
+    methods = {f.method for f in figures}
+    assert {"Octo-small (K=4)", "π0 (K=4)", "MemoryVLA"} <= methods
+    assert all(sum(f.method == m for f in figures) == 3 for m in methods)  # one figure per task each
+
+
+def test_the_report_section_covers_only_the_tasks_a_run_shares():
+    lines = published_section({"RememberColor5-VLA-v0": "96% (48/50)", "TakeItBack-VLA-v0": "100% (50/50)"},
+                              "learned", "recall")
+    table = [line for line in lines if line.startswith("|")]
+    assert table[0] == "| method | RememberColor5 | read from | source |"
+    assert table[2].startswith("| sb3-memret, learned controller, recall (this run, -VLA-v0) | 96% (48/50) |")
+    assert any(line.startswith("| π0 (K=4) | 22% ± 4 | paper table |") for line in table)
+    assert any("RememberColor5-v0: a 60-step horizon" in line for line in lines)
+    assert published_section({"TakeItBack-VLA-v0": "100%"}, "scripted", "recall") == []
+
+
+def test_a_figure_that_is_not_a_fraction_is_refused(tmp_path):
+    bad = tmp_path / "published.csv"
+    rows = PUBLISHED.read_text().splitlines()
+    bad.write_text("\n".join([rows[0], rows[1].replace(",0.45,", ",45,")]) + "\n")
+    with pytest.raises(ValueError, match="Octo-small .K=4. on RememberColor3-v0 has success 45.0"):
+        published_figures(bad)
