@@ -37,6 +37,17 @@ The writer sees every control step: it reads the cue's colour from the base came
 (``read_cue_colour``) and, at each colour it has not seen this episode, writes the next item's fact.
 The controller sees ``SeqControllerObservation`` only (never ``oracle_info``), so the sequence reaches
 it only through its prompt.
+
+**Progress as memory** (``SeqOfColorsTask(progress=True)``, or ``SeqOfColorsWithProgress`` by name): nothing in
+sight changes when a cube is touched, so a controller that reads only the current frame and its prompt cannot tell
+which cubes it has touched. The writer then also writes what has been done, as TASK_PROGRESS facts: ``the red cube
+was touched.`` and ``the button was pressed.``. It reads where each cube stands from the base camera
+(``layout_perception.read_cube_layout``, each colour's first sighting in a frame that shows two or more cubes, so
+never the cue's: within 0.5 cm of the simulator's), and the TCP and joint speeds from the arm's own sensors: a touch is the arm static (every joint
+slower than 0.18 rad/s) with the TCP within 1.8 cm of the point 2.5 cm above a seen cube's centre (MIKASA: 2 cm,
+0.2 rad/s); a press, the TCP within 3 cm of the button's axis and 2 cm over its cap (MIKASA: 6.5 and 2.5 cm), the
+button standing 4 cm from the seen cubes' mean toward the robot (MIKASA's placement). Its expert is the stateless
+``SequenceTouchController(progress_from="prompt")``, which learns what it has done from those facts alone.
 """
 
 from __future__ import annotations
@@ -54,8 +65,10 @@ from sb3_memret.tasks.base import EnvFrame, Episode, Predicates
 from sb3_memret.tasks.mikasa import demo_layout
 from sb3_memret.tasks.mikasa.cue_task import MikasaCueTask
 from sb3_memret.tasks.mikasa.expert import FACT_TEMPLATE
+from sb3_memret.tasks.mikasa.layout_perception import LAYOUT_PLANE_Z, read_cube_layout
 from sb3_memret.tasks.mikasa.perception import COLOUR_NAMES, ControllerObservation, _stack, read_cue_colour
-from sb3_memret.tasks.mikasa.sequence_expert import ORDINALS, SequenceTouchController
+from sb3_memret.tasks.mikasa.sequence_expert import (BUTTON_TOP_ABOVE_BASE, CUBE_TOUCH_OFFSET, ORDINALS, PRESSED_FACT,
+                                                     TOUCHED_FACT, SequenceGains, SequenceTouchController)
 
 # MIKASA's LANGUAGE_INSTRUCTION in the prompt contract's form (lowercase; it parses as is). Its "in any order"
 # is MIKASA's wording; MIKASA's success checks the order (see the module docstring).
@@ -64,6 +77,14 @@ INSTRUCTION = ("observe which colored cubes appear during the cue, wait, then to
 CUE_ENTITY = "cue cube"  # the k-th item's entity is "{ordinal} cue cube"
 CUE_FACT = "the {ordinal} cue cube was {colour}."
 PROMPT_TEMPLATE = PromptTemplate(instructions=(INSTRUCTION,), fact_templates=(FACT_TEMPLATE,))
+# with progress facts: theirs first, so "the red cube was touched." is not read as FACT_TEMPLATE's colour "touched"
+PROGRESS_PROMPT_TEMPLATE = PromptTemplate(instructions=(INSTRUCTION,),
+                                          fact_templates=(TOUCHED_FACT, PRESSED_FACT, FACT_TEMPLATE))
+TOUCHED, PRESSED = "touched", "pressed"  # the TASK_PROGRESS values, worded by PROGRESS_WORDINGS
+PROGRESS_WORDINGS = {(MemoryType.TASK_PROGRESS, TOUCHED): "the {entity} was touched.",
+                     (MemoryType.TASK_PROGRESS, PRESSED): "the {entity} was pressed."}
+BUTTON_BASE_Z = 0.015  # MIKASA's button base centre height
+BUTTON_TOWARD_ROBOT = 0.04  # MIKASA places the button at the cubes' mean position, this far toward the robot (-x)
 SEQ_TASKS = {"SeqOfColors3-VLA-v0": 3}  # measured (scripts/mikasa_probe.py) for these only
 EPISODE_STEPS = 400
 N_COLOURS = 9  # every SeqOfColors task has all nine cubes
@@ -88,9 +109,11 @@ def sequence_prompt(colours: tuple[str, ...] | list[str] | None) -> str:
     return build_prompt(INSTRUCTION, sequence_facts(colours or []), PROMPT_TEMPLATE)
 
 
-def sequence_expert(chunk_len: int = 8) -> SequenceTouchController:
-    """The scripted expert: touches the prompt's colours in order, presses the button; holds still without one."""
-    return SequenceTouchController(PROMPT_TEMPLATE, chunk_len)
+def sequence_expert(chunk_len: int = 8, progress_from: str = "observation") -> SequenceTouchController:
+    """The scripted expert: touches the prompt's colours in order, presses the button; holds still without one.
+    ``progress_from="prompt"``: stateless, it learns what it has done from its prompt's progress facts."""
+    template = PROGRESS_PROMPT_TEMPLATE if progress_from == "prompt" else PROMPT_TEMPLATE
+    return SequenceTouchController(template, chunk_len, progress_from=progress_from)
 
 
 class SeqControllerObservation(ControllerObservation):
@@ -113,24 +136,63 @@ class SequenceWriter:
     """Writes ``the {k-th} cue cube was {colour}.`` at the control step the base camera first showed the
     k-th colour alone at the centre. MIKASA draws the sequence without replacement, so a colour not yet
     seen this episode is the next item (a frame read as nothing in between changes nothing). One writer
-    serves one env; the reset frame (``steps == 0``) starts its episode."""
+    serves one env; the reset frame (``steps == 0``) starts its episode.
 
-    relations = {"cue": (MemoryType.OTHER, "was")}
+    With ``progress``, it also writes ``the {colour} cube was touched.`` and ``the button was pressed.`` at the end of
+    the chunk whose last frame shows them (the module docstring says how): those frames must carry the camera's cube
+    layout (``state["seen_cubes"]``) and the arm's sensors (``extra/tcp_pose``, ``agent/qvel``)."""
 
-    def __init__(self, n_items: int = 3):
-        self.n_items = n_items
+    def __init__(self, n_items: int = 3, progress: bool = False, gains: SequenceGains | None = None):
+        self.n_items, self.progress, self.gains = n_items, progress, gains or SequenceGains()
+        self.relations = {"cue": (MemoryType.OTHER, "was")}
+        if progress:
+            self.relations.update({TOUCHED: (MemoryType.TASK_PROGRESS, "was"),
+                                   PRESSED: (MemoryType.TASK_PROGRESS, "was")})
         self.seen: list[str] = []
+        self.layout: dict[str, np.ndarray] = {}
+        self.touched: list[str] = []
+        self.pressed = False
 
     def read(self, frame: EnvFrame) -> list[tuple[int, Predicates]]:
         if frame.steps == 0:
-            self.seen = []
+            self.seen, self.layout, self.touched, self.pressed = [], {}, [], False
         out = []
         for step, colour in frame.timed_percepts():
             if colour is None or colour in self.seen or len(self.seen) >= self.n_items:
                 continue
             self.seen.append(colour)
             out.append((step, {("cue", item_entity(len(self.seen) - 1)): colour}))
+        if self.progress:
+            out += [(frame.steps, predicates) for predicates in self._progress(frame)]
         return out
+
+    def _progress(self, frame: EnvFrame) -> list[Predicates]:
+        """What the frame shows was done, not written before: a touch of a seen cube, the press."""
+        if not isinstance(frame.state, Mapping) or "seen_cubes" not in frame.state:
+            raise ValueError("a progress writer reads frames carrying the camera's cube layout (state['seen_cubes'], "
+                             "from SeqOfColorsTask(progress=True).frames); this frame has none")
+        seen = frame.state["seen_cubes"]
+        if len(seen) >= 2:  # the cubes are out (the cue shows one at the table centre, not where it will stand)
+            for colour, point in seen.items():
+                self.layout.setdefault(colour, np.asarray(point, dtype=np.float64))
+        g = self.gains
+        tcp = as_numpy(frame.obs["extra"]["tcp_pose"]).reshape(-1)[:3].astype(np.float64)
+        static = float(np.abs(as_numpy(frame.obs["agent"]["qvel"]).reshape(-1)[:7]).max()) <= g.static_tol
+        if len(self.layout) < 2 or not static:  # the cue or the delay, or the arm moving: nothing done
+            return []
+        done: list[Predicates] = []
+        for colour, (x, y) in self.layout.items():
+            touch_point = np.array([x, y, LAYOUT_PLANE_Z + CUBE_TOUCH_OFFSET])
+            if colour not in self.touched and np.linalg.norm(tcp - touch_point) < g.touch_tol:
+                self.touched.append(colour)
+                done.append({(TOUCHED, f"{colour} cube"): TOUCHED})
+        if self.touched and not self.pressed and len(self.layout) == N_COLOURS:
+            button = np.mean(list(self.layout.values()), axis=0) - (BUTTON_TOWARD_ROBOT, 0.0)
+            top = BUTTON_BASE_Z + BUTTON_TOP_ABOVE_BASE
+            if np.linalg.norm(tcp[:2] - button) < g.press_xy and tcp[2] <= top + g.press_seen:
+                self.pressed = True
+                done.append({(PRESSED, "button"): PRESSED})
+        return done
 
 
 class SeqOfColorsTask(MikasaCueTask):
@@ -146,11 +208,13 @@ class SeqOfColorsTask(MikasaCueTask):
     ends_at_success = True  # MIKASA masks success out of terminated; its success once is over by then
     success_reward = 1.0  # normalized_dense pays 400 / 400 at every step it reads success
 
-    def __init__(self, env_id: str = "SeqOfColors3-VLA-v0"):
+    def __init__(self, env_id: str = "SeqOfColors3-VLA-v0", progress: bool = False):
         if env_id not in SEQ_TASKS:
             raise ValueError(f"unknown or unmeasured SeqOfColors task {env_id!r}; expected one of {sorted(SEQ_TASKS)}")
         super().__init__(env_id, N_COLOURS)
-        self.n_items = SEQ_TASKS[env_id]
+        self.n_items, self.progress = SEQ_TASKS[env_id], progress
+        if progress:
+            self.template, self.wordings = PROGRESS_PROMPT_TEMPLATE, PROGRESS_WORDINGS
 
     @property
     def colours(self) -> tuple[str, ...]:
@@ -167,13 +231,19 @@ class SeqOfColorsTask(MikasaCueTask):
         success = as_numpy(info["success"]).reshape(-1)
         sequences = as_numpy(base.true_color_indices).reshape(len(success), -1)
         durations = as_numpy(base.cue_step_duration_per_env).reshape(-1)
-        return [EnvFrame(select_obs(obs, i), {"colours": tuple(self.colours[int(c)] for c in sequences[i]),
-                                              "cue_step_duration": int(durations[i])}, None, bool(success[i]))
-                for i in range(len(success))]
+        states = [{"colours": tuple(self.colours[int(c)] for c in sequences[i]), "cue_step_duration": int(durations[i])}
+                  for i in range(len(success))]
+        if self.progress:  # what the base camera shows of the cubes, read with its calibration
+            params = base.get_sensor_params()["base_camera"]
+            intrinsic, extrinsic = as_numpy(params["intrinsic_cv"]), as_numpy(params["extrinsic_cv"])
+            rgb = obs["sensor_data"]["base_camera"]["rgb"]
+            for i, state in enumerate(states):
+                state["seen_cubes"] = read_cube_layout(rgb[i], intrinsic[i], extrinsic[i], N_COLOURS)
+        return [EnvFrame(select_obs(obs, i), states[i], None, bool(success[i])) for i in range(len(success))]
 
     # ------------------------------------------------------------ memory
     def writer(self, source: str = "seeded") -> SequenceWriter:
-        return SequenceWriter(self.n_items)
+        return SequenceWriter(self.n_items, self.progress)
 
     def episode(self, frame: EnvFrame) -> Episode:
         colours = tuple(frame.state["colours"])
@@ -196,7 +266,7 @@ class SeqOfColorsTask(MikasaCueTask):
         return sequence_facts(others[: len(cued)])
 
     def expert(self) -> SequenceTouchController:
-        return sequence_expert()
+        return sequence_expert(progress_from="prompt" if self.progress else "observation")
 
     def demo_features(self, with_images: bool) -> dict[str, dict[str, Any]]:
         return demo_layout.with_state_extra(super().demo_features(with_images), "button")
@@ -205,6 +275,14 @@ class SeqOfColorsTask(MikasaCueTask):
         return demo_layout.append_state(super().demo_frame(obs, with_images), obs["extra"]["button_position"])
 
 
-__all__ = ["CUE_FACT", "EPISODE_STEPS", "INSTRUCTION", "PROMPT_TEMPLATE", "SEQ_TASKS", "SeqControllerObservation",
-           "SeqOfColorsTask", "SequenceWriter", "item_entity", "item_key", "sequence_expert", "sequence_facts",
-           "sequence_prompt"]
+class SeqOfColorsWithProgress(SeqOfColorsTask):
+    """SeqOfColors3-VLA-v0 with progress as memory, by name (``sb3_memret.tasks.mikasa.seq_of_colors:
+    SeqOfColorsWithProgress``): the writer also writes what has been done, the expert reads it from its prompt."""
+
+    def __init__(self) -> None:
+        super().__init__("SeqOfColors3-VLA-v0", progress=True)
+
+
+__all__ = ["CUE_FACT", "EPISODE_STEPS", "INSTRUCTION", "PROGRESS_PROMPT_TEMPLATE", "PROGRESS_WORDINGS", "PROMPT_TEMPLATE",
+           "SEQ_TASKS", "SeqControllerObservation", "SeqOfColorsTask", "SeqOfColorsWithProgress", "SequenceWriter",
+           "item_entity", "item_key", "sequence_expert", "sequence_facts", "sequence_prompt"]

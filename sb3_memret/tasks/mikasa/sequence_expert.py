@@ -23,6 +23,12 @@ are touched, descend over the button (MIKASA counts a press when the TCP comes w
 cap's top), then lift 13 cm (MIKASA needs 8.5 cm above where the press began) and hold still
 (MIKASA's success needs the robot static). Motion within a chunk uses ``ScriptedTouchController``'s
 fitted model of the ``pd_ee_delta_pose`` arm.
+
+With ``progress_from="prompt"`` it keeps no state (``stateful = False``): what has been done comes from its prompt's
+progress facts (``the red cube was touched.``, ``the button was pressed.``, written by the task's writer from
+what the camera and the arm's own sensors showed), the way a reactive policy that reads only the current frame and
+its prompt would have to learn it. It then holds at a cube until its prompt says the cube was touched, and over the
+button until it says the button was pressed.
 """
 
 from __future__ import annotations
@@ -37,6 +43,9 @@ from sb3_memret.prompts import ParsedPrompt, PromptTemplate
 from sb3_memret.tasks.mikasa.expert import CONTROL_DT, FACT_TEMPLATE, ScriptedTouchController, TouchGains, tcp_velocity
 from sb3_memret.tasks.mikasa.perception import COLOUR_NAMES
 
+PROGRESS_SOURCES = ("observation", "prompt")  # where the controller learns what it has done
+TOUCHED_FACT = "the {touched} cube was touched."  # progress facts, in the prompt contract before FACT_TEMPLATE
+PRESSED_FACT = "the button was pressed."
 ORDINALS: tuple[str, ...] = ("first", "second", "third", "fourth", "fifth", "sixth", "seventh", "eighth", "ninth")
 
 # MIKASA's SeqOfColorsVLABaseEnv geometry and thresholds (what "touched", "pressed" and "static" mean there)
@@ -107,9 +116,17 @@ class SequenceTouchController(ScriptedTouchController):
     stateful = True
 
     def __init__(self, prompt_template: PromptTemplate, chunk_len: int = 8, gains: TouchGains | None = None,
-                 sequence_gains: SequenceGains | None = None, vocabulary: Sequence[str] = COLOUR_NAMES):
+                 sequence_gains: SequenceGains | None = None, vocabulary: Sequence[str] = COLOUR_NAMES,
+                 progress_from: str = "observation"):
         super().__init__(chunk_len, gains, vocabulary=vocabulary, field="colour", prompt_template=prompt_template,
                          key="cube")
+        if progress_from not in PROGRESS_SOURCES:
+            raise ValueError(f"unknown progress_from {progress_from!r}; expected one of {list(PROGRESS_SOURCES)}")
+        if progress_from == "prompt" and not {TOUCHED_FACT, PRESSED_FACT} <= set(prompt_template.fact_templates):
+            raise ValueError(f"progress_from='prompt' needs the progress facts {[TOUCHED_FACT, PRESSED_FACT]} in the "
+                             f"prompt template; got {prompt_template.describe()}")
+        self.progress_from = progress_from
+        self.stateful = progress_from == "observation"
         self.seq = sequence_gains or SequenceGains()
         self.progress: list[Progress] = []
 
@@ -139,19 +156,21 @@ class SequenceTouchController(ScriptedTouchController):
         for i, plan in enumerate(plans):
             if not plan:
                 continue  # no colour it knows: hold still
-            goal = self._goal(i, plan, tcp[i, :3], cubes[i], visible[i], button[i], qvel[i])
+            progress = self.progress[i] if self.stateful else prompt_progress(parsed[i], self.vocabulary)
+            goal = self._goal(progress, plan, tcp[i, :3], cubes[i], visible[i], button[i], qvel[i])
             if goal is not None:
                 chunks[i] = self._chunk(tcp[i], velocity[i] * CONTROL_DT, goal)
         return chunks
 
-    def _goal(self, i: int, plan: list[str], pos: np.ndarray, cubes: np.ndarray, visible: np.ndarray,
+    def _goal(self, progress: Progress, plan: list[str], pos: np.ndarray, cubes: np.ndarray, visible: np.ndarray,
               button: np.ndarray, qvel: np.ndarray) -> Goal | None:
-        """Record what this observation shows was done, then where to head (None: hold still)."""
-        s, progress = self.seq, self.progress[i]
+        """Record what this observation shows was done (with progress from observation), then where to head (None:
+        hold still)."""
+        s, observed = self.seq, self.stateful
         if visible.sum() < 2:  # the cue or the delay: the cubes are not out yet
             return Goal(np.asarray(self.gains.ready, dtype=np.float64), funnel=False)
         static = bool(np.abs(qvel[:7]).max() <= s.static_tol)
-        for index in np.flatnonzero(visible):
+        for index in np.flatnonzero(visible) if observed else ():
             name = self.vocabulary[index]
             touch_point = cubes[index] + (0.0, 0.0, CUBE_TOUCH_OFFSET)
             if static and name not in progress.touched and np.linalg.norm(pos - touch_point) < s.touch_tol:
@@ -165,7 +184,7 @@ class SequenceTouchController(ScriptedTouchController):
         top = button[2] + BUTTON_TOP_ABOVE_BASE
         if not progress.pressed:
             near = np.linalg.norm(pos[:2] - button[:2]) < s.press_xy
-            if near and pos[2] <= top + s.press_seen:
+            if observed and near and pos[2] <= top + s.press_seen:
                 progress.pressed = True
             else:
                 return Goal(np.array([button[0], button[1], top + s.press_height]))
@@ -191,5 +210,13 @@ class SequenceTouchController(ScriptedTouchController):
         return np.array([point[0], point[1], point[2] + lift])
 
 
-__all__ = ["FACT_TEMPLATE", "Goal", "ORDINALS", "Progress", "SequenceGains", "SequenceTouchController",
-           "ordered_colours"]
+def prompt_progress(parsed: ParsedPrompt, vocabulary: Sequence[str] = COLOUR_NAMES) -> Progress:
+    """What the prompt's progress facts say was done: the touched colours in prompt order, and the press (the lift,
+    not a fact, is read from where the TCP is)."""
+    touched = [word for fact in parsed.facts if fact.template == TOUCHED_FACT
+               for key, word in fact.fields if key == "touched" and word in vocabulary]
+    return Progress(list(dict.fromkeys(touched)), any(fact.template == PRESSED_FACT for fact in parsed.facts))
+
+
+__all__ = ["FACT_TEMPLATE", "Goal", "ORDINALS", "PRESSED_FACT", "PROGRESS_SOURCES", "Progress", "SequenceGains",
+           "SequenceTouchController", "TOUCHED_FACT", "ordered_colours", "prompt_progress"]

@@ -1,0 +1,155 @@
+"""Progress as memory on MIKASA's SeqOfColors3: the cube layout read from the base camera, the writer's touch and
+press facts, and the stateless expert that learns what it has done from them alone."""
+
+import numpy as np
+import pytest
+import torch
+
+from mikasa_support import MIKASA_MISSING
+
+pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
+
+from sb3_memret.controllers.base import as_numpy  # noqa: E402
+from sb3_memret.memory.schema import MemoryType  # noqa: E402
+from sb3_memret.prompts import build_prompt, parse_prompt  # noqa: E402
+from sb3_memret.tasks import EnvFrame, make_task  # noqa: E402
+from sb3_memret.tasks.mikasa.layout_perception import read_cube_layout, table_points  # noqa: E402
+from sb3_memret.tasks.mikasa.perception import COLOUR_NAMES  # noqa: E402
+from sb3_memret.tasks.mikasa.seq_of_colors import (  # noqa: E402
+    INSTRUCTION,
+    PROGRESS_PROMPT_TEMPLATE,
+    SeqOfColorsTask,
+    SeqOfColorsWithProgress,
+    SequenceWriter,
+    sequence_expert,
+    sequence_facts,
+)
+from sb3_memret.tasks.mikasa.sequence_expert import prompt_progress  # noqa: E402
+
+SPEC = "sb3_memret.tasks.mikasa.seq_of_colors:SeqOfColorsWithProgress"
+DEV_SEED = 5000  # cyan, maroon, olive (a development seed: the protocol's stay unseen)
+
+
+def test_table_points_cast_pixels_onto_the_plane():
+    """A camera 1 m above the origin looking straight down (focal 100 px, centre (64, 64)): pixel (row, col) sees
+    the table point ((64 - row) / 100, (64 - col) / 100) scaled by its height over the plane."""
+    intrinsic = np.array([[100.0, 0, 64], [0, 100.0, 64], [0, 0, 1]])
+    rotation = np.array([[0.0, -1, 0], [-1, 0, 0], [0, 0, -1]])  # camera x = -world y, y = -world x, z = down
+    extrinsic = np.column_stack([rotation, -rotation @ np.array([0.0, 0, 1])])
+    points = table_points(np.array([[64.0, 64.0], [54.0, 84.0]]), intrinsic, extrinsic, plane_z=0.2)
+    assert np.allclose(points, [[0, 0], [0.08, -0.16]])
+    level = np.array([[0.0, 1, 0], [0, 0, -1], [1, 0, 0]])  # looking along world x: the centre ray never dips
+    extrinsic = np.column_stack([level, -level @ np.array([0.0, 0, 1])])
+    assert np.isnan(table_points(np.array([[64.0, 64.0]]), intrinsic, extrinsic, plane_z=0.0)).all()
+    with pytest.raises(ValueError, match="n_colours must be in 1..9"):
+        read_cube_layout(np.zeros((8, 8, 3), np.uint8), intrinsic, extrinsic, 10)
+
+
+def test_the_layout_is_read_from_the_base_camera_within_half_a_centimetre():
+    task = SeqOfColorsTask()
+    env = task.make_env(obs_mode="rgb", robot_uids="panda")
+    try:
+        obs, _ = env.reset(seed=DEV_SEED)
+        for _ in range(25):  # cue (3 x 2 steps) and delay: into the manipulation phase
+            obs, *_ = env.step(torch.zeros(1, 7))
+        params = env.unwrapped.get_sensor_params()["base_camera"]
+        layout = read_cube_layout(as_numpy(obs["sensor_data"]["base_camera"]["rgb"])[0],
+                                  as_numpy(params["intrinsic_cv"])[0], as_numpy(params["extrinsic_cv"])[0], 9)
+        truth = as_numpy(obs["extra"]["cube_positions"])[0]
+        assert sorted(layout) == sorted(COLOUR_NAMES)
+        errors = {c: float(np.linalg.norm(p - truth[COLOUR_NAMES.index(c), :2])) for c, p in layout.items()}
+        assert max(errors.values()) < 0.006, errors
+    finally:
+        env.close()
+
+
+def _layout() -> dict[str, np.ndarray]:
+    """Nine cubes on an arc; their mean is at x = -0.06, so the button stands at (-0.10, 0)."""
+    return {c: np.array([-0.06 + 0.1 * np.cos(a), 0.3 * np.sin(a)]) - (0.1 * np.cos(np.linspace(-1, 1, 9)).mean(), 0)
+            for c, a in zip(COLOUR_NAMES, np.linspace(-1, 1, 9))}
+
+
+def _frame(tcp, steps: int = 4, seen=None, moving: bool = False, percepts=()) -> EnvFrame:
+    obs = {"extra": {"tcp_pose": np.array([[*tcp, 0, 1, 0, 0]])},
+           "agent": {"qvel": np.full((1, 9), 0.5 if moving else 0.0)}}
+    return EnvFrame(obs, {"seen_cubes": _layout() if seen is None else seen}, None, False, steps=steps,
+                    percepts=list(percepts))
+
+
+def test_the_writer_writes_each_touch_and_the_press_once_from_what_it_saw():
+    writer, layout = SequenceWriter(3, progress=True), _layout()
+    assert writer.relations["touched"] == writer.relations["pressed"] == (MemoryType.TASK_PROGRESS, "was")
+    red = (*layout["red"], 0.045)
+    cue_only = {"red": np.array([0.0, 0.0])}  # the cue at the table centre: never where the red cube will stand
+    assert writer.read(_frame((0.0, 0.0, 0.045), steps=0, seen=cue_only, percepts=["red"])) == \
+        [(0, {("cue", "first cue cube"): "red"})]
+    assert writer.read(_frame(red, moving=True)) == []  # passing over it: not a touch
+    assert writer.read(_frame(red)) == [(4, {("touched", "red cube"): "touched"})]
+    assert writer.read(_frame(red)) == []  # once
+    assert writer.read(_frame((*layout["red"], 0.09))) == []  # 4.5 cm over the touch point
+    button = np.mean(list(layout.values()), axis=0) - (0.04, 0)
+    assert writer.read(_frame((*button, 0.09))) == []  # over the cap, not down on it
+    assert writer.read(_frame((*button, 0.07))) == [(4, {("pressed", "button"): "pressed"})]
+    assert writer.read(_frame((*button, 0.07), steps=0, seen={})) == []  # a new episode starts afresh
+    assert writer.read(_frame(red, seen={"red": layout["red"]})) == []  # one cube in sight is the cue's
+    with pytest.raises(ValueError, match="seen_cubes"):
+        writer.read(EnvFrame({}, None, None, False, steps=4))
+
+
+def test_progress_facts_are_worded_for_the_prompt_and_read_back_by_the_stateless_expert():
+    task = make_task(SPEC)
+    assert task.prompt_template == PROGRESS_PROMPT_TEMPLATE and isinstance(task, SeqOfColorsWithProgress)
+    from sb3_memret.memory.schema import linearize
+
+    touched = linearize(MemoryType.TASK_PROGRESS, "red cube", "was", "touched", task.wordings)
+    pressed = linearize(MemoryType.TASK_PROGRESS, "button", "was", "pressed", task.wordings)
+    assert (touched, pressed) == ("the red cube was touched.", "the button was pressed.")
+    prompt = build_prompt(INSTRUCTION, [*sequence_facts(("red", "teal", "lime")), touched, pressed],
+                          task.prompt_template)
+    progress = prompt_progress(parse_prompt(prompt, task.prompt_template))
+    assert progress.touched == ["red"] and progress.pressed
+    expert = task.expert()
+    assert not expert.stateful and expert.progress_from == "prompt"
+    with pytest.raises(ValueError, match="unknown progress_from 'memory'"):
+        sequence_expert(progress_from="memory")
+    from sb3_memret.tasks.mikasa.seq_of_colors import PROMPT_TEMPLATE
+    from sb3_memret.tasks.mikasa.sequence_expert import SequenceTouchController
+
+    with pytest.raises(ValueError, match="needs the progress facts"):
+        SequenceTouchController(PROMPT_TEMPLATE, progress_from="prompt")
+
+
+def test_the_stateless_expert_heads_for_the_first_cube_its_prompt_does_not_call_touched():
+    from test_mikasa_seq import _synthetic_obs  # red at y = -0.3, lime at -0.225, teal at +0.3
+
+    expert, obs = sequence_expert(progress_from="prompt"), _synthetic_obs(2)
+    expert.reset([1, 2])
+    facts = sequence_facts(("red", "teal", "lime"))
+    at_red = {**obs, "extra": {**obs["extra"], "tcp_pose": np.tile([0.0, -0.3, 0.046, 0, 1, 0, 0], (2, 1))}}
+    prompts = [build_prompt(INSTRUCTION, facts, PROGRESS_PROMPT_TEMPLATE),
+               build_prompt(INSTRUCTION, [*facts, "the red cube was touched."], PROGRESS_PROMPT_TEMPLATE)]
+    for _ in range(2):  # holding still on red's touch point changes nothing until the prompt says so
+        chunks = expert.act(at_red, prompts)
+        assert np.abs(chunks[0, :, :3]).max() < 0.05 and chunks[1, 0, 2] > 0  # stays; leaves upwards for teal
+    assert expert.progress == [] or all(not p.touched for p in expert.progress)  # it keeps nothing itself
+
+
+@pytest.mark.slow
+def test_written_progress_lets_the_stateless_expert_finish_the_sequence_and_cue_facts_alone_do_not(monkeypatch):
+    """Development seed 5000: with the facts the writer wrote (the cue and, as it goes, the touches and the press)
+    the stateless expert succeeds; with the cue facts alone (oracle, no progress) it never leaves the first cube."""
+    from sb3_memret.rollout import condition_schedule, play_task_episodes
+
+    task = SeqOfColorsWithProgress()
+    monkeypatch.setattr(task, "max_control_steps", 88)
+    facts: list[list[str]] = []
+    schedule = condition_schedule(task, "written")
+    original = schedule.facts
+    monkeypatch.setattr(schedule, "facts", lambda decision: facts.append(list(original(decision))) or facts[-1])
+    [written] = play_task_episodes(task.expert(), task, [DEV_SEED], schedule, render_backend="cpu")
+    assert written.success, facts[-1]
+    assert facts[-1][3:] == ["the cyan cube was touched.", "the maroon cube was touched.",
+                             "the olive cube was touched.", "the button was pressed."]
+    [oracle] = play_task_episodes(task.expert(), task, [DEV_SEED], condition_schedule(task, "oracle"),
+                                  render_backend="cpu")
+    assert not oracle.success
