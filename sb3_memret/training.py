@@ -3,6 +3,7 @@
 A run lives in one folder::
 
     config.yml              the hyperparameters it was started with (a resume reuses them)
+    run.json                how it was started: the frozen controller, the seed, the render backend (a resume keeps them)
     progress.csv            one row per round (SB3 logger; a resume appends)
     tensorboard/            the same scalars for tensorboard
     evaluations.jsonl       every held-out evaluation report
@@ -42,6 +43,7 @@ from sb3_memret.run_logger import make_run_logger
 from sb3_memret.workers import StopRequested, WorkerDiedError, stop_signals_deferred, stop_signals_interrupt
 
 CONFIG_FILE = "config.yml"
+RUN_FILE = "run.json"
 INITIAL_MODEL = "initial_model.zip"
 HISTORY_FILE = "evaluations.jsonl"
 
@@ -152,6 +154,10 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
         if last is None:
             raise FileNotFoundError(f"--resume: no checkpoint (checkpoints/memret_<steps>_steps.zip) in {str(out)!r}")
         saved = load_run_config(out)
+        started = json.loads((out / RUN_FILE).read_text()) if (out / RUN_FILE).is_file() else {}
+        if started.get("controller", options.controller) != options.controller:
+            raise ValueError(f"the run in {str(out)!r} was trained with controller {started['controller']!r}, not "
+                             f"{options.controller!r}; a resumed run keeps its own")
         if config is not None and config.n_timesteps != saved.n_timesteps:
             saved.ppo["n_timesteps"] = config.n_timesteps  # the only thing a resume may change
             save_run_config(saved, out / CONFIG_FILE)
@@ -164,6 +170,8 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
             raise FileExistsError(f"{str(out)!r} already holds a run; pass --resume to continue it or choose another --out")
         out.mkdir(parents=True, exist_ok=True)
         save_run_config(config, out / CONFIG_FILE)
+        (out / RUN_FILE).write_text(json.dumps({"controller": options.controller, "seed": options.seed,
+                                                "render_backend": options.render_backend}, indent=2) + "\n")
 
     env_kwargs = env_kwargs_for(config, options.controller, options.render_backend)
     if controller is None and "tasks" not in config.env_kwargs:  # across tasks, each task makes its own by name
@@ -278,5 +286,5 @@ def _write_summary(result: RunResult, options: RunOptions) -> None:
     (result.out / "summary.json").write_text(json.dumps(summary, indent=2))
 
 
-__all__ = ["HISTORY_FILE", "INITIAL_MODEL", "RunOptions", "RunResult", "env_kwargs_for", "eval_env_kwargs", "format_history",
+__all__ = ["HISTORY_FILE", "INITIAL_MODEL", "RUN_FILE", "RunOptions", "RunResult", "env_kwargs_for", "eval_env_kwargs", "format_history",
            "load_run_config", "read_history", "retrieval_chance", "start_retriever", "train"]

@@ -70,6 +70,32 @@ def test_resume_continues_the_same_run(run):
     assert latest_checkpoint(out / "checkpoints").name == "memret_48_steps.zip"
 
 
+def test_a_resume_keeps_the_controller_its_run_recorded_at_start(run, tmp_path):
+    """A run killed before it finished (no summary.json) still resumes with its own controller, from run.json; a run
+    that records none is refused rather than served the task's default."""
+    import shutil
+
+    import click
+
+    from sb3_memret.cli.options import run_controller
+
+    out, _, _ = run
+    assert json.loads((out / "run.json").read_text()) == {"controller": "learned-state", "seed": 0,
+                                                          "render_backend": "none"}
+    killed = tmp_path / "killed"
+    shutil.copytree(out, killed)
+    (killed / "summary.json").unlink()
+    assert run_controller(killed, "drawer", default="scripted") == "learned-state"
+    with pytest.raises(ValueError, match="was trained with controller 'learned-state', not 'scripted'"):
+        train(None, RunOptions(out=killed, controller="scripted", resume=True))
+    (killed / "run.json").unlink()
+    with pytest.raises(click.UsageError, match="records no controller .* pass --controller"):
+        run_controller(killed, "drawer")
+    result = cli("train", "recall", "--out", killed, "--resume", "--no-progress")
+    assert result.exit_code == 2 and "records no controller" in result.output
+    assert run_controller(tmp_path, "drawer", default="scripted") == "scripted"  # no run there: the default
+
+
 def test_eval_command_reports_success_and_accuracy(run):
     out, _, _ = run
     result = cli("eval", out / "final_model.zip", "--episodes", 2, "--json")

@@ -21,14 +21,19 @@ def default_controller(task: str | None) -> str:
     return make_task(task or DEFAULT_TASK).default_controller
 
 
-def run_controller(folder: Path, task: str) -> str:
-    """The controller the run in ``folder`` was trained with (its summary.json), else ``task``'s default."""
-    summary = folder / "summary.json"
-    if summary.is_file():
-        name = json.loads(summary.read_text()).get("controller")
-        if name:
-            return name
-    return default_controller(task)
+def run_controller(folder: Path, task: str, default: str | None = None) -> str:
+    """The controller the run in ``folder`` was trained with (its run.json, or the summary.json of a run from before
+    runs recorded one at start); for a folder that holds no run, ``default`` (else ``task``'s default). A run that
+    records none is a UsageError: guessing would silently serve another controller than it learned for."""
+    for name in ("run.json", "summary.json"):
+        record = folder / name
+        if record.is_file() and (controller := json.loads(record.read_text()).get("controller")):
+            return controller
+    if (folder / "config.yml").exists():
+        raise click.UsageError(f"the run in {str(folder)!r} records no controller (no run.json or summary.json: it "
+                               "started before runs recorded theirs and never finished); pass --controller with the "
+                               "one it was trained with")
+    return default or default_controller(task)
 
 
 def build_controller(ctx: click.Context, param: click.Parameter | None, value: str | None, task: str | None = None):
@@ -145,7 +150,7 @@ def check_run_task(ctx: click.Context, task: str | None, run_task: str, where: P
 def model_run(model_path: Path) -> Path:
     """The run folder a model file sits in (the folder itself, or its parent for checkpoints/)."""
     parent = Path(model_path).parent
-    return parent.parent if not (parent / "summary.json").exists() and (parent.parent / "summary.json").exists() \
+    return parent.parent if not (parent / "config.yml").exists() and (parent.parent / "config.yml").exists() \
         else parent
 
 

@@ -170,7 +170,7 @@ def across_tasks_run(tasks: str | None, config_path: Path | None, controller: st
         if timesteps is not None:
             config.ppo["n_timesteps"] = timesteps
     names = list((config or saved).env_kwargs["tasks"])
-    controller = controller or (run_controller(out, names[0]) if resume else "scripted")
+    controller = controller or (run_controller(out, names[0], default="scripted") if resume else "scripted")
     if render_backend is None:  # cameras for any task whose writer reads them
         backends = {make_task(name).default_render_backend for name in names}
         render_backend = resolve_render_backend(ctx, None, next(iter(backends - {"none"}), "none"))
