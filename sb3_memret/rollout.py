@@ -11,7 +11,7 @@ import numpy as np
 import sb3_memret.tasks.drawer.drawer_cube  # noqa: F401  (registers DrawerCubeTakeOut-v1)
 from sb3_memret.controllers.base import FrozenController
 from sb3_memret.tasks.drawer.cabinet import LAYERS, check_layer
-from sb3_memret.memory.schema import Key
+from sb3_memret.memory.schema import Key, MemoryType
 from sb3_memret.memory.writer import EventCompiler
 from sb3_memret.obs_trees import stack_obs
 from sb3_memret.physics.backends import TaskRunner
@@ -172,6 +172,10 @@ class WrittenFacts(FactSchedule):
 
     def facts(self, decision: int) -> Sequence[str]:
         return list(self._facts.values())
+
+    def facts_of_type(self, mtype: MemoryType) -> list[str]:
+        """The facts of type ``mtype`` written so far (TASK_PROGRESS: what the robot has done)."""
+        return [text for key, text in self._facts.items() if key[0] == mtype]
 
 
 def condition_schedule(task: Task, condition: str) -> FactSchedule:

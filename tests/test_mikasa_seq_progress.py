@@ -153,3 +153,22 @@ def test_written_progress_lets_the_stateless_expert_finish_the_sequence_and_cue_
     [oracle] = play_task_episodes(task.expert(), task, [DEV_SEED], condition_schedule(task, "oracle"),
                                   render_backend="cpu")
     assert not oracle.success
+
+
+@pytest.mark.slow
+def test_demonstrations_carry_the_progress_written_so_far_in_each_decisions_prompt():
+    """A recorded episode's prompts change as the writer writes what was done: the first has the cue facts alone,
+    later ones add each touch in turn, so a controller finetuned on them learns to read its progress."""
+    from sb3_memret.stage1.task_demos import TaskDemoEpisode, TaskRecorder
+
+    recorder = TaskRecorder(SeqOfColorsWithProgress(), "cpu", frames="decisions")
+    try:
+        recorded = recorder.record(TaskDemoEpisode(DEV_SEED, "matching"))
+    finally:
+        recorder.env.close()
+    assert recorded.success and len(recorded.prompts) == len(recorded.frames) == len(recorded.frame_steps)
+    cue = " ".join(sequence_facts(("cyan", "maroon", "olive")))
+    assert recorded.prompts[0] == recorded.prompt == f"{INSTRUCTION} {cue}"
+    touched = [f"the {c} cube was touched." for c in ("cyan", "maroon", "olive")]
+    seen = [tuple(t for t in touched if t in p) for p in recorded.prompts]
+    assert seen[-1] == tuple(touched) and seen == sorted(seen, key=len)  # added one by one, never taken back

@@ -8,7 +8,9 @@ naming something else (``wrong_facts``), which the expert follows as a controlle
 Per frame: ``Task.demo_frame`` (state, cameras with a renderer), the expert's action as label, the
 exact prompt as ``task``; with ``frames="decisions"`` only the steps a controller acts at, each with its
 chunk of labels (as the drawer's recorder). A share of episodes runs with Gaussian noise on the arm
-(labels stay clean). With a learner (``learner=``, a controller spec) it is a DAgger round: the learner acts
+(labels stay clean). A task whose writer writes progress (TASK_PROGRESS facts: ``the red cube was touched.``)
+has it run along: each decision's prompt carries, after the kind's facts, the progress written so far, so the
+prompt changes as the episode goes and every frame keeps the prompt it was acted on. With a learner (``learner=``, a controller spec) it is a DAgger round: the learner acts
 on the prompt while the expert labels the states it reaches, as the drawer's recorder does.
 Episodes are written as they finish; an interrupted run keeps every episode saved so far.
 """
@@ -24,7 +26,9 @@ import numpy as np
 from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers.base import FrozenController, as_numpy
 from sb3_memret.controllers.observation import ACTION_CHUNK_KEY, ACTION_KEY, CHUNK_PAD_KEY, TASK_KEY, chunk_features
+from sb3_memret.memory.schema import MemoryType
 from sb3_memret.prompts import build_prompt
+from sb3_memret.rollout import WrittenFacts
 from sb3_memret.stage1.demos import DemoDatasetWriter, PromptMix, check_frames, label_chunks
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import check_render_backend
@@ -46,9 +50,10 @@ class TaskEpisodeFrames:
     """A recorded episode: its frames in the task's layout, the expert's labels, and how it went."""
 
     episode: TaskDemoEpisode
-    prompt: str
+    prompt: str  # the first decision's
     group: str
     frames: list[dict[str, np.ndarray]]  # the kept frames (every step, or the decision steps)
+    prompts: list[str]  # the prompt each kept frame was acted on (one for all, without progress facts)
     actions: np.ndarray  # (T, action_dim): the expert's label at every control step
     success: bool
     frame_steps: np.ndarray  # (F,) the control step of each kept frame
@@ -93,38 +98,53 @@ class TaskRecorder:
                                  f"length), got {replan_every}")
             self.learner.check_env(self.env)
         self.replan_every = replan_every
+        writes_progress = any(mtype == MemoryType.TASK_PROGRESS for mtype, _ in self.task.writer().relations.values())
+        self.progress = WrittenFacts(self.task) if writes_progress else None
 
     def record(self, episode: TaskDemoEpisode) -> TaskEpisodeFrames:
-        """Play one episode, the expert (or the learner) acting on the episode's prompt and the expert labelling
-        every frame."""
+        """Play one episode, the expert (or the learner) acting on each decision's prompt (the episode's kind of
+        facts, then any progress written so far) and the expert labelling every frame."""
         rng = np.random.default_rng(episode.seed)
         obs, info = self.env.reset(seed=episode.seed)
-        truth = self.task.episode(self.task.frames(self.env, obs, info, reset=True)[0])
+        first = self.task.frames(self.env, obs, info, reset=True)[0]
+        truth = self.task.episode(first)
         facts = {"bare": [], "matching": self.task.oracle_facts(truth),
                  "mismatched": self.task.wrong_facts(truth)}[episode.prompt_kind]
-        prompt = build_prompt(self.task.instruction(truth), facts, self.expert.spec.prompt_template)
+        if self.progress is not None:
+            first.percepts = [self.task.perceive(self.env, obs)] if self.task.perceives_every_step else []
+            self.progress.start(first, truth)
         self.expert.reset([episode.seed])
         if self.learner is not None:
             self.learner.reset([episode.seed])
-        frames, kept, actions, success, done = [], [], [], False, False
+        frames, prompts, kept, actions, success, done = [], [], [], [], False, False
         while not done:
+            done_so_far = self.progress.facts_of_type(MemoryType.TASK_PROGRESS) if self.progress is not None else []
+            prompt = build_prompt(self.task.instruction(truth), [*facts, *done_so_far], self.expert.spec.prompt_template)
             labels = self.expert.act(obs, [prompt])[0][: self.replan_every]
             executed = labels if self.learner is None else self.learner.act(obs, [prompt])[0][: self.replan_every]
+            percepts = []
             for i, (label, action) in enumerate(zip(labels, executed)):
                 if i == 0 or not self.decisions_only:
                     kept.append(len(actions))
                     frames.append(self.task.demo_frame(obs, self.with_images))
+                    prompts.append(prompt)
                 actions.append(label)
                 action = np.array(action, np.float32)
                 if episode.noise:
                     action[:6] = np.clip(action[:6] + rng.normal(0.0, episode.noise, 6), -1.0, 1.0)
                 obs, _, terminated, truncated, info = self.env.step(action[None])
+                if self.progress is not None and self.task.perceives_every_step:
+                    percepts.append(self.task.perceive(self.env, obs))
                 success = success or bool(np.any(as_numpy(info["success"])))  # MIKASA counts success once
                 done = bool(np.any(as_numpy(terminated)) or np.any(as_numpy(truncated)))
                 if done:
                     break
-        return TaskEpisodeFrames(episode, prompt, truth.group, frames, np.asarray(actions, np.float32), success,
-                                 np.asarray(kept), self.learner is not None)
+            if self.progress is not None and not done:  # the writer reads the chunk's frame, as the decision env's
+                frame = self.task.frames(self.env, obs, info)[0]
+                frame.steps, frame.percepts = i + 1, percepts
+                self.progress.observe(frame)
+        return TaskEpisodeFrames(episode, prompts[0], truth.group, frames, prompts, np.asarray(actions, np.float32),
+                                 success, np.asarray(kept), self.learner is not None)
 
 
 _recorder: TaskRecorder | None = None
@@ -171,7 +191,7 @@ def record_task_demos(
     def save(_: TaskDemoEpisode, recorded: TaskEpisodeFrames) -> None:
         chunks, pads = label_chunks(recorded.actions, recorded.frame_steps, chunk_len) if chunk_len else (None, None)
         writer.add_episode(
-            ({**frame, ACTION_KEY: recorded.actions[step], TASK_KEY: recorded.prompt,
+            ({**frame, ACTION_KEY: recorded.actions[step], TASK_KEY: recorded.prompts[i],
               **({ACTION_CHUNK_KEY: chunks[i], CHUNK_PAD_KEY: pads[i]} if chunk_len else {})}
              for i, (frame, step) in enumerate(zip(recorded.frames, recorded.frame_steps))),
             {**asdict(recorded.episode), "task": the_task.name, "prompt": recorded.prompt, "group": recorded.group,
