@@ -43,11 +43,12 @@ sight changes when a cube is touched, so a controller that reads only the curren
 which cubes it has touched. The writer then also writes what has been done, as TASK_PROGRESS facts: ``the red cube
 was touched.`` and ``the button was pressed.``. It reads where each cube stands from the base camera
 (``layout_perception.read_cube_layout``, each colour's first sighting in a frame that shows two or more cubes, so
-never the cue's: within 0.5 cm of the simulator's), and the TCP and joint speeds from the arm's own sensors: a touch is the arm static (every joint
-slower than 0.18 rad/s) with the TCP within 1.8 cm of the point 2.5 cm above a seen cube's centre (MIKASA: 2 cm,
-0.2 rad/s); a press, the TCP within 3 cm of the button's axis and 2 cm over its cap (MIKASA: 6.5 and 2.5 cm), the
-button standing 4 cm from the seen cubes' mean toward the robot (MIKASA's placement). Its expert is the stateless
-``SequenceTouchController(progress_from="prompt")``, which learns what it has done from those facts alone.
+never the cue's: within 0.55 cm of the simulator's), and the TCP and joint speeds from the arm's own sensors: a
+touch is the arm static (every joint slower than 0.18 rad/s) with the TCP within 1.8 cm of the point 2.5 cm above
+a seen cube's centre (MIKASA: 2 cm, 0.2 rad/s); a press, the TCP within 3 cm of the button's axis and 2 cm over its
+cap (MIKASA: 6.5 and 2.5 cm), the button standing 4 cm from the seen cubes' mean toward the robot (MIKASA's
+placement). Its expert is the stateless ``SequenceTouchController(progress_from="prompt")``, which learns what it
+has done from those facts alone.
 """
 
 from __future__ import annotations
