@@ -77,11 +77,12 @@ def main() -> None:
             outcomes = []
             for k, share in enumerate(shares):
                 cut = max(1, int(share * len(chunks)))
-                won, _, _ = play(runner, expert, prompt, seed, args.layer, args.replan_every, chunks[:cut])
+                won, played, _ = play(runner, expert, prompt, seed, args.layer, args.replan_every, chunks[:cut])
                 counts[k] += won
-                outcomes.append(f"{share:.0%}: {'recovered' if won else 'failed'}")
+                outcomes.append(f"{share:.0%} (decision {cut}, expert played {len(played) - cut}): "
+                                f"{'recovered' if won else 'failed'}")
             recovered += any("recovered" in o for o in outcomes)
-            print(f"seed {seed}: learner FAILED ({ending(last, args.layer)}); expert from "
+            print(f"seed {seed}: learner FAILED after {len(chunks)} decisions ({ending(last, args.layer)}); expert from "
                   + ", ".join(outcomes), flush=True)
     finally:
         runner.close()
