@@ -3,7 +3,7 @@
 A run lives in one folder::
 
     config.yml              the hyperparameters it was started with (a resume reuses them)
-    run.json                how it was started: the frozen controller, the seed, the render backend (a resume keeps them)
+    run.json                how it started: the frozen controller, the seed, the render backend (a resume keeps them)
     progress.csv            one row per round (SB3 logger; a resume appends)
     tensorboard/            the same scalars for tensorboard
     evaluations.jsonl       every held-out evaluation report

@@ -82,7 +82,8 @@ def main() -> None:
                 outcomes.append(f"{share:.0%} (decision {cut}, expert played {len(played) - cut}): "
                                 f"{'recovered' if won else 'failed'}")
             recovered += any("recovered" in o for o in outcomes)
-            print(f"seed {seed}: learner FAILED after {len(chunks)} decisions ({ending(last, args.layer)}); expert from "
+            print(f"seed {seed}: learner FAILED after {len(chunks)} decisions ({ending(last, args.layer)}); "
+                  "expert from "
                   + ", ".join(outcomes), flush=True)
     finally:
         runner.close()

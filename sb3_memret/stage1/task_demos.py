@@ -119,7 +119,8 @@ class TaskRecorder:
         frames, prompts, kept, actions, success, done = [], [], [], [], False, False
         while not done:
             done_so_far = self.progress.facts_of_type(MemoryType.TASK_PROGRESS) if self.progress is not None else []
-            prompt = build_prompt(self.task.instruction(truth), [*facts, *done_so_far], self.expert.spec.prompt_template)
+            prompt = build_prompt(self.task.instruction(truth), [*facts, *done_so_far],
+                                  self.expert.spec.prompt_template)
             labels = self.expert.act(obs, [prompt])[0][: self.replan_every]
             executed = labels if self.learner is None else self.learner.act(obs, [prompt])[0][: self.replan_every]
             percepts = []

@@ -284,6 +284,6 @@ class SeqOfColorsWithProgress(SeqOfColorsTask):
         super().__init__("SeqOfColors3-VLA-v0", progress=True)
 
 
-__all__ = ["CUE_FACT", "EPISODE_STEPS", "INSTRUCTION", "PROGRESS_PROMPT_TEMPLATE", "PROGRESS_WORDINGS", "PROMPT_TEMPLATE",
-           "SEQ_TASKS", "SeqControllerObservation", "SeqOfColorsTask", "SeqOfColorsWithProgress", "SequenceWriter",
-           "item_entity", "item_key", "sequence_expert", "sequence_facts", "sequence_prompt"]
+__all__ = ["CUE_FACT", "EPISODE_STEPS", "INSTRUCTION", "PROGRESS_PROMPT_TEMPLATE", "PROGRESS_WORDINGS",
+           "PROMPT_TEMPLATE", "SEQ_TASKS", "SeqControllerObservation", "SeqOfColorsTask", "SeqOfColorsWithProgress",
+           "SequenceWriter", "item_entity", "item_key", "sequence_expert", "sequence_facts", "sequence_prompt"]
