@@ -10,7 +10,8 @@ exact prompt as ``task``; with ``frames="decisions"`` only the steps a controlle
 chunk of labels (as the drawer's recorder). A share of episodes runs with Gaussian noise on the arm
 (labels stay clean). A task whose writer writes progress (TASK_PROGRESS facts: ``the red cube was touched.``)
 has it run along: each decision's prompt carries, after the kind's facts, the progress written so far, so the
-prompt changes as the episode goes and every frame keeps the prompt it was acted on. With a learner (``learner=``, a controller spec) it is a DAgger round: the learner acts
+prompt changes as the episode goes and every frame keeps the prompt it was acted on. With a learner
+(``learner=``, a controller spec) it is a DAgger round: the learner acts
 on the prompt while the expert labels the states it reaches, as the drawer's recorder does.
 Episodes are written as they finish; an interrupted run keeps every episode saved so far.
 """
