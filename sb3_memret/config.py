@@ -64,6 +64,8 @@ PPO_KEYS: dict[str, Check] = {
     "ent_coef": ((int, float), lambda v: v >= 0, "a number >= 0"),
     "vf_coef": ((int, float), lambda v: v >= 0, "a number >= 0"),
     "calibration_coef": ((int, float), lambda v: v >= 0, "a number >= 0 (0: keep-scores learn from the value loss only)"),
+    "advantage_std_floor": ((int, float), lambda v: 0 <= v <= 1, "a number in [0, 1] (the least spread a round's "
+                            "advantages are divided by, as a fraction of the widest so far; 0: always unit spread)"),
 }
 POLICY_KEYS: dict[str, Check] = {
     "temperature": ((int, float), lambda v: v > 0, "a number > 0"),
