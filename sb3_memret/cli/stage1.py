@@ -147,6 +147,9 @@ def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, no
 @click.option("--lora-rank", type=click.IntRange(min=1), default=16, show_default=True, help="pi05: LoRA rank.")
 @click.option("--device", default="cpu", show_default=True, help="pi05: torch device.")
 @task_option()
+@click.option("--tasks", "dataset_tasks", default=None, metavar="LIST",
+              help="learned: each DATASET's task, a comma list in their order, for one policy over several tasks "
+                   "(it reads proprioception and cameras; each task's perception loss covers its own entries).")
 @click.option("--state", type=click.Choice(["full", "proprio"]), default=None,
               help="learned: the state entries read: the task's whole layout (with the simulator's object "
                    "detection), or what a robot reads of itself (with cameras only)  [default: proprio when the "
@@ -174,7 +177,7 @@ def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, no
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
 def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | None, batch_size: int | None,
              learning_rate: float | None, seed: int, pretrained: Path | None, tokenizer: Path | None, lora_rank: int,
-             device: str, task: str, state: str | None, image_encoder: str, image_dim: int, keypoints: int,
+             device: str, task: str, dataset_tasks: str | None, state: str | None, image_encoder: str, image_dim: int, keypoints: int,
              image_colour: bool, image_film: bool, pointer: bool, pointer_hindsight: float, progress: bool) -> None:
     """Train a frozen controller from DATASETS (LeRobotDatasets written by `sb3-memret demos`).
 
@@ -204,7 +207,7 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
     if pretrained is not None or tokenizer is not None:
         raise click.BadParameter("--pretrained and --tokenizer apply to --policy pi05 only", param_hint="--policy")
     from sb3_memret.controllers.learned import LearnedPolicyConfig
-    from sb3_memret.stage1.finetune import FinetuneSettings, has_cameras
+    from sb3_memret.stage1.finetune import FinetuneSettings, has_cameras, tasks_template
     from sb3_memret.stage1.finetune import finetune as train_policy
     from sb3_memret.tasks import make_task
 
@@ -213,12 +216,17 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
     if pointer_hindsight > 0 and not pointer:
         raise click.BadParameter(f"--pointer-hindsight {pointer_hindsight} trains the pointer: add --pointer",
                                  param_hint="--pointer-hindsight")
-    the_task = make_task(task)
-    template = the_task.prompt_template
+    by_task = paired_datasets(datasets, dataset_tasks, task) if dataset_tasks is not None else None
+    tasks = [make_task(name) for name in by_task] if by_task else [make_task(task)]
+    template = tasks_template(tasks)
+    chunk_lens = {t.name: t.expert().spec.chunk_len for t in tasks}
+    if len(set(chunk_lens.values())) > 1:
+        raise click.BadParameter(f"the tasks' experts act in chunks of different lengths {chunk_lens}; one policy "
+                                 "predicts one chunk length", param_hint="--tasks")
     config = LearnedPolicyConfig(instructions=template.instructions, fact_templates=template.fact_templates,
                                  image_encoder=image_encoder, image_dim=image_dim, keypoints=keypoints,
                                  image_colour=image_colour, image_film=image_film, pointer=pointer,
-                                 chunk_len=the_task.expert().spec.chunk_len)
+                                 chunk_len=chunk_lens[tasks[0].name])
     try:
         state = state or ("proprio" if has_cameras(datasets) else "full")
     except (FileNotFoundError, ValueError) as err:
@@ -230,10 +238,36 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
                 bar.set_postfix(loss=f"{loss:.4f}")
 
         try:
-            train_policy(datasets, out, config, settings=settings, on_step=on_step, task=task, state=state)
+            if by_task is None:
+                train_policy(datasets, out, config, settings=settings, on_step=on_step, task=task, state=state)
+            else:
+                train_policy(by_task, out, config, settings=settings, on_step=on_step, state=state)
         except (FileNotFoundError, ValueError) as err:
             raise click.UsageError(str(err)) from err
     click.echo(f"checkpoint written: --controller learned:{out}")
+
+
+def paired_datasets(datasets: tuple[Path, ...], dataset_tasks: str, task: str) -> dict[str, list[Path]]:
+    """``--tasks``: each task's datasets, in the order given, or a BadParameter naming what does not pair."""
+    names = [name.strip() for name in dataset_tasks.split(",")]
+    if len(names) != len(datasets):
+        raise click.BadParameter(f"{len(names)} tasks for {len(datasets)} datasets: name each DATASET's task, in order",
+                                 param_hint="--tasks")
+    if task != DEFAULT_TASK:
+        raise click.BadParameter(f"--tasks names each dataset's task; --task {task} cannot be given with it",
+                                 param_hint="--task")
+    from sb3_memret.tasks import check_task_name
+
+    by_task: dict[str, list[Path]] = {}
+    for name, root in zip(names, datasets):
+        try:
+            by_task.setdefault(check_task_name(name), []).append(root)
+        except ValueError as err:
+            raise click.BadParameter(str(err), param_hint="--tasks") from err
+    if len(by_task) < 2:
+        raise click.BadParameter(f"--tasks names one task ({names[0]}): use --task for a policy of one task",
+                                 param_hint="--tasks")
+    return by_task
 
 
 @click.command()

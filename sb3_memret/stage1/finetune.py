@@ -5,7 +5,9 @@ them), its prompt as frozen MiniLM token features, and as target the expert's la
 next ``chunk_len`` control steps of the same episode (steps past the episode's end are padding, left
 out of the L1 loss, as lerobot's ``action_is_pad``): read from the following frames of a dataset
 that keeps every step, or from each frame's ``action_chunk`` in one that keeps decision frames only.
-Several datasets (the expert's, then DAgger rounds) train one policy together.
+Several datasets (the expert's, then DAgger rounds) train one policy together; datasets of several tasks
+(``datasets`` as a mapping from each task to its datasets) train one multi-task policy, on the union of their
+layouts: each frame's perception loss covers only the entries its own task has.
 
 Cameras: a frozen pretrained trunk's features are computed once per frame before training (the
 trainable heads then cost little per step); a network trained from pixels sees each batch with
@@ -26,7 +28,7 @@ import math
 import time
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import Callable, Sequence
+from typing import Callable, Mapping, Sequence
 
 import numpy as np
 import torch
@@ -86,6 +88,7 @@ class Demonstrations:
     state_names: tuple[str, ...] = ()
     chunks: np.ndarray | None = None  # (N, H, 7): decision frames' label chunks; None when every step is a frame
     chunk_pad: np.ndarray | None = None  # (N, H) steps of a chunk past the episode's end
+    known: np.ndarray | None = None  # (N, D) the state entries each frame's task has (several tasks); None: all
 
     def targets(self, chunk_len: int) -> tuple[np.ndarray, np.ndarray]:
         """(N, chunk_len, 7) target labels of every frame and their (N, chunk_len) pad mask."""
@@ -173,6 +176,45 @@ def load_demonstrations(roots: Sequence[str | Path], task: str | Task = DEFAULT_
     )
 
 
+def load_task_demonstrations(datasets: Mapping[str | Task, Sequence[str | Path]]) -> tuple[Demonstrations, list[Task]]:
+    """Read each task's datasets (``load_demonstrations``) into one set on the union of the tasks' layouts (entries
+    in order of first appearance), with ``known`` marking each frame's own entries (the others hold 0)."""
+    if not datasets:
+        raise ValueError("no dataset given")
+    tasks = [make_task(task) for task in datasets]
+    parts = [load_demonstrations(roots, task) for task, roots in zip(tasks, datasets.values())]
+    cameras = {task.name: (tuple(part.images), next((im.shape[1:] for im in part.images.values()), None))
+               for task, part in zip(tasks, parts)}
+    if len(set(cameras.values())) > 1:
+        raise ValueError(f"the tasks' datasets hold different cameras or image sizes {cameras}: record them all with "
+                         "the same render backend and --image-size")
+    if len({part.chunks is None for part in parts}) > 1:
+        raise ValueError("some tasks' datasets keep every frame and others decision frames only; record them all "
+                         "with the same --frames")
+    names = tuple(dict.fromkeys(name for part in parts for name in part.state_names))
+    prompts: list[str] = []
+    states, known, task_ids, episodes, offset = [], [], [], [], 0
+    for part in parts:
+        columns = state_columns(names, part.state_names, "the union layout")
+        block = np.zeros((len(part.states), len(names)), dtype=np.float32)
+        block[:, columns] = part.states
+        mask = np.zeros(block.shape, dtype=bool)
+        mask[:, columns] = True
+        states.append(block)
+        known.append(mask)
+        task_ids.append(np.array([_task_id(part.tasks[i], prompts) for i in part.task_ids], dtype=np.int64))
+        episodes.append(part.episodes + offset)
+        offset = int(episodes[-1].max()) + 1
+    chunked = parts[0].chunks is not None
+    return Demonstrations(
+        states=np.concatenate(states), actions=np.concatenate([p.actions for p in parts]),
+        episodes=np.concatenate(episodes), task_ids=np.concatenate(task_ids), tasks=prompts,
+        images={k: np.concatenate([p.images[k] for p in parts]) for k in parts[0].images}, state_names=names,
+        chunks=np.concatenate([p.chunks for p in parts]) if chunked else None,
+        chunk_pad=np.concatenate([p.chunk_pad for p in parts]) if chunked else None,
+        known=np.concatenate(known)), tasks
+
+
 def _task_id(task: str, tasks: list[str]) -> int:
     if task not in tasks:
         tasks.append(task)
@@ -227,7 +269,11 @@ def hindsight_objects(demos: Demonstrations, hand_names: Sequence[str], objects:
         last = last[frames[last]]
     hand = demos.states[last][:, columns(hand_names)]
     where = np.stack([demos.states[last][:, columns([f"{obj}_{axis}" for axis in "xyz"])] for obj in objects], axis=1)
-    nearest = np.linalg.norm(where - hand[:, None], axis=-1).argmin(axis=1)
+    distance = np.linalg.norm(where - hand[:, None], axis=-1)
+    if demos.known is not None:  # an object its episode's task does not have is never the nearest
+        has = np.stack([demos.known[last][:, columns([f"{obj}_x"])[0]] for obj in objects], axis=1)
+        distance = np.where(has, distance, np.inf)
+    nearest = distance.argmin(axis=1)
     prompts = demos.task_ids[last]
     targets = np.full(len(demos.tasks), -1)
     for prompt in np.unique(prompts):
@@ -256,33 +302,44 @@ def camera_inputs(model: LearnedPolicy, images: dict[str, np.ndarray], keys: Seq
 
 
 def finetune(
-    datasets: Sequence[str | Path],
+    datasets: Sequence[str | Path] | Mapping[str | Task, Sequence[str | Path]],
     out: str | Path,
     config: LearnedPolicyConfig | None = None,
     settings: FinetuneSettings | None = None,
     tokenizer: PromptTokenizer | None = None,
     on_step: Callable[[int, float], None] | None = None,
-    task: str | Task = DEFAULT_TASK,
+    task: str | Task | None = None,
     state: str = "full",
     cameras: bool = True,
 ) -> Path:
-    """Train a LearnedPolicy on ``datasets`` of ``task`` and save it to ``out`` (``save_pretrained``); returns
-    ``out``. ``state`` picks the state entries it reads (``full`` or ``proprio``); ``cameras=False`` leaves
-    the datasets' camera images out. The prompt contract is the config's fact templates for the drawer, the
-    task's own template for any other task."""
+    """Train a LearnedPolicy on ``datasets`` of ``task`` (default the drawer), or on a mapping from each of several
+    tasks to its datasets (one multi-task policy), and save it to ``out`` (``save_pretrained``); returns ``out``.
+    ``state`` picks the state entries it reads (``full`` or ``proprio``); ``cameras=False`` leaves the datasets'
+    camera images out. The prompt contract is the config's fact templates for the drawer, the tasks' own templates
+    (together) for any other."""
     settings = settings or FinetuneSettings()
-    task = make_task(task)
+    if isinstance(datasets, Mapping):
+        if task is not None:
+            raise ValueError(f"datasets given per task name their tasks; task {task!r} is not needed")
+        demos, tasks = load_task_demonstrations(datasets)
+    else:
+        tasks = [make_task(task if task is not None else DEFAULT_TASK)]
+        demos = load_demonstrations(datasets, tasks[0])
     if config is None:
-        template = task.prompt_template
+        template = tasks_template(tasks)
         config = LearnedPolicyConfig(fact_templates=template.fact_templates, instructions=template.instructions)
     torch.manual_seed(settings.seed)
     rng = np.random.default_rng(settings.seed)
-    demos = load_demonstrations(datasets, task)
-    instructions = (INSTRUCTION_TEMPLATE,) if task.name == DEFAULT_TASK else config.instructions
+    drawer = [t.name for t in tasks] == [DEFAULT_TASK]
+    instructions = (INSTRUCTION_TEMPLATE,) if drawer else config.instructions
     config = replace(config, instructions=training_instructions(demos.tasks, instructions, config.fact_templates))
     for prompt in demos.tasks:
         parse_prompt(prompt, config.prompt_template)  # a dataset prompt outside the contract is refused
-    names = state_names_for(task, state)
+    names = state_names_for(tasks[0], state)
+    for other in tasks[1:]:
+        if state_names_for(other, state) != names:
+            raise ValueError(f"one policy reads the same state entries in every task, but task {other.name!r}'s "
+                             f"{state!r} entries differ from {tasks[0].name!r}'s: train it with state='proprio'")
     columns = state_columns(demos.state_names, names, "the datasets' state")
     keys = tuple(demos.images) if cameras else ()
     if state == "proprio" and not keys:
@@ -293,17 +350,19 @@ def finetune(
     if not keys or settings.perception_coef == 0:
         unread = unread[:0]
     perceived = tuple(demos.state_names[i] for i in unread)
-    config = replace(config, task=task.name, state_names=names, state_dim=len(names), image_features=keys,
-                     perceived_names=perceived, image_size=image_size, training_prompts=tuple(sorted(demos.tasks)))
+    config = replace(config, task=tasks[0].name, tasks=tuple(t.name for t in tasks) if len(tasks) > 1 else (),
+                     state_names=names, state_dim=len(names), image_features=keys, perceived_names=perceived,
+                     image_size=image_size, training_prompts=tuple(sorted(demos.tasks)))
     tokenizer = tokenizer or PromptTokenizer()
     task_tokens, task_mask = tokenizer(demos.tasks)
 
     model = LearnedPolicy(config)
     config = model.config  # the trunk's checksum is filled in
     picked, hidden = demos.states[:, columns], demos.states[:, unread]
+    labelled = np.ones(hidden.shape, dtype=bool) if demos.known is None else demos.known[:, unread]
     model.set_state_stats(torch.from_numpy(picked.mean(0)), torch.from_numpy(picked.std(0)))
     if perceived:
-        model.set_perceived_stats(torch.from_numpy(hidden.mean(0)), torch.from_numpy(hidden.std(0)))
+        model.set_perceived_stats(*(torch.from_numpy(x) for x in masked_stats(hidden, labelled)))
     targets, is_pad = demos.targets(config.chunk_len)
     is_val = np.isin(demos.episodes, validation_episodes(demos.episodes, settings.validation_fraction, rng))
     train_idx, val_idx = np.flatnonzero(~is_val), np.flatnonzero(is_val)
@@ -311,8 +370,8 @@ def finetune(
         raise ValueError("no training frames left after the validation split")
     out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
-    pointed = pointer_targets(model, demos, ~is_val, task, out) if settings.pointer_hindsight > 0 else None
-    labelled = pointed >= 0 if pointed is not None else None  # the prompts with a hindsight target
+    pointed = pointer_targets(model, demos, ~is_val, tasks, out) if settings.pointer_hindsight > 0 else None
+    hinted = pointed >= 0 if pointed is not None else None  # the prompts with a hindsight target
 
     states = torch.from_numpy(np.ascontiguousarray(picked))
     targets_t, is_pad_t, task_ids = torch.from_numpy(targets), torch.from_numpy(is_pad), torch.from_numpy(demos.task_ids)
@@ -320,6 +379,7 @@ def finetune(
     from_pixels = model.trunk is None
     shifts = torch.Generator().manual_seed(settings.seed)
     labels = (torch.from_numpy(hidden) - model.perceived_mean) / model.perceived_std if perceived else None
+    label_mask = torch.from_numpy(labelled)
 
     def losses_on(idx: np.ndarray) -> torch.Tensor:
         """(action chunk L1, perception MSE) on frames ``idx``; the perception term is 0 without perceived entries."""
@@ -331,8 +391,10 @@ def finetune(
         prompt = model.encode_prompts(task_tokens, task_mask)[tid]
         vision = model.encode_cameras(cams, prompt)
         predicted = model.decode(states[index], prompt, vision)
-        seen = F.mse_loss(model.perceive(vision), labels[index]) if perceived else predicted.new_zeros(())
-        return torch.stack([chunk_loss(predicted, targets_t[index], is_pad_t[index]), seen])
+        acting = chunk_loss(predicted, targets_t[index], is_pad_t[index])
+        seen = (masked_mse(model.perceive(vision), labels[index], label_mask[index]) if perceived
+                else acting.new_zeros(()))
+        return torch.stack([acting, seen])
 
     def ambiguity() -> str:
         """The pointer's ``pointer_ambiguity`` over the training prompts, for the log ('' without a pointer)."""
@@ -350,8 +412,8 @@ def finetune(
         """Cross-entropy of the training prompts' pointer weights against ``hindsight_objects`` (0 without)."""
         if pointed is None:
             return states.new_zeros(())
-        pointing = model.pointer.weights(model.encode_prompts(task_tokens[labelled], task_mask[labelled]))
-        return F.nll_loss(torch.log(pointing.clamp_min(1e-8)), pointed[labelled])
+        pointing = model.pointer.weights(model.encode_prompts(task_tokens[hinted], task_mask[hinted]))
+        return F.nll_loss(torch.log(pointing.clamp_min(1e-8)), pointed[hinted])
 
     weights = torch.tensor([1.0, settings.perception_coef])
     log_every = max(1, settings.steps // 50)
@@ -381,7 +443,7 @@ def finetune(
     return out
 
 
-def pointer_targets(model: LearnedPolicy, demos: Demonstrations, training: np.ndarray, task: Task,
+def pointer_targets(model: LearnedPolicy, demos: Demonstrations, training: np.ndarray, tasks: Sequence[Task],
                     out: Path) -> torch.Tensor:
     """``hindsight_objects`` of the ``training`` frames' episodes for the pointer's objects as a tensor, written to
     ``out/pointer_targets.json`` (each training prompt and the object it points at, null where its episodes
@@ -390,15 +452,39 @@ def pointer_targets(model: LearnedPolicy, demos: Demonstrations, training: np.nd
         raise ValueError("pointer_hindsight trains the pointer: finetune with pointer (--pointer)")
     objects = perceived_objects(model.config.perceived_names)[0]
     try:
-        hand = task.hand_position_names()
+        hands = {task.hand_position_names() for task in tasks}
     except NotImplementedError as err:
         raise ValueError(f"pointer hindsight reads where the hand ends: {err}") from err
+    if len(hands) > 1:
+        raise ValueError(f"pointer hindsight reads where the hand ends, but the tasks name it differently {hands}")
+    hand = hands.pop()
     targets = hindsight_objects(demos, hand, objects, training)
     if (targets < 0).all():
         raise ValueError("pointer hindsight found no prompt whose episodes' hands mostly end nearest one object")
     table = {prompt: objects[t] if t >= 0 else None for prompt, t in zip(demos.tasks, targets)}
     (out / POINTER_TARGETS_FILE).write_text(json.dumps(table, indent=1))
     return torch.from_numpy(targets)
+
+
+def tasks_template(tasks: Sequence[Task]) -> PromptTemplate:
+    """The prompt contract of a policy trained on ``tasks``: every instruction and fact template of theirs, once."""
+    templates = [task.prompt_template for task in tasks]
+    return PromptTemplate(tuple(dict.fromkeys(i for t in templates for i in t.instructions)),
+                          tuple(dict.fromkeys(f for t in templates for f in t.fact_templates)))
+
+
+def masked_stats(values: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Per column, the mean and standard deviation of ``values`` over the rows ``mask`` marks (float32)."""
+    count = np.maximum(mask.sum(0), 1)
+    mean = np.where(mask, values, 0).sum(0) / count
+    std = np.sqrt(np.where(mask, (values - mean) ** 2, 0).sum(0) / count)
+    return mean.astype(np.float32), std.astype(np.float32)
+
+
+def masked_mse(predicted: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """The mean squared error over the entries ``mask`` marks (a frame's task's own perceived entries)."""
+    weight = mask.to(predicted.dtype)
+    return ((predicted - target) ** 2 * weight).sum() / weight.sum().clamp_min(1.0)
 
 
 @torch.no_grad()
@@ -420,4 +506,5 @@ def read_log(out: str | Path) -> list[dict[str, str]]:
 
 
 __all__ = ["Demonstrations", "FinetuneSettings", "STATE_CHOICES", "finetune", "has_cameras", "hindsight_objects",
-           "load_demonstrations", "pointer_targets", "read_log", "state_names_for", "validation_episodes"]
+           "load_demonstrations", "load_task_demonstrations", "masked_mse", "masked_stats", "pointer_targets",
+           "read_log", "state_names_for", "tasks_template", "validation_episodes"]

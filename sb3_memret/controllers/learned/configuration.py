@@ -27,9 +27,13 @@ class LearnedPolicyConfig:
     only what a robot reads of itself), by name, so a layout that moves them is refused, not misread.
     ``perceived_names``: the layout's entries a camera policy estimates from its images (the simulator's
     detection, drawer openings), labelled by the simulator at training only; its action head reads the estimates.
+    ``tasks``: every task a multi-task controller serves, trained on their demonstrations together (``task`` is the
+    first; ``state_names`` are in every one's layout, ``perceived_names`` the union of the entries each lacks);
+    empty for a controller of ``task`` alone.
     """
 
     task: str = "drawer"
+    tasks: tuple[str, ...] = ()
     state_names: tuple[str, ...] = STATE_NAMES
     state_dim: int = len(STATE_NAMES)
     action_dim: int = ACTION_DIM
@@ -56,9 +60,11 @@ class LearnedPolicyConfig:
     type: str = POLICY_TYPE
 
     def __post_init__(self) -> None:
-        for name in ("state_names", "image_features", "perceived_names", "instructions", "fact_templates",
+        for name in ("tasks", "state_names", "image_features", "perceived_names", "instructions", "fact_templates",
                      "training_prompts"):
             setattr(self, name, tuple(getattr(self, name)))
+        if self.tasks and (self.tasks[0] != self.task or len(set(self.tasks)) != len(self.tasks)):
+            raise ValueError(f"tasks {list(self.tasks)} must be distinct and start with task {self.task!r}")
         if self.state_dim != len(self.state_names):
             raise ValueError(f"state_dim {self.state_dim} does not match the {len(self.state_names)} state_names")
         if self.image_encoder not in IMAGE_ENCODERS:
@@ -84,6 +90,11 @@ class LearnedPolicyConfig:
     def pointer_fields(self) -> int:
         """How many entries the pointer hands the action head: one object's (0 without a pointer)."""
         return len(perceived_objects(self.perceived_names)[1]) if self.pointer else 0
+
+    @property
+    def served_tasks(self) -> tuple[str, ...]:
+        """The tasks whose observations and prompts the controller was trained on."""
+        return self.tasks or (self.task,)
 
     @property
     def prompt_template(self) -> PromptTemplate:

@@ -71,8 +71,9 @@ class LearnedPolicyProcessor:
 
     def __init__(self, config: LearnedPolicyConfig, task: InputLayout, tokenizer: PromptTokenizer | None = None,
                  device: str | torch.device = "cpu"):
-        if task.name != config.task:
-            raise ValueError(f"the learned controller was trained on task {config.task!r}, not {task.name!r}")
+        if task.name not in config.served_tasks:
+            served = " or ".join(repr(name) for name in config.served_tasks)
+            raise ValueError(f"the learned controller was trained on task {served}, not {task.name!r}")
         self.config, self.task = config, task
         self.columns = state_columns(task.state_names(), config.state_names, f"task {task.name!r}'s observation layout")
         self.tokenizer = tokenizer or PromptTokenizer()

@@ -1,0 +1,93 @@
+"""One camera controller over several tasks: their demonstrations merged on the union of their layouts, each
+frame's perception loss on its own task's entries, one checkpoint that serves every task it was trained on."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+import torch
+from click.testing import CliRunner
+
+from sb3_memret.cli import main
+from sb3_memret.controller_specs import make_controller
+from sb3_memret.stage1.finetune import load_task_demonstrations, masked_mse, masked_stats, read_log
+from sb3_memret.tasks import make_task
+from sb3_memret.tasks.mikasa.demo_layout import proprio_names
+
+COLOUR, SHAPE = "RememberColor3-VLA-v0", "RememberShape3-VLA-v0"
+SMALL = ["--image-encoder", "cnn", "--image-dim", "8", "--keypoints", "4", "--batch-size", "8", "--no-progress"]
+
+
+@pytest.fixture(scope="module")
+def datasets(tmp_path_factory):
+    """One expert episode of each task, decision frames with both cameras."""
+    root = tmp_path_factory.mktemp("multi-task-controller")
+    out = {}
+    for task, seed in ((COLOUR, 100011), (SHAPE, 100012)):
+        out[task] = root / task
+        result = CliRunner().invoke(main, ["demos", "--task", task, "--episodes", "1", "--seed", str(seed),
+                                           "--n-envs", "1", "--noisy-fraction", "0", "--out", str(out[task]),
+                                           "--no-progress"])
+        assert result.exit_code == 0, result.output
+    return out
+
+
+def test_the_tasks_demonstrations_merge_on_the_union_of_their_layouts(datasets):
+    demos, tasks = load_task_demonstrations({COLOUR: [datasets[COLOUR]], SHAPE: [datasets[SHAPE]]})
+    colour, shape = (make_task(name).state_names() for name in (COLOUR, SHAPE))
+    assert [t.name for t in tasks] == [COLOUR, SHAPE]
+    assert demos.state_names == colour + tuple(n for n in shape if n not in colour)  # proprioception once, then each's
+    assert set(proprio_names()) <= set(colour) & set(shape)
+    is_colour = demos.known[:, demos.state_names.index("cube_red_x")]
+    assert 0 < is_colour.sum() < len(demos.states) and demos.known[:, :len(proprio_names())].all()
+    assert (demos.known[:, demos.state_names.index("shape_sphere_x")] == ~is_colour).all()
+    assert not demos.states[~demos.known].any()  # entries a frame's task lacks hold 0
+    assert len(np.unique(demos.episodes)) == 2 and len(demos.tasks) == 2  # one episode, one prompt each
+    assert all(("cube's color" in p) == c for p, c in zip(np.array(demos.tasks)[demos.task_ids], is_colour))
+
+
+def test_masked_statistics_and_loss_read_only_the_marked_entries():
+    values = np.array([[1.0, 0.0], [3.0, 5.0], [0.0, 7.0]], dtype=np.float32)
+    mask = np.array([[True, False], [True, True], [False, True]])
+    mean, std = masked_stats(values, mask)
+    assert mean.tolist() == [2.0, 6.0] and std.tolist() == [1.0, 1.0]
+    predicted, target = torch.tensor([[1.0, 9.0]]), torch.tensor([[0.0, 0.0]])
+    assert masked_mse(predicted, target, torch.tensor([[True, False]])).item() == 1.0  # the unmarked 81 left out
+    assert masked_mse(predicted, target, torch.ones(1, 2, dtype=torch.bool)).item() == pytest.approx(41.0)
+
+
+def test_one_camera_controller_is_trained_on_both_tasks_and_serves_each(datasets, tmp_path):
+    out = tmp_path / "ckpt"
+    result = CliRunner().invoke(main, ["finetune", str(datasets[COLOUR]), str(datasets[SHAPE]), "--tasks",
+                                       f"{COLOUR},{SHAPE}", "--out", str(out), "--steps", "40", *SMALL])
+    assert result.exit_code == 0, result.output
+    losses = [float(row["train_loss"]) for row in read_log(out)]
+    assert np.isfinite(losses).all() and losses[-1] < losses[0]
+    controller = make_controller(f"learned:{out}", COLOUR)
+    config = controller.policy.config
+    assert config.served_tasks == (COLOUR, SHAPE) and config.state_names == proprio_names()
+    assert {"cube_red_x", "shape_sphere_x"} <= set(config.perceived_names)
+    assert set(config.instructions) == {make_task(t).prompt_template.instructions[0] for t in (COLOUR, SHAPE)}
+    for name in (COLOUR, SHAPE):  # it acts on each task's cameras and prompts (a 40-step policy: success not asked)
+        result = CliRunner().invoke(main, ["rollout", "--task", name, "--controller", f"learned:{out}", "--condition",
+                                           "oracle", "--episodes", "1", "--seed", "5000"])
+        assert result.exit_code == 0, result.output
+    with pytest.raises(ValueError, match=rf"trained on task '{COLOUR}' or '{SHAPE}', not 'RememberColor5-VLA-v0'"):
+        make_controller(f"learned:{out}", "RememberColor5-VLA-v0")
+
+
+@pytest.mark.parametrize("tasks, message", [
+    (f"{COLOUR}", "1 tasks for 2 datasets"),
+    (f"{COLOUR},{COLOUR}", "names one task"),
+    (f"{COLOUR},NoSuchTask-v0", "NoSuchTask-v0"),
+])
+def test_datasets_and_their_tasks_must_pair(datasets, tmp_path, tasks, message):
+    result = CliRunner().invoke(main, ["finetune", str(datasets[COLOUR]), str(datasets[SHAPE]), "--tasks", tasks,
+                                       "--out", str(tmp_path / "x"), *SMALL])
+    assert result.exit_code == 2 and message in result.output and "--tasks" in result.output
+
+
+def test_a_full_state_policy_over_tasks_whose_layouts_differ_is_refused(datasets, tmp_path):
+    result = CliRunner().invoke(main, ["finetune", str(datasets[COLOUR]), str(datasets[SHAPE]), "--tasks",
+                                       f"{COLOUR},{SHAPE}", "--state", "full", "--out", str(tmp_path / "x"), *SMALL])
+    assert result.exit_code == 2 and "train it with state='proprio'" in result.output
