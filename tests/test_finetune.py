@@ -201,3 +201,18 @@ def test_hindsight_points_each_prompt_at_the_object_its_episodes_hands_mostly_en
     assert hindsight_objects(demos, names[:3], ("a", "b"), without_episode_5).tolist() == [0, 1, 1]
     with pytest.raises(ValueError, match="hand_z"):
         hindsight_objects(demos, ("tcp_x", "tcp_y", "hand_z"), ("a", "b"))
+
+
+def test_hindsight_never_points_at_an_object_the_episodes_task_lacks():
+    """Two tasks merged: b exists only in the second, so the first's frames hold b at 0 (where its hand ends);
+    its prompt still points at a, the nearest object it has."""
+    names = ("tcp_x", "tcp_y", "tcp_z", "a_x", "a_y", "a_z", "b_x", "b_y", "b_z")
+    states = np.array([[0.0, 0.0, 0.0, 0.3, 0.0, 0.0, 0.0, 0.0, 0.0],  # task 1: no b, the hand ends at b's zeros
+                       [1.0, 0.0, 0.0, 0.3, 0.0, 0.0, 1.0, 0.0, 0.0]], np.float32)  # task 2: the hand ends at b
+    known = np.ones(states.shape, dtype=bool)
+    known[0, 6:] = False
+    demos = Demonstrations(states=states, actions=np.zeros((2, 7), np.float32), episodes=np.array([0, 1]),
+                           task_ids=np.array([0, 1]), tasks=["p0", "p1"], images={}, state_names=names, known=known)
+    assert hindsight_objects(demos, names[:3], ("a", "b")).tolist() == [0, 1]
+    demos.known = None
+    assert hindsight_objects(demos, names[:3], ("a", "b")).tolist() == [1, 1]  # unmasked, b's zeros would win
