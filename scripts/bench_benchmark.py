@@ -9,6 +9,10 @@ waits for them (``play_units``: the worker processes are spawned, build the harn
 play). It prints episodes/s, control steps/s and decisions/s (controller calls: one per ``replan_every`` steps)
 per worker count, and each count's ratio to one worker. Each outcome is checked to be the same across counts: a
 worker count changes how fast the table plays, never what it says.
+
+With ``--rendering`` it then plays the same episodes in this process twice, rendering the cameras after every
+control step (the harness's own way) and only for the observations the agent reads (``harness.SensorGate``, the
+benchmark's way), and prints each one's time, its ratio to every-step rendering and the outcomes, checked equal.
 """
 
 from __future__ import annotations
@@ -17,6 +21,8 @@ import argparse
 import math
 import time
 
+from sb3_memret.benchmark import harness
+from sb3_memret.benchmark.agent import MemoryAgent
 from sb3_memret.benchmark.manifest import DEV_SEED
 from sb3_memret.benchmark.runner import Protocol, Unit, play_units
 from sb3_memret.tasks import make_task
@@ -31,6 +37,28 @@ def play(task: str, controller: str, condition: str, episodes: int, workers: int
     return time.perf_counter() - start, records
 
 
+def play_rendering(task: str, controller: str, condition: str, episodes: int,
+                   every_step: bool) -> tuple[float, list[tuple[bool, int]]]:
+    """Seconds to play ``episodes`` development-seed episodes in this process (the env built beforehand), rendering
+    after every step or only what the agent reads, and each episode's (success, steps)."""
+    from sb3_memret.controller_specs import make_controller
+
+    the_task = make_task(task)
+    env = harness.make_env(task)
+    try:
+        agent = MemoryAgent(the_task, make_controller(controller, the_task), condition, the_task.replan_every,
+                            render_every_step=every_step)
+        agent.bind(env)
+        outcomes, start = [], time.perf_counter()
+        for seed in range(DEV_SEED, DEV_SEED + episodes):
+            agent.begin(seed)
+            result = harness.play_episode(env, agent, seed)
+            outcomes.append((bool(result.success_once), int(result.n_steps)))
+        return time.perf_counter() - start, outcomes
+    finally:
+        env.close()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="RememberColor3-VLA-v0")
@@ -38,6 +66,7 @@ def main() -> None:
     parser.add_argument("--condition", default="oracle", choices=["none", "oracle", "wrong", "written"])
     parser.add_argument("--episodes", type=int, default=8)
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
+    parser.add_argument("--rendering", action="store_true", help="also compare every-step rendering with the gate")
     args = parser.parse_args()
 
     replan_every = make_task(args.task).replan_every
@@ -60,6 +89,17 @@ def main() -> None:
         base = base or rate
         print(f"| {workers} | {seconds:.1f} | {rate:.3f} | {steps / seconds:.1f} | {decisions / seconds:.2f} | "
               f"{rate / base:.2f}x | {sum(s for s, _ in outcome)}/{args.episodes} |")
+    if args.rendering:
+        print("\n| rendering (1 process) | seconds | episodes/s | steps/s | vs every step | success |")
+        print("|---|---|---|---|---|---|")
+        every, every_outcomes = play_rendering(args.task, args.controller, args.condition, args.episodes, True)
+        read, read_outcomes = play_rendering(args.task, args.controller, args.condition, args.episodes, False)
+        if read_outcomes != every_outcomes:
+            raise SystemExit(f"the gate changed the outcomes: {read_outcomes} vs {every_outcomes}")
+        steps = sum(n for _, n in every_outcomes)
+        for name, seconds in (("every step (the harness's)", every), ("what the agent reads", read)):
+            print(f"| {name} | {seconds:.1f} | {args.episodes / seconds:.3f} | {steps / seconds:.1f} | "
+                  f"{every / seconds:.2f}x | {sum(s for s, _ in every_outcomes)}/{args.episodes} |")
 
 
 if __name__ == "__main__":

@@ -288,3 +288,42 @@ def test_a_task_without_an_implementation_is_refused_with_its_reason():
     assert "time since the lamp turned green" in run.refused["TimedTransferEasy-VLA-v0"]
     assert run.refused["BatteriesCheckerEasy-3-VLA-v0"] == "no sb3-memret task implements it yet"
     assert run.units(set()) == []
+
+
+def test_the_agent_renders_only_what_it_reads_and_every_outcome_stays_the_same():
+    """The same RememberColor3 episodes with the harness's every-step rendering and with the sensor gate: equal
+    outcomes and prompts. The scripted controller reads no images, so under oracle only the reset renders; the
+    written condition's writer reads every step's."""
+    from sb3_memret.benchmark import harness
+    from sb3_memret.benchmark.agent import MemoryAgent
+    from sb3_memret.tasks import make_task
+
+    task = make_task("RememberColor3-VLA-v0")
+    env = harness.make_env(task.name)
+    gate = harness.SensorGate.of(env)
+    assert harness.SensorGate.of(env) is gate  # installed once
+    renders = Counter()
+    render = gate._render
+
+    def counted(*args, **kwargs):
+        renders[key] += 1
+        return render(*args, **kwargs)
+
+    gate._render = counted
+    outcomes = {}
+    try:
+        for condition in ("oracle", "written"):
+            for every_step in (True, False):
+                key = (condition, every_step)
+                agent = MemoryAgent(task, task.expert(), condition, task.replan_every, render_every_step=every_step)
+                agent.bind(env)
+                agent.begin(5001)
+                result = harness.play_episode(env, agent, 5001)
+                outcomes[key] = (result.success_once, result.episode_return, result.n_steps, agent.prompts)
+    finally:
+        env.close()
+    for condition in ("oracle", "written"):
+        assert outcomes[condition, True] == outcomes[condition, False]
+    steps = outcomes["oracle", True][2]
+    assert renders["oracle", True] == steps + 1 and renders["oracle", False] == 1
+    assert renders["written", False] == steps + 1  # RememberColor3's writer perceives every step

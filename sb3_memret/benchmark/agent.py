@@ -119,7 +119,7 @@ class MemoryAgent:
     chunk_size = 1
 
     def __init__(self, task: Task, controller: FrozenController, condition: str, replan_every: int,
-                 learner: MemoryLearner | None = None, encoder: Any = None):
+                 learner: MemoryLearner | None = None, encoder: Any = None, render_every_step: bool = False):
         check_conditions([condition])
         if not 1 <= replan_every <= controller.spec.chunk_len:
             raise ValueError(f"replan_every must be in [1, {controller.spec.chunk_len}] (the controller's chunk), "
@@ -128,6 +128,8 @@ class MemoryAgent:
             raise ValueError("the recall condition needs a trained memory learner")
         self.task, self.controller, self.condition = task, controller, condition
         self.replan_every, self.learner = replan_every, learner
+        self.render_every_step = render_every_step  # else only the observations read (``harness.SensorGate``)
+        self._gate: Any = None
         self._encoder = encoder
         self.env: gym.Env | None = None
         self._view: Any = None
@@ -150,14 +152,18 @@ class MemoryAgent:
 
     def bind(self, env: gym.Env) -> None:
         """Act in ``env`` (a harness env of this agent's task) from now on."""
+        from sb3_memret.benchmark.harness import SensorGate
+
         self.env, self._view = env, None
         self.controller.check_env(env)
+        self._gate = SensorGate.of(env)
 
     def begin(self, seed: int) -> None:
         """The next ``forward`` starts the episode played at ``seed``."""
         if self.env is None:
             raise RuntimeError("bind() the agent to its harness env before an episode")
         self._seed, self._queue, self._steps = int(seed), [], 0
+        self._gate.open = True  # the reset's observation starts the episode
 
     # ------------------------------------------------------------ acting
     def _frame(self, obs: Mapping[str, Any], view: Mapping[str, Any], first: bool) -> EnvFrame:
@@ -204,7 +210,17 @@ class MemoryAgent:
             chunk = self.controller.act(stack_obs([view]), [prompt])[0][:self.replan_every]
             self._queue = [np.asarray(action, dtype=np.float32) for action in chunk]
         self._steps += 1
-        return self._queue.pop(0)
+        action = self._queue.pop(0)
+        self._gate.open = self.render_every_step or self._reads_next_images()
+        return action
+
+    def _reads_next_images(self) -> bool:
+        """Whether the next observation's images are read: by the controller at a decision, by the writer at every
+        step of a task that perceives every step (else at decisions), where the condition writes facts."""
+        decides = not self._queue
+        writes = self.condition in ("written", "recall")
+        return (decides and (self.controller.spec.needs_images or writes)) or (
+            writes and self.task.perceives_every_step)
 
 
 def stated_instruction(env: gym.Env) -> Any:
