@@ -326,4 +326,5 @@ def test_the_agent_renders_only_what_it_reads_and_every_outcome_stays_the_same()
         assert outcomes[condition, True] == outcomes[condition, False]
     steps = outcomes["oracle", True][2]
     assert renders["oracle", True] == steps + 1 and renders["oracle", False] == 1
-    assert renders["written", False] == steps + 1  # RememberColor3's writer perceives every step
+    assert task.perception_window(env) == 6
+    assert renders["written", False] == 1 + 5 and renders["written", True] == steps + 1

@@ -130,6 +130,7 @@ class MemoryAgent:
         self.replan_every, self.learner = replan_every, learner
         self.render_every_step = render_every_step  # else only the observations read (``harness.SensorGate``)
         self._gate: Any = None
+        self._window: int | None = None  # the task's perception window in this env (``Task.perception_window``)
         self._encoder = encoder
         self.env: gym.Env | None = None
         self._view: Any = None
@@ -157,6 +158,7 @@ class MemoryAgent:
         self.env, self._view = env, None
         self.controller.check_env(env)
         self._gate = SensorGate.of(env)
+        self._window = self.task.perception_window(env) if self.task.perceives_every_step else None
 
     def begin(self, seed: int) -> None:
         """The next ``forward`` starts the episode played at ``seed``."""
@@ -172,9 +174,15 @@ class MemoryAgent:
             info["language_instruction"] = stated_instruction(self.env)
         frame, = self.task.frames(self.env, view, info, reset=first)
         frame.steps = 0 if first else 1
-        if self.task.perceives_every_step:
+        if self._perceives(self._steps):
             frame.percepts = [self.task.perceive(self.env, view)]
         return frame
+
+    def _perceives(self, step: int) -> bool:
+        """Whether the writer perceives the observation after ``step`` control steps: where the condition writes
+        facts, at every step of the task's perception window."""
+        return self.condition in ("written", "recall") and self.task.perceives_every_step and (
+            self._window is None or step < self._window)
 
     def _start(self, frame: EnvFrame) -> None:
         from sb3_memret.rollout import condition_schedule
@@ -215,12 +223,12 @@ class MemoryAgent:
         return action
 
     def _reads_next_images(self) -> bool:
-        """Whether the next observation's images are read: by the controller at a decision, by the writer at every
-        step of a task that perceives every step (else at decisions), where the condition writes facts."""
+        """Whether the next observation's images are read: by the controller at a decision; where the condition
+        writes facts, by the writer at every step of its task's perception window, or at decisions for a task that
+        does not perceive every step (its frames are read there)."""
         decides = not self._queue
-        writes = self.condition in ("written", "recall")
-        return (decides and (self.controller.spec.needs_images or writes)) or (
-            writes and self.task.perceives_every_step)
+        frames_read = self.condition in ("written", "recall") and not self.task.perceives_every_step
+        return (decides and (self.controller.spec.needs_images or frames_read)) or self._perceives(self._steps)
 
 
 def stated_instruction(env: gym.Env) -> Any:

@@ -157,6 +157,12 @@ class Task(ABC):
         (small and picklable: it crosses process boundaries). Only with ``perceives_every_step``."""
         raise NotImplementedError(f"{type(self).__name__} does not perceive every step")
 
+    def perception_window(self, env: gym.Env) -> int | None:
+        """With ``perceives_every_step``: how many control steps from the reset can show the writer anything (a
+        cue's longest phase), after which it perceives only at decisions; None: the whole episode. Read from the
+        env's settings, never from an episode's draw, so it holds for every episode of ``env``."""
+        return None
+
     # ------------------------------------------------------------ memory
     @abstractmethod
     def writer(self, source: str = "seeded") -> Writer:

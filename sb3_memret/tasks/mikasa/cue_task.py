@@ -171,6 +171,12 @@ class MikasaCueTask(Task):
     def perceive(self, env: gym.Env, obs: Any) -> str | None:
         return self.read_cue(as_numpy(obs["sensor_data"]["base_camera"]["rgb"])[0])
 
+    def perception_window(self, env: gym.Env) -> int | None:
+        """The longest cue phase MIKASA's env can draw (``CUE_PHASE_STEPS``: 1-5 steps, 10-100 in -Long), and one
+        step more: no later frame shows the cue."""
+        phase = getattr(env.unwrapped, "CUE_PHASE_STEPS", None)
+        return None if phase is None else int(max(phase)) + 1
+
     # ------------------------------------------------------------ memory
     def writer(self, source: str = "seeded") -> CueWriter:
         return CueWriter(self.cue_entity, self.cue_relation)
