@@ -38,8 +38,9 @@ from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig, pe
 from sb3_memret.controllers.learned.modeling import LearnedPolicy, chunk_loss, pointer_ambiguity
 from sb3_memret.controllers.learned.processing import PromptTokenizer, state_columns
 from sb3_memret.controllers.learned.vision import shift_augment
-from sb3_memret.controllers.observation import ACTION_CHUNK_KEY, ACTION_DIM, ACTION_KEY, CHUNK_PAD_KEY, IMAGE_KEYS, STATE_KEY
 from sb3_memret.prompts import INSTRUCTION_TEMPLATE, PromptTemplate, parse_prompt
+from sb3_memret.stage1.demonstrations import (Demonstrations, hindsight_objects, load_demonstrations,
+                                               load_task_demonstrations, validation_episodes)
 from sb3_memret.tasks import DEFAULT_TASK, Task, make_task
 
 LOG_FILE = "train_log.csv"
@@ -75,169 +76,6 @@ class FinetuneSettings:
             raise ValueError(f"validation_fraction must lie in [0, 1), got {self.validation_fraction}")
 
 
-@dataclass
-class Demonstrations:
-    """All frames of one or more datasets as arrays, with each frame's chunk of target indices."""
-
-    states: np.ndarray  # (N, D) float32, in the task's layout (state_names)
-    actions: np.ndarray  # (N, 7) float32
-    episodes: np.ndarray  # (N,) a global episode id
-    task_ids: np.ndarray  # (N,) index into tasks
-    tasks: list[str]
-    images: dict[str, np.ndarray]  # feature -> (N, S, S, 3) uint8, empty for state-only data
-    state_names: tuple[str, ...] = ()
-    chunks: np.ndarray | None = None  # (N, H, 7): decision frames' label chunks; None when every step is a frame
-    chunk_pad: np.ndarray | None = None  # (N, H) steps of a chunk past the episode's end
-    known: np.ndarray | None = None  # (N, D) the state entries each frame's task has (several tasks); None: all
-
-    def targets(self, chunk_len: int) -> tuple[np.ndarray, np.ndarray]:
-        """(N, chunk_len, 7) target labels of every frame and their (N, chunk_len) pad mask."""
-        if self.chunks is None:
-            index, pad = self.chunk_indices(chunk_len)
-            return self.actions[index], pad
-        if self.chunks.shape[1] < chunk_len:
-            raise ValueError(f"the datasets hold chunks of {self.chunks.shape[1]} labels; the policy predicts "
-                             f"{chunk_len}: lower chunk_len or record longer chunks")
-        return self.chunks[:, :chunk_len], self.chunk_pad[:, :chunk_len]
-
-    def last_frames(self) -> np.ndarray:
-        """The index of each episode's last frame (episodes are runs of equal ids in ``episodes``)."""
-        return np.r_[np.flatnonzero(np.diff(self.episodes)), len(self.episodes) - 1]
-
-    def chunk_indices(self, chunk_len: int) -> tuple[np.ndarray, np.ndarray]:
-        """(N, chunk_len) frame indices of each frame's target chunk and the mask of steps past its episode."""
-        last = self.last_frames()
-        ends = np.repeat(last, np.diff(np.r_[-1, last]))  # each frame's episode's last frame
-        raw = np.arange(len(self.actions))[:, None] + np.arange(chunk_len)[None, :]
-        return np.minimum(raw, ends[:, None]), raw > ends[:, None]
-
-
-def load_demonstrations(roots: Sequence[str | Path], task: str | Task = DEFAULT_TASK) -> Demonstrations:
-    """Read LeRobotDatasets written by ``sb3-memret demos`` for ``task`` (lerobot's reader), checking their
-    features against the task's layout."""
-    from lerobot.datasets.lerobot_dataset import LeRobotDataset
-
-    if not roots:
-        raise ValueError("no dataset given")
-    task = make_task(task)
-    names = task.state_names()
-    parts, tasks, offset, image_keys, chunked = [], [], 0, None, None
-    for root in roots:
-        root = Path(root)
-        if not (root / "meta" / "info.json").is_file():
-            raise FileNotFoundError(f"{root} is not a LeRobotDataset (no meta/info.json); write one with "
-                                    "`sb3-memret demos --out DIR`")
-        dataset = LeRobotDataset(f"local/{root.name}", root=root, video_backend="pyav")  # no videos to decode
-        features = dataset.meta.features
-        _check_feature(features, STATE_KEY, (len(names),), root, task.name)
-        _check_feature(features, ACTION_KEY, (ACTION_DIM,), root, task.name)
-        if tuple(features[STATE_KEY].get("names") or names) != names:
-            raise ValueError(f"{root}: its state entries {features[STATE_KEY]['names']} are not task "
-                             f"{task.name!r}'s layout {list(names)}")
-        keys = tuple(k for k in IMAGE_KEYS if k in features)
-        if image_keys is not None and keys != image_keys:
-            raise ValueError(f"{root} has cameras {list(keys)} but an earlier dataset has {list(image_keys)}; "
-                             "train on datasets recorded with the same render backend")
-        has_chunks = ACTION_CHUNK_KEY in features
-        if chunked is not None and has_chunks != chunked:
-            raise ValueError(f"{root} keeps {'decision' if has_chunks else 'every'} frames but an earlier dataset "
-                             "does not; train on datasets recorded with the same --frames")
-        image_keys, chunked = keys, has_chunks
-        columns = dataset.hf_dataset.with_format("numpy")
-        local = dataset.meta.tasks["task_index"]
-        task_map = np.zeros(int(local.max()) + 1, dtype=np.int64)
-        task_map[local.to_numpy()] = [_task_id(task, tasks) for task in local.index]
-        episode_index = np.asarray(columns["episode_index"])
-        part = {
-            "states": np.asarray(columns[STATE_KEY], dtype=np.float32),
-            "actions": np.asarray(columns[ACTION_KEY], dtype=np.float32),
-            "episodes": episode_index + offset,
-            "task_ids": task_map[np.asarray(columns["task_index"])],
-            "images": {k: np.asarray(columns[k], dtype=np.uint8) for k in keys},
-        }
-        if has_chunks:
-            part["chunks"] = np.asarray(columns[ACTION_CHUNK_KEY], dtype=np.float32)
-            part["chunk_pad"] = np.asarray(columns[CHUNK_PAD_KEY], dtype=bool)
-        offset = int(part["episodes"].max()) + 1
-        parts.append(part)
-    sizes = {p["images"][k].shape[1:] for p in parts for k in p["images"]}
-    if len(sizes) > 1:
-        raise ValueError(f"the datasets' camera images differ in size {sorted(sizes)}; record them with one --image-size")
-    return Demonstrations(
-        states=np.concatenate([p["states"] for p in parts]),
-        actions=np.concatenate([p["actions"] for p in parts]),
-        episodes=np.concatenate([p["episodes"] for p in parts]),
-        task_ids=np.concatenate([p["task_ids"] for p in parts]),
-        tasks=tasks,
-        images={k: np.concatenate([p["images"][k] for p in parts]) for k in (image_keys or ())},
-        state_names=names,
-        chunks=np.concatenate([p["chunks"] for p in parts]) if chunked else None,
-        chunk_pad=np.concatenate([p["chunk_pad"] for p in parts]) if chunked else None,
-    )
-
-
-def load_task_demonstrations(datasets: Mapping[str | Task, Sequence[str | Path]]) -> tuple[Demonstrations, list[Task]]:
-    """Read each task's datasets (``load_demonstrations``) into one set on the union of the tasks' layouts (entries
-    in order of first appearance), with ``known`` marking each frame's own entries (the others hold 0)."""
-    if not datasets:
-        raise ValueError("no dataset given")
-    tasks = [make_task(task) for task in datasets]
-    parts = [load_demonstrations(roots, task) for task, roots in zip(tasks, datasets.values())]
-    cameras = {task.name: (tuple(part.images), next((im.shape[1:] for im in part.images.values()), None))
-               for task, part in zip(tasks, parts)}
-    if len(set(cameras.values())) > 1:
-        raise ValueError(f"the tasks' datasets hold different cameras or image sizes {cameras}: record them all with "
-                         "the same render backend and --image-size")
-    if len({part.chunks is None for part in parts}) > 1:
-        raise ValueError("some tasks' datasets keep every frame and others decision frames only; record them all "
-                         "with the same --frames")
-    names = tuple(dict.fromkeys(name for part in parts for name in part.state_names))
-    prompts: list[str] = []
-    states, known, task_ids, episodes, offset = [], [], [], [], 0
-    for part in parts:
-        columns = state_columns(names, part.state_names, "the union layout")
-        block = np.zeros((len(part.states), len(names)), dtype=np.float32)
-        block[:, columns] = part.states
-        mask = np.zeros(block.shape, dtype=bool)
-        mask[:, columns] = True
-        states.append(block)
-        known.append(mask)
-        task_ids.append(np.array([_task_id(part.tasks[i], prompts) for i in part.task_ids], dtype=np.int64))
-        episodes.append(part.episodes + offset)
-        offset = int(episodes[-1].max()) + 1
-    chunked = parts[0].chunks is not None
-    return Demonstrations(
-        states=np.concatenate(states), actions=np.concatenate([p.actions for p in parts]),
-        episodes=np.concatenate(episodes), task_ids=np.concatenate(task_ids), tasks=prompts,
-        images={k: np.concatenate([p.images[k] for p in parts]) for k in parts[0].images}, state_names=names,
-        chunks=np.concatenate([p.chunks for p in parts]) if chunked else None,
-        chunk_pad=np.concatenate([p.chunk_pad for p in parts]) if chunked else None,
-        known=np.concatenate(known)), tasks
-
-
-def _task_id(task: str, tasks: list[str]) -> int:
-    if task not in tasks:
-        tasks.append(task)
-    return tasks.index(task)
-
-
-def _check_feature(features: dict, key: str, shape: tuple[int, ...], root: Path, task: str) -> None:
-    if key not in features or tuple(features[key]["shape"]) != shape:
-        found = features.get(key, {}).get("shape")
-        raise ValueError(f"{root}: feature {key!r} has shape {found}, expected {shape} (task {task!r}'s "
-                         "demonstration layout)")
-
-
-def has_cameras(roots: Sequence[str | Path]) -> bool:
-    """Whether the first dataset holds camera images (read from its metadata alone)."""
-    import json
-
-    info = Path(roots[0]) / "meta" / "info.json"
-    if not info.is_file():
-        raise FileNotFoundError(f"{roots[0]} is not a LeRobotDataset (no meta/info.json)")
-    return any(key in json.loads(info.read_text())["features"] for key in IMAGE_KEYS)
-
-
 def training_instructions(prompts: Sequence[str], instructions: Sequence[str],
                           fact_templates: Sequence[str]) -> tuple[str, ...]:
     """The instructions a policy trained on ``prompts`` accepts: the one instruction they hold, or
@@ -252,43 +90,6 @@ def state_names_for(task: Task, state: str) -> tuple[str, ...]:
     if state not in STATE_CHOICES:
         raise ValueError(f"unknown state {state!r}; expected one of {list(STATE_CHOICES)}")
     return task.state_names() if state == "full" else task.proprio_names()
-
-
-def hindsight_objects(demos: Demonstrations, hand_names: Sequence[str], objects: Sequence[str],
-                      frames: np.ndarray | None = None) -> np.ndarray:
-    """(len(demos.tasks),) for each prompt the index in ``objects`` of the object its episodes' hands end nearest
-    (by the ``<object>_x/_y/_z`` and ``hand_names`` state entries at each episode's last frame; only episodes
-    whose last frame is in the boolean ``frames`` vote), or -1 where no object is nearest in more than half of
-    them: what the prompt was about, read from where the hand went. Exact for an expert's episodes; a DAgger
-    round's, where the learner drove, are outvoted when it erred."""
-    def columns(names: Sequence[str]) -> np.ndarray:
-        return state_columns(demos.state_names, names, "the datasets' state (for pointer hindsight)")
-
-    last = demos.last_frames()
-    if frames is not None:
-        last = last[frames[last]]
-    hand = demos.states[last][:, columns(hand_names)]
-    where = np.stack([demos.states[last][:, columns([f"{obj}_{axis}" for axis in "xyz"])] for obj in objects], axis=1)
-    distance = np.linalg.norm(where - hand[:, None], axis=-1)
-    if demos.known is not None:  # an object its episode's task does not have is never the nearest
-        has = np.stack([demos.known[last][:, columns([f"{obj}_x"])[0]] for obj in objects], axis=1)
-        distance = np.where(has, distance, np.inf)
-    nearest = distance.argmin(axis=1)
-    prompts = demos.task_ids[last]
-    targets = np.full(len(demos.tasks), -1)
-    for prompt in np.unique(prompts):
-        votes = np.bincount(nearest[prompts == prompt], minlength=len(objects))
-        if votes.max() * 2 > votes.sum():
-            targets[prompt] = votes.argmax()
-    return targets
-
-
-def validation_episodes(episodes: np.ndarray, fraction: float, rng: np.random.Generator) -> np.ndarray:
-    """The episode ids held out for validation: ``fraction`` of them, drawn by ``rng`` (a finetune's first draw from
-    ``default_rng(seed)``, so a finetune's split can be rebuilt from its seed)."""
-    ids = np.unique(episodes)
-    n_val = int(round(len(ids) * fraction))
-    return rng.choice(ids, size=n_val, replace=False) if n_val else np.array([], dtype=np.int64)
 
 
 def camera_inputs(model: LearnedPolicy, images: dict[str, np.ndarray], keys: Sequence[str]) -> list[torch.Tensor]:
@@ -505,6 +306,5 @@ def read_log(out: str | Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
-__all__ = ["Demonstrations", "FinetuneSettings", "STATE_CHOICES", "finetune", "has_cameras", "hindsight_objects",
-           "load_demonstrations", "load_task_demonstrations", "masked_mse", "masked_stats", "pointer_targets",
-           "read_log", "state_names_for", "tasks_template", "validation_episodes"]
+__all__ = ["FinetuneSettings", "STATE_CHOICES", "finetune", "masked_mse", "masked_stats", "pointer_targets", "read_log",
+           "state_names_for", "tasks_template"]
