@@ -96,6 +96,7 @@ def test_results_count_current_episodes_and_keep_refusals():
     assert "| A-VLA-v0 | Object | 4 | 0% (0/1) * | 50% (1/2) |" in report
     assert "| oracle | 1/3 | 50.0% | 16.7% |" in report  # only A played all of its oracle episodes
     assert "| C-VLA-v0 | needs an asset |" in report and "B-VLA-v0 (oracle) | RuntimeError: boom" in report
+    assert "not all of the protocol's episodes played yet" in report  # the footnote of A's partial cell
 
 
 def test_code_digests_name_the_code_that_acts():
@@ -193,6 +194,7 @@ def test_the_agent_plays_mikasas_harness_from_cameras_only(tmp_path, monkeypatch
     from sb3_memret.benchmark.runner import rebuild
 
     assert rebuild(tmp_path) == content  # the table again from the folder alone (`benchmark report`)
+    assert "played yet" not in render_report(content)  # every cell complete: no footnote for partial ones
 
 
 LEARNER = """n_timesteps: 16

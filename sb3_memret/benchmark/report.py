@@ -66,13 +66,17 @@ def render_report(content: Mapping[str, Any]) -> str:
         "| task | memory type | replan | " + " | ".join(conditions) + " |",
         "|---|---|---|" + "---|" * len(conditions),
     ]
+    partial = False
     for env_id, t in tasks.items():
         if "refused" in t:
             cells = ["refused"] * len(conditions)
         else:
             cells = [_cell(t["conditions"].get(c)) for c in conditions]
+        partial = partial or any(cell.endswith(" *") for cell in cells)
         lines.append(f"| {env_id} | {t['memory_type']} | {t.get('replan_every', '')} | " + " | ".join(cells) + " |")
-    lines += ["", "`*`: not all of the protocol's episodes played yet.", "", "## Split mean", "",
+    if partial:
+        lines += ["", "`*`: not all of the protocol's episodes played yet."]
+    lines += ["", "## Split mean", "",
               "| condition | tasks run | mean over tasks run | split mean, tasks not run counted as 0 |",
               "|---|---|---|---|"]
     for c in conditions:
