@@ -127,6 +127,7 @@ class MemoryAgent:
         if condition == "recall" and learner is None:
             raise ValueError("the recall condition needs a trained memory learner")
         self.task, self.controller, self.condition = task, controller, condition
+        self.writes = condition in ("written", "recall")  # the writer's facts reach the prompt
         self.replan_every, self.learner = replan_every, learner
         self.render_every_step = render_every_step  # else only the observations read (``harness.SensorGate``)
         self._gate: Any = None
@@ -181,8 +182,7 @@ class MemoryAgent:
     def _perceives(self, step: int) -> bool:
         """Whether the writer perceives the observation after ``step`` control steps: where the condition writes
         facts, at every step of the task's perception window."""
-        return self.condition in ("written", "recall") and self.task.perceives_every_step and (
-            self._window is None or step < self._window)
+        return self.writes and self.task.perceives_every_step and (self._window is None or step < self._window)
 
     def _start(self, frame: EnvFrame) -> None:
         from sb3_memret.rollout import condition_schedule
@@ -227,7 +227,7 @@ class MemoryAgent:
         writes facts, by the writer at every step of its task's perception window, or at decisions for a task that
         does not perceive every step (its frames are read there)."""
         decides = not self._queue
-        frames_read = self.condition in ("written", "recall") and not self.task.perceives_every_step
+        frames_read = self.writes and not self.task.perceives_every_step
         return (decides and (self.controller.spec.needs_images or frames_read)) or self._perceives(self._steps)
 
 

@@ -177,8 +177,9 @@ def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, no
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
 def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | None, batch_size: int | None,
              learning_rate: float | None, seed: int, pretrained: Path | None, tokenizer: Path | None, lora_rank: int,
-             device: str, task: str, dataset_tasks: str | None, state: str | None, image_encoder: str, image_dim: int, keypoints: int,
-             image_colour: bool, image_film: bool, pointer: bool, pointer_hindsight: float, progress: bool) -> None:
+             device: str, task: str, dataset_tasks: str | None, state: str | None, image_encoder: str,
+             image_dim: int, keypoints: int, image_colour: bool, image_film: bool, pointer: bool,
+             pointer_hindsight: float, progress: bool) -> None:
     """Train a frozen controller from DATASETS (LeRobotDatasets written by `sb3-memret demos`).
 
     The learned policy reads the prompt as frozen MiniLM per-token features, the state (and the
@@ -239,10 +240,8 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
                 bar.set_postfix(loss=f"{loss:.4f}")
 
         try:
-            if by_task is None:
-                train_policy(datasets, out, config, settings=settings, on_step=on_step, task=task, state=state)
-            else:
-                train_policy(by_task, out, config, settings=settings, on_step=on_step, state=state)
+            train_policy(by_task or datasets, out, config, settings=settings, on_step=on_step,
+                         task=None if by_task else task, state=state)
         except (FileNotFoundError, ValueError) as err:
             raise click.UsageError(str(err)) from err
     click.echo(f"checkpoint written: --controller learned:{out}")
