@@ -23,7 +23,7 @@ from sb3_memret.controllers.learned import LearnedPolicy
 from sb3_memret.controllers.learned.configuration import perceived_objects
 from sb3_memret.controllers.learned.modeling import pointer_ambiguity
 from sb3_memret.controllers.learned.processing import PromptTokenizer
-from sb3_memret.stage1.demonstrations import load_demonstrations, validation_episodes
+from sb3_memret.stage1.datasets import load_demonstrations, validation_episodes
 from sb3_memret.stage1.finetune import FinetuneSettings, camera_inputs
 
 

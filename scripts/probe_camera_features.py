@@ -19,7 +19,7 @@ from torch import nn
 
 from sb3_memret.controllers.learned.vision import make_camera_encoder, shift_augment
 from sb3_memret.controllers.observation import IMAGE_KEYS, STATE_NAMES
-from sb3_memret.stage1.demonstrations import load_demonstrations
+from sb3_memret.stage1.datasets import load_demonstrations
 
 TARGETS = ("x", "y", "z", "yaw")
 

@@ -14,7 +14,7 @@ from sb3_memret.controllers.observation import PROPRIO_NAMES, STATE_NAMES
 from sb3_memret.prompts import INSTRUCTION
 from sb3_memret.tasks.drawer.prompts import condition_prompt
 from sb3_memret.stage1.demos import DemoEpisode, record_demos
-from sb3_memret.stage1.demonstrations import Demonstrations, hindsight_objects, load_demonstrations, validation_episodes
+from sb3_memret.stage1.datasets import Demonstrations, hindsight_objects, load_demonstrations, validation_episodes
 from sb3_memret.stage1.finetune import FinetuneSettings, finetune, read_log
 
 SMALL = LearnedPolicyConfig(hidden_dim=64, n_layers=2, text_dim=32, text_heads=2, chunk_len=8)

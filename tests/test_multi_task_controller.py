@@ -10,7 +10,7 @@ from click.testing import CliRunner
 
 from sb3_memret.cli import main
 from sb3_memret.controller_specs import make_controller
-from sb3_memret.stage1.demonstrations import load_task_demonstrations
+from sb3_memret.stage1.datasets import load_task_demonstrations
 from sb3_memret.stage1.finetune import masked_mse, masked_stats, read_log
 from sb3_memret.tasks import make_task
 from sb3_memret.tasks.mikasa.demo_layout import proprio_names

@@ -208,7 +208,7 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
     if pretrained is not None or tokenizer is not None:
         raise click.BadParameter("--pretrained and --tokenizer apply to --policy pi05 only", param_hint="--policy")
     from sb3_memret.controllers.learned import LearnedPolicyConfig
-    from sb3_memret.stage1.demonstrations import has_cameras
+    from sb3_memret.stage1.datasets import has_cameras
     from sb3_memret.stage1.finetune import FinetuneSettings, tasks_template
     from sb3_memret.stage1.finetune import finetune as train_policy
     from sb3_memret.tasks import make_task

@@ -39,8 +39,8 @@ from sb3_memret.controllers.learned.modeling import LearnedPolicy, chunk_loss, p
 from sb3_memret.controllers.learned.processing import PromptTokenizer, state_columns
 from sb3_memret.controllers.learned.vision import shift_augment
 from sb3_memret.prompts import INSTRUCTION_TEMPLATE, PromptTemplate, parse_prompt
-from sb3_memret.stage1.demonstrations import (Demonstrations, hindsight_objects, load_demonstrations,
-                                               load_task_demonstrations, validation_episodes)
+from sb3_memret.stage1.datasets import (Demonstrations, hindsight_objects, load_demonstrations,
+                                        load_task_demonstrations, validation_episodes)
 from sb3_memret.tasks import DEFAULT_TASK, Task, make_task
 
 LOG_FILE = "train_log.csv"
