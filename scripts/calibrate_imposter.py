@@ -1,11 +1,11 @@
-"""Measure the FindImposter shape prototypes, and score the FindImposter cue readers.
+"""Record the FindImposter shape exemplars, and score the FindImposter cue readers.
 
 ``calibrate`` renders the cue frame (the reset frame: the cue phase lasts at least one step) of ``--episodes``
 episodes per shape task at development seeds ``--seed`` + i (6000 by default: neither MIKASA's evaluation seeds
 4242424242 + i nor the 5000 + i the figures are quoted at), finds each object in view as the reader does
 (``objects_in_view``), names it by the segmentation camera (ground truth, calibration only; an object whose pixels
-merge with another's is skipped) and writes each shape's mean and spread of ``shape_features`` to
-``sb3_memret/tasks/mikasa/imposter_prototypes.py``.
+merge with another's is skipped) and writes each object's place, crop and shape (``ShapeExemplars``) to
+``sb3_memret/tasks/mikasa/assets/imposter_exemplars/<env id>.npz``.
 
 ``evaluate`` reads the cue frame of ``--episodes`` episodes per task at seeds ``--seed`` + i through the task's
 own reader (``FindImposterTask.read_cue``) and scores it against the segmentation camera: frames read exactly
@@ -19,8 +19,7 @@ word, the share of the objects shown that the reader named right (``assign_shown
 from __future__ import annotations
 
 import argparse
-from collections import Counter, defaultdict
-from pathlib import Path
+from collections import Counter
 
 import numpy as np
 
@@ -28,7 +27,6 @@ SHAPE_TASKS = ("FindImposterShape3-VLA-v0", "FindImposterShape5-VLA-v0", "FindIm
                "FindImposterShapeAndColor3x2-VLA-v0", "FindImposterShapeAndColor3x3-VLA-v0",
                "FindImposterShapeAndColor5x3-VLA-v0")
 ALL_TASKS = ("FindImposterColor3-VLA-v0", "FindImposterColor5-VLA-v0", "FindImposterColor9-VLA-v0") + SHAPE_TASKS
-OUT = Path(__file__).resolve().parents[1] / "sb3_memret" / "tasks" / "mikasa" / "imposter_prototypes.py"
 
 
 def cue_frames(task, seeds):
@@ -66,51 +64,32 @@ def owner_of(blob: np.ndarray, owner: np.ndarray) -> int | None:
 
 def calibrate(episodes: int, seed: int) -> None:
     from sb3_memret.tasks import make_task
-    from sb3_memret.tasks.mikasa.imposter_perception import objects_in_view, shape_features
+    from sb3_memret.tasks.mikasa.imposter_perception import EXEMPLARS_DIR, ShapeExemplars, object_crop, objects_in_view
 
-    tables, counts = {}, {}
+    EXEMPLARS_DIR.mkdir(parents=True, exist_ok=True)
     for env_id in SHAPE_TASKS:
         task = make_task(env_id)
-        features = defaultdict(list)
+        centres, crops, shapes = [], [], []
         for rgb, owner in cue_frames(task, range(seed, seed + episodes)):
             for seen in objects_in_view(rgb, 3):
                 k = owner_of(seen.mask, owner)
                 if k is not None:
-                    features[task.candidate(task.words[k])[1]].append(shape_features(rgb, seen.mask))
-        tables[env_id] = {shape: (np.mean(f, axis=0).round(4).tolist(), np.std(f, axis=0).round(4).tolist())
-                          for shape, f in features.items()}
-        counts[env_id] = {shape: len(f) for shape, f in features.items()}
-        print(env_id, counts[env_id], flush=True)
-    lines = [
-        '"""The FindImposter shape reader\'s prototypes: each shape\'s mean and spread of ``shape_features`` (in the',
-        "order of ``imposter_perception.FEATURES``) per task, over its objects in the cue frames of "
-        f"{episodes} episodes",
-        f"at development seeds {seed}..{seed + episodes - 1}, named by the segmentation camera. Written by",
-        f"``scripts/calibrate_imposter.py calibrate --episodes {episodes} --seed {seed}``; do not edit by hand.",
-        '"""', "", "PROTOTYPES: dict[str, dict[str, tuple[list[float], list[float]]]] = {",
-    ]
-    for env_id, table in tables.items():
-        lines.append(f"    # objects per shape: {counts[env_id]}")
-        lines.append(f"    {env_id!r}: {{")
-        for shape, (mean, spread) in table.items():
-            lines.append(f"        {shape!r}: (\n            {mean!r},\n            {spread!r}),")
-        lines.append("    },")
-    lines += ["}", ""]
-    OUT.write_text("\n".join(lines))
-    print(f"wrote {OUT}")
+                    centre, crop = object_crop(rgb, seen.mask)
+                    centres.append(centre)
+                    crops.append(crop)
+                    shapes.append(task.candidate(task.words[k])[1])
+        path = EXEMPLARS_DIR / f"{env_id}.npz"
+        ShapeExemplars(np.array(centres, dtype=np.float32), np.array(crops, dtype=np.float32), np.array(shapes)).save(path)
+        print(f"{env_id}: {dict(Counter(shapes))} -> {path}", flush=True)
 
 
 def evaluate(tasks: list[str], episodes: int, seed: int) -> None:
     from sb3_memret.tasks import make_task
-    from sb3_memret.tasks.mikasa.imposter_perception import assign_shown
+    from sb3_memret.tasks.mikasa.imposter_perception import assign_shown, task_exemplars
 
     for env_id in tasks:
         task = make_task(env_id)
-        prototypes = None
-        if task.reads_shapes:
-            from sb3_memret.tasks.mikasa.imposter_prototypes import PROTOTYPES
-
-            prototypes = PROTOTYPES[env_id]
+        exemplars = task_exemplars(env_id) if task.reads_shapes else None
         frames, named, right = Counter(), Counter(), Counter()
         for rgb, owner in cue_frames(task, range(seed, seed + episodes)):
             truth = tuple(task.words[k] for k in sorted(set(np.unique(owner).tolist()) - {-1}))
@@ -118,7 +97,7 @@ def evaluate(tasks: list[str], episodes: int, seed: int) -> None:
             frames["exact" if read == truth else "no set" if read is None else "wrong"] += 1
             for word in truth:
                 named[word] += 1
-            assigned = assign_shown(rgb, [task.candidate(w) for w in task.words], task.n_words - 1, prototypes)
+            assigned = assign_shown(rgb, [task.candidate(w) for w in task.words], task.n_words - 1, exemplars)
             for seen, j in assigned or ():
                 k = owner_of(seen.mask, owner)
                 right[task.words[j]] += k is not None and task.words[k] == task.words[j]

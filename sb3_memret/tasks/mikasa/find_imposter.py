@@ -17,8 +17,8 @@ manipulation phase only.
 cue and delay lengths; the arm's initial joints.
 
 **Memory.** The writer reads the base camera at every control step (``imposter_perception.read_shown``: colours
-from each object's top face, shapes from silhouette features against per-task prototypes, each object a different
-candidate) and, from the first frame that shows N - 1 objects, writes what the cue showed, in one of two
+from each object's top face, shapes by its shading against the task's exemplars seen at its place, each object a
+different candidate) and, from the first frame that shows N - 1 objects, writes what the cue showed, in one of two
 wordings (``wording``):
 
 - ``"set"`` (the default): one fact naming the set, ``the shown cubes were red and lime.``, ``the shown objects
@@ -50,7 +50,7 @@ from sb3_memret.tasks.base import EnvFrame, Episode, Predicates
 from sb3_memret.tasks.mikasa.cue_task import MikasaCueTask
 from sb3_memret.tasks.mikasa.carry_expert import REACH_X
 from sb3_memret.tasks.mikasa.expert import ScriptedTouchController, TouchGains
-from sb3_memret.tasks.mikasa.imposter_perception import read_shown
+from sb3_memret.tasks.mikasa.imposter_perception import read_shown, task_exemplars
 from sb3_memret.tasks.mikasa.perception import COLOUR_NAMES, ControllerObservation
 from sb3_memret.tasks.mikasa.remember_shape_and_color import OBJECTS, ObjectControllerObservation
 from sb3_memret.tasks.mikasa.shape_perception import SHAPE_NAMES, ShapeControllerObservation
@@ -137,7 +137,7 @@ class FindImposterTask(MikasaCueTask):
     set_entity: ClassVar[str]
     #: the instruction, MIKASA's, lowercased
     instruction_text: ClassVar[str]
-    #: whether objects differ in shape: the reader then scores shapes against the task's measured prototypes
+    #: whether objects differ in shape: the reader then matches shapes against the task's shipped exemplars
     reads_shapes: ClassVar[bool] = False
     long_steps: ClassVar[Mapping[str, int]] = {}  # env ids whose episodes last longer than 25 steps
 
@@ -179,12 +179,8 @@ class FindImposterTask(MikasaCueTask):
     # ------------------------------------------------------------ perception and memory
     def read_cue(self, rgb: np.ndarray) -> tuple[str, ...] | None:
         """The words of the objects in view when they are N - 1 (the cue's count), each a different one."""
-        prototypes = None
-        if self.reads_shapes:
-            from sb3_memret.tasks.mikasa.imposter_prototypes import PROTOTYPES
-
-            prototypes = PROTOTYPES[self.name]
-        shown = read_shown(rgb, [self.candidate(w) for w in self.words], self.n_words - 1, prototypes)
+        exemplars = task_exemplars(self.name) if self.reads_shapes else None
+        shown = read_shown(rgb, [self.candidate(w) for w in self.words], self.n_words - 1, exemplars)
         return None if shown is None else tuple(self.words[j] for j in shown)
 
     def writer(self, source: str = "seeded") -> ShownWriter:

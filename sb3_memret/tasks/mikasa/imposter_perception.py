@@ -6,32 +6,32 @@ angle and distance. ``objects_in_view`` finds them: pixels of a saturated colour
 hue family (red and maroon, lime, blue, yellow, magenta, cyan and teal, olive), one object per connected
 group (a group of two touching objects, when fewer are in view than expected, is cut in two). Its colour is the
 palette's top-face shade nearest the mean of its top face (its brightest pixels: a
-top face renders the same shade anywhere on the table, the sides do not); its shape is scored against
-per-shape prototypes of silhouette features (``shape_features``), sizes scaled by the object's distance from
-the camera, measured per task on development seeds (``imposter_prototypes``, ``scripts/calibrate_imposter.py``).
+top face renders the same shade anywhere on the table, the sides do not). Its shape is read by matching: every
+shape stands in one fixed orientation at one of a few places (jittered about a centimetre), so an object looks like
+the same shape seen at the same place before. ``ShapeExemplars`` holds, per task, the objects of the cue frames of 200
+development episodes (seeds 6000-6199, named by the segmentation camera: ``scripts/calibrate_imposter.py
+calibrate``), each as its place in the image and its shading around it (``object_crop``); an object's cost as a
+shape is its crop's least distance to that shape's exemplars seen at its place.
 
 ``read_shown`` answers the set in view when it holds exactly as many objects as the cue shows, each a
 different candidate: colours and shapes are given to objects jointly (``linear_sum_assignment``), so two
 objects never take the same name.
 
 Measured (``scripts/calibrate_imposter.py evaluate``: the cue frame of 60 episodes per task at seeds 5000-5059,
-scored against the segmentation camera; the prototypes come from seeds 6000-6199): the frames whose set was read
-exactly were FindImposterColor3 60, Color5 60, Color9 59 (one read as no set), Shape3 60, Shape5 55 (five
-wrong), Shape9 45 (fifteen wrong), ShapeAndColor3x2 60, 3x3 56 (three no set, one wrong), 5x3 59 (one no set).
-No colour task named an object wrong (Color9's misses are its one frame read as no set); shapes are what fails,
-among nine most: of
-Shape9's objects shown, named right were cube 46/50, sphere 49/52, cylinder 50/55, cross 52/55, torus 43/51, star
-40/49, pyramid 50/53, t shape 51/58, crescent 53/57 (Shape5: cube 45/48, sphere 50/50, cylinder 44/45, cross
-51/52, torus 45/45). Objects 6-20 pixels across seen from the camera's angle at each place do not separate nine
-silhouettes as the centre's cue does (``shape_perception``); the wrist camera sees them larger and from above
-but not the pyramid from the cube, and no better over all nine (a trial of similar features on segmented objects
-of Shape9: 87% named right against the base camera's 85%).
+scored against the segmentation camera): the frames whose set was read exactly were FindImposterColor3 60, Color5
+60, Color9 59 (one read as no set), Shape3 60, Shape5 60, Shape9 60, ShapeAndColor3x2 60, 3x3 57 (three read as no
+set), 5x3 59 (one no set). No frame was read wrong; a frame read as no set has two objects merged in view (every cue
+frame of an episode is the same, so its writer writes no fact). Before, shapes were scored against per-shape means of twelve silhouette features
+scaled by distance: Shape5 55 and Shape9 45 frames read exactly, the rest wrong (nine shapes 6-20 pixels across,
+seen from a different angle at each place, do not separate by size and moments alone).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Mapping, Sequence
+from functools import lru_cache
+from pathlib import Path
+from typing import Sequence
 
 import numpy as np
 from scipy import ndimage
@@ -49,9 +49,13 @@ TOP_FACE_TOL = 8  # a top-face pixel's brightest channel is within this of the o
 MAX_TOP_DISTANCE = 30.0  # RGB: an object's top face is within 6 of its colour's anywhere, >= 60 from another's
 TOP_COST_SCALE = 10.0  # a top face this far from a colour's costs as much as one spread of one shape feature
 SPLIT_ITERATIONS = 10
-FEATURE_FLOOR = 0.03  # the least spread a prototype's feature may have (a feature constant over calibration)
-FEATURES = ("log_area", "height", "width", "fill", "holes", "top", "side", "shade_spread", "spread", "elongation",
-            "mirror_lr", "mirror_ud")
+CROP_HALF = 10  # pixels each side of an object's centre that its crop keeps: the largest cue object is 20 across
+CROP_LEVELS = 255  # a crop's shades are stored as integers 0..CROP_LEVELS
+CROP_SHIFTS = (-1, 0, 1)  # pixels a crop may sit off an exemplar's, down and across (centres round to a pixel)
+NEAR_PLACE = 4.0  # pixels: an exemplar whose centre lies this close to an object's was seen at its place
+NEAREST_PLACES = 5  # a shape with no exemplar that near: this many of its exemplars nearest the object's place
+MATCH_SCALE = 3.0  # a crop distance (summed shade differences) this large costs as much as 1 (costs are squared)
+EXEMPLARS_DIR = Path(__file__).resolve().parent / "assets" / "imposter_exemplars"
 
 
 def _rendered(colour: int, face: str) -> np.ndarray:
@@ -77,26 +81,74 @@ def view_distance(row: float, col: float) -> float:
     return float((OBJECT_HEIGHT - BASE_EYE[2]) / ray[2] * np.linalg.norm(ray))
 
 
-def shape_features(rgb: np.ndarray, blob: np.ndarray) -> np.ndarray:
-    """``FEATURES`` of one object's pixels: size (log pixel area, box height and width, all scaled to
-    ``REFERENCE_DISTANCE``), the box's share it fills, its holes' share, its shading (shares on the flat top
-    and side shades, spread of its brightest channel), its second moments, and its mirror symmetries."""
+def object_crop(rgb: np.ndarray, blob: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(centre (row, col), crop): the object's shading in a window of ``2 * CROP_HALF + 1`` pixels around its centre,
+    each of its pixels' brightest channel over the object's brightest (so any colour shades alike), 0 off it."""
     cells = np.argwhere(blob)
-    area = len(cells)
-    (r0, c0), (r1, c1) = cells.min(axis=0), cells.max(axis=0) + 1
-    scale = view_distance(*cells.mean(axis=0)) / REFERENCE_DISTANCE
-    bright = np.asarray(rgb)[blob].max(axis=-1).astype(np.float64)
-    top, side = FACE_LEVELS["top"][255], FACE_LEVELS["side"][255]
-    y, x = (cells - cells.mean(axis=0)).T
-    m20, m02, m11 = (np.mean(x * x), np.mean(y * y), np.mean(x * y))
-    box = blob[r0:r1, c0:c1]
-    return np.array([
-        np.log(area) + 2 * np.log(scale), (r1 - r0) * scale, (c1 - c0) * scale, area / box.size,
-        (ndimage.binary_fill_holes(box).sum() - area) / area,
-        np.mean(np.abs(bright - top) <= TOP_FACE_TOL), np.mean(np.abs(bright - side) <= TOP_FACE_TOL),
-        bright.std() / 50, (m20 + m02) / area, np.hypot(m20 - m02, 2 * m11) / area,
-        np.sum(box & box[:, ::-1]) / area, np.sum(box & box[::-1]) / area,
-    ])
+    centre = cells.mean(axis=0)
+    row, col = np.round(centre).astype(int)
+    bright = np.asarray(rgb).max(axis=-1).astype(np.float32)
+    shading = np.pad(np.where(blob, bright / bright[blob].max(), 0.0), CROP_HALF)
+    return centre, shading[row:row + 2 * CROP_HALF + 1, col:col + 2 * CROP_HALF + 1]
+
+
+@dataclass(frozen=True)
+class ShapeExemplars:
+    """A task's objects as the base camera saw them in calibration cue frames: where each stood (its centre in the
+    image), its crop (``object_crop``) and its shape's name.
+
+    Every shape stands in one fixed orientation and at one of a few places (MIKASA's spread places, jittered about
+    a centimetre, a pixel or two), so an object looks like the exemplars of its shape seen at its place."""
+
+    centres: np.ndarray  # (n, 2) float32
+    crops: np.ndarray  # (n, 2 * CROP_HALF + 1, 2 * CROP_HALF + 1) float32 in [0, 1]
+    shapes: np.ndarray  # (n,) str
+
+    def __post_init__(self) -> None:
+        n, side = len(self.shapes), 2 * CROP_HALF + 1
+        if self.centres.shape != (n, 2) or self.crops.shape != (n, side, side) or n == 0:
+            raise ValueError(f"exemplars need as many centres (n, 2) and crops (n, {side}, {side}) as shapes (n > 0); "
+                             f"got {self.centres.shape}, {self.crops.shape} and {n}")
+
+    @classmethod
+    def load(cls, path: Path) -> "ShapeExemplars":
+        """Exemplars saved by ``save``; a missing file is a FileNotFoundError naming it and how it is made."""
+        if not Path(path).is_file():
+            raise FileNotFoundError(f"no shape exemplars at {path}: `python scripts/calibrate_imposter.py calibrate` "
+                                    "writes them")
+        with np.load(path) as data:
+            return cls(data["centres"], data["crops"].astype(np.float32) / CROP_LEVELS, data["shapes"])
+
+    def save(self, path: Path) -> None:
+        """Written compressed, each crop's shades in ``CROP_LEVELS`` integer levels."""
+        crops = np.round(np.clip(self.crops, 0.0, 1.0) * CROP_LEVELS).astype(np.uint8)
+        np.savez_compressed(path, centres=self.centres.astype(np.float32), crops=crops, shapes=self.shapes)
+
+    def costs(self, rgb: np.ndarray, objects: Sequence["SeenObject"], shapes: Sequence[str]) -> np.ndarray:
+        """Each object's cost (rows) as each of ``shapes`` (columns): (its crop's least distance to the shape's
+        exemplars seen at its place, over ``CROP_SHIFTS``, / ``MATCH_SCALE``) squared."""
+        unknown = sorted(set(shapes) - set(self.shapes.tolist()))
+        if unknown:
+            raise ValueError(f"no exemplars of shapes {unknown}; these exemplars hold {sorted(set(self.shapes))}")
+        cost = np.zeros((len(objects), len(shapes)))
+        for i, seen in enumerate(objects):
+            centre, crop = object_crop(rgb, seen.mask)
+            shifted = np.stack([np.roll(crop, (dr, dc), axis=(0, 1)) for dr in CROP_SHIFTS for dc in CROP_SHIFTS])
+            place = np.linalg.norm(self.centres - centre, axis=1)
+            for j, shape in enumerate(shapes):
+                own = np.flatnonzero(self.shapes == shape)
+                near = own[place[own] <= NEAR_PLACE]
+                if len(near) == 0:
+                    near = own[np.argsort(place[own])[:NEAREST_PLACES]]
+                distance = np.abs(self.crops[near][:, None] - shifted[None]).sum(axis=(2, 3)).min()
+                cost[i, j] = (distance / MATCH_SCALE) ** 2
+        return cost
+
+
+@lru_cache(maxsize=None)
+def task_exemplars(env_id: str) -> ShapeExemplars:
+    """The shipped exemplars of a FindImposter task whose objects differ in shape (``EXEMPLARS_DIR/<env id>.npz``)."""
+    return ShapeExemplars.load(EXEMPLARS_DIR / f"{env_id}.npz")
 
 
 @dataclass(frozen=True)
@@ -187,25 +239,15 @@ def _assign(cost: np.ndarray) -> np.ndarray | None:
     return None if np.any(finite[rows, cols] >= 1e9) else cols[np.argsort(rows)]
 
 
-def shape_costs(rgb: np.ndarray, objects: Sequence[SeenObject], prototypes: Mapping[str, tuple[Sequence[float],
-                Sequence[float]]], shapes: Sequence[str]) -> np.ndarray:
-    """Each object's squared scaled distance (rows) to each of ``shapes``' prototypes (columns)."""
-    means = np.array([prototypes[s][0] for s in shapes])
-    spreads = np.maximum(np.array([prototypes[s][1] for s in shapes]), FEATURE_FLOOR)
-    features = np.array([shape_features(rgb, o.mask) for o in objects]).reshape(len(objects), len(FEATURES))
-    return (((features[:, None] - means[None]) / spreads[None]) ** 2).sum(-1)
-
-
 def assign_shown(rgb: np.ndarray, candidates: Sequence[tuple[str | None, str | None]], n_shown: int,
-                 prototypes: Mapping[str, tuple[Sequence[float], Sequence[float]]] | None = None
-                 ) -> list[tuple[SeenObject, int]] | None:
+                 exemplars: ShapeExemplars | None = None) -> list[tuple[SeenObject, int]] | None:
     """Each object in view with the candidate (index) it is read as, when exactly ``n_shown`` objects are in view
     and each reads as a different candidate; else None.
 
     A candidate is (colour, shape): its colour one of ``COLOUR_NAMES`` or None (the task's objects share one, blue),
-    its shape a key of ``prototypes`` or None (they share one). Objects take candidates jointly at the least total
+    its shape one of ``exemplars``' or None (they share one). Objects take candidates jointly at the least total
     cost: a candidate whose colour's top face lies farther than ``MAX_TOP_DISTANCE`` from an object's is out for it
-    (nearer, the distance costs a little); a shape costs the object's scaled distance to the shape's prototype.
+    (nearer, the distance costs a little); a shape costs what ``ShapeExemplars.costs`` says.
     """
     blue = COLOUR_NAMES.index("blue")
     colours = [blue if colour is None else COLOUR_NAMES.index(colour) for colour, _ in candidates]
@@ -216,21 +258,20 @@ def assign_shown(rgb: np.ndarray, candidates: Sequence[tuple[str | None, str | N
     cost = np.where(top <= MAX_TOP_DISTANCE, (top / TOP_COST_SCALE) ** 2, np.inf)
     shapes = [shape for _, shape in candidates]
     if any(shape is not None for shape in shapes):
-        if prototypes is None or any(shape is None for shape in shapes):
-            raise ValueError("candidates that name shapes need every candidate's shape and the task's shape prototypes")
-        cost = cost + shape_costs(rgb, objects, prototypes, shapes)
+        if exemplars is None or any(shape is None for shape in shapes):
+            raise ValueError("candidates that name shapes need every candidate's shape and the task's shape exemplars")
+        cost = cost + exemplars.costs(rgb, objects, shapes)
     chosen = _assign(cost)
     return None if chosen is None else [(o, int(j)) for o, j in zip(objects, chosen)]
 
 
 def read_shown(rgb: np.ndarray, candidates: Sequence[tuple[str | None, str | None]], n_shown: int,
-               prototypes: Mapping[str, tuple[Sequence[float], Sequence[float]]] | None = None
-               ) -> tuple[int, ...] | None:
+               exemplars: ShapeExemplars | None = None) -> tuple[int, ...] | None:
     """The candidates in view (their indices, ascending) when exactly ``n_shown`` objects are, each read as a different
     candidate (``assign_shown``); else None."""
-    assigned = assign_shown(rgb, candidates, n_shown, prototypes)
+    assigned = assign_shown(rgb, candidates, n_shown, exemplars)
     return None if assigned is None else tuple(sorted(j for _, j in assigned))
 
 
-__all__ = ["FEATURES", "SeenObject", "assign_shown", "objects_in_view", "read_shown", "shape_costs", "shape_features",
+__all__ = ["ShapeExemplars", "SeenObject", "assign_shown", "object_crop", "objects_in_view", "read_shown", "task_exemplars",
            "split_in_two", "view_distance"]
