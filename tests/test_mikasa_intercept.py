@@ -1,6 +1,8 @@
 """MIKASA Intercept and InterceptGrab: the ball's speed read from frames, the controller's view, the prompt contract,
 the catch expert, the task in the memory loop."""
 
+import dataclasses
+
 import numpy as np
 import pytest
 import torch
@@ -216,9 +218,10 @@ def test_expert_is_batched_and_follows_the_stated_motion(grab, push):
     assert np.all(chunk[:, 6] == -1.0) and chunk[0, 0] > 0.3 and chunk[0, 1] > 0.5  # carries it to the target
 
 
-def _run(env, task, seed, motion):
+def _run(env, task, seed, motion, gains=None):
     obs, _ = env.reset(seed=seed)
     expert, prompt = task.expert(), _prompt(task, motion)
+    expert.gains = gains or expert.gains
     expert.reset([seed])
     success, chunk = False, None
     for step in range(task.max_control_steps):
@@ -239,6 +242,21 @@ def test_expert_catches_the_ball_with_the_true_speed_only(grab, grab_env):
     assert _run(grab_env, grab, DEV_SEED + 2, truth)
     assert not _run(grab_env, grab, DEV_SEED + 2, None)
     assert not _run(grab_env, grab, DEV_SEED + 2, Motion("left", 0.71))
+
+
+@pytest.mark.parametrize("seed", [5060, 5073])
+def test_the_catch_holds_a_ball_off_centre_in_the_harness_arm(seed):
+    """MIKASA's harness builds the wrist-camera Panda: its fingers driven shut on a ball caught off its centre
+    squeezed it out (InterceptSlow, development seeds 5060 and 5073); driven to 5 mm, they carry it to the target."""
+    task = make_task("InterceptSlow-VLA-v0")
+    env = task.make_env(obs_mode="state_dict", render_backend="cpu", sim_backend="cpu", robot_uids="panda_wristcam")
+    try:
+        obs, info = env.reset(seed=seed)
+        truth = task.frames(env, obs, info, reset=True)[0].state["motion"]
+        assert _run(env, task, seed, truth)
+        assert not _run(env, task, seed, truth, dataclasses.replace(task.expert().gains, catch_grip=-1.0))
+    finally:
+        env.close()
 
 
 def test_the_speed_fact_is_written_and_retrieved(encoder):
