@@ -11,7 +11,7 @@ per worker count, and each count's ratio to one worker. Each outcome is checked 
 worker count changes how fast the table plays, never what it says.
 
 With ``--rendering`` it then plays the same episodes in this process twice, rendering the cameras after every
-control step (the harness's own way) and only for the observations the agent reads (``harness.SensorGate``, the
+control step (the harness's own way) and only for the observations the agent reads (``sensor_gate.SensorGate``, the
 benchmark's way), and prints each one's time, its ratio to every-step rendering and the outcomes, checked equal.
 """
 

@@ -22,6 +22,7 @@ from sb3_memret.benchmark.manifest import episode_seeds, select_tasks  # noqa: E
 from sb3_memret.benchmark.report import render_report  # noqa: E402
 from sb3_memret.benchmark.runner import Plan, Protocol, RunFolder, done_units, results, run_benchmark  # noqa: E402
 from sb3_memret.cli import main  # noqa: E402
+from sb3_memret.sensor_gate import SensorGate  # noqa: E402
 
 # MIKASA-Robo-VLA's benchmarking page: the short split's memory types
 SHORT_SPLIT_TYPES = {"Spatial": 14, "Object": 9, "Negative": 9, "Temporal": 3, "Tracking": 2, "Prospective": 1}
@@ -302,8 +303,8 @@ def test_the_agent_renders_only_what_it_reads_and_every_outcome_stays_the_same()
 
     task = make_task("RememberColor3-VLA-v0")
     env = harness.make_env(task.name)
-    gate = harness.SensorGate.of(env)
-    assert harness.SensorGate.of(env) is gate  # installed once
+    gate = SensorGate.of(env)
+    assert SensorGate.of(env) is gate  # installed once
     renders = Counter()
     render = gate._render
 

@@ -72,3 +72,49 @@ def test_the_batched_simulation_path_plays_as_a_plain_env():
     finally:
         batched.close()
         plain.close()
+
+
+def test_the_writer_perceives_its_window_only_and_the_cameras_render_only_what_is_read():
+    """RememberColor3's writer perceives every step of its window (MIKASA's longest cue and one step); after it, the
+    camera renders only for the next decision. The same episode with the window lifted: equal frames, and every
+    percept after the window is None (no later frame shows the cue)."""
+    pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason="needs mikasa-robo-suite")
+    from sb3_memret.sensor_gate import SensorGate
+    from sb3_memret.tasks import make_task
+
+    task = make_task("RememberColor3-VLA-v0")
+    kwargs = task.env_kwargs(needs_images=False, render_backend="cpu")
+    windowed, everywhere = (TaskRunner(kwargs, task.max_control_steps, task) for _ in range(2))
+    everywhere.window = None
+    renders = {}
+    for name, runner in (("windowed", windowed), ("everywhere", everywhere)):
+        gate, renders[name] = SensorGate.of(runner.env), 0
+        render = gate._render
+
+        def counted(*args, _name=name, _render=render, **kwargs):
+            renders[_name] += 1
+            return _render(*args, **kwargs)
+
+        gate._render = counted
+    try:
+        assert windowed.window == 6
+        played = {name: [runner.reset(5001, {})] for name, runner in (("windowed", windowed),
+                                                                     ("everywhere", everywhere))}
+        zeros = np.zeros((task.replan_every, 7), np.float32)
+        while not played["windowed"][-1].truncated:
+            for name, runner in (("windowed", windowed), ("everywhere", everywhere)):
+                played[name].append(runner.execute(zeros))
+        steps = 0
+        for a, b in zip(played["windowed"], played["everywhere"]):
+            assert (a.steps, a.success, a.truncated) == (b.steps, b.success, b.truncated)
+            np.testing.assert_array_equal(a.obs["agent"]["qpos"], b.obs["agent"]["qpos"])
+            seen = max(0, min(len(b.percepts), task.perception_window(windowed.env) - steps - (a.steps > 0)))
+            assert a.percepts == b.percepts[:seen] and all(p is None for p in b.percepts[seen:]), steps
+            steps += a.steps
+        assert any(p is not None for frame in played["windowed"] for p in frame.percepts)  # the cue was read
+        decisions = len(played["windowed"]) - 1
+        assert renders["everywhere"] == 1 + steps  # the reset and every step
+        assert renders["windowed"] < renders["everywhere"] and renders["windowed"] <= 6 + decisions
+    finally:
+        windowed.close()
+        everywhere.close()

@@ -129,7 +129,7 @@ class MemoryAgent:
         self.task, self.controller, self.condition = task, controller, condition
         self.writes = condition in ("written", "recall")  # the writer's facts reach the prompt
         self.replan_every, self.learner = replan_every, learner
-        self.render_every_step = render_every_step  # else only the observations read (``harness.SensorGate``)
+        self.render_every_step = render_every_step  # else only the observations read (``SensorGate``)
         self._gate: Any = None
         self._window: int | None = None  # the task's perception window in this env (``Task.perception_window``)
         self._encoder = encoder
@@ -154,7 +154,7 @@ class MemoryAgent:
 
     def bind(self, env: gym.Env) -> None:
         """Act in ``env`` (a harness env of this agent's task) from now on."""
-        from sb3_memret.benchmark.harness import SensorGate
+        from sb3_memret.sensor_gate import SensorGate
 
         self.env, self._view = env, None
         self.controller.check_env(env)

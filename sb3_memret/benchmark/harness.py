@@ -15,8 +15,9 @@ latched over the episode). Two parts do not run unchanged on this stack, and are
   against: public names only, and only while the class has no ``__getattr__`` of its own.
 - **Rendering.** The harness's env renders both cameras after every control step, and ``run_episode`` hands each
   observation to the policy, which often reads none of them (a chunk's middle steps; a controller that reads no
-  images). ``SensorGate`` lets the agent say which observations it reads: the others carry the last images rendered
-  (physics never depends on rendering, so every outcome is the same; ``scripts/bench_benchmark.py`` measures it).
+  images). ``sensor_gate.SensorGate`` lets the agent say which observations it reads: the others carry the last
+  images rendered (physics never depends on rendering, so every outcome is the same; ``scripts/bench_benchmark.py``
+  measures it).
 - **Renderer.** The harness names no render backend; on a machine without a GPU, ManiSkill falls back to SAPIEN's
   CPU device, which renders with the project's lavapipe once ``use_cpu_renderer`` has pointed Vulkan at it.
 """
@@ -62,31 +63,6 @@ def make_env(env_id: str, sim_backend: str = "cpu", render_backend: str = "cpu")
     return make_benchmark_env(env_id, BenchmarkConfig(sim_backend=sim_backend))
 
 
-class SensorGate:
-    """Renders a harness env's cameras only while ``open``: a closed gate's observations carry the images last
-    rendered. Installed once per base env (``of``); the agent opens it for the observations it reads."""
-
-    def __init__(self, base: Any):
-        self.open = True
-        self._render = base._get_obs_sensor_data
-        self._last: dict[str, dict[str, Any]] | None = None
-        base._get_obs_sensor_data = self._sensor_data  # ManiSkill's one path to the cameras in an observation
-
-    @classmethod
-    def of(cls, env: gym.Env) -> "SensorGate":
-        """The gate of ``env``'s base env, installed on first use."""
-        base = env.unwrapped
-        gate = vars(base).get("_sb3_memret_sensor_gate")
-        if gate is None:
-            gate = base._sb3_memret_sensor_gate = cls(base)
-        return gate
-
-    def _sensor_data(self, apply_texture_transforms: bool = True) -> dict[str, dict[str, Any]]:
-        if self.open or self._last is None:
-            self._last = self._render(apply_texture_transforms)
-        return {name: dict(data) for name, data in self._last.items()}  # the wrappers may edit what they get
-
-
 def play_episode(env: gym.Env, policy: Any, seed: int) -> Any:
     """One episode at ``seed`` by the harness's ``run_episode``: its ``EpisodeResult`` (success_once, return,
     steps, seed)."""
@@ -96,4 +72,4 @@ def play_episode(env: gym.Env, policy: Any, seed: int) -> Any:
     return result
 
 
-__all__ = ["FORBIDDEN_KEYS", "OBS_KEYS", "SensorGate", "install_shims", "make_env", "play_episode"]
+__all__ = ["FORBIDDEN_KEYS", "OBS_KEYS", "install_shims", "make_env", "play_episode"]

@@ -25,6 +25,7 @@ import numpy as np
 
 from sb3_memret.obs_trees import to_numpy
 from sb3_memret.physics.chunks import execute_chunk
+from sb3_memret.sensor_gate import sensors_pause
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import EnvFrame
 from sb3_memret.workers import START_METHOD, WorkerDiedError, exit_description, init_worker_process
@@ -63,6 +64,9 @@ class TaskRunner:
         self.task = make_task(task)
         self.env = self.task.make_env(max_episode_steps=max_control_steps, **task_kwargs)
         self.succeeded = False
+        self.steps = 0  # control steps since the reset
+        # the steps from a reset the writer perceives (``Task.perception_window``; None: all of them)
+        self.window = self.task.perception_window(self.env) if self.task.perceives_every_step else None
 
     def info(self) -> TaskEnvInfo:
         return TaskEnvInfo.of(self.env)
@@ -70,13 +74,16 @@ class TaskRunner:
     def reset(self, seed: int, options: Mapping[str, Any]) -> EnvFrame:
         obs, info = self.env.reset(seed=int(seed), options=dict(options))
         frame, = self.task.frames(self.env, obs, info, reset=True)
-        self.succeeded = frame.success
+        self.succeeded, self.steps = frame.success, 0
         if self.task.perceives_every_step:
             frame.percepts = [self.task.perceive(self.env, obs)]
         return frame
 
     def execute(self, actions: np.ndarray) -> EnvFrame:
-        outcome = execute_chunk(self.env, actions, self.task.perceive if self.task.perceives_every_step else None)
+        perceive = self.task.perceive if self.task.perceives_every_step else None
+        window = None if self.window is None else self.window - self.steps - 1  # its steps left in this chunk
+        outcome = execute_chunk(self.env, actions, perceive, window)
+        self.steps += outcome.steps
         frame, = self.task.frames(self.env, outcome.obs, outcome.info)
         self.succeeded = self.succeeded or outcome.succeeded or frame.success
         frame.success, frame.steps, frame.reward, frame.percepts = self.succeeded, outcome.steps, outcome.reward, \
@@ -298,8 +305,7 @@ class BatchedSimPhysics(PhysicsBackend):
         ends = {i: len(chunk) for i, chunk in chunks.items()}
         rewards = np.zeros(self.num_envs)
         frames: dict[int, EnvFrame] = {}
-        base = self.env.unwrapped
-        paused = getattr(base, "sensors_paused", None)
+        paused = sensors_pause(self.env)
         for step in range(horizon):
             observed = paused is None or step == horizon - 1 or any(ends[i] == step + 1 for i in chunks)
             with nullcontext() if observed else paused():

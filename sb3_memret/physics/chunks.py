@@ -10,6 +10,7 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_memret.controllers.base import as_numpy
+from sb3_memret.sensor_gate import sensors_pause
 
 
 @dataclass
@@ -27,25 +28,29 @@ class ChunkOutcome:
 
 
 def execute_chunk(env: gym.Env, actions: Sequence[np.ndarray] | np.ndarray,
-                  perceive: Callable[[gym.Env, Any], Any] | None = None) -> ChunkOutcome:
+                  perceive: Callable[[gym.Env, Any], Any] | None = None,
+                  perceive_steps: int | None = None) -> ChunkOutcome:
     """Execute ``actions`` in order until the episode ends.
 
-    A controller reads the observation only when it is next called, so an env that can pause its
-    sensors (``sensors_paused``) renders only for the one after the last action (the next decision).
-    ``perceive(env, obs)`` is called after every step (a writer that must see every step: then
-    nothing is paused) and its answers are the outcome's ``percepts``.
+    A controller reads the observation only when it is next called, so an env whose cameras can pause
+    (``sensors_pause``: any ManiSkill env) renders only for the one after the last action (the next decision).
+    ``perceive(env, obs)`` is called after each of the first ``perceive_steps`` steps (None: every
+    step; a writer that must see every step of a cue: those steps are not paused) and its answers
+    are the outcome's ``percepts``.
     """
-    paused = getattr(env.unwrapped, "sensors_paused", None)
+    paused = sensors_pause(env)
+    perceived = len(actions) if perceive is None or perceive_steps is None else max(0, perceive_steps)
     obs, info, steps, terminated, truncated = None, {}, 0, False, False
     reward, succeeded, percepts = 0.0, False, []
     for i, action in enumerate(actions):
-        pause = paused is not None and perceive is None and i < len(actions) - 1
+        looks = perceive is not None and i < perceived
+        pause = paused is not None and not looks and i < len(actions) - 1
         with paused() if pause else nullcontext():
             obs, r, term, trunc, info = env.step(action)
         steps += 1
         reward += float(np.sum(as_numpy(r)))
         succeeded = succeeded or bool(np.any(as_numpy(info.get("success", False))))
-        if perceive is not None:
+        if looks:
             percepts.append(perceive(env, obs))
         terminated, truncated = bool(np.any(as_numpy(term))), bool(np.any(as_numpy(trunc)))
         if terminated or truncated:

@@ -159,8 +159,9 @@ class Task(ABC):
 
     def perception_window(self, env: gym.Env) -> int | None:
         """With ``perceives_every_step``: how many control steps from the reset can show the writer anything (a
-        cue's longest phase), after which it perceives only at decisions; None: the whole episode. Read from the
-        env's settings, never from an episode's draw, so it holds for every episode of ``env``."""
+        cue's longest phase); after them it perceives nothing, and the cameras render only for the controller's
+        decisions. None: the whole episode. Read from the env's settings, never from an episode's draw, so it holds
+        for every episode of ``env``."""
         return None
 
     # ------------------------------------------------------------ memory

@@ -1,0 +1,61 @@
+"""Render a ManiSkill env's cameras only for the observations someone reads.
+
+ManiSkill renders every camera into every observation of an ``rgb`` env. A controller reads images only at its
+decisions, and a writer only while something can be seen (``Task.perception_window``); physics never reads the
+renderer, so the other renders are pure cost. ``SensorGate`` is installed once on a base env (``of``): while it is
+closed, an observation carries the images last rendered.
+"""
+
+from __future__ import annotations
+
+from contextlib import AbstractContextManager, contextmanager
+from typing import Any, Callable, Iterator
+
+import gymnasium as gym
+
+
+class SensorGate:
+    """Renders a ManiSkill env's cameras only while ``open``: a closed gate's observations carry the images last
+    rendered. Installed once per base env (``of``), on ManiSkill's one path to the cameras in an observation."""
+
+    def __init__(self, base: Any):
+        self.open = True
+        self._render = base._get_obs_sensor_data
+        self._last: dict[str, dict[str, Any]] | None = None
+        base._get_obs_sensor_data = self._sensor_data
+
+    @classmethod
+    def of(cls, env: gym.Env) -> "SensorGate":
+        """The gate of ``env``'s base env, installed on first use."""
+        base = env.unwrapped
+        gate = vars(base).get("_sb3_memret_sensor_gate")
+        if gate is None:
+            gate = base._sb3_memret_sensor_gate = cls(base)
+        return gate
+
+    @contextmanager
+    def closed(self) -> Iterator[None]:
+        """Within, observations carry the images last rendered (for steps whose images nobody reads)."""
+        was, self.open = self.open, False
+        try:
+            yield
+        finally:
+            self.open = was
+
+    def _sensor_data(self, apply_texture_transforms: bool = True) -> dict[str, dict[str, Any]]:
+        if self.open or self._last is None:
+            self._last = self._render(apply_texture_transforms)
+        return {name: dict(data) for name, data in self._last.items()}  # wrappers may edit what they get
+
+
+def sensors_pause(env: gym.Env) -> Callable[[], AbstractContextManager[None]] | None:
+    """What pauses ``env``'s cameras for a step whose observation nobody reads: the env's own ``sensors_paused``
+    (the drawer's, which leaves the images out), else for any ManiSkill env its ``SensorGate``; None for others."""
+    base = env.unwrapped
+    own = getattr(base, "sensors_paused", None)
+    if own is not None:
+        return own
+    return SensorGate.of(env).closed if hasattr(base, "_get_obs_sensor_data") else None
+
+
+__all__ = ["SensorGate", "sensors_pause"]
