@@ -3,6 +3,7 @@
 import gymnasium as gym
 import numpy as np
 import pytest
+import torch
 
 from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
 from sb3_memret.controller_specs import make_controller
@@ -151,3 +152,73 @@ def test_a_drawer_pushed_half_shut_under_the_hand_is_opened_again(controller, ph
             break
     env.close()
     assert pushed and info["success"].item()
+
+
+def _seen(obs, tcp=None, fingers=None, opening=None, target=None):
+    """``obs`` with the hand, the drawer openings and the detected target replaced (a state another policy led to)."""
+    obs = {group: {key: value.clone() for key, value in part.items()} for group, part in obs.items()}
+    if tcp is not None:
+        obs["agent"]["eef_state"][0, :3] = torch.tensor(tcp)
+    if fingers is not None:
+        obs["agent"]["eef_state"][0, 6:8] = fingers / 2
+    if opening is not None:
+        obs["extra"]["drawer_opening"][0] = torch.tensor(opening)
+    if target is not None:
+        obs["extra"]["target_detection"][0] = torch.tensor([1.0, *target, 1.0, 0.0, 0.0, 0.0])
+    return obs
+
+
+def _enter(controller, phase, obs, prompt):
+    """Lead the expert into ``phase`` as its own episode would have (the plan is the expert's memory)."""
+    controller.reset([0])
+    controller.act(obs, [prompt])
+    controller._plans[0].phase, controller._plans[0].calls = phase, 0
+
+
+@pytest.mark.parametrize("phase", [Phase.RISE, Phase.ABOVE_CUBE, Phase.DESCEND])
+def test_a_cube_already_in_hand_is_lifted(task_env, controller, phase):
+    """DAgger's learner may grasp the cube while the expert still steers to it; the expert's label is then to lift
+    with the gripper closed, not to open and go above the cube again."""
+    obs, _ = task_env.reset(seed=0, options={"target_layer": 3})
+    prompt = condition_prompt("oracle", 3)
+    _enter(controller, phase, obs, prompt)
+    held = _seen(obs, tcp=[0.6, 0.0, 0.13], fingers=0.04, opening=[0.0, 0.0, 0.27], target=[0.6, 0.005, 0.13])
+    chunk = controller.act(held, [prompt])[0]
+    assert controller.phases() == [Phase.LIFT]
+    assert np.all(chunk[:, 6] == -1.0) and chunk[:, 2].sum() > 0  # keeps its grip, goes up
+
+
+def test_a_dropped_cube_is_grasped_again(controller):
+    """The cube slips out while lifting: the expert lets go, backs off and takes it out again."""
+    env = make_task_env(max_episode_steps=800)
+    obs, _ = env.reset(seed=11, options={"target_layer": 2})
+    controller.reset([11])
+    prompt, info, dropped, phases = condition_prompt("oracle", 2), {}, 0, []
+    for _ in range(0, 800, 8):
+        chunk = controller.act(obs, [prompt])[0][:8]
+        phases.append(controller.phases()[0])
+        if not dropped and phases[-1] is Phase.LIFT:
+            chunk = chunk.copy()
+            chunk[:, 6] = 1.0  # the fingers open: the cube falls back into the drawer
+            dropped = len(phases)
+        for action in chunk:
+            obs, _, terminated, truncated, info = env.step(action)
+        if terminated or truncated:
+            break
+    env.close()
+    assert dropped and Phase.DESCEND in phases[dropped:]  # went for it again
+    assert info["success"].item()
+
+
+@pytest.mark.parametrize(("opening", "cube_x", "decision"), [
+    (0.27, 0.60, Phase.RISE),  # open, the cube where it lies in a pulled drawer: reach in
+    (0.18, 0.69, Phase.REACH_HANDLE),  # half shut: the cube sits under the handle above, so open it again
+    (0.27, 0.72, Phase.IDLE),  # open as far as it goes and the cube pushed deep: stop rather than jam the hand
+])
+def test_the_expert_reaches_in_only_where_the_hand_fits(task_env, controller, opening, cube_x, decision):
+    obs, _ = task_env.reset(seed=0, options={"target_layer": 3})
+    prompt = condition_prompt("oracle", 3)
+    _enter(controller, Phase.BACK_OFF, obs, prompt)
+    seen = _seen(obs, tcp=[0.3, 0.0, 0.2], fingers=0.08, opening=[0.0, 0.0, opening], target=[cube_x, 0.0, 0.13])
+    controller.act(seen, [prompt])
+    assert controller.phases() == [decision]

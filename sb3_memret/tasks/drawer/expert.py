@@ -11,6 +11,9 @@ the new one).
 Each env's progress is a small state machine whose transitions are checked on the observed
 state at every call; within a chunk, motion is predicted with a first-order model of the
 ``pd_ee_delta_pose`` arm (measured: the TCP moves ~0.39 of the commanded delta per step).
+Its phases follow what is seen, not only what it did, so it also labels the states another
+policy leads it into (DAgger): an object already between the fingers is lifted, one dropped
+is grasped again, a drawer pushed back in is opened again before it reaches in.
 """
 
 from __future__ import annotations
@@ -33,6 +36,8 @@ POS_SCALE = 0.1
 ROT_SCALE = -0.1
 PLANT_GAIN = 0.39
 OPEN, CLOSE = 1.0, -1.0
+HOLD_RADIUS = 0.03  # m from the TCP within which an object's centre is between the fingers
+HOLD_WIDTH = (0.015, 0.07)  # finger opening (m) of a closed grasp on one of the task's objects (squeezed: < 3 cm)
 
 R_DOWN = Rotation.from_matrix(np.diag([1.0, -1.0, -1.0]))  # approach -z, fingers along y
 # Handles are grasped from the front, pitched 35 deg down: a level hand would need the
@@ -110,6 +115,7 @@ class ScriptedGains:
     fine_tol: float = 0.008
     turn_tol: float = 0.08
     open_target: float = 0.27
+    reach_in_clearance: float = 0.07  # the cube's centre this far in front of the handle above it, or re-open first
     phase_timeout_calls: int = 20
 
 
@@ -198,6 +204,10 @@ class ScriptedDrawerController(FrozenController):
             return (Phase.PUSH,)
         if p is Phase.PUSH and s.opening[d - 1] < 0.02:
             return (Phase.BACK_OFF,)
+        if p in (Phase.RISE, Phase.ABOVE_CUBE, Phase.DESCEND) and self._holding(s):
+            return (Phase.LIFT,)  # it is in hand already (another policy grasped it)
+        if p in (Phase.RISE, Phase.ABOVE_CUBE, Phase.DESCEND) and not self._reachable(plan, s):
+            return (Phase.RELEASE,)  # the drawer was pushed in or the cube lost from view: back off, re-decide
         if p is Phase.RISE and s.tcp_pos[2] > self._rise_height(d) - 0.02:
             return (Phase.ABOVE_CUBE,) if s.target_visible else (Phase.IDLE,)
         if p is Phase.ABOVE_CUBE and self._at(s, s.target_pos + [0, 0, 0.12], self._down(s), g.fine_tol + 0.004):
@@ -206,14 +216,16 @@ class ScriptedDrawerController(FrozenController):
             return (Phase.GRIP_CUBE,)
         if p is Phase.GRIP_CUBE and plan.calls > 0:
             return (Phase.LIFT,) if s.finger_width > 0.03 else (Phase.RELEASE,)
-        if p is Phase.LIFT and s.finger_width < 0.03:
+        if p is Phase.LIFT and not self._holding(s):
             return (Phase.RELEASE,)  # dropped it
+        if p is Phase.IDLE and (self._reachable(plan, s) or s.opening[plan.layer - 1] < g.open_target - 0.02):
+            return (Phase.RELEASE,)  # the cube came into view or the named drawer was pushed in: re-decide
         return None
 
     def _after_back_off(self, plan: _Plan, s: Perception) -> tuple[Phase, int] | tuple[Phase]:
         """Decide what to do once the hand is clear of the drawers."""
         g = self.gains
-        if s.target_visible:
+        if self._reachable(plan, s):
             return (Phase.RISE, plan.drawer)
         stray = [layer for layer in LAYERS if layer != plan.layer and s.opening[layer - 1] > 0.03]
         if stray:
@@ -221,6 +233,23 @@ class ScriptedDrawerController(FrozenController):
         if s.opening[plan.layer - 1] < g.open_target - 0.02:
             return (Phase.REACH_HANDLE, plan.layer)
         return (Phase.IDLE,)  # the named drawer is open and holds no cube
+
+    def _reachable(self, plan: _Plan, s: Perception) -> bool:
+        """The cube is in view and a hand coming from above can reach it: in the top drawer, or far enough in front
+        of the handle of the drawer above (a drawer pushed half in, or a cube pushed deep, puts it under that
+        handle, where the hand jams)."""
+        if not s.target_visible:
+            return False
+        if plan.layer == LAYERS[0]:
+            return True
+        handle_above = self.layout.handle_center(plan.layer - 1, 0.0)
+        return bool(s.target_pos[0] < handle_above[0] - self.gains.reach_in_clearance)
+
+    @staticmethod
+    def _holding(s: Perception) -> bool:
+        """The target is between closed fingers."""
+        return s.target_visible and np.linalg.norm(s.target_pos - s.tcp_pos) < HOLD_RADIUS \
+            and HOLD_WIDTH[0] < s.finger_width < HOLD_WIDTH[1]
 
     @staticmethod
     def _enter(plan: _Plan, phase: Phase, drawer: int | None = None) -> None:
