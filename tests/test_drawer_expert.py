@@ -222,3 +222,22 @@ def test_the_expert_reaches_in_only_where_the_hand_fits(task_env, controller, op
     seen = _seen(obs, tcp=[0.3, 0.0, 0.2], fingers=0.08, opening=[0.0, 0.0, opening], target=[cube_x, 0.0, 0.13])
     controller.act(seen, [prompt])
     assert controller.phases() == [decision]
+
+
+def test_a_hand_another_policy_brought_to_the_handle_goes_on_from_there(task_env, controller):
+    """The learner need not pass the expert's own pre-grasp point: a hand already on the insertion line is labelled
+    to go in, and fingers already closed on the handle to pull, instead of back to where the expert would start."""
+    from sb3_memret.tasks.drawer.expert import HANDLE_APPROACH, R_HANDLE
+
+    obs, _ = task_env.reset(seed=0, options={"target_layer": 2})
+    prompt = condition_prompt("oracle", 2)
+    handle = controller.layout.handle_center(2, 0.0)
+    turned = R_HANDLE.as_rotvec()
+    for tcp, fingers, phase in ((handle - 0.04 * HANDLE_APPROACH, 0.08, Phase.INSERT),
+                                (handle, 0.02, Phase.PULL),
+                                (handle - 0.04 * HANDLE_APPROACH + [0, 0.05, 0], 0.08, Phase.REACH_HANDLE)):
+        _enter(controller, Phase.REACH_HANDLE, obs, prompt)
+        seen = _seen(obs, tcp=list(tcp), fingers=fingers, opening=[0.0, 0.0, 0.0])
+        seen["agent"]["eef_state"][0, 3:6] = torch.tensor(turned)
+        controller.act(seen, [prompt])
+        assert controller.phases() == [phase], (tcp, fingers)

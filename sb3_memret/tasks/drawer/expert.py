@@ -12,8 +12,9 @@ Each env's progress is a small state machine whose transitions are checked on th
 state at every call; within a chunk, motion is predicted with a first-order model of the
 ``pd_ee_delta_pose`` arm (measured: the TCP moves ~0.39 of the commanded delta per step).
 Its phases follow what is seen, not only what it did, so it also labels the states another
-policy leads it into (DAgger): an object already between the fingers is lifted, one dropped
-is grasped again, a drawer pushed back in is opened again before it reaches in.
+policy leads it into (DAgger): a hand already on the insertion line goes on in, a handle already
+gripped is pulled, an object already between the fingers is lifted, one dropped is grasped
+again, a drawer pushed back in is opened again before it reaches in.
 """
 
 from __future__ import annotations
@@ -44,6 +45,7 @@ R_DOWN = Rotation.from_matrix(np.diag([1.0, -1.0, -1.0]))  # approach -z, finger
 # Panda's wrist (joint 6) past its limit this close to the base.
 R_HANDLE = Rotation.from_euler("y", np.deg2rad(-35.0)) * R_DOWN
 HANDLE_APPROACH = R_HANDLE.apply([0.0, 0.0, 1.0])
+HANDLE_REACH = 0.10  # m in front of a handle, along HANDLE_APPROACH, where the straight insertion starts
 
 
 class Phase(enum.Enum):
@@ -187,7 +189,9 @@ class ScriptedDrawerController(FrozenController):
         handle = self.layout.handle_center(d, s.opening[d - 1])
         if p is Phase.REACH_HANDLE and s.opening[d - 1] >= g.open_target - 0.02:
             return (Phase.RELEASE,)
-        if p is Phase.REACH_HANDLE and self._at(s, handle - 0.10 * HANDLE_APPROACH, R_HANDLE, g.reach_tol):
+        if p in (Phase.REACH_HANDLE, Phase.INSERT) and self._gripping_handle(s, handle):
+            return (Phase.PULL,)  # another policy went in and closed the fingers on it already
+        if p is Phase.REACH_HANDLE and self._in_handle_corridor(s, handle):
             return (Phase.INSERT,)
         if p is Phase.INSERT and self._at(s, handle, R_HANDLE, g.fine_tol):
             return (Phase.GRIP_HANDLE,)
@@ -234,6 +238,19 @@ class ScriptedDrawerController(FrozenController):
             return (Phase.REACH_HANDLE, plan.layer)
         return (Phase.IDLE,)  # the named drawer is open and holds no cube
 
+    def _in_handle_corridor(self, s: Perception, handle: np.ndarray) -> bool:
+        """The hand is on the line it inserts along (from ``HANDLE_REACH`` in front of the handle to the handle),
+        turned for the grasp: from there the insertion goes on, wherever the hand came from."""
+        offset = s.tcp_pos - handle
+        along = -float(offset @ HANDLE_APPROACH)
+        lateral = float(np.linalg.norm(offset + along * HANDLE_APPROACH))
+        return -self.gains.fine_tol <= along <= HANDLE_REACH + self.gains.reach_tol and lateral < self.gains.reach_tol \
+            and (R_HANDLE * s.tcp_rot.inv()).magnitude() < self.gains.turn_tol
+
+    def _gripping_handle(self, s: Perception, handle: np.ndarray) -> bool:
+        """The fingers are closed on the handle."""
+        return bool(np.linalg.norm(s.tcp_pos - handle) < 2 * self.gains.fine_tol and 0.006 < s.finger_width < 0.05)
+
     def _reachable(self, plan: _Plan, s: Perception) -> bool:
         """The cube is in view and a hand coming from above can reach it: in the top drawer, or far enough in front
         of the handle of the drawer above (a drawer pushed half in, or a cube pushed deep, puts it under that
@@ -264,7 +281,7 @@ class ScriptedDrawerController(FrozenController):
         g, d, p = self.gains, plan.drawer, plan.phase
         handle = self.layout.handle_center(d, s.opening[d - 1])
         if p is Phase.REACH_HANDLE:
-            return handle - 0.10 * HANDLE_APPROACH, R_HANDLE, OPEN, g.free_speed
+            return handle - HANDLE_REACH * HANDLE_APPROACH, R_HANDLE, OPEN, g.free_speed
         if p is Phase.INSERT:
             return handle, R_HANDLE, OPEN, g.fine_speed
         if p is Phase.GRIP_HANDLE:
