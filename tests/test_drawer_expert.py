@@ -235,6 +235,7 @@ def test_a_hand_another_policy_brought_to_the_handle_goes_on_from_there(task_env
     turned = R_HANDLE.as_rotvec()
     for tcp, fingers, phase in ((handle - 0.04 * HANDLE_APPROACH, 0.08, Phase.INSERT),
                                 (handle, 0.02, Phase.PULL),
+                                (handle + [0, 0, 0.035], 0.02, Phase.PULL),  # anywhere along the bar
                                 (handle - 0.04 * HANDLE_APPROACH + [0, 0.05, 0], 0.08, Phase.REACH_HANDLE)):
         _enter(controller, Phase.REACH_HANDLE, obs, prompt)
         seen = _seen(obs, tcp=list(tcp), fingers=fingers, opening=[0.0, 0.0, 0.0])

@@ -46,6 +46,7 @@ R_DOWN = Rotation.from_matrix(np.diag([1.0, -1.0, -1.0]))  # approach -z, finger
 R_HANDLE = Rotation.from_euler("y", np.deg2rad(-35.0)) * R_DOWN
 HANDLE_APPROACH = R_HANDLE.apply([0.0, 0.0, 1.0])
 HANDLE_REACH = 0.10  # m in front of a handle, along HANDLE_APPROACH, where the straight insertion starts
+HANDLE_GRIP_REACH = 0.025  # m from the handle's bar within which closed fingers hold it (a shallow grasp pulls too)
 
 
 class Phase(enum.Enum):
@@ -187,18 +188,21 @@ class ScriptedDrawerController(FrozenController):
     def _transition(self, plan: _Plan, s: Perception) -> tuple[Phase, int] | tuple[Phase] | None:
         g, d, p = self.gains, plan.drawer, plan.phase
         handle = self.layout.handle_center(d, s.opening[d - 1])
-        if p is Phase.REACH_HANDLE and s.opening[d - 1] >= g.open_target - 0.02:
-            return (Phase.RELEASE,)
+        if p in (Phase.REACH_HANDLE, Phase.INSERT) and (s.opening[d - 1] >= g.open_target - 0.02 or
+                                                        d == plan.layer and self._reachable(plan, s)):
+            return (Phase.RELEASE,)  # open enough (another policy may have opened it): go for the cube
         if p in (Phase.REACH_HANDLE, Phase.INSERT) and self._gripping_handle(s, handle):
             return (Phase.PULL,)  # another policy went in and closed the fingers on it already
         if p is Phase.REACH_HANDLE and self._in_handle_corridor(s, handle):
             return (Phase.INSERT,)
+        if p is Phase.INSERT and not self._in_handle_corridor(s, handle):
+            return (Phase.REACH_HANDLE,)  # pushed off the line: start the insertion again
         if p is Phase.INSERT and self._at(s, handle, R_HANDLE, g.fine_tol):
             return (Phase.GRIP_HANDLE,)
         if p is Phase.GRIP_HANDLE and plan.calls > 0:
             return (Phase.PULL,) if s.finger_width > 0.006 else (Phase.RELEASE,)
         if p is Phase.PULL:
-            if s.opening[d - 1] >= g.open_target - 0.015 or np.linalg.norm(s.tcp_pos - handle) > 0.04:
+            if s.opening[d - 1] >= g.open_target - 0.015 or not self._on_handle(s, handle, 0.04):
                 return (Phase.RELEASE,)
         if p is Phase.RELEASE and s.finger_width > 0.07:
             return (Phase.BACK_OFF,)
@@ -247,9 +251,14 @@ class ScriptedDrawerController(FrozenController):
         return -self.gains.fine_tol <= along <= HANDLE_REACH + self.gains.reach_tol and lateral < self.gains.reach_tol \
             and (R_HANDLE * s.tcp_rot.inv()).magnitude() < self.gains.turn_tol
 
+    def _on_handle(self, s: Perception, handle: np.ndarray, reach: float) -> bool:
+        """The hand is within ``reach`` of the handle's vertical bar, at any height along it."""
+        offset = s.tcp_pos - handle
+        return bool(np.linalg.norm(offset[:2]) < reach and abs(offset[2]) < self.layout.handle_half_size[2] + reach)
+
     def _gripping_handle(self, s: Perception, handle: np.ndarray) -> bool:
-        """The fingers are closed on the handle."""
-        return bool(np.linalg.norm(s.tcp_pos - handle) < 2 * self.gains.fine_tol and 0.006 < s.finger_width < 0.05)
+        """The fingers are closed on the handle's bar."""
+        return self._on_handle(s, handle, HANDLE_GRIP_REACH) and 0.006 < s.finger_width < 0.05
 
     def _reachable(self, plan: _Plan, s: Perception) -> bool:
         """The cube is in view and a hand coming from above can reach it: in the top drawer, or far enough in front
