@@ -86,40 +86,48 @@ def test_metadata_describes_the_served_controller(scripted_server):
     assert controller.spec.chunk_len == 32 and not controller.spec.needs_images
 
 
-def record(env, prompt: str, seed: int, layer: int, decisions: int = DECISIONS) -> list[tuple[dict, np.ndarray]]:
-    """(observation, chunk) at each decision of the in-process scripted expert driving the real task."""
+def record(env, prompts: list[str], seed: int, layer: int,
+           history_matters: bool = False) -> list[tuple[dict, np.ndarray, str]]:
+    """(observation, chunk, prompt) at each decision of the in-process scripted expert driving the real task, one
+    decision per prompt. ``history_matters``: check that at the end a fresh expert would act otherwise (its plan
+    remembers what the observation no longer shows, e.g. the drawer a replaced prompt had it open), so a server that
+    mixed up its slots' plans could not replay the episode."""
     controller = ScriptedDrawerController()
     obs, _ = env.reset(seed=seed, options={"target_layer": layer})
     controller.reset([seed])
     trajectory = []
-    for _ in range(decisions):
+    for prompt in prompts:
         chunk = controller.act(obs, [prompt])[0]
-        trajectory.append((obs, chunk))
+        trajectory.append((obs, chunk, prompt))
         obs = execute_chunk(env, chunk[:8]).obs
-    fresh = ScriptedDrawerController()
-    fresh.reset([seed])
-    assert not np.allclose(fresh.act(obs, [prompt])[0], controller.act(obs, [prompt])[0])  # the plan's history matters
+    if history_matters:
+        fresh = ScriptedDrawerController()
+        fresh.reset([seed])
+        assert not np.allclose(fresh.act(obs, [prompts[-1]])[0], controller.act(obs, [prompts[-1]])[0])
     return trajectory
 
 
 def test_each_env_slot_keeps_its_own_episode(scripted_server, task_env):
     """Two slots through one connection replay two in-process episodes exactly, and a reset starts both afresh."""
-    prompts = [condition_prompt("oracle", 3), condition_prompt("wrong", 2)]
-    episodes = [record(task_env, prompts[0], 1, 3), record(task_env, prompts[1], 2, 2)]
+    # a wrong fact until the expert pulls that drawer open, then the true one: it must close the wrong drawer first,
+    # which only its plan remembers
+    switched = [condition_prompt("oracle", 1)] * 10 + [condition_prompt("oracle", 3)] * 2
+    episodes = [record(task_env, switched, 1, 3, history_matters=True),
+                record(task_env, [condition_prompt("wrong", 2)] * len(switched), 2, 2)]
     remote = make_controller(f"openpi://127.0.0.1:{scripted_server}")
     for _ in range(2):  # the second time round, reset must have dropped the first round's plans
         remote.reset([1, 2])
-        for (obs_a, chunk_a), (obs_b, chunk_b) in zip(*episodes):
+        for (obs_a, chunk_a, prompt_a), (obs_b, chunk_b, prompt_b) in zip(*episodes):
             batch = {group: {key: np.concatenate([as_numpy(obs_a[group][key]), as_numpy(obs_b[group][key])])
                              for key in obs_a[group]} for group in ("agent", "extra")}
-            np.testing.assert_allclose(remote.act(batch, prompts), np.stack([chunk_a, chunk_b]), atol=1e-6)
+            np.testing.assert_allclose(remote.act(batch, [prompt_a, prompt_b]), np.stack([chunk_a, chunk_b]), atol=1e-6)
 
 
 def test_a_plain_openpi_client_is_one_continuing_episode(task_env):
     """Requests without the episode keys all go to slot 0, whose episode never restarts."""
     client = PolicyServerClient("127.0.0.1", serve_in_thread("scripted"))
     prompt = condition_prompt("oracle", 2)
-    for obs, chunk in record(task_env, prompt, 4, 2):
+    for obs, chunk, _ in record(task_env, [prompt] * DECISIONS, 4, 2):
         np.testing.assert_allclose(client.infer(state_request(obs, prompt))["actions"], chunk, atol=1e-6)
     client.close()
 
