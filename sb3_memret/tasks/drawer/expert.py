@@ -66,6 +66,10 @@ class Phase(enum.Enum):
     IDLE = "idle"
 
 
+HANDLE_PHASES = (Phase.REACH_HANDLE, Phase.INSERT)  # on the way to a handle, nothing gripped yet
+CUBE_PHASES = (Phase.RISE, Phase.ABOVE_CUBE, Phase.DESCEND)  # on the way to the cube, nothing grasped yet
+
+
 @dataclass
 class Perception:
     """What one env's observation says, as the controller reads it."""
@@ -188,10 +192,10 @@ class ScriptedDrawerController(FrozenController):
     def _transition(self, plan: _Plan, s: Perception) -> tuple[Phase, int] | tuple[Phase] | None:
         g, d, p = self.gains, plan.drawer, plan.phase
         handle = self.layout.handle_center(d, s.opening[d - 1])
-        if p in (Phase.REACH_HANDLE, Phase.INSERT) and (s.opening[d - 1] >= g.open_target - 0.02 or
-                                                        d == plan.layer and self._reachable(plan, s)):
+        if p in HANDLE_PHASES and (s.opening[d - 1] >= g.open_target - 0.02 or
+                                   d == plan.layer and self._reachable(plan, s)):
             return (Phase.RELEASE,)  # open enough (another policy may have opened it): go for the cube
-        if p in (Phase.REACH_HANDLE, Phase.INSERT) and self._gripping_handle(s, handle):
+        if p in HANDLE_PHASES and self._gripping_handle(s, handle):
             return (Phase.PULL,)  # another policy went in and closed the fingers on it already
         if p is Phase.REACH_HANDLE and self._in_handle_corridor(s, handle):
             return (Phase.INSERT,)
@@ -212,9 +216,9 @@ class ScriptedDrawerController(FrozenController):
             return (Phase.PUSH,)
         if p is Phase.PUSH and s.opening[d - 1] < 0.02:
             return (Phase.BACK_OFF,)
-        if p in (Phase.RISE, Phase.ABOVE_CUBE, Phase.DESCEND) and self._holding(s):
+        if p in CUBE_PHASES and self._holding(s):
             return (Phase.LIFT,)  # it is in hand already (another policy grasped it)
-        if p in (Phase.RISE, Phase.ABOVE_CUBE, Phase.DESCEND) and not self._reachable(plan, s):
+        if p in CUBE_PHASES and not self._reachable(plan, s):
             return (Phase.RELEASE,)  # the drawer was pushed in or the cube lost from view: back off, re-decide
         if p is Phase.RISE and s.tcp_pos[2] > self._rise_height(d) - 0.02:
             return (Phase.ABOVE_CUBE,) if s.target_visible else (Phase.IDLE,)
