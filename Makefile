@@ -31,7 +31,7 @@ install: $(VENV)/.installed
 
 renderer: $(RENDERER)/lvp_icd.json
 
-train: install
+train: install renderer
 	$(VENV)/bin/sb3-memret train recall
 	$(VENV)/bin/sb3-memret report runs/recall-seed0
 
@@ -71,9 +71,10 @@ controller-objects: install
 		$(STAGE1)-objects/policy/train_log.csv $(SHIPPED_OBJECTS)/
 
 # The camera-reading learned controller of the drawer (`--controller learned`): 480 expert episodes rendered at their
-# decision frames only (both cameras, stored at 128x128), then a policy on the hand's state and the cameras through
-# frozen EfficientNet-Lite0 features, its perception head trained on the simulator's labels; demos ~13 min here, the
-# finetune 44 min beside other jobs (not timed alone: over its 15-minute budget).
+# decision frames only (both cameras, stored at 128x128; the checkpoint records the robot they showed and refuses
+# another), then a policy on the hand's state and the cameras through frozen EfficientNet-Lite0 features, its
+# perception head trained on the simulator's labels; demos ~13 min here, the finetune 44 min beside other jobs (not
+# timed alone: over its 15-minute budget).
 SHIPPED_CAMERA := sb3_memret/controllers/checkpoints/drawer-camera
 controller-camera: install renderer
 	rm -rf $(STAGE1)-camera

@@ -54,6 +54,8 @@ def _unit() -> Check:
 PPO_KEYS: dict[str, Check] = {
     "n_timesteps": _positive_int(),
     "n_envs": _positive_int(),
+    "eval_episodes": _positive_int(),  # held-out episodes per evaluation (train's --eval-episodes overrides)
+    "eval_every": _positive_int(),  # rounds between evaluations, round 0 and the last always evaluated
     "n_steps": _positive_int(),
     "batch_size": _positive_int(),
     "n_epochs": _positive_int(),
@@ -67,6 +69,8 @@ PPO_KEYS: dict[str, Check] = {
     "advantage_std_floor": ((int, float), lambda v: 0 <= v <= 1, "a number in [0, 1] (the least spread a round's "
                             "advantages are divided by, as a fraction of the widest so far; 0: always unit spread)"),
 }
+RUN_KEYS = ("n_timesteps", "n_envs", "eval_episodes", "eval_every")  # how a run goes, not PPO's arguments
+DEFAULT_EVAL_EPISODES, DEFAULT_EVAL_EVERY = 50, 5
 POLICY_KEYS: dict[str, Check] = {
     "temperature": ((int, float), lambda v: v > 0, "a number > 0"),
     "hidden": _positive_int(),
@@ -139,9 +143,19 @@ class TrainConfig:
         return list(self.env_kwargs["tasks"]) if "tasks" in self.env_kwargs else \
             [self.env_kwargs.get("task", DEFAULT_TASK)]
 
+    @property
+    def eval_episodes(self) -> int:
+        """Held-out episodes per evaluation."""
+        return self.ppo.get("eval_episodes", DEFAULT_EVAL_EPISODES)
+
+    @property
+    def eval_every(self) -> int:
+        """Rounds between held-out evaluations."""
+        return self.ppo.get("eval_every", DEFAULT_EVAL_EVERY)
+
     def algo_kwargs(self) -> dict[str, Any]:
-        """Keyword arguments for MemRetPPO (everything but the run length and env count)."""
-        kwargs = {k: v for k, v in self.ppo.items() if k not in ("n_timesteps", "n_envs")}
+        """Keyword arguments for MemRetPPO (everything but the run's length, env count and evaluations)."""
+        kwargs = {k: v for k, v in self.ppo.items() if k not in RUN_KEYS}
         policy_kwargs = dict(self.policy_kwargs)
         if "age_unit" in self.env_kwargs:  # the critic reads ages in the unit the env counts them in
             policy_kwargs["age_unit"] = self.env_kwargs["age_unit"]

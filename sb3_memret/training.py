@@ -19,7 +19,7 @@ from __future__ import annotations
 import copy
 import json
 import time
-from dataclasses import dataclass, field
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -56,8 +56,8 @@ class RunOptions:
     controller: str = "scripted"
     seed: int = 0
     resume: bool = False
-    eval_episodes: int = 50
-    eval_every: int = 5
+    eval_episodes: int | None = None  # None: the config's (eval_episodes, else 50)
+    eval_every: int | None = None  # None: the config's (eval_every, else 5)
     eval_seed: int = HELD_OUT_SEED
     progress_bar: bool = False
     log_formats: tuple[str, ...] = ("stdout", "csv", "tensorboard")
@@ -173,6 +173,8 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
         (out / RUN_FILE).write_text(json.dumps({"controller": options.controller, "seed": options.seed,
                                                 "render_backend": options.render_backend}, indent=2) + "\n")
 
+    options = replace(options, eval_episodes=options.eval_episodes or config.eval_episodes,
+                      eval_every=options.eval_every or config.eval_every)
     env_kwargs = env_kwargs_for(config, options.controller, options.render_backend)
     if controller is None and "tasks" not in config.env_kwargs:  # across tasks, each task makes its own by name
         controller = make_controller(options.controller, config.env_kwargs.get("task", DEFAULT_TASK))

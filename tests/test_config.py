@@ -26,11 +26,13 @@ def test_set_retriever_config_differs_from_the_default_only_in_its_retriever():
 
 
 def test_benchmark_configs_differ_from_the_default_only_in_what_they_name():
-    """... and in their length and round size: instruction-conditioned retrieval of three objects takes more
+    """... and in their length, round size and evaluations: instruction-conditioned retrieval of three objects takes more
     decisions, in rounds of more episodes (with rounds of ~3 the retriever could settle on a safe memory)."""
     default = load_config(ZOO, ENV_ID)
     objects = load_config(ZOO.with_name("memret_ppo_objects.yml"), ENV_ID)
-    assert {**objects.ppo, "n_timesteps": default.n_timesteps, "n_steps": default.ppo["n_steps"]} == default.ppo
+    evaluations = {key: default.ppo[key] for key in ("eval_episodes", "eval_every")}  # the main job's budget
+    assert {**objects.ppo, "n_timesteps": default.n_timesteps, "n_steps": default.ppo["n_steps"],
+            **evaluations} == default.ppo
     assert objects.ppo["n_steps"] > default.ppo["n_steps"]
     assert objects.policy_kwargs == default.policy_kwargs
     assert objects.env_kwargs == {**default.env_kwargs, "objects": "train", "n_objects": 3, "location_decoys": 2,
@@ -49,6 +51,7 @@ def test_benchmark_configs_differ_from_the_default_only_in_what_they_name():
         ({"n_timesteps": 10, "gama": 0.9}, "unknown key 'gama'; accepted keys are"),
         ({"n_timesteps": 10, "gamma": 1.5}, r"gamma=1.5 is invalid; expected a number in \(0, 1\]"),
         ({"n_timesteps": 0}, "n_timesteps=0 is invalid; expected an integer >= 1"),
+        ({"n_timesteps": 10, "eval_every": 0}, "eval_every=0 is invalid; expected an integer >= 1"),
         ({"n_timesteps": 10, "n_steps": True}, "n_steps=True is invalid"),
         ({"gamma": 0.9}, "must set n_timesteps"),
         ({"n_timesteps": 10, "env_kwargs": {"mode": "guess"}}, "mode='guess' is invalid; expected one of 'recall'"),
@@ -69,6 +72,14 @@ def test_benchmark_configs_differ_from_the_default_only_in_what_they_name():
 def test_bad_configs_are_rejected_with_the_key_and_the_accepted_values(section, message):
     with pytest.raises(ValueError, match=message):
         parse_section(section, ENV_ID)
+
+
+def test_a_section_may_set_its_evaluations_which_are_not_ppo_arguments():
+    config = parse_section({"n_timesteps": 10, "eval_episodes": 30, "eval_every": 10}, ENV_ID)
+    assert (config.eval_episodes, config.eval_every) == (30, 10)
+    assert not {"eval_episodes", "eval_every"} & set(config.algo_kwargs())
+    plain = parse_section({"n_timesteps": 10}, ENV_ID)
+    assert (plain.eval_episodes, plain.eval_every) == (50, 5)
 
 
 def test_the_policy_reads_ages_in_the_unit_the_env_counts_them_in():

@@ -115,7 +115,7 @@ def test_lerobot_spec_of_a_missing_folder_names_it(tmp_path):
 def test_each_task_names_its_default_controller():
     from sb3_memret.tasks import make_task
 
-    assert make_task("drawer").default_controller == "learned-state"  # the main job's, within its budget
+    assert make_task("drawer").default_controller == "learned"  # the main job reads cameras
     assert make_task("RememberColor3-VLA-v0").default_controller == "learned"  # its shipped camera controller
     # none ships for SeqOfColors3 (nothing in sight tells a reactive policy which cubes it has touched): its expert
     assert make_task("SeqOfColors3-VLA-v0").default_controller == "scripted"

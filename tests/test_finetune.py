@@ -11,8 +11,11 @@ from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers.learned import LearnedPolicyConfig
 from sb3_memret.controllers.learned.modeling import pointer_ambiguity
 from sb3_memret.controllers.observation import PROPRIO_NAMES, STATE_NAMES
+from sb3_memret.physics.backends import TaskEnvInfo
 from sb3_memret.prompts import INSTRUCTION
 from sb3_memret.tasks.drawer.prompts import condition_prompt
+from sb3_memret.tasks.drawer.drawer_cube import DEFAULT_ROBOT
+from sb3_memret.tasks.drawer.robot import LIGHT_PANDA_UID
 from sb3_memret.stage1.demos import DemoEpisode, record_demos
 from sb3_memret.stage1.datasets import Demonstrations, hindsight_objects, load_demonstrations, validation_episodes
 from sb3_memret.stage1.finetune import FinetuneSettings, finetune, read_log
@@ -114,6 +117,10 @@ def test_a_camera_policy_learns_from_decision_frames_and_sees_only_the_hand(came
     controller = make_controller(f"learned:{out}")
     config = controller.policy.config
     assert config.state_names == PROPRIO_NAMES and config.image_size == 32 and controller.spec.needs_images
+    assert config.robot == controller.spec.robot == DEFAULT_ROBOT  # the robot its demonstrations' cameras showed
+    with pytest.raises(ValueError, match="trained on camera images of robot 'panda' but the env renders 'panda_light'"):
+        controller.check_env(TaskEnvInfo("pd_ee_delta_pose", "rgb", LIGHT_PANDA_UID))
+    controller.check_env(rgb_task_env)
     # what the hand does not read of itself, the cameras estimate: the drawer openings and the cube's detection
     assert config.perceived_names == STATE_NAMES[len(PROPRIO_NAMES):]
     perception = [float(row["val_perception_mse"]) for row in read_log(out)]

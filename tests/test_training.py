@@ -29,9 +29,9 @@ def cli(*args):
 def run(tmp_path_factory):
     folder = tmp_path_factory.mktemp("runs")
     config = folder / "tiny.yml"
-    config.write_text(TINY)
+    config.write_text(TINY + "  eval_episodes: 2\n  eval_every: 1\n")  # the evaluations the config asks for
     out = folder / "run"
-    result = cli("train", "recall", "--config", config, "--out", out, "--eval-episodes", 2, "--eval-every", 1, "--no-progress")
+    result = cli("train", "recall", "--config", config, "--out", out, "--no-progress")
     assert result.exit_code == 0, result.output
     return out, config, result.output
 
@@ -54,7 +54,8 @@ def test_train_writes_a_complete_run(run):
     assert "| round | decisions | greedy acc." in output
     summary = json.loads((out / "summary.json").read_text())
     assert summary["num_timesteps"] == 32 and summary["rounds"] == 2 and not summary["interrupted"]
-    assert summary["controller"] == "learned-state"  # the drawer's default: its main job stays within budget
+    assert summary["eval_episodes"] == 2 and all(r["episodes"] == 2 for r in read_history(out))
+    assert summary["controller"] == "learned"  # the drawer's default: the camera controller
     model = PPO.load(out / "final_model.zip")  # plain SB3 restores it
     assert model.num_timesteps == 32
 
@@ -80,13 +81,13 @@ def test_a_resume_keeps_the_controller_its_run_recorded_at_start(run, tmp_path):
     from sb3_memret.cli.options import run_controller
 
     out, _, _ = run
-    assert json.loads((out / "run.json").read_text()) == {"controller": "learned-state", "seed": 0,
-                                                          "render_backend": "none"}
+    assert json.loads((out / "run.json").read_text()) == {"controller": "learned", "seed": 0,
+                                                          "render_backend": "cpu"}
     killed = tmp_path / "killed"
     shutil.copytree(out, killed)
     (killed / "summary.json").unlink()
-    assert run_controller(killed, "drawer", default="scripted") == "learned-state"
-    with pytest.raises(ValueError, match="was trained with controller 'learned-state', not 'scripted'"):
+    assert run_controller(killed, "drawer", default="scripted") == "learned"
+    with pytest.raises(ValueError, match="was trained with controller 'learned', not 'scripted'"):
         train(None, RunOptions(out=killed, controller="scripted", resume=True))
     (killed / "run.json").unlink()
     with pytest.raises(click.UsageError, match="records no controller .* pass --controller"):
@@ -200,9 +201,8 @@ def test_run_folder_mistakes_are_refused(run, tmp_path):
 
 @pytest.mark.slow
 def test_retrieval_is_learned_on_the_real_simulator():
-    """Ten rounds of the default config from random initialisation: the greedy retriever picks the
-    true cube memory and the sampling policy has moved well away from chance (scripts/bench_learning.py
-    runs the full 24 rounds)."""
+    """The default config's ten rounds from random initialisation, on the scripted controller: the greedy
+    retriever picks the true cube memory and the sampling policy has moved well away from chance."""
     from sb3_memret.config import load_task_config
     from sb3_memret.envs.vec_env import make_recall_vec_env
     from sb3_memret.evaluation import evaluate_retrieval

@@ -44,10 +44,10 @@ MULTITASK_CONFIG, MULTITASK_SECTION = "memret_ppo_multitask.yml", "multitask"
 @click.option("--retriever-from", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
               help="Start the retriever from this model file's (e.g. a run of another benchmark task); the "
                    "retention critic starts fresh.")
-@click.option("--eval-episodes", type=click.IntRange(min=1), default=50, show_default=True,
-              help="Held-out episodes per evaluation.")
-@click.option("--eval-every", type=click.IntRange(min=1), default=5, show_default=True,
-              help="Evaluate every N rounds (and at the end).")
+@click.option("--eval-episodes", type=click.IntRange(min=1), default=None,
+              help="Held-out episodes per evaluation  [default: the config's eval_episodes, else 50]")
+@click.option("--eval-every", type=click.IntRange(min=1), default=None,
+              help="Evaluate every N rounds (and at round 0 and the end)  [default: the config's eval_every, else 5]")
 @click.option("--progress/--no-progress", default=True, show_default=True,
               help="Show a progress bar (without it, SB3 prints every round's statistics).")
 @render_backend_option
@@ -55,7 +55,7 @@ MULTITASK_CONFIG, MULTITASK_SECTION = "memret_ppo_multitask.yml", "multitask"
 @click.pass_context
 def train(ctx: click.Context, experiment: str, task: str | None, tasks: str | None, config_path: Path | None,
           controller: str, n_envs: int | None, timesteps: int | None, seed: int, out: Path | None, resume: bool,
-          retriever_from: Path | None, eval_episodes: int, eval_every: int, progress: bool, render_backend: str,
+          retriever_from: Path | None, eval_episodes: int | None, eval_every: int | None, progress: bool, render_backend: str,
           backend: str, ray_address: str | None) -> None:
     """Train the retriever and retention networks with PPO on EXPERIMENT (recall: what the task's controller
     must know, the drawer's layer or a cue's colour, reaches it only through a retrieved memory)."""

@@ -28,7 +28,8 @@ class ControllerSpec:
     ``action_convention`` names the env control mode its actions are meant for (actions are
     sent unmodified, so it must match); ``chunk_len`` is the horizon of one ``act`` call;
     ``needs_images`` says it reads camera images; ``prompt_template`` lists its training
-    prompts' wording.
+    prompts' wording; ``robot`` is the robot a camera controller saw in training (it learns its
+    look: the drawer's camera policy lost half its successes to a Panda drawn with coarser meshes).
     """
 
     action_convention: str
@@ -36,6 +37,7 @@ class ControllerSpec:
     action_dim: int = 7
     needs_images: bool = False
     prompt_template: PromptTemplate = field(default_factory=PromptTemplate)
+    robot: str | None = None  # a camera controller: the robot its training images showed (None: any)
 
 
 class FrozenController(ABC):
@@ -99,6 +101,22 @@ class FrozenController(ABC):
                 f"{type(self).__name__} needs camera images but the env's obs_mode is {base.obs_mode!r}; "
                 + RENDER_HINT
             )
+        robot = env_robot(base)
+        if self.spec.needs_images and self.spec.robot is not None and robot is not None and robot != self.spec.robot:
+            raise ValueError(
+                f"{type(self).__name__} was trained on camera images of robot {self.spec.robot!r} but the env "
+                f"renders {robot!r}; create the env with robot_uids={self.spec.robot!r}, or train the controller on "
+                f"demonstrations of {robot!r}"
+            )
+
+
+def env_robot(env: Any) -> str | None:
+    """The ManiSkill robot uid an env (or the ``TaskEnvInfo`` of one) simulates; None where it does not say."""
+    agent = getattr(env, "agent", None)
+    if agent is not None:
+        return getattr(agent, "uid", None)
+    robot = getattr(env, "robot", None)
+    return robot if isinstance(robot, str) else None
 
 
 def _parse_or_bare(prompt: str, template: PromptTemplate) -> ParsedPrompt:

@@ -23,6 +23,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
+from sb3_memret.controllers.base import env_robot
 from sb3_memret.obs_trees import to_numpy
 from sb3_memret.physics.chunks import execute_chunk
 from sb3_memret.sensor_gate import sensors_pause
@@ -40,11 +41,12 @@ class TaskEnvInfo:
 
     control_mode: str
     obs_mode: str
+    robot: str | None = None  # the ManiSkill robot uid the env simulates and renders
 
     @classmethod
     def of(cls, env: Any) -> "TaskEnvInfo":
         base = env.unwrapped
-        return cls(str(base.control_mode), str(base.obs_mode))
+        return cls(str(base.control_mode), str(base.obs_mode), env_robot(base))
 
 
 @dataclass(frozen=True)

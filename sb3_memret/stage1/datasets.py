@@ -32,6 +32,7 @@ class Demonstrations:
     chunks: np.ndarray | None = None  # (N, H, 7): decision frames' label chunks; None when every step is a frame
     chunk_pad: np.ndarray | None = None  # (N, H) steps of a chunk past the episode's end
     known: np.ndarray | None = None  # (N, D) the state entries each frame's task has (several tasks); None: all
+    robot: str | None = None  # the robot the camera images show (the datasets' robot_type); None: no cameras
 
     def targets(self, chunk_len: int) -> tuple[np.ndarray, np.ndarray]:
         """(N, chunk_len, 7) target labels of every frame and their (N, chunk_len) pad mask."""
@@ -64,7 +65,7 @@ def load_demonstrations(roots: Sequence[str | Path], task: str | Task = DEFAULT_
         raise ValueError("no dataset given")
     task = make_task(task)
     names = task.state_names()
-    parts, tasks, offset, image_keys, chunked = [], [], 0, None, None
+    parts, tasks, offset, image_keys, chunked, robots = [], [], 0, None, None, {}
     for root in roots:
         root = Path(root)
         if not (root / "meta" / "info.json").is_file():
@@ -86,6 +87,8 @@ def load_demonstrations(roots: Sequence[str | Path], task: str | Task = DEFAULT_
             raise ValueError(f"{root} keeps {'decision' if has_chunks else 'every'} frames but an earlier dataset "
                              "does not; train on datasets recorded with the same --frames")
         image_keys, chunked = keys, has_chunks
+        if keys:
+            robots[str(root)] = dataset.meta.robot_type
         columns = dataset.hf_dataset.with_format("numpy")
         local = dataset.meta.tasks["task_index"]
         task_map = np.zeros(int(local.max()) + 1, dtype=np.int64)
@@ -107,6 +110,7 @@ def load_demonstrations(roots: Sequence[str | Path], task: str | Task = DEFAULT_
     if len(sizes) > 1:
         raise ValueError(f"the datasets' camera images differ in size {sorted(sizes)}; record them with one --image-size")
     return Demonstrations(
+        robot=_one_robot(robots),
         states=np.concatenate([p["states"] for p in parts]),
         actions=np.concatenate([p["actions"] for p in parts]),
         episodes=np.concatenate([p["episodes"] for p in parts]),
@@ -150,12 +154,21 @@ def load_task_demonstrations(datasets: Mapping[str | Task, Sequence[str | Path]]
         offset = int(episodes[-1].max()) + 1
     chunked = parts[0].chunks is not None
     return Demonstrations(
+        robot=_one_robot({task.name: part.robot for task, part in zip(tasks, parts) if part.images}),
         states=np.concatenate(states), actions=np.concatenate([p.actions for p in parts]),
         episodes=np.concatenate(episodes), task_ids=np.concatenate(task_ids), tasks=prompts,
         images={k: np.concatenate([p.images[k] for p in parts]) for k in parts[0].images}, state_names=names,
         chunks=np.concatenate([p.chunks for p in parts]) if chunked else None,
         chunk_pad=np.concatenate([p.chunk_pad for p in parts]) if chunked else None,
         known=np.concatenate(known)), tasks
+
+
+def _one_robot(robots: Mapping[str, str | None]) -> str | None:
+    """The one robot every dataset's cameras show (None without cameras); datasets of different robots are refused,
+    since a camera policy learns what its robot looks like."""
+    if len(set(robots.values())) > 1:
+        raise ValueError(f"the datasets' cameras show different robots {dict(robots)}: record them all with one robot")
+    return next(iter(robots.values()), None)
 
 
 def _task_id(task: str, tasks: list[str]) -> int:

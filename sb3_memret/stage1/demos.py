@@ -48,6 +48,7 @@ from sb3_memret.controllers.observation import (ACTION_CHUNK_KEY, ACTION_KEY, CH
 from sb3_memret.tasks.drawer.expert import Phase, ScriptedDrawerController
 from sb3_memret.tasks.drawer.cabinet import LAYERS
 from sb3_memret.tasks.drawer.objects import object_set
+from sb3_memret.tasks.drawer.drawer_cube import DEFAULT_ROBOT
 from sb3_memret.prompts import INSTRUCTION_TEMPLATE, PromptTemplate, build_prompt, instruction_text
 from sb3_memret.tasks.drawer.prompts import location_text
 from sb3_memret.rollout import DEFAULT_REPLAN_EVERY, RENDER_BACKENDS, make_task_env
@@ -194,7 +195,7 @@ class _Recorder:
         self.frames, self.image_size = frames, image_size
         limit = {} if max_steps is None else {"max_episode_steps": max_steps}
         self.env = make_task_env(obs_mode="rgb" if self.with_images else "state_dict", render_backend=render_backend,
-                                 objects=objects, n_objects=n_objects, **limit)
+                                 objects=objects, n_objects=n_objects, robot_uids=DEFAULT_ROBOT, **limit)
         self.expert = ScriptedDrawerController()
         self.expert.check_env(self.env)
         self.learner = make_controller(learner) if learner is not None else None
@@ -228,9 +229,10 @@ def _record(episode: DemoEpisode) -> EpisodeFrames:
 
 class DemoDatasetWriter:
     """A new LeRobotDataset (v3.0, images as PNGs) at ``out`` and the per-episode log beside it. Closing
-    finalises it, so an interrupted run keeps every episode saved so far."""
+    finalises it, so an interrupted run keeps every episode saved so far. ``robot_type`` (LeRobot's field) is the
+    ManiSkill robot uid the episodes ran with: a camera policy trained on them refuses envs that render another."""
 
-    def __init__(self, out: str | Path, features: dict[str, dict[str, Any]]):
+    def __init__(self, out: str | Path, features: dict[str, dict[str, Any]], robot_type: str | None):
         from datasets.utils import logging as datasets_logging
         from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
@@ -238,7 +240,7 @@ class DemoDatasetWriter:
         if self.out.exists():
             raise FileExistsError(f"{self.out} already exists; demonstrations are written to a new folder")
         self.dataset = LeRobotDataset.create(repo_id=f"sb3_memret/{self.out.name}", fps=FPS, root=self.out,
-                                             robot_type="panda", features=features, use_videos=False,
+                                             robot_type=robot_type, features=features, use_videos=False,
                                              video_backend="pyav")  # images are PNGs: no video decoder to probe
         self._logging = datasets_logging
         self._bars = datasets_logging.is_progress_bar_enabled()
@@ -293,7 +295,7 @@ def record_demos(
     if learner is not None:
         make_controller(learner)  # a bad spec fails here, before any worker starts
     chunk_len = ScriptedDrawerController().spec.chunk_len if frames == "decisions" else None
-    writer = DemoDatasetWriter(out, dataset_features(render_backend != "none", image_size, chunk_len))
+    writer = DemoDatasetWriter(out, dataset_features(render_backend != "none", image_size, chunk_len), DEFAULT_ROBOT)
 
     def save(_: DemoEpisode, recorded: EpisodeFrames) -> None:
         chunks, pads = recorded.chunks(chunk_len) if chunk_len else (None, None)

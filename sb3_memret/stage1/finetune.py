@@ -153,7 +153,8 @@ def finetune(
     perceived = tuple(demos.state_names[i] for i in unread)
     config = replace(config, task=tasks[0].name, tasks=tuple(t.name for t in tasks) if len(tasks) > 1 else (),
                      state_names=names, state_dim=len(names), image_features=keys, perceived_names=perceived,
-                     image_size=image_size, training_prompts=tuple(sorted(demos.tasks)))
+                     image_size=image_size, training_prompts=tuple(sorted(demos.tasks)),
+                     robot=demos.robot if keys else None)
     tokenizer = tokenizer or PromptTokenizer()
     task_tokens, task_mask = tokenizer(demos.tasks)
 

@@ -186,9 +186,11 @@ def record_task_demos(
     the_task = make_task(task)
     if learner is not None and n_workers > 1:
         make_controller(learner, the_task)  # a bad spec fails here, before any worker starts (one worker: in-process)
-    features = the_task.demo_features(check_render_backend(render_backend) != "none")
+    with_images = check_render_backend(render_backend) != "none"
+    features = the_task.demo_features(with_images)
     chunk_len = the_task.expert().spec.chunk_len if check_frames(frames) == "decisions" else None
-    writer = DemoDatasetWriter(out, {**features, **(chunk_features(chunk_len) if chunk_len else {})})
+    robot = the_task.env_kwargs(with_images, render_backend).get("robot_uids")  # None: the env's own, unrecorded
+    writer = DemoDatasetWriter(out, {**features, **(chunk_features(chunk_len) if chunk_len else {})}, robot)
 
     def save(_: TaskDemoEpisode, recorded: TaskEpisodeFrames) -> None:
         chunks, pads = label_chunks(recorded.actions, recorded.frame_steps, chunk_len) if chunk_len else (None, None)

@@ -54,6 +54,7 @@ class LearnedPolicyConfig:
     pointer: bool = False  # the action head also reads the perceived entries of the object the prompt points at
     trunk_sha256: str = ""  # the frozen pretrained trunk's weights file, for encoders that have one
     action_convention: str = "pd_ee_delta_pose"
+    robot: str | None = None  # the robot its training cameras showed (ManiSkill robot uid); None: not recorded
     instructions: tuple[str, ...] = field(default_factory=lambda: PromptTemplate().instructions)
     fact_templates: tuple[str, ...] = field(default_factory=lambda: PromptTemplate().fact_templates)
     training_prompts: tuple[str, ...] = ()

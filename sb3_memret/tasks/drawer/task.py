@@ -121,12 +121,6 @@ class DrawerTask(Task):
     def wrong_facts(self, episode: Episode) -> list[str]:
         return [location_text(episode.target, episode.details["target_layer"] % len(LAYERS) + 1)]
 
-    @property
-    def default_controller(self) -> str:
-        """The state policy: the camera-reading ``learned`` controller renders both cameras at every decision, which
-        puts the main job (``sb3-memret train recall``) past its 10-minute budget on a 2-core CPU."""
-        return "learned-state"
-
     def expert(self):
         from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
 
