@@ -36,7 +36,7 @@ class LearnedController(FrozenController):
             action_dim=config.action_dim,
             needs_images=bool(config.image_features),
             prompt_template=config.prompt_template,
-            robot=config.robot if config.image_features else None,
+            robot=config.robot,
         )
         self._num_envs = 0
 

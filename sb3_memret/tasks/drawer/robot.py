@@ -1,11 +1,12 @@
 """A light Panda for the drawer: ManiSkill's Panda with its visual meshes decimated, so a camera renders three times
 faster.
 
-On a CPU (lavapipe) a camera picture of the drawer scene costs about 50 ms at any size from 32 to 512 pixels,
-nearly all of it the Panda's 135k visual triangles (hiding the robot leaves 7 ms a picture). Decimated to a
-tenth (``KEEP_FRACTION``), a picture costs about 15 ms and differs from the full meshes' by 0.7 of 255 on average
-at 224x224 (1.6% of the base camera's pixels by more than 8; the wrist camera, which sees the fingers only, is
-unchanged). Collision meshes, ignored collision pairs, inertias, joints and controllers are ManiSkill's own: the physics is identical.
+On a CPU (lavapipe) the drawer's two camera pictures cost about the same at any size from 32 to 512 pixels (117 ms
+at 128x128, 125 at 224x224), nearly all of it the Panda's 135k visual triangles (hiding the robot leaves 15 ms).
+Decimated to a tenth (``KEEP_FRACTION``) they cost 32-38 ms and differ from the full meshes' by 0.36 of 255 on
+average at 224x224 (0.7% of the base camera's pixels by more than 8; the wrist camera, which sees only the fingers,
+is unchanged; ``scripts/bench_render.py``). Collision meshes, ignored collision pairs, inertias, joints and
+controllers are ManiSkill's own: the physics is identical.
 
 The meshes are made on first use from the installed ManiSkill's (a fraction of a second) and kept in
 ``light_panda_dir()``. The drawer draws it with ``robot_uids="panda_light"``; a camera controller trained on
