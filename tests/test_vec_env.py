@@ -89,6 +89,34 @@ def test_env_i_of_a_batch_plays_as_the_same_env_alone(encoder):
         alone.close()
 
 
+def test_a_mode_switched_between_evaluations_plays_as_a_fresh_env_in_that_mode(encoder):
+    """set_mode lets one set of workers serve several conditions: after a recall episode, the same seed
+    played in oracle, then none, gives the prompts and rewards of an env built in that mode."""
+    kwargs = {"encoder": encoder, "max_control_steps": 40}
+    switched = make_recall_vec_env(1, {**kwargs, "mode": "recall"}, seed=3)
+    try:
+        switched.reset()
+        switched.step(np.array([[0]]))
+        for mode in ("oracle", "none"):
+            switched.env_method("set_mode", mode)
+            fresh = make_recall_vec_env(1, {**kwargs, "mode": mode}, seed=3)
+            try:
+                switched.seed(3)
+                switched.reset(), fresh.reset()
+                for _ in range(3):
+                    (_, r_switched, _, i_switched), (_, r_fresh, _, i_fresh) = (
+                        switched.step(np.array([[0]])), fresh.step(np.array([[0]])))
+                    assert i_switched[0]["prompt"] == i_fresh[0]["prompt"]
+                    assert r_switched[0] == pytest.approx(r_fresh[0])
+            finally:
+                fresh.close()
+            assert ("drawer layer" in i_switched[0]["prompt"]) == (mode == "oracle")
+        with pytest.raises(ValueError, match="unknown mode 'forgetful'"):
+            switched.env_method("set_mode", "forgetful")
+    finally:
+        switched.close()
+
+
 def test_one_env_stays_in_process_and_bad_arguments_are_refused(encoder):
     venv = make_recall_vec_env(1, {**SHORT, "encoder": encoder})
     try:

@@ -151,18 +151,22 @@ def _overview(summary: dict[str, Any], history: list[dict[str, Any]], chance: fl
 
 def _baselines(model: MemRetPPO, model_path: Path, final: RetrievalReport | None, eval_seed: int,
                options: ReportOptions, say: Callable[[str], None]) -> dict[str, RetrievalReport]:
-    """The oracle and no-memory conditions on the final evaluation's episodes."""
+    """The oracle and no-memory conditions on the final evaluation's episodes, one after the other on one
+    set of physics workers (``RecallVecEnv.set_mode``)."""
     episodes = options.baseline_episodes if options.baseline_episodes is not None else (final.episodes if final else 0)
+    if episodes == 0:
+        return {}
+    venv = make_recall_vec_env(options.n_envs, eval_env_kwargs(model, model_path, "oracle", options.controller,
+                                                               options.render_backend),
+                               backend=options.backend, ray_address=options.ray_address)
     reports = {}
-    for condition in ("oracle", "none") if episodes > 0 else ():
-        say(f"evaluating the {condition} baseline ({episodes} episodes)")
-        venv = make_recall_vec_env(options.n_envs, eval_env_kwargs(model, model_path, condition, options.controller,
-                                                                   options.render_backend),
-                                   backend=options.backend, ray_address=options.ray_address)
-        try:
+    try:
+        for condition in ("oracle", "none"):
+            say(f"evaluating the {condition} baseline ({episodes} episodes)")
+            venv.env_method("set_mode", condition)
             reports[condition] = evaluate_retrieval(model, venv, episodes, seed=eval_seed)
-        finally:
-            venv.close()
+    finally:
+        venv.close()
     return reports
 
 

@@ -32,7 +32,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvS
 
 from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers import FrozenController
-from sb3_memret.envs.configs import DecisionConfig, MemoryConfig, PhysicsConfig, split_env_kwargs
+from sb3_memret.envs.configs import DecisionConfig, MemoryConfig, PhysicsConfig, check_mode, split_env_kwargs
 from sb3_memret.envs.recall_memory import EpisodeMemory, observation_space
 from sb3_memret.memory.bank import importance_scorer
 from sb3_memret.memory.encoder import MiniLMEncoder
@@ -180,6 +180,11 @@ class RecallVecEnv(VecEnv):
         return len(getattr(self.physics, "restarts", ()))
 
     # ------------------------------------------------------------ episodes
+    def set_mode(self, mode: str) -> None:
+        """Play the episodes each env starts from now on in ``mode`` (``recall``, ``oracle`` or ``none``): one
+        set of physics workers serves several conditions, one after another. An episode under way keeps its mode."""
+        self.mode = check_mode(mode)
+
     def set_task_seeds(self, per_env: Sequence[Sequence[int]]) -> None:
         """Seed the task env's next episodes explicitly (a benchmark's evaluation seeds): env ``i`` starts its
         next ``len(per_env[i])`` episodes at these seeds, then draws from its generator again. The memory's
@@ -242,6 +247,7 @@ class RecallVecEnv(VecEnv):
             i, frame = request.env_id, frames[request.env_id]
             self.frames[i], self.episode_task_seeds[i] = frame, request.seed
             self.episode_steps[i] = 0
+            self.memories[i].mode = self.mode
             self.memories[i].start(frame, self.rngs[i], moved.get(i, False))
             infos[i] = {**self.memories[i].info(success=False), "task_seed": request.seed}
         return infos
