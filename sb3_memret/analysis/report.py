@@ -137,7 +137,7 @@ def _overview(summary: dict[str, Any], history: list[dict[str, Any]], chance: fl
         f"round {first['round']}{chance_text} → {last['greedy_accuracy']:.0%} at round {last['round']}.",
         f"- Greedy accuracy first reached {MASTERY:.0%} at round {mastered['round']} "
         f"({mastered['timesteps']} decisions)." if mastered else
-        f"- Greedy accuracy never reached {MASTERY:.0%}; the best was {max(r['greedy_accuracy'] for r in history):.0%}.",
+        f"- Greedy accuracy never reached {MASTERY:.0%}; the best was {max(r['greedy_accuracy'] for r in history):.1%}.",
         f"- A training-time (sampled) retrieval holds the true memory {first['sampled_fraction']:.0%} → "
         f"{last['sampled_fraction']:.0%} of the time; policy entropy {first['entropy']:.2f} → {last['entropy']:.2f} nats.",
         f"- Task success: {first['success']['overall']:.0%} → {last['success']['overall']:.0%}.",

@@ -9,8 +9,7 @@ from pathlib import Path
 import click
 
 DEFAULT_TASK = "drawer"  # sb3_memret.tasks.DEFAULT_TASK
-TASK_CONTROLLER = ("  [default: the task's: learned-state on the drawer, the shipped camera-reading 'learned' on a task "
-                   "that has one, else scripted]")
+TASK_CONTROLLER = "  [default: the task's: its shipped camera-reading 'learned' where it has one, else scripted]"
 RUN_CONTROLLER = "  [default: the run's]"
 
 

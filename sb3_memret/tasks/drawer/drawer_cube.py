@@ -26,7 +26,7 @@ from sb3_memret.rewards import staged_potential
 PARK_X = -1.0  # objects an episode does not use wait on the floor behind the robot, out of its reach
 GRASP_QUERY_RADIUS = 0.1  # m between TCP and target centre beyond which no grasp is possible
 IMAGE_SIZE = 224
-DEFAULT_ROBOT = "panda"  # ManiSkill's Panda, which the shipped camera controller saw; LIGHT_PANDA_UID renders 3x faster
+DEFAULT_ROBOT = LIGHT_PANDA_UID  # ManiSkill's Panda with its visual meshes decimated: same physics, pictures 3x cheaper
 
 
 @register_env("DrawerCubeTakeOut-v1", max_episode_steps=400)
@@ -64,9 +64,10 @@ class DrawerCubeTakeOutEnv(BaseEnv):
     object word would see it: zeros while its drawer is closed. With a render backend,
     ``base_camera`` and ``hand_camera`` give 224x224 RGB images; inside ``sensors_paused()``
     steps return the state part only, so a controller that reads images once per action chunk
-    pays for one render per chunk, not one per control step. ``robot_uids="panda_light"`` draws the
-    Panda with visual meshes a tenth as dense (``sb3_memret.tasks.drawer.robot``: pictures three times
-    cheaper on a CPU, the same physics); a camera controller must be trained on the robot it sees.
+    pays for one render per chunk, not one per control step. The robot is ``panda_light`` by default:
+    ManiSkill's Panda with visual meshes a tenth as dense (``sb3_memret.tasks.drawer.robot``: pictures three
+    times cheaper on a CPU, the same physics); ``robot_uids="panda"`` draws ManiSkill's own. A camera
+    controller must be trained on the robot it sees.
 
     **Action:** 7-D ``pd_ee_delta_pose`` (3 translation, 3 rotation, gripper), sent unmodified.
     """

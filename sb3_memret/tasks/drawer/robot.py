@@ -9,8 +9,8 @@ is unchanged; ``scripts/bench_render.py``). Collision meshes, ignored collision 
 controllers are ManiSkill's own: the physics is identical.
 
 The meshes are made on first use from the installed ManiSkill's (a fraction of a second) and kept in
-``light_panda_dir()``. The drawer draws it with ``robot_uids="panda_light"``; a camera controller trained on
-ManiSkill's Panda does not carry over to it (``ControllerSpec.robot`` refuses the pair).
+``light_panda_dir()``. The drawer draws it by default (``robot_uids="panda_light"``; ``"panda"`` draws ManiSkill's);
+a camera controller trained on one does not carry over to the other (``ControllerSpec.robot`` refuses the pair).
 """
 
 from __future__ import annotations
