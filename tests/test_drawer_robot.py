@@ -51,6 +51,15 @@ def test_the_urdf_is_made_once_with_every_file_it_names(tmp_path, monkeypatch):
     assert not [p for p in tmp_path.iterdir() if p != urdf.parent]  # no staging folder left behind
 
 
+def test_an_unwritable_cache_is_named_with_the_way_out(tmp_path, monkeypatch):
+    blocker = tmp_path / "a-file"
+    blocker.write_text("")
+    monkeypatch.setenv(robot.CACHE_ENV, str(blocker / "cache"))  # a folder inside a file cannot be made
+    with pytest.raises(OSError, match=r"cannot write the light Panda's meshes into '.*a-file/cache' .*SB3_MEMRET_CACHE "
+                                      r".*robot_uids='panda'"):
+        light_panda_urdf()
+
+
 def test_the_light_panda_moves_exactly_as_maniskills(tmp_path):
     actions = np.random.default_rng(0).uniform(-1, 1, (40, 7)).astype(np.float32)
     qpos = {}

@@ -78,8 +78,12 @@ def light_panda_urdf() -> Path:
     for source in (SOURCE_URDF, SOURCE_URDF.with_suffix(".srdf")):
         if not source.is_file():
             raise FileNotFoundError(f"ManiSkill's Panda description is missing {source}: reinstall mani-skill")
-    folder.parent.mkdir(parents=True, exist_ok=True)
-    staging = Path(tempfile.mkdtemp(prefix=folder.name + ".", dir=folder.parent))
+    try:
+        folder.parent.mkdir(parents=True, exist_ok=True)
+        staging = Path(tempfile.mkdtemp(prefix=folder.name + ".", dir=folder.parent))
+    except OSError as err:
+        raise OSError(f"cannot write the light Panda's meshes into {str(folder.parent)!r} ({err.strerror}): set "
+                      f"${CACHE_ENV} to a writable folder, or pass robot_uids='panda' for ManiSkill's Panda") from err
     try:
         visual = SOURCE_URDF.parent / "franka_description" / "meshes" / "visual"
         for mesh in sorted(visual.glob("*.glb")):
