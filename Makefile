@@ -32,8 +32,7 @@ install: $(VENV)/.installed
 renderer: $(RENDERER)/lvp_icd.json
 
 train: install renderer
-	$(VENV)/bin/sb3-memret train recall
-	$(VENV)/bin/sb3-memret report runs/recall-seed0
+	$(VENV)/bin/sb3-memret train recall --report
 
 test: install renderer
 	$(PY) -m pytest $(PYTEST_ARGS)

@@ -21,7 +21,7 @@ import json
 import time
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Any, Callable
 
 import yaml
 from stable_baselines3.common.save_util import load_from_zip_file
@@ -66,6 +66,8 @@ class RunOptions:
     ray_address: str | None = None  # a Ray cluster for backend "ray"
     retriever_from: Path | None = None  # a new run's retriever starts from this model file's
     evaluation_listeners: tuple[Any, ...] = ()  # told of every held-out evaluation (RetrievalEvalCallback.listeners)
+    # writes a finished run's report while its held-out envs are still open (their workers serve the baselines)
+    report: Callable[[RunResult, Any], Path] | None = None
     verbose: int = 0
 
 
@@ -79,6 +81,7 @@ class RunResult:
     stopped_by: str | None = None  # why training stopped early (Ctrl-C, SIGTERM, a dead env worker), if it did
     final: RetrievalReport | None = None
     history: list[dict[str, Any]] = field(default_factory=list)
+    report: Path | None = None  # the report RunOptions.report wrote
 
     @property
     def interrupted(self) -> bool:
@@ -229,6 +232,8 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
                            stopped_by, evaluator.last_report, read_history(out))
         _write_summary(result, options)
         model.logger.close()
+        if options.report is not None and stopped_by is None:
+            result.report = options.report(result, eval_env)
         return result
     finally:
         with stop_signals_deferred():  # a second stop waits until every worker is closed

@@ -31,7 +31,7 @@ def run(tmp_path_factory):
     config = folder / "tiny.yml"
     config.write_text(TINY + "  eval_episodes: 2\n  eval_every: 1\n")  # the evaluations the config asks for
     out = folder / "run"
-    result = cli("train", "recall", "--config", config, "--out", out, "--no-progress")
+    result = cli("train", "recall", "--config", config, "--out", out, "--no-progress", "--report")
     assert result.exit_code == 0, result.output
     return out, config, result.output
 
@@ -58,6 +58,15 @@ def test_train_writes_a_complete_run(run):
     assert summary["controller"] == "learned"  # the drawer's default: the camera controller
     model = PPO.load(out / "final_model.zip")  # plain SB3 restores it
     assert model.num_timesteps == 32
+    # --report: the report, its baselines played on the run's held-out workers, on the final evaluation's episodes
+    assert f"report: {out / 'report.md'}" in output
+    report = (out / "report.md").read_text()
+    assert "| oracle | the instruction + the true memory | 2 |" in report and "| none | the bare instruction | 2 |" in report
+
+
+def test_a_report_across_tasks_is_refused_before_training():
+    result = cli("train", "recall", "--tasks", "drawer,RememberColor3-VLA-v0", "--report")
+    assert result.exit_code == 2 and "--report writes one task's report" in result.output
 
 
 def test_resume_continues_the_same_run(run):

@@ -14,6 +14,8 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
 
+from stable_baselines3.common.vec_env import VecEnv
+
 from sb3_memret.analysis.ablations import ABLATIONS
 from sb3_memret.seeds import HELD_OUT_SEED
 from sb3_memret.tasks import DEFAULT_TASK
@@ -48,8 +50,9 @@ class ReportOptions:
 
 
 def write_report(run: Path, options: ReportOptions | None = None,
-                 on_progress: Callable[[str], None] | None = None) -> Path:
-    """Write ``run/report.md`` (and ``run/learning_curves.png``) and return the report's path."""
+                 on_progress: Callable[[str], None] | None = None, venv: VecEnv | None = None) -> Path:
+    """Write ``run/report.md`` (and ``run/learning_curves.png``) and return the report's path. ``venv``: the
+    run's own held-out envs, still open, to play the baselines on (else new ones are started and closed)."""
     run, options = Path(run), options or ReportOptions()
     say = on_progress or (lambda _: None)
     summary_path = run / "summary.json"
@@ -71,7 +74,7 @@ def write_report(run: Path, options: ReportOptions | None = None,
     eval_seed = summary.get("eval_seed", HELD_OUT_SEED)
     final = RetrievalReport.from_dict(summary["final_eval"]) if summary.get("final_eval") else None
     model = load_model(final_path)
-    baselines = _baselines(model, final_path, final, eval_seed, options, say)
+    baselines = _baselines(model, final_path, final, eval_seed, options, say, venv)
     say("tracing the first decision")
     traces = _traces(run, model, final_path, options, options.trace_seed if options.trace_seed is not None else eval_seed)
     sections = [
@@ -150,15 +153,17 @@ def _overview(summary: dict[str, Any], history: list[dict[str, Any]], chance: fl
 
 
 def _baselines(model: MemRetPPO, model_path: Path, final: RetrievalReport | None, eval_seed: int,
-               options: ReportOptions, say: Callable[[str], None]) -> dict[str, RetrievalReport]:
+               options: ReportOptions, say: Callable[[str], None], venv: VecEnv | None) -> dict[str, RetrievalReport]:
     """The oracle and no-memory conditions on the final evaluation's episodes, one after the other on one
-    set of physics workers (``RecallVecEnv.set_mode``)."""
+    set of physics workers (``RecallVecEnv.set_mode``): ``venv``'s, else new ones."""
     episodes = options.baseline_episodes if options.baseline_episodes is not None else (final.episodes if final else 0)
     if episodes == 0:
         return {}
-    venv = make_recall_vec_env(options.n_envs, eval_env_kwargs(model, model_path, "oracle", options.controller,
-                                                               options.render_backend),
-                               backend=options.backend, ray_address=options.ray_address)
+    own = venv is None
+    if own:
+        venv = make_recall_vec_env(options.n_envs, eval_env_kwargs(model, model_path, "oracle", options.controller,
+                                                                   options.render_backend),
+                                   backend=options.backend, ray_address=options.ray_address)
     reports = {}
     try:
         for condition in ("oracle", "none"):
@@ -166,7 +171,8 @@ def _baselines(model: MemRetPPO, model_path: Path, final: RetrievalReport | None
             venv.env_method("set_mode", condition)
             reports[condition] = evaluate_retrieval(model, venv, episodes, seed=eval_seed)
     finally:
-        venv.close()
+        if own:
+            venv.close()
     return reports
 
 

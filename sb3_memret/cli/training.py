@@ -50,13 +50,16 @@ MULTITASK_CONFIG, MULTITASK_SECTION = "memret_ppo_multitask.yml", "multitask"
               help="Evaluate every N rounds (and at round 0 and the end)  [default: the config's eval_every, else 5]")
 @click.option("--progress/--no-progress", default=True, show_default=True,
               help="Show a progress bar (without it, SB3 prints every round's statistics).")
+@click.option("--report", "with_report", is_flag=True,
+              help="Then write the run's report (as `sb3-memret report`), in this process and with the baselines "
+                   "played on the run's own held-out workers.")
 @render_backend_option
 @physics_options
 @click.pass_context
 def train(ctx: click.Context, experiment: str, task: str | None, tasks: str | None, config_path: Path | None,
           controller: str, n_envs: int | None, timesteps: int | None, seed: int, out: Path | None, resume: bool,
-          retriever_from: Path | None, eval_episodes: int | None, eval_every: int | None, progress: bool, render_backend: str,
-          backend: str, ray_address: str | None) -> None:
+          retriever_from: Path | None, eval_episodes: int | None, eval_every: int | None, progress: bool,
+          with_report: bool, render_backend: str, backend: str, ray_address: str | None) -> None:
     """Train the retriever and retention networks with PPO on EXPERIMENT (recall: what the task's controller
     must know, the drawer's layer or a cue's colour, reaches it only through a retrieved memory)."""
     from sb3_memret.config import load_task_config
@@ -66,6 +69,9 @@ def train(ctx: click.Context, experiment: str, task: str | None, tasks: str | No
 
     if tasks is not None and task is not None:
         raise click.BadParameter("name one task (--task) or several (--tasks), not both", param_hint="--tasks")
+    if tasks is not None and with_report:
+        raise click.BadParameter("--report writes one task's report; a learner across tasks has none",
+                                 param_hint="--report")
     if tasks is not None or (resume and out is not None and (out / "config.yml").exists()
                              and "tasks" in load_run_config(out).env_kwargs):
         config, options = across_tasks_run(tasks, config_path, controller, n_envs, timesteps, out,
@@ -115,7 +121,8 @@ def train(ctx: click.Context, experiment: str, task: str | None, tasks: str | No
     options = RunOptions(out=out, controller=controller, seed=seed, resume=resume, retriever_from=retriever_from,
                          eval_episodes=eval_episodes, eval_every=eval_every, eval_seed=HELD_OUT_SEED, progress_bar=progress,
                          render_backend=render_backend, backend=backend, ray_address=ray_address,
-                         log_formats=_log_formats(progress))
+                         log_formats=_log_formats(progress),
+                         report=_in_run_report(controller, render_backend, backend, ray_address) if with_report else None)
     if retriever_from is not None:
         try:
             start_retriever(config, options)
@@ -217,7 +224,19 @@ def _report_run(experiment: str, result, exit_status) -> None:
                    f"sb3-memret train {experiment} --out {result.out} --resume", err=True)
         sys.exit(exit_status(result.stopped_by))
     click.echo(f"model: {result.model_path} (load with stable_baselines3.PPO.load)")
-    click.echo(f"report: sb3-memret report {result.out}")
+    click.echo(f"report: {result.report}" if result.report else f"report: sb3-memret report {result.out}")
+
+
+def _in_run_report(controller: str, render_backend: str, backend: str, ray_address: str | None):
+    """``train --report``: the report of a finished run, its baselines on the run's held-out envs."""
+    def write(result, eval_env) -> Path:
+        from sb3_memret.analysis.report import ReportOptions, write_report
+
+        options = ReportOptions(controller, render_backend=render_backend, backend=backend, ray_address=ray_address)
+        return write_report(result.out, options, on_progress=lambda step: click.echo(step + " ...", err=True),
+                            venv=eval_env)
+
+    return write
 
 
 @click.command()
