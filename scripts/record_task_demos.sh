@@ -1,0 +1,21 @@
+#!/bin/bash
+# Expert demonstrations of MIKASA tasks for one camera controller across them, in chunks of 50 episodes (every frame
+# kept), resumable: a finished chunk leaves OUT/TASK/chunkN.done, and a rerun records only the missing ones.
+# Usage: scripts/record_task_demos.sh OUT EPISODES_PER_TASK TASK [TASK...]
+#   e.g. scripts/record_task_demos.sh runs/multitask 400 RememberColor3-VLA-v0 RememberShape3-VLA-v0
+set -euo pipefail
+cd "$(dirname "$0")/.."
+out=$1 episodes=$2
+shift 2
+chunk=50
+for task in "$@"; do
+  mkdir -p "$out/$task"
+  for ((i = 0; i * chunk < episodes; i++)); do
+    dest=$out/$task/chunk$i
+    [ -f "$dest.done" ] && continue
+    rm -rf "$dest"
+    .venv/bin/sb3-memret demos --task "$task" --episodes "$chunk" --seed $((100000 + chunk * i)) --frames every \
+      --no-progress --out "$dest" > "$dest.log" 2>&1
+    touch "$dest.done"
+  done
+done
