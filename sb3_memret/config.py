@@ -56,6 +56,9 @@ PPO_KEYS: dict[str, Check] = {
     "n_envs": _positive_int(),
     "eval_episodes": _positive_int(),  # held-out episodes per evaluation (train's --eval-episodes overrides)
     "eval_every": _positive_int(),  # rounds between evaluations, round 0 and the last always evaluated
+    # held-out episodes of round 0's evaluation (the untrained learner's, whose episodes tend to run to the time
+    # limit); default eval_episodes
+    "initial_eval_episodes": _positive_int(),
     "n_steps": _positive_int(),
     "batch_size": _positive_int(),
     "n_epochs": _positive_int(),
@@ -69,7 +72,7 @@ PPO_KEYS: dict[str, Check] = {
     "advantage_std_floor": ((int, float), lambda v: 0 <= v <= 1, "a number in [0, 1] (the least spread a round's "
                             "advantages are divided by, as a fraction of the widest so far; 0: always unit spread)"),
 }
-RUN_KEYS = ("n_timesteps", "n_envs", "eval_episodes", "eval_every")  # how a run goes, not PPO's arguments
+RUN_KEYS = ("n_timesteps", "n_envs", "eval_episodes", "eval_every", "initial_eval_episodes")  # how a run goes, not PPO's arguments
 DEFAULT_EVAL_EPISODES, DEFAULT_EVAL_EVERY = 50, 5
 POLICY_KEYS: dict[str, Check] = {
     "temperature": ((int, float), lambda v: v > 0, "a number > 0"),
@@ -147,6 +150,11 @@ class TrainConfig:
     def eval_episodes(self) -> int:
         """Held-out episodes per evaluation."""
         return self.ppo.get("eval_episodes", DEFAULT_EVAL_EPISODES)
+
+    @property
+    def initial_eval_episodes(self) -> int | None:
+        """Held-out episodes of round 0's evaluation; None: as many as every other's."""
+        return self.ppo.get("initial_eval_episodes")
 
     @property
     def eval_every(self) -> int:

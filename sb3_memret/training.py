@@ -58,6 +58,7 @@ class RunOptions:
     resume: bool = False
     eval_episodes: int | None = None  # None: the config's (eval_episodes, else 50)
     eval_every: int | None = None  # None: the config's (eval_every, else 5)
+    initial_eval_episodes: int | None = None  # None: the config's (initial_eval_episodes, else eval_episodes)
     eval_seed: int = HELD_OUT_SEED
     progress_bar: bool = False
     log_formats: tuple[str, ...] = ("stdout", "csv", "tensorboard")
@@ -178,6 +179,8 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
 
     options = replace(options, eval_episodes=options.eval_episodes or config.eval_episodes,
                       eval_every=options.eval_every or config.eval_every)
+    options = replace(options, initial_eval_episodes=(options.initial_eval_episodes or config.initial_eval_episodes
+                                                      or options.eval_episodes))
     env_kwargs = env_kwargs_for(config, options.controller, options.render_backend)
     if controller is None and "tasks" not in config.env_kwargs:  # across tasks, each task makes its own by name
         controller = make_controller(options.controller, config.env_kwargs.get("task", DEFAULT_TASK))
@@ -194,7 +197,7 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
         raise
     checkpointer = RoundCheckpointCallback(checkpoints, verbose=options.verbose)
     evaluator = RetrievalEvalCallback(eval_env, options.eval_episodes, options.eval_seed, options.eval_every,
-                                      best_model_save_path=out, history_path=out / HISTORY_FILE,
+                                      n_initial_episodes=options.initial_eval_episodes, best_model_save_path=out, history_path=out / HISTORY_FILE,
                                       verbose=options.verbose)
     evaluator.listeners.extend(options.evaluation_listeners)
     start, stopped_by = time.perf_counter(), None
@@ -289,6 +292,7 @@ def _write_summary(result: RunResult, options: RunOptions) -> None:
                "interrupted": result.interrupted, "stopped_by": result.stopped_by, "model": str(result.model_path), "controller": options.controller,
                "seed": options.seed, "retriever_from": str(options.retriever_from) if options.retriever_from else None,
                "eval_seed": options.eval_seed, "eval_episodes": options.eval_episodes,
+               "initial_eval_episodes": options.initial_eval_episodes,
                "final_eval": result.final.to_dict() if result.final else None}
     (result.out / "summary.json").write_text(json.dumps(summary, indent=2))
 

@@ -128,6 +128,24 @@ def test_the_progress_bar_follows_evaluations_and_counts_them_in_the_time_left(t
     assert evaluator.episodes_left(ROUND * 5) == 2 * 8
 
 
+def test_round_zero_may_play_fewer_held_out_episodes(tmp_path):
+    """n_initial_episodes sets round 0's evaluation (the untrained learner's) apart; later ones play n_eval_episodes,
+    and the history says how many each played."""
+    model = MemRetPPO(MemoryRetrievalPolicy, DummyVecEnv([ToyBankEnv]), n_steps=ROUND, batch_size=ROUND, seed=0)
+    evaluator = RetrievalEvalCallback(DummyVecEnv([ToyBankEnv]), n_eval_episodes=8, eval_every=2,
+                                      n_initial_episodes=3, history_path=tmp_path / "evaluations.jsonl")
+    started = []
+    evaluator.listeners.append(type("Listener", (), {"evaluation_started": lambda self, r, n: started.append((r, n)),
+                                                     "evaluation_episode": lambda self: None,
+                                                     "evaluation_finished": lambda self, report: None})())
+    model.learn(ROUND * 3, callback=evaluator)
+    assert started == [(0, 3), (2, 8), (3, 8)]
+    rows = [json.loads(line) for line in (tmp_path / "evaluations.jsonl").read_text().splitlines()]
+    assert [(row["round"], row["episodes"]) for row in rows] == [(0, 3), (2, 8), (3, 8)]
+    with pytest.raises(ValueError, match="n_initial_episodes"):
+        RetrievalEvalCallback(DummyVecEnv([ToyBankEnv]), n_initial_episodes=0)
+
+
 def test_evaluations_leave_training_as_it_was():
     """Held-out evaluations draw from a generator of their own: how often a run evaluates does not change
     what it learns (with episode exploration, whose noise comes from torch's global generator)."""

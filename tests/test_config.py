@@ -30,7 +30,8 @@ def test_benchmark_configs_differ_from_the_default_only_in_what_they_name():
     decisions, in rounds of more episodes (with rounds of ~3 the retriever could settle on a safe memory)."""
     default = load_config(ZOO, ENV_ID)
     objects = load_config(ZOO.with_name("memret_ppo_objects.yml"), ENV_ID)
-    evaluations = {key: default.ppo[key] for key in ("eval_episodes", "eval_every")}  # the main job's budget
+    evaluations = {key: default.ppo[key] for key in ("eval_episodes", "eval_every", "initial_eval_episodes")
+                   if key in default.ppo}  # the main job's budget
     assert {**objects.ppo, "n_timesteps": default.n_timesteps, "n_steps": default.ppo["n_steps"],
             **evaluations} == default.ppo
     assert objects.ppo["n_steps"] > default.ppo["n_steps"]
@@ -75,11 +76,14 @@ def test_bad_configs_are_rejected_with_the_key_and_the_accepted_values(section, 
 
 
 def test_a_section_may_set_its_evaluations_which_are_not_ppo_arguments():
-    config = parse_section({"n_timesteps": 10, "eval_episodes": 30, "eval_every": 10}, ENV_ID)
-    assert (config.eval_episodes, config.eval_every) == (30, 10)
-    assert not {"eval_episodes", "eval_every"} & set(config.algo_kwargs())
+    config = parse_section({"n_timesteps": 10, "eval_episodes": 30, "eval_every": 10, "initial_eval_episodes": 8},
+                           ENV_ID)
+    assert (config.eval_episodes, config.eval_every, config.initial_eval_episodes) == (30, 10, 8)
+    assert not {"eval_episodes", "eval_every", "initial_eval_episodes"} & set(config.algo_kwargs())
     plain = parse_section({"n_timesteps": 10}, ENV_ID)
-    assert (plain.eval_episodes, plain.eval_every) == (50, 5)
+    assert (plain.eval_episodes, plain.eval_every, plain.initial_eval_episodes) == (50, 5, None)
+    with pytest.raises(ValueError, match="initial_eval_episodes=0 is invalid; expected an integer >= 1"):
+        parse_section({"n_timesteps": 10, "initial_eval_episodes": 0}, ENV_ID)
 
 
 def test_the_policy_reads_ages_in_the_unit_the_env_counts_them_in():

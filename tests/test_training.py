@@ -29,7 +29,8 @@ def cli(*args):
 def run(tmp_path_factory):
     folder = tmp_path_factory.mktemp("runs")
     config = folder / "tiny.yml"
-    config.write_text(TINY + "  eval_episodes: 2\n  eval_every: 1\n")  # the evaluations the config asks for
+    # the evaluations the config asks for: 2 episodes each, 1 for the untrained learner's at round 0
+    config.write_text(TINY + "  eval_episodes: 2\n  eval_every: 1\n  initial_eval_episodes: 1\n")
     out = folder / "run"
     result = cli("train", "recall", "--config", config, "--out", out, "--no-progress", "--report")
     assert result.exit_code == 0, result.output
@@ -54,13 +55,15 @@ def test_train_writes_a_complete_run(run):
     assert "| round | decisions | greedy acc." in output
     summary = json.loads((out / "summary.json").read_text())
     assert summary["num_timesteps"] == 32 and summary["rounds"] == 2 and not summary["interrupted"]
-    assert summary["eval_episodes"] == 2 and all(r["episodes"] == 2 for r in read_history(out))
+    assert summary["eval_episodes"] == 2 and summary["initial_eval_episodes"] == 1
+    assert [r["episodes"] for r in read_history(out)] == [1, 2, 2]
     assert summary["controller"] == "learned"  # the drawer's default: the camera controller
     model = PPO.load(out / "final_model.zip")  # plain SB3 restores it
     assert model.num_timesteps == 32
     # --report: the report, its baselines played on the run's held-out workers, on the final evaluation's episodes
     assert f"report: {out / 'report.md'}" in output
     report = (out / "report.md").read_text()
+    assert "2 episodes per evaluation (1 at round 0, the untrained learner's)" in report
     assert "| oracle | the instruction + the true memory | 2 |" in report and "| none | the bare instruction | 2 |" in report
 
 

@@ -85,7 +85,7 @@ def write_report(run: Path, options: ReportOptions | None = None,
         "training-time sampled retrievals that held the true memory (every round), and the policy entropy "
         "(right axis).*",
         "## Held-out evaluations during training",
-        f"{history[0]['episodes']} episodes per evaluation, evaluation seed {eval_seed} (and the task's protocol "
+        f"{_episodes_per_evaluation(history)}, evaluation seed {eval_seed} (and the task's protocol "
         "seeds where it has them); "
         "greedy accuracy counts decisions where the acted memory was the true one, sampled is the chance "
         "a training-time draw holds it.",
@@ -115,6 +115,15 @@ def write_report(run: Path, options: ReportOptions | None = None,
     path = run / REPORT_FILE
     path.write_text("\n\n".join(sections) + "\n")
     return path
+
+
+def _episodes_per_evaluation(history: list[dict[str, Any]]) -> str:
+    """'N episodes per evaluation', naming round 0's count where the config set it apart (initial_eval_episodes)."""
+    first, last = history[0], history[-1]
+    text = f"{last['episodes']} episodes per evaluation"
+    if first["round"] == 0 and first["episodes"] != last["episodes"]:
+        text += f" ({first['episodes']} at round 0, the untrained learner's)"
+    return text
 
 
 def first_mastered(history: list[dict[str, Any]]) -> dict[str, Any] | None:

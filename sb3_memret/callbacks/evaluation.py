@@ -18,7 +18,8 @@ from sb3_memret.callbacks.checkpoint import save_whole
 class RetrievalEvalCallback(BaseCallback):
     """Evaluates the current policy greedily on held-out seeds at the start of every
     ``eval_every``-th round (so row r of the log describes the policy after r updates, the same
-    policy that collects round r) and once more when training ends.
+    policy that collects round r) and once more when training ends. Round 0's evaluation plays
+    ``n_initial_episodes`` (default ``n_eval_episodes``): the untrained learner's episodes cost the most.
 
     Logs ``eval/*`` (greedy accuracy, sampled fraction, entropy, success overall and per layer,
     shaped return and reward, true-memory eviction rate) through the model's logger, appends
@@ -28,11 +29,14 @@ class RetrievalEvalCallback(BaseCallback):
 
     def __init__(self, eval_env: VecEnv, n_eval_episodes: int = 50, eval_seed: int = 1_000_000, eval_every: int = 1,
                  best_model_save_path: str | Path | None = None, history_path: str | Path | None = None,
-                 verbose: int = 0):
+                 verbose: int = 0, n_initial_episodes: int | None = None):
         super().__init__(verbose)
-        if n_eval_episodes < 1 or eval_every < 1:
-            raise ValueError(f"n_eval_episodes and eval_every must be >= 1, got {n_eval_episodes}, {eval_every}")
+        n_initial_episodes = n_eval_episodes if n_initial_episodes is None else n_initial_episodes
+        if min(n_eval_episodes, n_initial_episodes, eval_every) < 1:
+            raise ValueError(f"n_eval_episodes, n_initial_episodes and eval_every must be >= 1, got {n_eval_episodes}, "
+                             f"{n_initial_episodes}, {eval_every}")
         self.eval_env, self.n_eval_episodes, self.eval_seed = eval_env, n_eval_episodes, eval_seed
+        self.n_initial_episodes = n_initial_episodes
         self.eval_every = eval_every
         self.best_model_save_path = Path(best_model_save_path) if best_model_save_path else None
         self.history_path = Path(history_path) if history_path else None
@@ -80,11 +84,12 @@ class RetrievalEvalCallback(BaseCallback):
 
     def evaluate(self) -> RetrievalReport:
         start = time.perf_counter()
+        episodes = self.n_initial_episodes if self.round == 0 else self.n_eval_episodes
         for listener in self.listeners:
-            listener.evaluation_started(self.round, self.n_eval_episodes)
+            listener.evaluation_started(self.round, episodes)
         try:
             report = evaluate_retrieval(  # training chooses on development seeds, never the protocol's
-                self.model, self.eval_env, self.n_eval_episodes, seed=self.eval_seed, held_out="development",
+                self.model, self.eval_env, episodes, seed=self.eval_seed, held_out="development",
                 on_episode=lambda _: [listener.evaluation_episode() for listener in self.listeners])
         except BaseException:
             for listener in self.listeners:
