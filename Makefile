@@ -8,7 +8,7 @@ RENDERER ?= .renderer
 is_py312 = $(shell $(1) -c 'import sys; assert sys.version_info[:2] == (3, 12)' >/dev/null 2>&1 && echo yes)
 PYTHON ?= $(firstword $(foreach p,python3.12 $(wildcard $(HOME)/.pyenv/versions/3.12*/bin/python3.12),$(if $(call is_py312,$(p)),$(p))))
 
-.PHONY: install renderer train test docs bench controller controller-objects controller-camera controller-mikasa clean
+.PHONY: install renderer train test docs bench controller controller-objects controller-camera controller-mikasa controller-multitask clean
 
 $(VENV)/.installed: setup.cfg pyproject.toml constraints.txt
 	@test -n "$(PYTHON)" || { echo "error: no Python 3.12 found; install one (e.g. pyenv install 3.12) or pass PYTHON=/path/to/python3.12" >&2; exit 1; }
@@ -50,6 +50,8 @@ docs: install $(VENV)/.docs-installed
 # Rebuild the drawer's shipped state controller (`--controller learned-state`): 240 expert episodes (half with action
 # noise, clean labels), then behaviour cloning; about 8 minutes on 2 CPU cores.
 STAGE1 ?= runs/stage1
+# a literal comma, for $(subst)
+comma := ,
 SHIPPED := sb3_memret/controllers/checkpoints/drawer-learned
 controller: install
 	rm -rf $(STAGE1)
@@ -111,6 +113,19 @@ controller-mikasa: install renderer
 	mkdir -p sb3_memret/controllers/checkpoints/$(MIKASA_TASK)-camera
 	cp $(MIKASA_RUN)/policy/config.json $(MIKASA_RUN)/policy/model.safetensors \
 		$(MIKASA_RUN)/policy/train_log.csv sb3_memret/controllers/checkpoints/$(MIKASA_TASK)-camera/
+
+# One camera controller across several MIKASA tasks (finetune --tasks): $(MULTITASK_EPISODES) expert episodes of each task,
+# recorded in resumable chunks of 50 (scripts/record_task_demos.sh; an interrupted run records only the missing
+# chunks), then one policy on all of them, its prompts telling the tasks apart. About 8 s an episode and 4 steps/s
+# of finetuning on an idle 2-core CPU.
+MULTITASK_TASKS ?= RememberColor3-VLA-v0,RememberShape3-VLA-v0
+MULTITASK_EPISODES ?= 300
+MULTITASK_STEPS ?= 4000
+controller-multitask: install renderer
+	scripts/record_task_demos.sh $(STAGE1)-multitask $(MULTITASK_EPISODES) $(subst $(comma), ,$(MULTITASK_TASKS))
+	rm -rf $(STAGE1)-multitask/policy
+	scripts/finetune_task_demos.sh $(STAGE1)-multitask $(STAGE1)-multitask/policy $(MULTITASK_TASKS) \
+		--steps $(MULTITASK_STEPS)
 
 bench: install
 	$(PY) scripts/bench_env.py

@@ -1,22 +1,24 @@
 #!/bin/bash
-# One camera controller across the tasks that scripts/record_task_demos.sh recorded into DEMOS: every finished chunk
-# of every task folder is a dataset, named with its task (finetune --tasks), and the policy lands in OUT.
-# Usage: scripts/finetune_task_demos.sh DEMOS OUT [finetune options...]
-#   e.g. scripts/finetune_task_demos.sh runs/multitask runs/multitask/policy --steps 4000
+# One camera controller across TASKS, from what scripts/record_task_demos.sh recorded into DEMOS: every finished
+# chunk of each task is a dataset, named with its task (finetune --tasks), and the policy lands in OUT.
+# Usage: scripts/finetune_task_demos.sh DEMOS OUT TASK[,TASK...] [finetune options...]
+#   e.g. scripts/finetune_task_demos.sh runs/multitask runs/multitask/policy \
+#          RememberColor3-VLA-v0,RememberShape3-VLA-v0 --steps 4000
 set -euo pipefail
 cd "$(dirname "$0")/.."
 demos=$1 out=$2
-shift 2
+IFS=, read -r -a wanted <<< "$3"
+shift 3
 datasets=() tasks=()
-for folder in "$demos"/*/; do
-  task=$(basename "$folder")
-  for done in "$folder"chunk*.done; do
+for task in "${wanted[@]}"; do
+  found=0
+  for done in "$demos/$task"/chunk*.done; do
     [ -e "$done" ] || continue
-    datasets+=("${done%.done}") tasks+=("$task")
+    datasets+=("${done%.done}") tasks+=("$task") found=1
   done
+  if [ $found -eq 0 ]; then
+    echo "no finished chunks of $task under $demos: record them with scripts/record_task_demos.sh $demos EPISODES $task" >&2
+    exit 2
+  fi
 done
-if [ ${#datasets[@]} -eq 0 ]; then
-  echo "no finished chunks under $demos: record them with scripts/record_task_demos.sh $demos EPISODES TASK..." >&2
-  exit 2
-fi
 .venv/bin/sb3-memret finetune "${datasets[@]}" --tasks "$(IFS=,; echo "${tasks[*]}")" --out "$out" "$@"
