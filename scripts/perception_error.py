@@ -50,7 +50,8 @@ def main() -> None:
     if not len(held):
         raise SystemExit("no validation episodes: --validation-fraction is 0")
     idx = np.sort(np.random.default_rng(0).choice(held, size=min(args.frames, len(held)), replace=False))
-    features = camera_inputs(policy, {k: v[idx] for k, v in demos.images.items()}, policy.config.image_features)
+    features = camera_inputs(policy, {k: v[idx] for k, v in demos.images.items()}, policy.config.image_features,
+                             cache=False)
     tokenizer = PromptTokenizer()
     with torch.no_grad():  # heads conditioned on the prompt (image_film) read each frame's own prompt
         prompts = policy.encode_prompts(*tokenizer(demos.tasks))[torch.from_numpy(demos.task_ids[idx])]

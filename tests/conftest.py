@@ -1,5 +1,5 @@
 """Shared fixtures: the MiniLM encoder, one real DrawerCubeTakeOut-v1 per test module (building it takes ~1 s), one with
-both cameras rendered by the CPU renderer per session, and SB3's default log folder inside
+both cameras rendered by the CPU renderer per session, and SB3's default log folder and the project's cache inside
 pytest's temporary directory rather than the system's."""
 
 import importlib.util
@@ -16,6 +16,16 @@ def sb3_log_folder(tmp_path_factory):
     """A ``learn`` without its own logger makes an SB3-<date> folder under $SB3_LOGDIR or /tmp."""
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv("SB3_LOGDIR", str(tmp_path_factory.mktemp("sb3_logs")))
+        yield
+
+
+@pytest.fixture(scope="session", autouse=True)
+def project_cache(tmp_path_factory):
+    """The project's cache (the light Panda's meshes, trunk features), made afresh for the session."""
+    from sb3_memret.cache import CACHE_ENV
+
+    with pytest.MonkeyPatch.context() as patch:
+        patch.setenv(CACHE_ENV, str(tmp_path_factory.mktemp("cache")))
         yield
 
 

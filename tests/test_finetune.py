@@ -135,6 +135,27 @@ def test_a_camera_policy_learns_from_decision_frames_and_sees_only_the_hand(came
         load_demonstrations([camera_demos, demos])
 
 
+def test_a_frozen_trunks_features_are_cached_per_dataset_and_train_the_same_policy(camera_demos, tmp_path):
+    """The second finetune of the same frames reads the first's trunk features from the cache (one file per camera)
+    and, with the same seed, trains the very same weights as one that computes them afresh."""
+    from safetensors.torch import load_file
+
+    from sb3_memret.cache import cache_root
+    from sb3_memret.stage1.feature_cache import FOLDER
+
+    config = LearnedPolicyConfig(hidden_dim=32, n_layers=1, text_dim=16, text_heads=2, image_encoder="efficientnet_lite0",
+                                 image_dim=8, keypoints=8)
+    settings = FinetuneSettings(steps=3, batch_size=4)
+    before = set((cache_root() / FOLDER).rglob("*.npy"))
+    weights = []
+    for name, cache in (("first", True), ("cached", True), ("fresh", False)):
+        out = finetune([camera_demos], tmp_path / name, config, settings, state="proprio", cache_features=cache)
+        weights.append(load_file(out / "model.safetensors"))
+        if name == "first":
+            assert len(set((cache_root() / FOLDER).rglob("*.npy")) - before) == 2  # the base and wrist cameras
+    assert all(torch.equal(weights[0][key], other[key]) for other in weights[1:] for key in weights[0])
+
+
 def test_a_colour_reading_policy_round_trips_and_acts(camera_demos, tmp_path, rgb_task_env):
     config = LearnedPolicyConfig(hidden_dim=32, n_layers=1, text_dim=16, text_heads=2, image_encoder="efficientnet_lite0",
                                  image_dim=8, keypoints=8, image_colour=True)

@@ -174,12 +174,15 @@ def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, no
 @click.option("--pointer-hindsight", type=click.FloatRange(min=0.0), default=0.0, show_default=True,
               help="learned, with --pointer: weight of a cross-entropy that points each training prompt at the object "
                    "its demonstrations' hands end nearest (0: the pointer learns from the action loss alone).")
+@click.option("--cache-features/--no-cache-features", default=True, show_default=True,
+              help="learned, with a frozen trunk: keep each dataset's trunk features on disk ($SB3_MEMRET_CACHE, else "
+                   "~/.cache/sb3-memret) and read them back in later finetunes of the same frames.")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
 def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | None, batch_size: int | None,
              learning_rate: float | None, seed: int, pretrained: Path | None, tokenizer: Path | None, lora_rank: int,
              device: str, task: str, dataset_tasks: str | None, state: str | None, image_encoder: str,
              image_dim: int, keypoints: int, image_colour: bool, image_film: bool, pointer: bool,
-             pointer_hindsight: float, progress: bool) -> None:
+             pointer_hindsight: float, cache_features: bool, progress: bool) -> None:
     """Train a frozen controller from DATASETS (LeRobotDatasets written by `sb3-memret demos`).
 
     The learned policy reads the prompt as frozen MiniLM per-token features, the state (and the
@@ -241,7 +244,7 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
 
         try:
             train_policy(by_task or datasets, out, config, settings=settings, on_step=on_step,
-                         task=None if by_task else task, state=state)
+                         task=None if by_task else task, state=state, cache_features=cache_features)
         except (FileNotFoundError, ValueError) as err:
             raise click.UsageError(str(err)) from err
     click.echo(f"checkpoint written: --controller learned:{out}")

@@ -33,6 +33,7 @@ class Demonstrations:
     chunk_pad: np.ndarray | None = None  # (N, H) steps of a chunk past the episode's end
     known: np.ndarray | None = None  # (N, D) the state entries each frame's task has (several tasks); None: all
     robot: str | None = None  # the robot the camera images show (the datasets' robot_type); None: no cameras
+    spans: tuple[int, ...] = ()  # frames of each dataset read, in order (their images are cached per dataset)
 
     def targets(self, chunk_len: int) -> tuple[np.ndarray, np.ndarray]:
         """(N, chunk_len, 7) target labels of every frame and their (N, chunk_len) pad mask."""
@@ -120,6 +121,7 @@ def load_demonstrations(roots: Sequence[str | Path], task: str | Task = DEFAULT_
         state_names=names,
         chunks=np.concatenate([p["chunks"] for p in parts]) if chunked else None,
         chunk_pad=np.concatenate([p["chunk_pad"] for p in parts]) if chunked else None,
+        spans=tuple(len(p["states"]) for p in parts),
     )
 
 
@@ -160,7 +162,7 @@ def load_task_demonstrations(datasets: Mapping[str | Task, Sequence[str | Path]]
         images={k: np.concatenate([p.images[k] for p in parts]) for k in parts[0].images}, state_names=names,
         chunks=np.concatenate([p.chunks for p in parts]) if chunked else None,
         chunk_pad=np.concatenate([p.chunk_pad for p in parts]) if chunked else None,
-        known=np.concatenate(known)), tasks
+        known=np.concatenate(known), spans=tuple(span for part in parts for span in part.spans)), tasks
 
 
 def _one_robot(robots: Mapping[str, str | None]) -> str | None:

@@ -41,6 +41,7 @@ from sb3_memret.controllers.learned.vision import shift_augment
 from sb3_memret.prompts import INSTRUCTION_TEMPLATE, PromptTemplate, parse_prompt
 from sb3_memret.stage1.datasets import (Demonstrations, hindsight_objects, load_demonstrations,
                                         load_task_demonstrations, validation_episodes)
+from sb3_memret.stage1.feature_cache import cached_features
 from sb3_memret.tasks import DEFAULT_TASK, Task, make_task
 
 LOG_FILE = "train_log.csv"
@@ -92,14 +93,22 @@ def state_names_for(task: Task, state: str) -> tuple[str, ...]:
     return task.state_names() if state == "full" else task.proprio_names()
 
 
-def camera_inputs(model: LearnedPolicy, images: dict[str, np.ndarray], keys: Sequence[str]) -> list[torch.Tensor]:
-    """What the policy's camera heads read for every frame: a frozen trunk's features (computed here once, in
-    batches, kept as float16), or the uint8 images themselves (channels first) for encoders trained from pixels."""
-    frames = [torch.from_numpy(images[key]).permute(0, 3, 1, 2) for key in keys]
+def camera_inputs(model: LearnedPolicy, images: dict[str, np.ndarray], keys: Sequence[str],
+                  spans: Sequence[int] = (), cache: bool = True) -> list[torch.Tensor]:
+    """What the policy's camera heads read for every frame: a frozen trunk's features (computed once, in batches,
+    kept as float16; with ``cache``, per dataset of ``spans`` frames through ``cached_features``), or the uint8
+    images themselves (channels first) for encoders trained from pixels."""
     if model.trunk is None:
-        return frames
-    return [torch.cat([model.trunk(x[i: i + FEATURE_BATCH].float() / 255.0).half()
-                       for i in range(0, len(x), FEATURE_BATCH)]) for x in frames]
+        return [torch.from_numpy(images[key]).permute(0, 3, 1, 2) for key in keys]
+
+    def compute(frames: np.ndarray) -> torch.Tensor:
+        x = torch.from_numpy(frames).permute(0, 3, 1, 2)
+        return torch.cat([model.trunk(x[i: i + FEATURE_BATCH].float() / 255.0).half()
+                          for i in range(0, len(x), FEATURE_BATCH)]).contiguous()  # as the cache reads them back
+
+    if not cache:
+        return [compute(images[key]) for key in keys]
+    return [cached_features(model.trunk, images[key], spans or (len(images[key]),), compute) for key in keys]
 
 
 def finetune(
@@ -112,12 +121,14 @@ def finetune(
     task: str | Task | None = None,
     state: str = "full",
     cameras: bool = True,
+    cache_features: bool = True,
 ) -> Path:
     """Train a LearnedPolicy on ``datasets`` of ``task`` (default the drawer), or on a mapping from each of several
     tasks to its datasets (one multi-task policy), and save it to ``out`` (``save_pretrained``); returns ``out``.
     ``state`` picks the state entries it reads (``full`` or ``proprio``); ``cameras=False`` leaves the datasets'
-    camera images out. The prompt contract is the config's fact templates for the drawer, the tasks' own templates
-    (together) for any other."""
+    camera images out; ``cache_features`` keeps a frozen trunk's features of each dataset on disk for the next
+    finetune (``feature_cache``). The prompt contract is the config's fact templates for the drawer, the tasks' own
+    templates (together) for any other."""
     settings = settings or FinetuneSettings()
     if isinstance(datasets, Mapping):
         if task is not None:
@@ -177,7 +188,7 @@ def finetune(
 
     states = torch.from_numpy(np.ascontiguousarray(picked))
     targets_t, is_pad_t, task_ids = torch.from_numpy(targets), torch.from_numpy(is_pad), torch.from_numpy(demos.task_ids)
-    features = camera_inputs(model, demos.images, keys)
+    features = camera_inputs(model, demos.images, keys, demos.spans, cache_features)
     from_pixels = model.trunk is None
     shifts = torch.Generator().manual_seed(settings.seed)
     labels = (torch.from_numpy(hidden) - model.perceived_mean) / model.perceived_std if perceived else None

@@ -15,7 +15,6 @@ a camera controller trained on one does not carry over to the other (``Controlle
 
 from __future__ import annotations
 
-import os
 import shutil
 import tempfile
 from pathlib import Path
@@ -24,11 +23,12 @@ import mani_skill
 from mani_skill.agents.registration import register_agent
 from mani_skill.agents.robots.panda.panda import Panda
 
+from sb3_memret.cache import CACHE_ENV, cache_root
+
 LIGHT_PANDA_UID = "panda_light"
 KEEP_FRACTION = 0.1  # of each visual mesh's triangles; below it a picture gets no cheaper (measured: 0.04 the same)
 MIN_FACES = 2000  # meshes smaller than this (the fingers) are kept whole
 ASSETS_VERSION = 2  # bump when the recipe changes: the cache folder is named by it
-CACHE_ENV = "SB3_MEMRET_CACHE"
 SOURCE_URDF = Path(mani_skill.__file__).parent / "assets" / "robots" / "panda" / "panda_v2.urdf"
 VISUAL_PREFIX = 'filename="franka_description/meshes/visual/'
 ASSET_PREFIX = 'filename="franka_description/'
@@ -36,8 +36,7 @@ ASSET_PREFIX = 'filename="franka_description/'
 
 def light_panda_dir() -> Path:
     """The folder of the light Panda's URDF and meshes (``$SB3_MEMRET_CACHE``, else ``~/.cache/sb3-memret``)."""
-    root = Path(os.environ.get(CACHE_ENV) or Path.home() / ".cache" / "sb3-memret")
-    return root / f"panda-light-v{ASSETS_VERSION}-mani_skill-{mani_skill.__version__}"
+    return cache_root() / f"panda-light-v{ASSETS_VERSION}-mani_skill-{mani_skill.__version__}"
 
 
 def decimate_glb(source: Path, target: Path, keep: float = KEEP_FRACTION, min_faces: int = MIN_FACES) -> tuple[int, int]:
