@@ -238,6 +238,10 @@ def parse_section(section: Any, env_id: str, where: str = "config") -> TrainConf
     slots = env_kwargs.get("capacity", 6) + env_kwargs.get("long_term_capacity", 0)
     if "k" in env_kwargs and env_kwargs["k"] > slots:
         raise ValueError(f"{where}: {env_id}.env_kwargs: k={env_kwargs['k']} exceeds capacity={slots}")
+    initial, every = ppo.get("initial_eval_episodes"), ppo.get("eval_episodes", DEFAULT_EVAL_EPISODES)
+    if initial is not None and initial > every:
+        raise ValueError(f"{where}: {env_id}: initial_eval_episodes={initial} exceeds eval_episodes={every}; round 0's "
+                         "evaluation plays at most as many episodes as the others")
     return TrainConfig(env_id, ppo, policy_kwargs, env_kwargs)
 
 

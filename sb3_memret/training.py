@@ -58,7 +58,8 @@ class RunOptions:
     resume: bool = False
     eval_episodes: int | None = None  # None: the config's (eval_episodes, else 50)
     eval_every: int | None = None  # None: the config's (eval_every, else 5)
-    initial_eval_episodes: int | None = None  # None: the config's (initial_eval_episodes, else eval_episodes)
+    # None: the config's (initial_eval_episodes, else eval_episodes); never more than eval_episodes
+    initial_eval_episodes: int | None = None
     eval_seed: int = HELD_OUT_SEED
     progress_bar: bool = False
     log_formats: tuple[str, ...] = ("stdout", "csv", "tensorboard")
@@ -179,8 +180,8 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
 
     options = replace(options, eval_episodes=options.eval_episodes or config.eval_episodes,
                       eval_every=options.eval_every or config.eval_every)
-    options = replace(options, initial_eval_episodes=(options.initial_eval_episodes or config.initial_eval_episodes
-                                                      or options.eval_episodes))
+    initial = options.initial_eval_episodes or config.initial_eval_episodes or options.eval_episodes
+    options = replace(options, initial_eval_episodes=min(initial, options.eval_episodes))  # never more than later ones
     env_kwargs = env_kwargs_for(config, options.controller, options.render_backend)
     if controller is None and "tasks" not in config.env_kwargs:  # across tasks, each task makes its own by name
         controller = make_controller(options.controller, config.env_kwargs.get("task", DEFAULT_TASK))

@@ -84,6 +84,8 @@ def test_a_section_may_set_its_evaluations_which_are_not_ppo_arguments():
     assert (plain.eval_episodes, plain.eval_every, plain.initial_eval_episodes) == (50, 5, None)
     with pytest.raises(ValueError, match="initial_eval_episodes=0 is invalid; expected an integer >= 1"):
         parse_section({"n_timesteps": 10, "initial_eval_episodes": 0}, ENV_ID)
+    with pytest.raises(ValueError, match="initial_eval_episodes=60 exceeds eval_episodes=50"):
+        parse_section({"n_timesteps": 10, "initial_eval_episodes": 60}, ENV_ID)
 
 
 def test_the_policy_reads_ages_in_the_unit_the_env_counts_them_in():
