@@ -116,8 +116,8 @@ controller-mikasa: install renderer
 
 # One camera controller across several MIKASA tasks (finetune --tasks): $(MULTITASK_EPISODES) expert episodes of each task,
 # recorded in resumable chunks of 50 (scripts/record_task_demos.sh; an interrupted run records only the missing
-# chunks), then one policy on all of them, its prompts telling the tasks apart. About 8 s an episode and 4 steps/s
-# of finetuning on an idle 2-core CPU.
+# chunks), then one policy on all of them, its prompts telling the tasks apart. On a 2-core CPU: ~8 min a chunk, then
+# the frozen trunk's features (10 min for 600 episodes' 15,000 frames, kept for later finetunes) and 3.4 steps/s.
 MULTITASK_TASKS ?= RememberColor3-VLA-v0,RememberShape3-VLA-v0
 MULTITASK_EPISODES ?= 300
 MULTITASK_STEPS ?= 4000
