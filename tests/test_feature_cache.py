@@ -53,6 +53,18 @@ def test_changed_frames_or_another_trunk_are_computed_afresh(tmp_path):
     assert other.frames_seen == 4 and trunk_id(other) != trunk_id(trunk)
 
 
+def test_a_cached_file_of_another_shape_is_made_afresh(tmp_path):
+    """A trunk cut at another depth keeps its weights' checksum but not its channel count: its features are remade."""
+    trunk, images = MeanTrunk(), frames(4, 0)
+    cached_features(trunk, images, (4,), trunk.compute, root=tmp_path)
+    trunk.out_channels = 3
+    cached_features(trunk, images, (4,), trunk.compute, root=tmp_path)
+    assert trunk.frames_seen == 4
+    trunk.out_channels = 5
+    features = cached_features(trunk, images, (4,), trunk.compute, root=tmp_path)
+    assert trunk.frames_seen == 8 and features.shape == (4, 3)
+
+
 def test_bad_spans_and_a_trunk_without_a_checksum_are_refused(tmp_path):
     trunk = MeanTrunk()
     with pytest.raises(ValueError, match=r"spans \[2, 2\] cover 4 frames, not the 5 given"):

@@ -54,8 +54,11 @@ def cached_features(trunk: torch.nn.Module, frames: np.ndarray, spans: Sequence[
         start += span
         path = folder / f"{frames_digest(block)}.npy"
         if path.is_file():
-            parts.append(torch.from_numpy(np.load(path)))
-            continue
+            cached = np.load(path)
+            channels = getattr(trunk, "out_channels", None)
+            if len(cached) == span and (channels is None or cached.shape[1] == channels):
+                parts.append(torch.from_numpy(cached))
+                continue  # else written by a trunk of another shape under the same weights: made afresh below
         features = compute(block)
         _save(path, features.numpy())
         parts.append(features)
