@@ -48,6 +48,7 @@ def cached_features(trunk: torch.nn.Module, frames: np.ndarray, spans: Sequence[
     if sum(spans) != len(frames):
         raise ValueError(f"the datasets' spans {list(spans)} cover {sum(spans)} frames, not the {len(frames)} given")
     folder = (root or cache_root()) / FOLDER / trunk_id(trunk)
+    channels = getattr(trunk, "out_channels", None)
     parts, start = [], 0
     for span in spans:
         block = frames[start: start + span]
@@ -55,7 +56,6 @@ def cached_features(trunk: torch.nn.Module, frames: np.ndarray, spans: Sequence[
         path = folder / f"{frames_digest(block)}.npy"
         if path.is_file():
             cached = np.load(path)
-            channels = getattr(trunk, "out_channels", None)
             if len(cached) == span and (channels is None or cached.shape[1] == channels):
                 parts.append(torch.from_numpy(cached))
                 continue  # else written by a trunk of another shape under the same weights: made afresh below
