@@ -1,5 +1,5 @@
 #!/bin/bash
-# One camera controller across TASKS, from what scripts/record_task_demos.sh recorded into DEMOS: every finished
+# One camera controller across TASKS (or one task's own, on the same chunks), from what scripts/record_task_demos.sh recorded into DEMOS: every finished
 # chunk of each task is a dataset, named with its task (finetune --tasks), and the policy lands in OUT.
 # Usage: scripts/finetune_task_demos.sh DEMOS OUT TASK[,TASK...] [finetune options...]
 #   e.g. scripts/finetune_task_demos.sh runs/multitask runs/multitask/policy \
@@ -21,4 +21,9 @@ for task in "${wanted[@]}"; do
     exit 2
   fi
 done
-.venv/bin/sb3-memret finetune "${datasets[@]}" --tasks "$(IFS=,; echo "${tasks[*]}")" --out "$out" "$@"
+if [ ${#wanted[@]} -eq 1 ]; then  # one task's chunks: a per-task policy, on the same data as a multi-task one
+  task_args=(--task "${wanted[0]}")
+else
+  task_args=(--tasks "$(IFS=,; echo "${tasks[*]}")")
+fi
+.venv/bin/sb3-memret finetune "${datasets[@]}" "${task_args[@]}" --out "$out" "$@"

@@ -170,6 +170,30 @@ class _Guarded(Mapping):
         return len(list(iter(self)))
 
 
+def test_results_and_report_break_success_down_by_cue(monkeypatch):
+    run = _plan(episodes=3)
+    cues = {5000: "blue", 5001: "red", 5002: "blue"}
+    records = [_record("A-VLA-v0", "oracle", seed, seed != 5002, cue=cue) for seed, cue in cues.items()]
+    records += [_record("A-VLA-v0", "none", seed, seed == 5001, cue=cue) for seed, cue in cues.items()]
+    records += [_record("B-VLA-v0", "oracle", 5000 + i, True, cue=f"{i} cm/s") for i in range(3)]
+    content = results(run, records)
+    a = content["tasks"]["A-VLA-v0"]["conditions"]
+    assert a["oracle"]["by_cue"] == {"blue": {"episodes": 2, "successes": 1}, "red": {"episodes": 1, "successes": 1}}
+    assert a["none"]["by_cue"]["red"] == {"episodes": 1, "successes": 1}
+    report = render_report(content)
+    assert "## By cue" in report
+    assert "| A-VLA-v0 | blue | 0/2 | 1/2 |" in report and "| A-VLA-v0 | red | 1/1 | 1/1 |" in report
+    assert "| B-VLA-v0 | 0 cm/s |" in report  # three values: listed
+
+    from sb3_memret.benchmark import report as report_module
+
+    monkeypatch.setattr(report_module, "MAX_CUES_SHOWN", 2)  # B's three values are now too many to list
+    continuous = [_record("B-VLA-v0", "oracle", 5000 + i, True, cue=f"{i} cm/s") for i in range(3)]
+    assert "## By cue" not in render_report(results(_plan(episodes=3), continuous))
+    unlabelled = [_record("A-VLA-v0", "oracle", 5000, True), _record("A-VLA-v0", "oracle", 5001, True, cue="red")]
+    assert "by_cue" not in results(_plan(), unlabelled)["tasks"]["A-VLA-v0"]["conditions"]["oracle"]
+
+
 def test_the_agent_plays_mikasas_harness_from_cameras_only(tmp_path, monkeypatch):
     """Real episodes of RememberColor3 in MIKASA's own harness, one per condition at a development seed: the
     written facts are the ones the oracle names, so both succeed; the wrong fact fails; nothing forbidden is read;
@@ -189,6 +213,8 @@ def test_the_agent_plays_mikasas_harness_from_cameras_only(tmp_path, monkeypatch
     oracle, = (r["prompt"] for r in logged if r["condition"] == "oracle")
     written, = (r["prompt"] for r in logged if r["condition"] == "written")
     assert written == oracle and written.endswith("the cue cube was lime.")
+    assert {r["cue"] for r in logged} == {"lime"}  # the seed's cue, logged for the per-cue breakdown
+    assert cells["oracle"]["by_cue"] == {"lime": {"episodes": 1, "successes": 1}}
     assert json.loads((tmp_path / "results.json").read_text()) == content
     again = run_benchmark(run, tmp_path, workers=1)
     assert again == content and len((tmp_path / "episodes.jsonl").read_text().splitlines()) == 3

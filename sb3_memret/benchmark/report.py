@@ -1,6 +1,6 @@
 """``report.md`` and ``success.png`` from a benchmark run's ``results.json``: the per-task table, the split's mean,
-the per-memory-type breakdown, and what was refused and why. Generated from the results file alone, so every
-figure in it is one the run produced."""
+the per-memory-type breakdown, success per cue value (RememberColor9's per colour), and what was refused and why.
+Generated from the results file alone, so every figure in it is one the run produced."""
 
 from __future__ import annotations
 
@@ -11,6 +11,7 @@ from typing import Any, Mapping
 from sb3_memret.benchmark.published import published_section
 
 REPORT_FILE, FIGURE_FILE = "report.md", "success.png"
+MAX_CUES_SHOWN = 15  # the per-cue breakdown lists tasks whose cue takes at most this many values (the 5x3 tasks' 15)
 
 
 def _cell(cell: Mapping[str, Any] | None) -> str:
@@ -39,6 +40,27 @@ def _complete(tasks: Mapping[str, Any], condition: str) -> dict[str, float]:
 
 def _mean(values: list[float]) -> str:
     return f"{100 * sum(values) / len(values):.1f}%" if values else ""
+
+
+def _by_cue(tasks: Mapping[str, Any], conditions: list[str]) -> list[str]:
+    """The per-cue section: success per value of the episode's cue (``blue``), per task and condition, for the tasks
+    whose cue takes at most ``MAX_CUES_SHOWN`` values (a continuous cue, a ball's speed, would list every seed)."""
+    rows = []
+    for env_id, t in tasks.items():
+        cells = {c: cell["by_cue"] for c, cell in t.get("conditions", {}).items() if "by_cue" in cell}
+        cues = sorted({cue for by_cue in cells.values() for cue in by_cue})
+        if not cues or len(cues) > MAX_CUES_SHOWN:
+            continue
+        for cue in cues:
+            counts = [cells.get(c, {}).get(cue) for c in conditions]
+            rows.append(f"| {env_id} | {cue} | " + " | ".join(f"{n['successes']}/{n['episodes']}" if n else ""
+                                                                for n in counts) + " |")
+    if not rows:
+        return []
+    return ["", "## By cue", "",
+            f"Successes per value of the episode's cue (its true facts), for tasks whose cue takes at most "
+            f"{MAX_CUES_SHOWN} values over the run's seeds; the same seeds play every condition.", "",
+            "| task | cue | " + " | ".join(conditions) + " |", "|---|---|" + "---|" * len(conditions), *rows]
 
 
 def render_report(content: Mapping[str, Any]) -> str:
@@ -94,6 +116,7 @@ def render_report(content: Mapping[str, Any]) -> str:
             done = _complete({i: tasks[i] for i in ids}, c)
             cells.append(f"{_mean(list(done.values()))} ({len(done)})" if done else "")
         lines.append(f"| {memory_type} | {len(ids)} | " + " | ".join(cells) + " |")
+    lines += _by_cue(tasks, conditions)
     best = "recall" if "recall" in conditions else conditions[-1]  # what a memory method is compared on
     lines += published_section({env_id: _cell(t["conditions"].get(best)) for env_id, t in tasks.items()
                                 if "conditions" in t}, protocol["controller"], best)
@@ -145,4 +168,4 @@ def write_report(content: Mapping[str, Any], out: Path) -> Path:
     return out / REPORT_FILE
 
 
-__all__ = ["FIGURE_FILE", "REPORT_FILE", "plot_success", "render_report", "write_report"]
+__all__ = ["FIGURE_FILE", "MAX_CUES_SHOWN", "REPORT_FILE", "plot_success", "render_report", "write_report"]

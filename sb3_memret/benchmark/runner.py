@@ -299,7 +299,16 @@ class _Worker:
             self.failed[unit.env_id, unit.condition] = error
             return {**asdict(unit), "error": error, "traceback": traceback.format_exc()}
         return {**asdict(unit), "success": bool(result.success_once), "return": float(result.episode_return),
-                "steps": int(result.n_steps), "prompt": agent.prompts[-1] if agent.prompts else None}
+                "steps": int(result.n_steps), "prompt": agent.prompts[-1] if agent.prompts else None,
+                "cue": cue_label(agent.episode)}
+
+
+def cue_label(episode: Any) -> str | None:
+    """What the episode's cue was, as its true facts' values (``blue``; a sequence's in order, ``red, lime, teal``):
+    the key of the report's per-cue breakdown. Logged for the report only; no controller reads it."""
+    if episode is None or not episode.true_facts:
+        return None
+    return ", ".join(str(value) for _, value in episode.true_facts)
 
 
 _WORKER: _Worker | None = None
@@ -414,6 +423,11 @@ def results(run: Plan, records: Iterable[dict[str, Any]]) -> dict[str, Any]:
                                     "successes": [r["success"] for r in played],
                                     "success": sum(r["success"] for r in played) / len(played) if played else None,
                                     "complete": len(played) == len(seeds)}
+            cues = [r.get("cue") for r in played]
+            if played and all(cues):  # episodes logged before cues were count in the table, not in the breakdown
+                cell["by_cue"] = {cue: {"episodes": sum(c == cue for c in cues),
+                                        "successes": sum(r["success"] for r in played if r["cue"] == cue)}
+                                  for cue in sorted(set(cues))}
             if (row.env_id, condition) in errors and not cell["complete"]:
                 cell["error"] = errors[row.env_id, condition]
             if condition == "recall":
@@ -500,6 +514,5 @@ def rebuild(out: Path) -> dict[str, Any]:
     return content
 
 
-__all__ = ["CONDITIONS", "Plan", "Protocol", "RunFolder", "Unit", "controller_digest", "done_units", "learner_path",
-           "learners_landed",
-           "plan", "play_units", "rebuild", "results", "run_benchmark", "widened"]
+__all__ = ["CONDITIONS", "Plan", "Protocol", "RunFolder", "Unit", "controller_digest", "cue_label", "done_units",
+           "learner_path", "learners_landed", "plan", "play_units", "rebuild", "results", "run_benchmark", "widened"]
