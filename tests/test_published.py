@@ -30,6 +30,27 @@ def test_the_report_section_covers_only_the_tasks_a_run_shares():
     assert published_section({"TakeItBack-VLA-v0": "100%"}, "scripted", "recall") == []
 
 
+def test_a_run_of_no_memory_condition_shows_the_published_rows_alone():
+    """A run of none and wrong only has no memory method to set beside them: the report's row is left out rather than
+    one of those conditions passed off as ours."""
+    from sb3_memret.benchmark.report import render_report
+
+    cell = {"episodes": 1, "seeds": [5000], "successes": [False], "success": 0.0, "complete": True}
+    content = {"protocol": {"benchmark": "MIKASA-Robo-VLA", "harness": "h", "wrapper_chain": "w", "control_mode": "c",
+                            "obs_mode": "rgb", "metric": "success_once", "policy_inputs": ["rgb"], "episodes": 1,
+                            "seed_set": "dev", "seeds": [5000], "controller": "learned", "replan_every": None,
+                            "conditions": ["none", "wrong"]},
+               "tasks": {"RememberColor9-VLA-v0": {"split": "short", "memory_type": "Object", "replan_every": 4,
+                                                   "controller": {"reads": "cameras"},
+                                                   "conditions": {"none": cell, "wrong": cell}}}}
+    report = render_report(content)
+    assert "## Published figures beside ours" in report and "| π0 (K=4) |" in report
+    assert "sb3-memret, learned controller" not in report
+    content["protocol"]["conditions"] = ["none", "oracle", "wrong"]
+    content["tasks"]["RememberColor9-VLA-v0"]["conditions"]["oracle"] = {**cell, "successes": [True], "success": 1.0}
+    assert "| sb3-memret, learned controller, oracle (this run, -VLA-v0) | 100% (1/1) |" in render_report(content)
+
+
 def test_a_figure_that_is_not_a_fraction_is_refused(tmp_path):
     bad = tmp_path / "published.csv"
     rows = PUBLISHED.read_text().splitlines()

@@ -44,9 +44,10 @@ def published_figures(path: Path = PUBLISHED) -> list[PublishedFigure]:
     return figures
 
 
-def published_section(ours: dict[str, str], controller: str, condition: str) -> list[str]:
+def published_section(ours: dict[str, str], controller: str, condition: str | None) -> list[str]:
     """Markdown lines: the published figures on the tasks in ``ours`` (env id -> our cell under ``condition``), a
-    column per task, our row first; no lines when the run shares no task with them."""
+    column per task, our row first (none when ``condition`` is None); no lines when the run shares no task with
+    them."""
     figures = [f for f in published_figures() if f.vla_task in ours]
     if not figures:
         return []
@@ -59,9 +60,10 @@ def published_section(ours: dict[str, str], controller: str, condition: str) -> 
              "per task, by policies trained on each task's demonstrations; ours are the -VLA-v0 tasks under this "
              "run's protocol. Not the same tasks: for orientation, not a ranking.", "",
              "| method | " + " | ".join(t.removesuffix("-VLA-v0") for t in tasks) + " | read from | source |",
-             "|---|" + "---|" * (len(tasks) + 2),
-             f"| sb3-memret, {controller} controller, {condition} (this run, -VLA-v0) | "
-             + " | ".join(ours[t] for t in tasks) + " | this run | results.json |"]
+             "|---|" + "---|" * (len(tasks) + 2)]
+    if condition is not None:
+        lines.append(f"| sb3-memret, {controller} controller, {condition} (this run, -VLA-v0) | "
+                     + " | ".join(ours[t] for t in tasks) + " | this run | results.json |")
     for method in methods:
         row = [cell.get((method, t)) for t in tasks]
         values = [f"{100 * f.success:.0f}%" + (f" ± {100 * f.sem:.0f}" if f.sem is not None else "") if f else ""
