@@ -9,10 +9,14 @@ from pathlib import Path
 from typing import Any
 
 from stable_baselines3.common.callbacks import BaseCallback
+from stable_baselines3.common.logger import HumanOutputFormat
 from stable_baselines3.common.vec_env import VecEnv
 
 from sb3_memret.evaluation import RetrievalReport, evaluate_retrieval
 from sb3_memret.callbacks.checkpoint import save_whole
+
+
+GROUP_KEY = "success_group_"  # per-group success (a drawer layer, a task of a run across tasks)
 
 
 class RetrievalEvalCallback(BaseCallback):
@@ -21,8 +25,9 @@ class RetrievalEvalCallback(BaseCallback):
     policy that collects round r) and once more when training ends. Round 0's evaluation plays
     ``n_initial_episodes`` (default ``n_eval_episodes``): the untrained learner's episodes cost the most.
 
-    Logs ``eval/*`` (greedy accuracy, sampled fraction, entropy, success overall and per layer,
-    shaped return and reward, true-memory eviction rate) through the model's logger, appends
+    Logs ``eval/*`` (greedy accuracy, sampled fraction, entropy, success overall and per group,
+    shaped return and reward, true-memory eviction rate) through the model's logger (per-group success leaves the
+    stdout table when SB3 would cut two of its keys to the same text: 32 task names), appends
     every report to ``history_path`` and saves ``best_model.zip`` when a policy beats the best
     so far on (greedy accuracy, success, sampled fraction).
     """
@@ -82,6 +87,17 @@ class RetrievalEvalCallback(BaseCallback):
         later = sum(1 for r in range(self.round + 1, last) if r % self.eval_every == 0)
         return (later + 1) * self.n_eval_episodes
 
+    def _stdout_collides(self, metrics: dict[str, Any]) -> bool:
+        """Whether SB3's stdout table, which cuts keys to its ``max_length``, would show two of ``metrics`` alike
+        (and refuse the whole dump): ``success_group_BlinkCountButtonPressEasy-VLA-v0`` and ``...Medium...``."""
+        widths = [f.max_length for f in self.logger.output_formats if isinstance(f, HumanOutputFormat)]
+        if not widths:
+            return False
+        width = min(widths)
+        shown = ["   " + key.split("/", 1)[1] for key in metrics]  # SB3 indents a key under its tag
+        shown = [key if len(key) <= width else key[:width - 3] for key in shown]
+        return len(set(shown)) < len(shown)
+
     def evaluate(self) -> RetrievalReport:
         start = time.perf_counter()
         episodes = self.n_initial_episodes if self.round == 0 else self.n_eval_episodes
@@ -96,8 +112,10 @@ class RetrievalEvalCallback(BaseCallback):
                 listener.evaluation_finished(None)
             raise
         self._evaluated_round, self.last_report = self.round, report
-        for key, value in report.as_metrics().items():
-            self.logger.record(f"eval/{key}", value)
+        metrics = {f"eval/{key}": value for key, value in report.as_metrics().items()}
+        hidden = ("stdout",) if self._stdout_collides(metrics) else None
+        for key, value in metrics.items():
+            self.logger.record(key, value, exclude=hidden if GROUP_KEY in key else None)
         self.logger.record("eval/round", self.round)
         self.logger.record("eval/seconds", time.perf_counter() - start)
         row = {"round": self.round, "timesteps": self.num_timesteps, **report.to_dict()}
