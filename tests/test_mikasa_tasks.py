@@ -182,6 +182,33 @@ def test_mikasa_demos_with_cameras_keep_the_decision_frames_and_their_chunks(tmp
     assert last[ACTION_CHUNK_KEY].shape[1] == 7 and int((~last[CHUNK_PAD_KEY]).sum()) == 1  # step 24 is the last
 
 
+def test_decision_frames_are_recorded_alike_with_the_cameras_paused_between_decisions():
+    """Keeping decision frames only, the recorder renders only the observations it keeps: the steps between pause
+    the cameras, and every kept image, state and label is the same as with every step rendered."""
+    from sb3_memret.stage1.task_demos import TaskDemoEpisode, TaskRecorder
+
+    recorder = TaskRecorder(make_task(TASK), "cpu", frames="decisions")
+    renders = []
+    try:
+        gate = vars(recorder.env.unwrapped)["_sb3_memret_sensor_gate"]
+        render = gate._render  # ManiSkill's own: counted
+        gate._render = lambda *args: renders.append(1) or render(*args)
+        episode = TaskDemoEpisode(100_005, "matching")
+        paused = recorder.record(episode)
+        paused_renders, renders[:] = len(renders), []
+        recorder.pause = None
+        rendered = recorder.record(episode)
+    finally:
+        recorder.env.close()
+    assert paused.success and len(paused.frames) == 7 and len(renders) == 26  # the reset and each of the 25 steps
+    assert paused_renders == 7  # the reset (decision 1) and the 6 chunk ends that decisions 2-7 read
+    np.testing.assert_array_equal(paused.actions, rendered.actions)
+    for kept, every in zip(paused.frames, rendered.frames, strict=True):
+        assert kept.keys() == every.keys()
+        for key in kept:
+            np.testing.assert_array_equal(kept[key], every[key])
+
+
 def test_a_dagger_round_on_a_mikasa_task_follows_the_learner_with_the_experts_labels():
     from sb3_memret.stage1.task_demos import TaskDemoEpisode, TaskRecorder
     from sb3_memret.tasks.mikasa.demo_layout import state_names

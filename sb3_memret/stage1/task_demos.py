@@ -7,8 +7,8 @@ instruction with the task's true facts (``oracle_facts``: ``the cue cube was red
 naming something else (``wrong_facts``), which the expert follows as a controller trained on them would.
 Per frame: ``Task.demo_frame`` (state, cameras with a renderer), the expert's action as label, the
 exact prompt as ``task``; with ``frames="decisions"`` only the steps a controller acts at, each with its
-chunk of labels (as the drawer's recorder). A share of episodes runs with Gaussian noise on the arm
-(labels stay clean). A task whose writer writes progress (TASK_PROGRESS facts: ``the red cube was touched.``)
+chunk of labels (as the drawer's recorder), the cameras rendering only there. A share of episodes runs with
+Gaussian noise on the arm (labels stay clean). A task whose writer writes progress (TASK_PROGRESS facts: ``the red cube was touched.``)
 has it run along: each decision's prompt carries, after the kind's facts, the progress written so far, so the
 prompt changes as the episode goes and every frame keeps the prompt it was acted on. With a learner
 (``learner=``, a controller spec) it is a DAgger round: the learner acts
@@ -18,6 +18,7 @@ Episodes are written as they finish; an interrupted run keeps every episode save
 
 from __future__ import annotations
 
+from contextlib import nullcontext
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Callable, Sequence
@@ -30,6 +31,7 @@ from sb3_memret.controllers.observation import ACTION_CHUNK_KEY, ACTION_KEY, CHU
 from sb3_memret.memory.schema import MemoryType
 from sb3_memret.prompts import build_prompt
 from sb3_memret.rollout import WrittenFacts
+from sb3_memret.sensor_gate import sensors_pause
 from sb3_memret.stage1.demos import DemoDatasetWriter, PromptMix, check_frames, label_chunks
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import check_render_backend
@@ -101,6 +103,11 @@ class TaskRecorder:
         self.replan_every = replan_every
         writes_progress = any(mtype == MemoryType.TASK_PROGRESS for mtype, _ in self.task.writer().relations.values())
         self.progress = WrittenFacts(self.task) if writes_progress else None
+        # keeping decision frames only, a step inside a chunk leaves images nobody reads (unless the progress writer
+        # perceives every step): its cameras pause, and the outcome is the same (physics never reads the renderer)
+        unread = self.with_images and self.decisions_only and not (self.progress is not None
+                                                                   and self.task.perceives_every_step)
+        self.pause = sensors_pause(self.env) if unread else None
 
     def record(self, episode: TaskDemoEpisode) -> TaskEpisodeFrames:
         """Play one episode, the expert (or the learner) acting on each decision's prompt (the episode's kind of
@@ -134,7 +141,9 @@ class TaskRecorder:
                 action = np.array(action, np.float32)
                 if episode.noise:
                     action[:6] = np.clip(action[:6] + rng.normal(0.0, episode.noise, 6), -1.0, 1.0)
-                obs, _, terminated, truncated, info = self.env.step(action[None])
+                chunk_ends = i == len(labels) - 1  # its observation is the next decision's
+                with self.pause() if self.pause is not None and not chunk_ends else nullcontext():
+                    obs, _, terminated, truncated, info = self.env.step(action[None])
                 if self.progress is not None and self.task.perceives_every_step:
                     percepts.append(self.task.perceive(self.env, obs))
                 success = success or bool(np.any(as_numpy(info["success"])))  # MIKASA counts success once
