@@ -115,9 +115,11 @@ controller-mikasa: install renderer
 		$(MIKASA_RUN)/policy/train_log.csv sb3_memret/controllers/checkpoints/$(MIKASA_TASK)-camera/
 
 # One camera controller across several MIKASA tasks (finetune --tasks): $(MULTITASK_EPISODES) expert episodes of each task,
-# recorded in resumable chunks of 50 (scripts/record_task_demos.sh; an interrupted run records only the missing
-# chunks), then one policy on all of them, its prompts telling the tasks apart. On a 2-core CPU: ~8 min a chunk, then
-# the frozen trunk's features (10 min for 600 episodes' 15,000 frames, kept for later finetunes) and 3.4 steps/s.
+# recorded in resumable chunks of 50 (scripts/record_task_demos.sh: decision frames, the cameras rendering only
+# there; an interrupted run records only the missing chunks), then one policy on all of them, its prompts telling the
+# tasks apart. On a 2-core CPU, with every frame kept (the pilot's): ~8 min a chunk, then the frozen trunk's features
+# (10 min for 600 episodes' 15,000 frames, kept for later finetunes) and 3.4 steps/s; decision frames cost a third
+# of the recording's CPU and a quarter of the frames.
 MULTITASK_TASKS ?= RememberColor3-VLA-v0,RememberShape3-VLA-v0
 MULTITASK_EPISODES ?= 300
 MULTITASK_STEPS ?= 4000

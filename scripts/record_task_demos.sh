@@ -1,7 +1,10 @@
 #!/bin/bash
-# Expert demonstrations of MIKASA tasks for one camera controller across them, in chunks of 50 episodes (every frame
-# kept), resumable: a finished chunk leaves OUT/TASK/chunkN.done, and a rerun records only the missing ones.
-# Usage: scripts/record_task_demos.sh OUT EPISODES_PER_TASK TASK [TASK...]
+# Expert demonstrations of MIKASA tasks for one camera controller across them, in chunks of 50 episodes, resumable: a
+# finished chunk leaves OUT/TASK/chunkN.done, and a rerun records only the missing ones. FRAMES=decisions (the
+# default) keeps the decision frames with their chunks of labels, the cameras rendering only there (a third of the
+# CPU an episode of every frame costs, and RememberColor3's controller as good: docs/notes.md); FRAMES=every keeps
+# every control step. One finetune takes chunks of one kind only.
+# Usage: [FRAMES=decisions|every] scripts/record_task_demos.sh OUT EPISODES_PER_TASK TASK [TASK...]
 #   e.g. scripts/record_task_demos.sh runs/multitask 400 RememberColor3-VLA-v0 RememberShape3-VLA-v0
 set -euo pipefail
 cd "$(dirname "$0")/.."
@@ -14,7 +17,7 @@ for task in "$@"; do
     dest=$out/$task/chunk$i
     [ -f "$dest.done" ] && continue
     rm -rf "$dest"
-    .venv/bin/sb3-memret demos --task "$task" --episodes "$chunk" --seed $((100000 + chunk * i)) --frames every \
+    .venv/bin/sb3-memret demos --task "$task" --episodes "$chunk" --seed $((100000 + chunk * i)) --frames "${FRAMES:-decisions}" \
       --no-progress --out "$dest" > "$dest.log" 2>&1
     touch "$dest.done"
   done
