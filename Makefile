@@ -117,17 +117,31 @@ controller-mikasa: install renderer
 # One camera controller across several MIKASA tasks (finetune --tasks): $(MULTITASK_EPISODES) expert episodes of each task,
 # recorded in resumable chunks of 50 (scripts/record_task_demos.sh: decision frames, the cameras rendering only
 # there; an interrupted run records only the missing chunks), then one policy on all of them, its prompts telling the
-# tasks apart. On a 2-core CPU, with every frame kept (the pilot's): ~8 min a chunk, then the frozen trunk's features
-# (10 min for 600 episodes' 15,000 frames, kept for later finetunes) and 3.4 steps/s; decision frames cost a third
-# of the recording's CPU and a quarter of the frames.
+# tasks apart, with the wider camera heads. MULTITASK_DAGGER=N adds a DAgger round: N episodes of each task (seeds
+# after the expert's) played by that policy and labelled by the expert, then the policy trained again on both. On a
+# 2-core CPU a decision-frame chunk takes ~2 min of RememberColor3 (every frame: ~8 min), then the frozen trunk's
+# features (kept for later finetunes) and ~3.5 steps/s. The pilot (RememberColor3 and RememberShape3, 300 + 150
+# DAgger episodes each, every frame): 90% and 84% with the oracle fact at development seeds.
 MULTITASK_TASKS ?= RememberColor3-VLA-v0,RememberShape3-VLA-v0
 MULTITASK_EPISODES ?= 300
 MULTITASK_STEPS ?= 4000
+MULTITASK_FINETUNE ?= --image-dim 128 --keypoints 64
+MULTITASK_DAGGER ?= 0
+MULTITASK_DAGGER_STEPS ?= 5000
+MULTITASK_RUN = $(STAGE1)-multitask
 controller-multitask: install renderer
-	scripts/record_task_demos.sh $(STAGE1)-multitask $(MULTITASK_EPISODES) $(subst $(comma), ,$(MULTITASK_TASKS))
-	rm -rf $(STAGE1)-multitask/policy
-	scripts/finetune_task_demos.sh $(STAGE1)-multitask $(STAGE1)-multitask/policy $(MULTITASK_TASKS) \
-		--steps $(MULTITASK_STEPS)
+	scripts/record_task_demos.sh $(MULTITASK_RUN)/demos $(MULTITASK_EPISODES) $(subst $(comma), ,$(MULTITASK_TASKS))
+	rm -rf $(MULTITASK_RUN)/policy $(MULTITASK_RUN)/policy-expert
+	scripts/finetune_task_demos.sh $(MULTITASK_RUN)/demos $(MULTITASK_RUN)/policy $(MULTITASK_TASKS) \
+		--steps $(MULTITASK_STEPS) $(MULTITASK_FINETUNE)
+	if [ $(MULTITASK_DAGGER) -gt 0 ]; then \
+		LEARNER=learned:$(MULTITASK_RUN)/policy SEED=$$((100000 + $(MULTITASK_EPISODES))) \
+			scripts/record_task_demos.sh $(MULTITASK_RUN)/dagger $(MULTITASK_DAGGER) \
+			$(subst $(comma), ,$(MULTITASK_TASKS)) && \
+		mv $(MULTITASK_RUN)/policy $(MULTITASK_RUN)/policy-expert && \
+		scripts/finetune_task_demos.sh $(MULTITASK_RUN)/demos,$(MULTITASK_RUN)/dagger $(MULTITASK_RUN)/policy \
+			$(MULTITASK_TASKS) --steps $(MULTITASK_DAGGER_STEPS) $(MULTITASK_FINETUNE); \
+	fi
 
 bench: install
 	$(PY) scripts/bench_env.py

@@ -1,29 +1,39 @@
 #!/bin/bash
-# One camera controller across TASKS (or one task's own, on the same chunks), from what scripts/record_task_demos.sh recorded into DEMOS: every finished
-# chunk of each task is a dataset, named with its task (finetune --tasks), and the policy lands in OUT.
-# Usage: scripts/finetune_task_demos.sh DEMOS OUT TASK[,TASK...] [finetune options...]
+# One camera controller across TASKS (or one task's own, on the same chunks), from what scripts/record_task_demos.sh
+# recorded into DEMOS: every finished chunk of each task is a dataset, named with its task (finetune --tasks), and the
+# policy lands in OUT. DEMOS may list several roots, comma-separated (the experts' demonstrations and a DAgger
+# round's): each must hold finished chunks of every task.
+# Usage: scripts/finetune_task_demos.sh DEMOS[,DEMOS...] OUT TASK[,TASK...] [finetune options...]
 #   e.g. scripts/finetune_task_demos.sh runs/multitask runs/multitask/policy \
 #          RememberColor3-VLA-v0,RememberShape3-VLA-v0 --steps 4000
 set -euo pipefail
 cd "$(dirname "$0")/.."
-demos=$1 out=$2
+if [ $# -lt 3 ]; then
+  echo "usage: $0 DEMOS[,DEMOS...] OUT TASK[,TASK...] [finetune options...]" >&2
+  exit 2
+fi
+IFS=, read -r -a roots <<< "$1"
+out=$2
 IFS=, read -r -a wanted <<< "$3"
 shift 3
 datasets=() tasks=()
 for task in "${wanted[@]}"; do
-  found=0
-  for done in "$demos/$task"/chunk*.done; do
-    [ -e "$done" ] || continue
-    datasets+=("${done%.done}") tasks+=("$task") found=1
+  for root in "${roots[@]}"; do
+    found=0
+    for done in "$root/$task"/chunk*.done; do
+      [ -e "$done" ] || continue
+      datasets+=("${done%.done}") tasks+=("$task") found=1
+    done
+    if [ $found -eq 0 ]; then
+      echo "no finished chunks of $task under $root: record them with scripts/record_task_demos.sh $root EPISODES $task" >&2
+      exit 2
+    fi
   done
-  if [ $found -eq 0 ]; then
-    echo "no finished chunks of $task under $demos: record them with scripts/record_task_demos.sh $demos EPISODES $task" >&2
-    exit 2
-  fi
 done
 if [ ${#wanted[@]} -eq 1 ]; then  # one task's chunks: a per-task policy, on the same data as a multi-task one
   task_args=(--task "${wanted[0]}")
 else
   task_args=(--tasks "$(IFS=,; echo "${tasks[*]}")")
 fi
+echo "finetuning on ${#datasets[@]} chunks of ${#wanted[@]} task(s) from ${roots[*]}"
 .venv/bin/sb3-memret finetune "${datasets[@]}" "${task_args[@]}" --out "$out" "$@"

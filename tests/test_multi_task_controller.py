@@ -3,6 +3,9 @@ frame's perception loss on its own task's entries, one checkpoint that serves ev
 
 from __future__ import annotations
 
+import subprocess
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -16,6 +19,7 @@ from sb3_memret.tasks import make_task
 from sb3_memret.tasks.mikasa.demo_layout import proprio_names
 
 COLOUR, SHAPE = "RememberColor3-VLA-v0", "RememberShape3-VLA-v0"
+REPO = Path(__file__).resolve().parents[1]
 SMALL = ["--image-encoder", "cnn", "--image-dim", "8", "--keypoints", "4", "--batch-size", "8", "--no-progress"]
 
 
@@ -92,3 +96,35 @@ def test_a_full_state_policy_over_tasks_whose_layouts_differ_is_refused(datasets
     result = CliRunner().invoke(main, ["finetune", str(datasets[COLOUR]), str(datasets[SHAPE]), "--tasks",
                                        f"{COLOUR},{SHAPE}", "--state", "full", "--out", str(tmp_path / "x"), *SMALL])
     assert result.exit_code == 2 and "train it with state='proprio'" in result.output
+
+
+def _chunks(root, datasets, tasks):
+    """``root/TASK/chunk0`` (+ ``.done``), as scripts/record_task_demos.sh leaves a finished chunk."""
+    for task in tasks:
+        (root / task).mkdir(parents=True)
+        (root / task / "chunk0").symlink_to(datasets[task])
+        (root / task / "chunk0.done").touch()
+    return root
+
+
+def _finetune_script(*args):
+    return subprocess.run(["bash", str(REPO / "scripts" / "finetune_task_demos.sh"), *map(str, args)],
+                          capture_output=True, text=True, timeout=600)
+
+
+def test_the_finetune_script_trains_one_policy_on_the_chunks_of_every_root(datasets, tmp_path):
+    expert = _chunks(tmp_path / "demos", datasets, (COLOUR, SHAPE))
+    dagger = _chunks(tmp_path / "dagger", datasets, (COLOUR, SHAPE))
+    result = _finetune_script(f"{expert},{dagger}", tmp_path / "policy", f"{COLOUR},{SHAPE}", "--steps", "3", *SMALL)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "finetuning on 4 chunks of 2 task(s)" in result.stdout
+    config = make_controller(f"learned:{tmp_path / 'policy'}", SHAPE).policy.config
+    assert config.served_tasks == (COLOUR, SHAPE)
+
+
+def test_the_finetune_script_refuses_a_root_that_lacks_a_task(datasets, tmp_path):
+    expert = _chunks(tmp_path / "demos", datasets, (COLOUR, SHAPE))
+    dagger = _chunks(tmp_path / "dagger", datasets, (COLOUR,))
+    result = _finetune_script(f"{expert},{dagger}", tmp_path / "policy", f"{COLOUR},{SHAPE}", *SMALL)
+    assert result.returncode == 2 and f"no finished chunks of {SHAPE} under {dagger}" in result.stderr
+    assert not (tmp_path / "policy").exists()
