@@ -39,16 +39,27 @@ presses it as many times as its prompt's count, counting its own presses (it kee
 sight shows how often the button was pressed), then presses the black button; without a count it presses once, a
 guess. It reads the buttons' places and the phase lamp from a detector, as a camera shows them: the simulated
 detector of the other MIKASA experts.
+
+**Progress as memory** (``BlinkCountTask(env_id, progress=True)``, or ``BlinkCountEasyWithProgress`` /
+``BlinkCountMediumWithProgress`` by name): how often the red button was pressed is not in sight, so a controller that
+reads only the current frame and its prompt cannot count its own presses. The writer then also writes them, a
+TASK_PROGRESS fact replaced at each press: ``the red button was pressed twice.``. It reads where the red cap stands
+from the base camera (``read_red_cap``: its top face's flat colour, cast onto the plane of the cap's top; within
+0.21 cm of the simulator's at development seeds 6000-6011) and the TCP from the arm's own sensors at every control
+step, and counts as MIKASA does (a press within 6.5 cm of the cap's axis down to 2.51 cm over its top, counted once
+the TCP has risen 8.5 cm above where it began, and only once the phase lamp is green). Its expert is the stateless
+``ButtonPressController(progress_from="prompt")``, which reads its presses from that fact.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any, ClassVar, Mapping
+from typing import Any, ClassVar, Mapping, NamedTuple
 
 import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
+from scipy import ndimage
 
 from sb3_memret.controllers.base import Obs, as_numpy
 from sb3_memret.controllers.observation import STATE_KEY
@@ -58,8 +69,11 @@ from sb3_memret.prompts import PromptTemplate
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates
 from sb3_memret.tasks.mikasa import demo_layout
 from sb3_memret.tasks.mikasa.cue_task import MikasaCueTask
-from sb3_memret.tasks.mikasa.perception import HIDDEN_Z, DetectorObservation
-from sb3_memret.tasks.mikasa.press_expert import COUNTS, ButtonPressController, count_value, parse_count
+from sb3_memret.tasks.mikasa.layout_perception import table_points
+from sb3_memret.tasks.mikasa.perception import HIDDEN_Z, REFERENCE_SIZE, DetectorObservation
+from sb3_memret.tasks.mikasa.press_expert import (COUNTS, PRESSED_FACT, ButtonPressController, count_value,
+                                                  parse_count)
+from sb3_memret.tasks.mikasa.sequence_expert import BUTTON_TOP_ABOVE_BASE
 
 # MIKASA's LANGUAGE_INSTRUCTION in the prompt contract's form (lowercase; it parses as is).
 INSTRUCTION = ("count how many times the blue lamp blinks, press the red button exactly that many times when the red "
@@ -69,6 +83,9 @@ CUE_ENTITY = "blue lamp"
 CUE_RELATION = "blinked"  # OTHER's template, "the {entity} {relation} {value}.", reads FACT_TEMPLATE
 CUE_FACT = "the blue lamp blinked {count}."
 PROMPT_TEMPLATE = PromptTemplate(instructions=(INSTRUCTION,), fact_templates=(FACT_TEMPLATE,))
+PROGRESS_PROMPT_TEMPLATE = PromptTemplate(instructions=(INSTRUCTION,), fact_templates=(PRESSED_FACT, FACT_TEMPLATE))
+PRESS_ENTITY, PRESSED = "red button", "pressed"  # the progress fact's entity, and its predicate and relation
+PROGRESS_WORDINGS = {(MemoryType.TASK_PROGRESS, word): "the {entity} was pressed {value}." for word in COUNTS}
 
 
 @dataclass(frozen=True)
@@ -98,25 +115,84 @@ def lamp_lit(rgb: np.ndarray, channel: int) -> bool:
     return int(mask.sum()) >= MIN_LAMP_PIXELS
 
 
+RED_CAP_RGB = (211, 136, 136)  # the red cap's top face as the base camera renders it (flat: one colour everywhere)
+CAP_COLOUR_TOL = 16
+MIN_CAP_PIXELS = 8  # the top face covers 18-24 pixels at 128x128
+BUTTON_BASE_Z = 0.015  # MIKASA's button base centre height
+CAP_TOP_Z = BUTTON_BASE_Z + BUTTON_TOP_ABOVE_BASE  # the unpressed cap's top
+
+
+@dataclass(frozen=True)
+class PressRule:
+    """MIKASA's press count (``BlinkCountButtonPress``'s ``evaluate``), as TCP heights over the cap's top: a press
+    starts within ``xy_radius`` of the cap's axis and ``down`` over its top, the cap is released again above
+    ``released``, and the press counts once the TCP has risen ``lift`` above where it started."""
+
+    xy_radius: float = 0.065
+    down: float = 0.0251  # 0.03 margin less 0.35 of the cap's 0.014 travel
+    released: float = 0.0272  # 0.03 margin less 0.2 of its travel
+    lift: float = 0.085  # REQUIRED_LIFT_HEIGHT 0.1 less LIFT_CONFIRM_TOL 0.015
+
+
+def read_red_cap(rgb: np.ndarray, intrinsic: np.ndarray, extrinsic: np.ndarray) -> np.ndarray | None:
+    """The red button's table (x, y) from one base-camera frame (H, W, 3): its cap's top face (the largest blob of
+    ``RED_CAP_RGB`` pixels), cast along the camera ray onto the plane of the cap's top; None when not in sight."""
+    rgb = np.asarray(rgb)
+    if rgb.ndim != 3 or rgb.shape[-1] != 3:
+        raise ValueError(f"expected one (H, W, 3) frame, got shape {rgb.shape}")
+    mask = (np.abs(rgb.astype(np.int16) - np.array(RED_CAP_RGB, dtype=np.int16)) <= CAP_COLOUR_TOL).all(axis=-1)
+    labels, n_blobs = ndimage.label(mask, structure=np.ones((3, 3)))
+    if n_blobs == 0:
+        return None
+    sizes = np.bincount(labels.ravel(), minlength=n_blobs + 1)[1:]
+    if sizes.max() < MIN_CAP_PIXELS * np.prod(np.array(rgb.shape[:2]) / REFERENCE_SIZE):
+        return None
+    pixels = np.argwhere(labels == int(sizes.argmax()) + 1).mean(axis=0) + 0.5
+    point = table_points(pixels[None], intrinsic, extrinsic, CAP_TOP_Z)[0]
+    return point if np.isfinite(point).all() else None
+
+
+class PressPercept(NamedTuple):
+    """One control step as the progress writer reads it: the lamps (the cue writer's percept), the TCP from the
+    arm's sensors, and the red cap's (x, y) as the base camera shows it (None: not in sight)."""
+
+    blue: bool
+    green: bool
+    tcp: tuple[float, float, float]
+    red_cap: tuple[float, float] | None
+
+
 class BlinkWriter:
     """Writes ``the blue lamp blinked three times.`` once per episode, at the control step the cue is seen to end
     (the phase lamp green, or the blue lamp dark for more than ``longest_gap`` steps after a blink), counting the
     blue lamp's dark-to-lit changes until then. Percepts are ``(blue lit, green lit)`` per control step; the reset
-    frame (``steps == 0``) starts an episode. No blink seen (or more than ``COUNTS`` words), nothing written."""
+    frame (``steps == 0``) starts an episode. No blink seen (or more than ``COUNTS`` words), nothing written.
 
-    relations = {"blinks": (MemoryType.OTHER, CUE_RELATION)}
+    With ``progress``, percepts are ``PressPercept``s, and it also writes ``the red button was pressed twice.`` at
+    the step each press of the red button counts (``PressRule``, MIKASA's), the fact replaced at every press."""
 
-    def __init__(self, longest_gap: int = LONGEST_GAP):
-        self.longest_gap = longest_gap
+    def __init__(self, longest_gap: int = LONGEST_GAP, progress: bool = False, rule: PressRule | None = None):
+        self.longest_gap, self.progress, self.rule = longest_gap, progress, rule or PressRule()
+        self.relations = {"blinks": (MemoryType.OTHER, CUE_RELATION)}
+        if progress:
+            self.relations[PRESSED] = (MemoryType.TASK_PROGRESS, PRESSED)
+        self._start_episode()
+
+    def _start_episode(self) -> None:
         self.blinks, self.lit, self.dark, self.written = 0, False, 0, False
+        self.cap: np.ndarray | None = None  # the red cap's (x, y), first seen
+        self.presses, self.ready, self.press_start = 0, True, None  # MIKASA's counter, as the writer sees it
 
     def read(self, frame: EnvFrame) -> list[tuple[int, Predicates]]:
         if frame.steps == 0:
-            self.blinks, self.lit, self.dark, self.written = 0, False, 0, False
+            self._start_episode()
         out = []
-        for step, (blue, green) in frame.timed_percepts():
+        for step, percept in frame.timed_percepts():
+            blue, green = percept[0], percept[1]
+            if self.progress:
+                out += [(step, predicates) for predicates in self._press(percept)]
             if self.written:
-                break
+                continue
             self.blinks += int(blue and not self.lit)
             self.lit, self.dark = blue, 0 if blue else self.dark + 1
             if self.blinks and (green or self.dark > self.longest_gap):
@@ -124,6 +200,26 @@ class BlinkWriter:
                 if self.blinks <= len(COUNTS):  # more than the words count: nothing the prompt can say
                     out.append((step, {("blinks", CUE_ENTITY): count_value(self.blinks)}))
         return out
+
+    def _press(self, percept: PressPercept) -> list[Predicates]:
+        """A press of the red button this step completes (``PressRule``), from the TCP and the cap seen."""
+        if not isinstance(percept, PressPercept):
+            raise ValueError("a progress writer reads PressPercepts (BlinkCountTask(progress=True).perceive: the TCP "
+                             f"and the red cap seen); got {percept!r}")
+        if self.cap is None and percept.red_cap is not None:
+            self.cap = np.asarray(percept.red_cap, dtype=np.float64)
+        if self.cap is None or not percept.green:  # MIKASA counts no press before the phase lamp turns green
+            return []
+        r, (x, y, z) = self.rule, percept.tcp
+        over = z - CAP_TOP_Z if np.hypot(x - self.cap[0], y - self.cap[1]) < r.xy_radius else np.inf
+        self.ready |= over >= r.released
+        if self.ready and self.press_start is None and over <= r.down:
+            self.ready, self.press_start = False, z
+        if self.press_start is not None and self.ready and z >= self.press_start + r.lift:
+            self.presses, self.press_start = self.presses + 1, None
+            if self.presses <= len(COUNTS):
+                return [{(PRESSED, PRESS_ENTITY): count_value(self.presses)}]
+        return []
 
 
 class BlinkCountObservation(DetectorObservation):
@@ -156,12 +252,15 @@ class BlinkCountTask(MikasaCueTask):
     noop_before_manipulation = False  # MIKASA's wrapper table gives these tasks none
     perceives_every_step = True  # the blinks are counted over the cue's frames
 
-    def __init__(self, env_id: str = "BlinkCountButtonPressEasy-VLA-v0"):
+    def __init__(self, env_id: str = "BlinkCountButtonPressEasy-VLA-v0", progress: bool = False):
         if env_id not in VARIANTS:
             raise ValueError(f"unknown BlinkCountButtonPress task {env_id!r}; expected one of {sorted(VARIANTS)}")
         self.variant = VARIANTS[env_id]
         super().__init__(env_id, self.variant.max_blinks)
         self.max_control_steps = self.variant.steps
+        self.progress = progress
+        if progress:
+            self.template, self.wordings = PROGRESS_PROMPT_TEMPLATE, PROGRESS_WORDINGS
 
     # ------------------------------------------------------------ simulation
     def make_env(self, *, max_episode_steps: int | None = None, num_envs: int = 1, obs_mode: str = "rgb",
@@ -181,13 +280,23 @@ class BlinkCountTask(MikasaCueTask):
         return [EnvFrame(select_obs(obs, i), {"blinks": int(blinks[i])}, None, bool(success[i]))
                 for i in range(len(success))]
 
-    def perceive(self, env: gym.Env, obs: Any) -> tuple[bool, bool]:
+    def perceive(self, env: gym.Env, obs: Any) -> tuple[bool, bool] | PressPercept:
         rgb = as_numpy(obs["sensor_data"]["base_camera"]["rgb"])[0]
-        return lamp_lit(rgb, 2), lamp_lit(rgb, 1)
+        lamps = lamp_lit(rgb, 2), lamp_lit(rgb, 1)
+        if not self.progress:
+            return lamps
+        params = env.unwrapped.get_sensor_params()["base_camera"]
+        cap = read_red_cap(rgb, as_numpy(params["intrinsic_cv"])[0], as_numpy(params["extrinsic_cv"])[0])
+        tcp = as_numpy(obs["extra"]["tcp_pose"]).reshape(-1)[:3]
+        return PressPercept(*lamps, tuple(float(v) for v in tcp), None if cap is None else tuple(float(v) for v in cap))
+
+    def perception_window(self, env: gym.Env) -> int | None:
+        """The whole episode with progress (every press is read), else the cue writer's."""
+        return None if self.progress else super().perception_window(env)
 
     # ------------------------------------------------------------ memory
     def writer(self, source: str = "seeded") -> BlinkWriter:
-        return BlinkWriter()
+        return BlinkWriter(progress=self.progress)
 
     def episode(self, frame: EnvFrame) -> Episode:
         value = count_value(frame.state["blinks"])
@@ -213,7 +322,8 @@ class BlinkCountTask(MikasaCueTask):
 
     def expert(self) -> ButtonPressController:
         """The press expert; without a count it presses once, a guess (success at chance)."""
-        return ButtonPressController(self.template, default_count=1)
+        return ButtonPressController(self.template, default_count=1,
+                                     progress_from="prompt" if self.progress else "observation")
 
     def demo_features(self, with_images: bool) -> dict[str, dict[str, Any]]:
         features = demo_layout.demo_features(("red", "black"), with_images, key="button")
@@ -225,5 +335,23 @@ class BlinkCountTask(MikasaCueTask):
                                         obs["extra"]["lamp_green"])
 
 
-__all__ = ["BlinkCountObservation", "BlinkCountTask", "BlinkVariant", "BlinkWriter", "CUE_FACT", "FACT_TEMPLATE",
-           "INSTRUCTION", "LONGEST_GAP", "PROMPT_TEMPLATE", "VARIANTS", "lamp_lit"]
+class BlinkCountEasyWithProgress(BlinkCountTask):
+    """BlinkCountButtonPressEasy-VLA-v0 with progress as memory, by name (``sb3_memret.tasks.mikasa.blink_count:
+    BlinkCountEasyWithProgress``): the writer also writes the presses made, the expert reads them from its prompt."""
+
+    def __init__(self) -> None:
+        super().__init__("BlinkCountButtonPressEasy-VLA-v0", progress=True)
+
+
+class BlinkCountMediumWithProgress(BlinkCountTask):
+    """BlinkCountButtonPressMedium-VLA-v0 with progress as memory, by name (``...blink_count:
+    BlinkCountMediumWithProgress``)."""
+
+    def __init__(self) -> None:
+        super().__init__("BlinkCountButtonPressMedium-VLA-v0", progress=True)
+
+
+__all__ = ["BlinkCountEasyWithProgress", "BlinkCountMediumWithProgress", "BlinkCountObservation", "BlinkCountTask",
+           "BlinkVariant", "BlinkWriter", "CAP_TOP_Z", "CUE_FACT", "FACT_TEMPLATE", "INSTRUCTION", "LONGEST_GAP",
+           "PROGRESS_PROMPT_TEMPLATE", "PROGRESS_WORDINGS", "PROMPT_TEMPLATE", "PressPercept", "PressRule", "VARIANTS",
+           "lamp_lit", "read_red_cap"]
