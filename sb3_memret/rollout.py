@@ -123,11 +123,13 @@ class FactSchedule(Protocol):
 
 @dataclass
 class ConditionFacts(FactSchedule):
-    """A fixed prompt condition's facts, the same at every decision: oracle, wrong, or none."""
+    """A fixed prompt condition's facts, the same at every decision: oracle, wrong, or none; then, for a task with
+    progress as memory, what the robot has done so far, from the simulator (``Task.progress_facts``)."""
 
     task: Task
     condition: str
     _facts: list[str] = field(default_factory=list)
+    _progress: list[str] = field(default_factory=list)
 
     def __post_init__(self) -> None:
         check_fixed_condition(self.condition)
@@ -135,9 +137,13 @@ class ConditionFacts(FactSchedule):
     def start(self, frame: EnvFrame, episode: Episode) -> None:
         facts = {"oracle": self.task.oracle_facts, "wrong": self.task.wrong_facts}.get(self.condition)
         self._facts = facts(episode) if facts is not None else []
+        self._progress = self.task.progress_facts(frame)
+
+    def observe(self, frame: EnvFrame) -> None:
+        self._progress = self.task.progress_facts(frame)
 
     def facts(self, decision: int) -> Sequence[str]:
-        return self._facts
+        return [*self._facts, *self._progress]
 
 
 class WrittenFacts(FactSchedule):

@@ -152,23 +152,45 @@ def test_the_stateless_expert_reads_its_way_from_where_the_hand_is_and_how_it_mo
     assert sideways > 0  # both presses made: over to the black button (16 cm to the left)
 
 
+def test_every_fixed_condition_states_the_presses_mikasa_counted():
+    from sb3_memret.rollout import condition_schedule
+
+    task, base = make_task(SPEC), BlinkCountTask("BlinkCountButtonPressMedium-VLA-v0")
+    start, later = ({"blinks": 3, "presses": n} for n in (0, 2))
+    frame = EnvFrame({}, start, None, False)
+    episode = task.episode(frame)
+    assert task.progress_facts(frame) == [] and base.progress_facts(EnvFrame({}, later, None, False)) == []
+    pressed = "the red button was pressed twice."
+    expected = {"oracle": [CUE_FACT.format(count="three times")], "wrong": [CUE_FACT.format(count="four times")],
+                "none": []}
+    for condition, cue in expected.items():
+        schedule = condition_schedule(task, condition)
+        schedule.start(frame, episode)
+        assert list(schedule.facts(0)) == cue
+        schedule.observe(EnvFrame({}, later, None, False, steps=4))
+        assert list(schedule.facts(1)) == [*cue, pressed]
+        build_prompt(INSTRUCTION, schedule.facts(1), task.prompt_template)  # the contract reads it
+
+
 @pytest.mark.slow
-def test_written_progress_lets_the_stateless_expert_press_as_often_as_the_cue_and_cue_facts_alone_do_not():
+def test_written_or_counted_progress_lets_the_stateless_expert_press_as_often_as_the_cue_and_the_cue_alone_not():
     """Development seed 5001 of Medium (three blinks): with the facts the writer wrote (the count, then each press as
-    it counts) the stateless expert presses three times and submits; with the cue's fact alone (oracle) it never
-    learns it pressed, presses a fourth time and fails."""
+    it counts) the stateless expert presses three times and submits, and with the oracle (the count and MIKASA's
+    press counter) too; with the cue's fact alone it never learns it pressed, presses a fourth time and fails."""
+    from test_mikasa_seq_progress import CueFactsOnly
+
     from sb3_memret.rollout import condition_schedule, play_task_episodes
 
     task = BlinkCountMediumWithProgress()
-    facts: list[list[str]] = []
-    schedule = condition_schedule(task, "written")
-    original = schedule.facts
-    schedule.facts = lambda decision: facts.append(list(original(decision))) or facts[-1]
-    [written] = play_task_episodes(task.expert(), task, [DEV_SEED + 1], schedule, render_backend="cpu")
-    assert written.success, facts[-1]
-    assert facts[-1] == [CUE_FACT.format(count="three times"), "the red button was pressed three times."]
-    pressed = [f[1] for f in facts if len(f) > 1]
-    assert list(dict.fromkeys(pressed)) == [f"the red button was pressed {count_value(n)}." for n in (1, 2, 3)]
-    [oracle] = play_task_episodes(task.expert(), task, [DEV_SEED + 1], condition_schedule(task, "oracle"),
-                                  render_backend="cpu")
-    assert not oracle.success
+    for condition in ("written", "oracle"):
+        facts: list[list[str]] = []
+        schedule = condition_schedule(task, condition)
+        original = schedule.facts
+        schedule.facts = lambda decision: facts.append(list(original(decision))) or facts[-1]
+        [played] = play_task_episodes(task.expert(), task, [DEV_SEED + 1], schedule, render_backend="cpu")
+        assert played.success, (condition, facts[-1])
+        assert facts[-1] == [CUE_FACT.format(count="three times"), "the red button was pressed three times."]
+        pressed = [f[1] for f in facts if len(f) > 1]
+        assert list(dict.fromkeys(pressed)) == [f"the red button was pressed {count_value(n)}." for n in (1, 2, 3)]
+    [cue_only] = play_task_episodes(task.expert(), task, [DEV_SEED + 1], CueFactsOnly(task), render_backend="cpu")
+    assert not cue_only.success

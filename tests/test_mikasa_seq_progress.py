@@ -135,25 +135,42 @@ def test_the_stateless_expert_heads_for_the_first_cube_its_prompt_does_not_call_
     assert expert.progress == [] or all(not p.touched for p in expert.progress)  # it keeps nothing itself
 
 
+class CueFactsOnly:
+    """The cue's true facts and nothing of the progress: the oracle as it was before it stated what was done."""
+
+    def __init__(self, task):
+        self.task, self._facts = task, []
+
+    def start(self, frame, episode):
+        self._facts = self.task.oracle_facts(episode)
+
+    def observe(self, frame):
+        pass
+
+    def facts(self, decision):
+        return self._facts
+
+
 @pytest.mark.slow
-def test_written_progress_lets_the_stateless_expert_finish_the_sequence_and_cue_facts_alone_do_not(monkeypatch):
+def test_written_or_simulated_progress_lets_the_stateless_expert_finish_and_cue_facts_alone_do_not(monkeypatch):
     """Development seed 5000: with the facts the writer wrote (the cue and, as it goes, the touches and the press)
-    the stateless expert succeeds; with the cue facts alone (oracle, no progress) it never leaves the first cube."""
+    the stateless expert succeeds, and with the oracle (the cue's facts and the progress MIKASA counted) too; with
+    the cue's facts alone it never leaves the first cube."""
     from sb3_memret.rollout import condition_schedule, play_task_episodes
 
     task = SeqOfColorsWithProgress()
     monkeypatch.setattr(task, "max_control_steps", 88)
-    facts: list[list[str]] = []
-    schedule = condition_schedule(task, "written")
-    original = schedule.facts
-    monkeypatch.setattr(schedule, "facts", lambda decision: facts.append(list(original(decision))) or facts[-1])
-    [written] = play_task_episodes(task.expert(), task, [DEV_SEED], schedule, render_backend="cpu")
-    assert written.success, facts[-1]
-    assert facts[-1][3:] == ["the cyan cube was touched.", "the maroon cube was touched.",
-                             "the olive cube was touched.", "the button was pressed."]
-    [oracle] = play_task_episodes(task.expert(), task, [DEV_SEED], condition_schedule(task, "oracle"),
-                                  render_backend="cpu")
-    assert not oracle.success
+    done = ["the cyan cube was touched.", "the maroon cube was touched.", "the olive cube was touched.",
+            "the button was pressed."]
+    for condition in ("written", "oracle"):
+        facts: list[list[str]] = []
+        schedule = condition_schedule(task, condition)
+        original = schedule.facts
+        monkeypatch.setattr(schedule, "facts", lambda decision: facts.append(list(original(decision))) or facts[-1])
+        [played] = play_task_episodes(task.expert(), task, [DEV_SEED], schedule, render_backend="cpu")
+        assert played.success and facts[-1][3:] == done, (condition, facts[-1])
+    [cue_only] = play_task_episodes(task.expert(), task, [DEV_SEED], CueFactsOnly(task), render_backend="cpu")
+    assert not cue_only.success
 
 
 @pytest.mark.slow

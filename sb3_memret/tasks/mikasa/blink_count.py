@@ -277,8 +277,11 @@ class BlinkCountTask(MikasaCueTask):
         obs = to_numpy(obs)
         blinks = as_numpy(env.unwrapped.target_blinks).reshape(-1)  # privileged: for metrics only
         success = as_numpy(info["success"]).reshape(-1)
-        return [EnvFrame(select_obs(obs, i), {"blinks": int(blinks[i])}, None, bool(success[i]))
-                for i in range(len(success))]
+        states = [{"blinks": int(b)} for b in blinks]
+        if self.progress:  # MIKASA's own press counter: the progress the fixed conditions state (privileged)
+            for state, presses in zip(states, as_numpy(env.unwrapped.press_count).reshape(-1)):
+                state["presses"] = int(presses)
+        return [EnvFrame(select_obs(obs, i), states[i], None, bool(success[i])) for i in range(len(success))]
 
     def perceive(self, env: gym.Env, obs: Any) -> tuple[bool, bool] | PressPercept:
         rgb = as_numpy(obs["sensor_data"]["base_camera"]["rgb"])[0]
@@ -313,6 +316,11 @@ class BlinkCountTask(MikasaCueTask):
     # ------------------------------------------------------------ prompts and controllers
     def oracle_facts(self, episode: Episode) -> list[str]:
         return [self.cue_fact.format(count=episode.group)]
+
+    def progress_facts(self, frame: EnvFrame) -> list[str]:
+        """With progress: ``the red button was pressed twice.`` from MIKASA's press counter, once a press counted."""
+        presses = frame.state.get("presses", 0) if self.progress else 0
+        return [PRESSED_FACT.format(presses=count_value(min(presses, len(COUNTS))))] if presses else []
 
     def wrong_facts(self, episode: Episode) -> list[str]:
         """The next count, cyclically (Easy: 1 -> 2 -> 3 -> 1): one press too many fails at that press, one too few

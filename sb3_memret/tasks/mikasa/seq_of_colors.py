@@ -234,12 +234,19 @@ class SeqOfColorsTask(MikasaCueTask):
         durations = as_numpy(base.cue_step_duration_per_env).reshape(-1)
         states = [{"colours": tuple(self.colours[int(c)] for c in sequences[i]), "cue_step_duration": int(durations[i])}
                   for i in range(len(success))]
-        if self.progress:  # what the base camera shows of the cubes, read with its calibration
+        if self.progress:
             params = base.get_sensor_params()["base_camera"]
             intrinsic, extrinsic = as_numpy(params["intrinsic_cv"]), as_numpy(params["extrinsic_cv"])
             rgb = obs["sensor_data"]["base_camera"]["rgb"]
+            touched = as_numpy(base.touched_cubes_idx).reshape(len(success), -1)
+            # a press begun (MIKASA's pending one) or counted: the writer writes it at the press's bottom too
+            pressed = as_numpy(base.pending_press).reshape(-1) | (as_numpy(base.button_press_count).reshape(-1) > 0)
             for i, state in enumerate(states):
+                # what the base camera shows of the cubes, read with its calibration (the writer's)
                 state["seen_cubes"] = read_cube_layout(rgb[i], intrinsic[i], extrinsic[i], N_COLOURS)
+                # what MIKASA counted done (privileged: the fixed conditions' progress facts)
+                state["touched"] = tuple(self.colours[int(c)] for c in touched[i] if c >= 0)
+                state["pressed"] = bool(pressed[i])
         return [EnvFrame(select_obs(obs, i), states[i], None, bool(success[i])) for i in range(len(success))]
 
     # ------------------------------------------------------------ memory
@@ -259,6 +266,14 @@ class SeqOfColorsTask(MikasaCueTask):
 
     def oracle_facts(self, episode: Episode) -> list[str]:
         return sequence_facts(self.sequence(episode))
+
+    def progress_facts(self, frame: EnvFrame) -> list[str]:
+        """With progress: ``the red cube was touched.`` for each cube MIKASA counted touched, in touch order, then
+        ``the button was pressed.`` once a press began (as the writer writes it, at the press's bottom)."""
+        if not self.progress:
+            return []
+        touched = [TOUCHED_FACT.format(touched=colour) for colour in frame.state["touched"]]
+        return touched + ([PRESSED_FACT] if frame.state["pressed"] else [])
 
     def wrong_facts(self, episode: Episode) -> list[str]:
         """The same ordinals, each naming a colour that was not cued (the first such colours, in palette order)."""
