@@ -201,7 +201,7 @@ class Task(ABC):
     def progress_facts(self, frame: EnvFrame) -> list[str]:
         """What the robot has done by ``frame``, worded as this task's progress writer words it, from the
         simulator's state (privileged). Every fixed condition (oracle, wrong, none) carries it, so a controller that
-        reads its progress from its prompt is measured on the cue's memory alone. None for a task without progress."""
+        reads its progress from its prompt is measured on the cue's memory alone. Empty for a task without progress."""
         return []
 
     # ------------------------------------------------------------ controllers
