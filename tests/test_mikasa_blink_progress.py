@@ -172,6 +172,32 @@ def test_every_fixed_condition_states_the_presses_mikasa_counted():
         build_prompt(INSTRUCTION, schedule.facts(1), task.prompt_template)  # the contract reads it
 
 
+def test_recall_keeps_progress_beside_the_bank_and_states_it_after_the_chosen_facts(encoder):
+    """The bank holds what may be recalled (the cue, the decoys); the presses written so far follow whatever the
+    retriever chose, in every mode, the latest count replacing the last, and a new episode starts with none."""
+    from sb3_memret.envs.configs import MemoryConfig
+    from sb3_memret.envs.recall_memory import EpisodeMemory
+
+    task = make_task(SPEC)
+    modes = {mode: EpisodeMemory(MemoryConfig(4), mode, encoder, lambda entries, ages: np.ones(len(entries)),
+                                 task.prompt_template, task) for mode in ("recall", "oracle", "none")}
+    down_up = [0.10, 0.05, 0.01, 0.05, 0.09, 0.13]
+    cue = CUE_FACT.format(count="three times")
+    for mode, memory in modes.items():
+        memory.start(EnvFrame({}, {"blinks": 3}, None, False, steps=0, percepts=_percepts([0.13])),
+                     np.random.default_rng(0))
+        chosen = memory.choose(np.array([0]))  # a decoy
+        for presses in ("once", "twice"):
+            memory.observe(EnvFrame({}, {"blinks": 3}, None, False, steps=6, percepts=_percepts(down_up)))
+            assert all(e.type != MemoryType.TASK_PROGRESS for e in memory.bank.entries)
+            facts = {"recall": [chosen[0].text], "oracle": [cue], "none": []}[mode]
+            pressed = f"the red button was pressed {presses}."
+            assert memory.prompt(chosen) == build_prompt(INSTRUCTION, [*facts, pressed], task.prompt_template)
+        memory.start(EnvFrame({}, {"blinks": 3}, None, False, steps=0, percepts=_percepts([0.13])),
+                     np.random.default_rng(0))
+        assert memory.progress_texts() == []
+
+
 @pytest.mark.slow
 def test_written_or_counted_progress_lets_the_stateless_expert_press_as_often_as_the_cue_and_the_cue_alone_not():
     """Development seed 5001 of Medium (three blinks): with the facts the writer wrote (the count, then each press as

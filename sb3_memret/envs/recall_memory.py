@@ -16,7 +16,7 @@ from sb3_memret.tasks.drawer.cabinet import LAYERS
 from sb3_memret.envs.configs import MemoryConfig, check_mode
 from sb3_memret.memory.bank import MemoryBank
 from sb3_memret.memory.encoder import EMBEDDING_DIM, MiniLMEncoder
-from sb3_memret.memory.schema import MemoryEntry, MemoryType
+from sb3_memret.memory.schema import Key, MemoryEntry, MemoryType
 from sb3_memret.memory.writer import EventCompiler
 from sb3_memret.prompts import PromptTemplate, build_prompt
 from sb3_memret.tasks import Task, make_task
@@ -51,6 +51,11 @@ class EpisodeMemory:
     ``prompt`` turn the retriever's slots into the controller's prompt; ``observe`` writes what
     the task's writer reads from an executed chunk (at every control step it perceived). Eviction
     asks ``keep_scorer`` (the retention critic, or a fixed rule).
+
+    Progress (a writer's TASK_PROGRESS facts: ``the red cube was touched.``) is the robot's working memory of
+    what it has done this episode, not something to recall: it is kept beside the bank, the latest fact per key,
+    and follows the chosen facts in every prompt (as the rollout's fixed conditions state it), so the retriever
+    chooses among the cue's facts and the decoys alone, and one K serves tasks with and without progress.
 
     ``source="observed"``: no fact comes from the placement. The bank starts with decoys only,
     the observation phase's views (each drawer opened once, ``EnvFrame.look_in``) write where each
@@ -87,6 +92,7 @@ class EpisodeMemory:
         self.clock = 0  # control steps of the earlier episodes (long-term times run on)
         self.t = 0
         self.truth: Episode | None = None  # the episode's ground truth (metrics only)
+        self.progress: dict[Key, MemoryEntry] = {}  # working memory: the episode's progress facts by key
         self.true_evicted = False
         self.needed_fact_gone = self.target_fact_kept = self.stale_fact_kept = False
         self.seen_since_move: set[str] = set()
@@ -108,6 +114,7 @@ class EpisodeMemory:
         self.t, self.true_evicted = 0, False
         self.episode += 1
         self.bank.clear()
+        self.progress.clear()
         seeds = self.task.seed_memories(frame, self.truth, rng, self.seeding, facts=self.source == "seeded")
         if self.long_term is not None:
             if moved:
@@ -169,13 +176,14 @@ class EpisodeMemory:
         return self.truth.target
 
     def prompt(self, chosen: list[MemoryEntry]) -> str:
-        """The controller's prompt: the instruction plus the chosen facts (or the mode's fixed text)."""
-        instruction = self.task.instruction(self.truth)
-        if self.mode == "oracle":
-            return build_prompt(instruction, self.task.oracle_facts(self.truth), self.template)
-        if self.mode == "none":
-            return build_prompt(instruction, [], self.template)
-        return build_prompt(instruction, [e.text for e in chosen], self.template)
+        """The controller's prompt: the instruction plus the chosen facts (or the mode's fixed ones), then the
+        progress written so far."""
+        facts = {"oracle": self.task.oracle_facts(self.truth), "none": []}.get(self.mode, [e.text for e in chosen])
+        return build_prompt(self.task.instruction(self.truth), [*facts, *self.progress_texts()], self.template)
+
+    def progress_texts(self) -> list[str]:
+        """The episode's progress facts, in the order first written (an update keeps its place)."""
+        return [entry.text for entry in self.progress.values()]
 
     def observe(self, frame: EnvFrame) -> int:
         """After an executed chunk: write the facts that changed, each at the control step it was read; returns
@@ -215,6 +223,9 @@ class EpisodeMemory:
     def _write(self, entries: list[MemoryEntry]) -> None:
         for entry in entries:
             entry = replace(entry, episode=self.episode)
+            if entry.type == MemoryType.TASK_PROGRESS:
+                self.progress[entry.key] = entry
+                continue
             store = self._store_for(entry)
             outcome = store.write(entry, lambda stored: self.keep_scorer(stored, self.ages(stored)))
             if outcome.evicted is not None and self.is_true(outcome.evicted):
