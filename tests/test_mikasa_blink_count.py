@@ -35,7 +35,8 @@ FORBIDDEN = ("oracle", "task_cue", "target_blinks", "press_count", "pending", "i
 
 @pytest.fixture(scope="module")
 def medium():
-    return BlinkCountTask(MEDIUM)
+    """The task without progress facts: its expert counts its own presses (progress as memory has its own tests)."""
+    return BlinkCountTask(MEDIUM, progress=False)
 
 
 @pytest.fixture(scope="module")
@@ -249,8 +250,8 @@ def test_the_count_is_written_and_retrieved(encoder):
 
 @pytest.mark.slow
 def test_the_agent_plays_blink_count_in_mikasas_harness(tmp_path, monkeypatch):
-    """Real episodes in MIKASA's own harness at a development seed: the written count is the oracle's and both
-    succeed, the wrong count fails, nothing forbidden is read."""
+    """Real episodes in MIKASA's own harness at a development seed: the written count and presses are the oracle's
+    and both succeed, the wrong count fails, nothing forbidden is read."""
     import json
 
     from test_benchmark import _Guarded
@@ -265,4 +266,6 @@ def test_the_agent_plays_blink_count_in_mikasas_harness(tmp_path, monkeypatch):
     cells = content["tasks"][EASY]["conditions"]
     assert {c: cells[c]["successes"] for c in cells} == {"oracle": [True], "wrong": [False], "written": [True]}
     prompts = {r["condition"]: r["prompt"] for r in map(json.loads, (tmp_path / "episodes.jsonl").open())}
-    assert prompts["written"] == prompts["oracle"] == f"{INSTRUCTION} the blue lamp blinked three times."
+    # the last prompt: the count, then the presses (written from the cameras, or MIKASA's counter for the oracle)
+    expected = f"{INSTRUCTION} the blue lamp blinked three times. the red button was pressed three times."
+    assert prompts["written"] == prompts["oracle"] == expected

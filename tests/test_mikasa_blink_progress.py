@@ -18,7 +18,6 @@ from sb3_memret.tasks.mikasa.blink_count import (  # noqa: E402
     INSTRUCTION,
     PROGRESS_PROMPT_TEMPLATE,
     PROMPT_TEMPLATE,
-    BlinkCountMediumWithProgress,
     BlinkCountTask,
     BlinkWriter,
     PressPercept,
@@ -26,14 +25,14 @@ from sb3_memret.tasks.mikasa.blink_count import (  # noqa: E402
 )
 from sb3_memret.tasks.mikasa.press_expert import ButtonPressController, count_value, stated_presses  # noqa: E402
 
-SPEC = "sb3_memret.tasks.mikasa.blink_count:BlinkCountMediumWithProgress"
+SPEC = "BlinkCountButtonPressMedium-VLA-v0"  # progress as memory: the registered task
 DEV_SEED = 5000  # development seeds: the protocol's stay unseen
 CAP = (-0.1, 0.0)
 
 
 @pytest.mark.parametrize("seed", [6000, 6003])
 def test_the_red_cap_is_read_from_the_base_camera_within_half_a_centimetre(seed):
-    task = BlinkCountTask("BlinkCountButtonPressMedium-VLA-v0", progress=True)
+    task = BlinkCountTask("BlinkCountButtonPressMedium-VLA-v0")
     env = task.make_env(obs_mode="rgb", render_backend="cpu", sim_backend="cpu", robot_uids="panda")
     try:
         obs, _ = env.reset(seed=seed)
@@ -97,7 +96,7 @@ def test_the_writer_waits_for_the_cap_to_be_seen_and_keeps_its_first_sighting():
 
 def test_progress_facts_are_worded_for_the_prompt_and_read_back_by_the_stateless_expert():
     task = make_task(SPEC)
-    assert isinstance(task, BlinkCountMediumWithProgress) and task.prompt_template == PROGRESS_PROMPT_TEMPLATE
+    assert task.progress and task.prompt_template == PROGRESS_PROMPT_TEMPLATE
     assert task.perception_window(None) is None  # every press is read, the whole episode
     fact = linearize(MemoryType.TASK_PROGRESS, "red button", "pressed", "twice", task.wordings)
     assert fact == "the red button was pressed twice."
@@ -111,7 +110,7 @@ def test_progress_facts_are_worded_for_the_prompt_and_read_back_by_the_stateless
         ButtonPressController(PROGRESS_PROMPT_TEMPLATE, progress_from="memory")
     with pytest.raises(ValueError, match="needs the progress fact"):
         ButtonPressController(PROMPT_TEMPLATE, progress_from="prompt")
-    assert BlinkCountTask("BlinkCountButtonPressMedium-VLA-v0").expert().stateful  # the base task's counts itself
+    assert BlinkCountTask("BlinkCountButtonPressMedium-VLA-v0", progress=False).expert().stateful  # counts itself
 
 
 def _obs(height: float, qvel_z: float, green: bool = True) -> dict:
@@ -155,7 +154,7 @@ def test_the_stateless_expert_reads_its_way_from_where_the_hand_is_and_how_it_mo
 def test_every_fixed_condition_states_the_presses_mikasa_counted():
     from sb3_memret.rollout import condition_schedule
 
-    task, base = make_task(SPEC), BlinkCountTask("BlinkCountButtonPressMedium-VLA-v0")
+    task, base = make_task(SPEC), BlinkCountTask("BlinkCountButtonPressMedium-VLA-v0", progress=False)
     start, later = ({"blinks": 3, "presses": n} for n in (0, 2))
     frame = EnvFrame({}, start, None, False)
     episode = task.episode(frame)
@@ -207,7 +206,7 @@ def test_written_or_counted_progress_lets_the_stateless_expert_press_as_often_as
 
     from sb3_memret.rollout import condition_schedule, play_task_episodes
 
-    task = BlinkCountMediumWithProgress()
+    task = make_task(SPEC)
     for condition in ("written", "oracle"):
         facts: list[list[str]] = []
         schedule = condition_schedule(task, condition)

@@ -34,21 +34,21 @@ press counters), so the count reaches it only through its prompt. Measured at th
 (``scripts/blink_reader_error.py``, the arm moving as the expert moves it): 40 of 40 counts right on each task, each
 written at the step the phase lamp turned green.
 
-**The expert** (``ButtonPressController``, ``press_expert``) waits over the red button through the cue, then
-presses it as many times as its prompt's count, counting its own presses (it keeps state across calls: nothing in
-sight shows how often the button was pressed), then presses the black button; without a count it presses once, a
-guess. It reads the buttons' places and the phase lamp from a detector, as a camera shows them: the simulated
-detector of the other MIKASA experts.
+**Progress as memory**: how often the red button was pressed is not in sight (its cap springs back), so a
+controller that reads only the current frame and its prompt cannot count its own presses. The writer then also writes
+them, a TASK_PROGRESS fact replaced at each press: ``the red button was pressed twice.``. It reads where the red cap
+stands from the base camera (``read_red_cap``: its top face's flat colour, cast onto the plane of the cap's top;
+within 0.21 cm of the simulator's at development seeds 6000-6011) and the TCP from the arm's own sensors at every
+control step, and counts as MIKASA does (a press within 6.5 cm of the cap's axis down to 2.51 cm over its top,
+counted once the TCP has risen 8.5 cm above where it began, and only once the phase lamp is green). The written
+facts carry the expert through 10 of 10 Easy (development seeds 5100-5109) and 8 of 8 Medium (5000-5007) episodes.
 
-**Progress as memory** (``BlinkCountTask(env_id, progress=True)``, or ``BlinkCountEasyWithProgress`` /
-``BlinkCountMediumWithProgress`` by name): how often the red button was pressed is not in sight, so a controller that
-reads only the current frame and its prompt cannot count its own presses. The writer then also writes them, a
-TASK_PROGRESS fact replaced at each press: ``the red button was pressed twice.``. It reads where the red cap stands
-from the base camera (``read_red_cap``: its top face's flat colour, cast onto the plane of the cap's top; within
-0.21 cm of the simulator's at development seeds 6000-6011) and the TCP from the arm's own sensors at every control
-step, and counts as MIKASA does (a press within 6.5 cm of the cap's axis down to 2.51 cm over its top, counted once
-the TCP has risen 8.5 cm above where it began, and only once the phase lamp is green). Its expert is the stateless
-``ButtonPressController(progress_from="prompt")``, which reads its presses from that fact.
+**The expert** (``ButtonPressController``, ``press_expert``) waits over the red button through the cue, then
+presses it as many times as its prompt's count, then presses the black button; without a count it presses once, a
+guess. It keeps no state: the presses made come from its prompt's progress fact, and whether the hand is on its way
+down or up from where it is and how its joints move. It reads the buttons' places and the phase lamp from a
+detector, as a camera shows them: the simulated detector of the other MIKASA experts. ``BlinkCountTask(env_id,
+progress=False)`` is the task without progress facts, whose expert counts its own presses (state across calls).
 """
 
 from __future__ import annotations
@@ -252,7 +252,7 @@ class BlinkCountTask(MikasaCueTask):
     noop_before_manipulation = False  # MIKASA's wrapper table gives these tasks none
     perceives_every_step = True  # the blinks are counted over the cue's frames
 
-    def __init__(self, env_id: str = "BlinkCountButtonPressEasy-VLA-v0", progress: bool = False):
+    def __init__(self, env_id: str = "BlinkCountButtonPressEasy-VLA-v0", progress: bool = True):
         if env_id not in VARIANTS:
             raise ValueError(f"unknown BlinkCountButtonPress task {env_id!r}; expected one of {sorted(VARIANTS)}")
         self.variant = VARIANTS[env_id]
@@ -343,23 +343,7 @@ class BlinkCountTask(MikasaCueTask):
                                         obs["extra"]["lamp_green"])
 
 
-class BlinkCountEasyWithProgress(BlinkCountTask):
-    """BlinkCountButtonPressEasy-VLA-v0 with progress as memory, by name (``sb3_memret.tasks.mikasa.blink_count:
-    BlinkCountEasyWithProgress``): the writer also writes the presses made, the expert reads them from its prompt."""
-
-    def __init__(self) -> None:
-        super().__init__("BlinkCountButtonPressEasy-VLA-v0", progress=True)
-
-
-class BlinkCountMediumWithProgress(BlinkCountTask):
-    """BlinkCountButtonPressMedium-VLA-v0 with progress as memory, by name (``...blink_count:
-    BlinkCountMediumWithProgress``)."""
-
-    def __init__(self) -> None:
-        super().__init__("BlinkCountButtonPressMedium-VLA-v0", progress=True)
-
-
-__all__ = ["BlinkCountEasyWithProgress", "BlinkCountMediumWithProgress", "BlinkCountObservation", "BlinkCountTask",
+__all__ = ["BlinkCountObservation", "BlinkCountTask",
            "BlinkVariant", "BlinkWriter", "CAP_TOP_Z", "CUE_FACT", "FACT_TEMPLATE", "INSTRUCTION", "LONGEST_GAP",
            "PROGRESS_PROMPT_TEMPLATE", "PROGRESS_WORDINGS", "PROMPT_TEMPLATE", "PressPercept", "PressRule", "VARIANTS",
            "lamp_lit", "read_red_cap"]
