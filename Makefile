@@ -8,7 +8,7 @@ RENDERER ?= .renderer
 is_py312 = $(shell $(1) -c 'import sys; assert sys.version_info[:2] == (3, 12)' >/dev/null 2>&1 && echo yes)
 PYTHON ?= $(firstword $(foreach p,python3.12 $(wildcard $(HOME)/.pyenv/versions/3.12*/bin/python3.12),$(if $(call is_py312,$(p)),$(p))))
 
-.PHONY: install renderer train test docs bench controller controller-objects controller-camera controller-mikasa controller-multitask clean
+.PHONY: install renderer train test docs bench controller controller-objects controller-camera controller-mikasa controller-multitask learner-multitask clean
 
 $(VENV)/.installed: setup.cfg pyproject.toml constraints.txt
 	@test -n "$(PYTHON)" || { echo "error: no Python 3.12 found; install one (e.g. pyenv install 3.12) or pass PYTHON=/path/to/python3.12" >&2; exit 1; }
@@ -142,6 +142,18 @@ controller-multitask: install renderer
 		scripts/finetune_task_demos.sh $(MULTITASK_RUN)/demos,$(MULTITASK_RUN)/dagger $(MULTITASK_RUN)/policy \
 			$(MULTITASK_TASKS) --steps $(MULTITASK_DAGGER_STEPS) $(MULTITASK_FINETUNE); \
 	fi
+
+# Rebuild the shipped memory learner across the short split (the recall condition's default in `sb3-memret benchmark
+# mikasa`): one learner on every short-split task that runs here, the zoo's `multitask` section (24,576 decisions),
+# the scripted experts as the frozen controller; about 2.5 hours on a 2-core CPU. An interrupted run resumes.
+LEARNER_RUN ?= runs/learner-multitask
+SHIPPED_LEARNER := sb3_memret/benchmark/checkpoints/mikasa-short-learner
+
+learner-multitask: install renderer
+	$(VENV)/bin/sb3-memret train recall --tasks mikasa:short --controller scripted --seed 0 --out $(LEARNER_RUN) \
+		--eval-every 12 --no-progress $$([ -f $(LEARNER_RUN)/config.yml ] && echo --resume)
+	mkdir -p $(SHIPPED_LEARNER)
+	cp $(LEARNER_RUN)/final_model.zip $(LEARNER_RUN)/config.yml $(LEARNER_RUN)/summary.json $(SHIPPED_LEARNER)/
 
 bench: install
 	$(PY) scripts/bench_env.py

@@ -280,6 +280,29 @@ def test_recall_retrieves_from_the_writers_bank_in_the_harness(tmp_path):
     assert cell["learner"] == str(tmp_path / "learners" / env_id / "final_model.zip")
 
 
+def test_the_shipped_learner_serves_recall_on_every_short_task_that_runs_here(tmp_path, monkeypatch):
+    """Without --learners, recall plays the learner across the short split shipped in the package: every task of the
+    split that runs here has it (its bank settings from the shipped run config); a missing one says how to rebuild."""
+    from sb3_memret.benchmark import learners as learners_module
+    from sb3_memret.benchmark.agent import MemoryLearner
+    from sb3_memret.benchmark.runner import learner_tasks, plan, split_tasks
+
+    path = learners_module.shipped_learner()
+    runnable, _ = split_tasks("short")
+    assert sorted(learner_tasks(path)) == sorted(runnable)
+    run = plan(Protocol(seed_set="dev", episodes=1), ["recall"], split="short", learners=path)
+    assert not run.refused_conditions and set(run.learner_digests) == set(runnable)
+    learner = MemoryLearner(path, "scripted", "BlinkCountButtonPressEasy-VLA-v0")
+    assert learner.settings["capacity"] == 6 and learner.settings["k"] == 1
+    with pytest.raises(ValueError, match="not trained on 'RememberColor3-Long-VLA-v0'"):
+        MemoryLearner(path, "scripted", "RememberColor3-Long-VLA-v0")
+
+    monkeypatch.setattr(learners_module, "SHIPPED_LEARNER", tmp_path / "gone" / "final_model.zip")
+    result = CliRunner().invoke(main, ["benchmark", "mikasa", "--tasks", "TakeItBack-VLA-v0", "--conditions", "recall",
+                                       "--out", str(tmp_path / "run")])
+    assert result.exit_code == 2 and "make learner-multitask" in result.output and not (tmp_path / "run").exists()
+
+
 def test_a_learner_that_lands_while_the_table_plays_is_found(tmp_path):
     from sb3_memret.benchmark.runner import learners_landed, plan
 

@@ -11,6 +11,21 @@ from typing import Callable
 
 from sb3_memret.benchmark.runner import LEARNER_FILE
 
+# The memory learner across the short split shipped in the package (``make learner-multitask``: ``train recall --tasks
+# mikasa:short``, the zoo's ``multitask`` section, scripted experts), which the recall condition plays when no
+# --learners is given: its model, beside its run's config.yml (the bank settings of each task) and summary.json.
+SHIPPED_LEARNER = Path(__file__).resolve().parent / "checkpoints" / "mikasa-short-learner" / LEARNER_FILE
+SHIPPED_LEARNER_COMMAND = "make learner-multitask"
+
+
+def shipped_learner() -> Path:
+    """The shipped learner across the short split's tasks; a FileNotFoundError naming how to rebuild it if missing."""
+    for name in (LEARNER_FILE, "config.yml"):
+        if not (SHIPPED_LEARNER.parent / name).is_file():
+            raise FileNotFoundError(f"the shipped memory learner is missing {name} in {SHIPPED_LEARNER.parent}; "
+                                    f"rebuild it with `{SHIPPED_LEARNER_COMMAND}`, or pass --learners")
+    return SHIPPED_LEARNER
+
 
 @dataclass(frozen=True)
 class LearnerOutcome:

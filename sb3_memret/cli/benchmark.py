@@ -45,7 +45,8 @@ def benchmark() -> None:
                    "for choosing checkpoints and variants.")
 @click.option("--learners", type=click.Path(path_type=Path), default=None,
               help="For recall: a folder with a trained memory learner per task, DIR/<env id>/final_model.zip, or "
-                   "one learner across tasks' model file (train recall --tasks), for every task it was trained on.")
+                   "one learner across tasks' model file (train recall --tasks), for every task it was trained on  "
+                   "[default: the shipped learner across the short split]")
 @click.option("--replan-every", type=click.IntRange(min=1), default=None,
               help="Control steps between controller calls  [default: each task's]")
 @click.option("--workers", type=click.IntRange(min=1), default=min(2, os.cpu_count() or 1), show_default=True,
@@ -70,6 +71,13 @@ def mikasa(split: str | None, tasks: list[str] | None, episodes: int, controller
     if split is None and tasks is None:
         split = "short"
     protocol = Protocol(seed_set=seed_set, episodes=episodes, controller=controller, replan_every=replan_every)
+    if learners is None and "recall" in conditions:
+        from sb3_memret.benchmark.learners import shipped_learner
+
+        try:
+            learners = shipped_learner()
+        except FileNotFoundError as err:
+            raise click.UsageError(str(err)) from None
     try:
         run = plan(protocol, conditions, split, tasks, learners)
     except ValueError as err:
