@@ -151,4 +151,26 @@ def report_command(run: Path) -> None:
     click.echo(str(write_report(content, run)))
 
 
+@benchmark.command("compare")
+@click.argument("run_a", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.argument("run_b", type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--condition", default="oracle", show_default=True, type=click.Choice(CONDITIONS),
+              help="The condition compared (RUN_A's).")
+@click.option("--condition-b", default=None, type=click.Choice(CONDITIONS),
+              help="RUN_B's condition, to set two conditions side by side (recall against oracle in one run, "
+                   "say)  [default: --condition]")
+def compare_command(run_a: Path, run_b: Path, condition: str, condition_b: str | None) -> None:
+    """Two runs (RUN_A, RUN_B) paired episode by episode: each task at the seeds both played, the episodes only one
+    won, and an exact McNemar test of them; then all tasks together. For choosing one controller or learner over
+    another on development seeds."""
+    from sb3_memret.benchmark.compare import load_results, paired_cells, render_comparison
+
+    condition_b = condition_b or condition
+    try:
+        cells = paired_cells(load_results(run_a), load_results(run_b), condition, condition_b)
+    except (FileNotFoundError, ValueError) as err:
+        raise click.UsageError(str(err)) from None
+    click.echo(render_comparison(cells, f"{run_a} ({condition})", f"{run_b} ({condition_b})"), nl=False)
+
+
 __all__ = ["benchmark"]
