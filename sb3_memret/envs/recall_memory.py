@@ -178,7 +178,10 @@ class EpisodeMemory:
     def prompt(self, chosen: list[MemoryEntry]) -> str:
         """The controller's prompt: the instruction plus the chosen facts (or the mode's fixed ones), then the
         progress written so far."""
-        facts = {"oracle": self.task.oracle_facts(self.truth), "none": []}.get(self.mode, [e.text for e in chosen])
+        if self.mode == "oracle":
+            facts = self.task.oracle_facts(self.truth)
+        else:
+            facts = [] if self.mode == "none" else [e.text for e in chosen]
         return build_prompt(self.task.instruction(self.truth), [*facts, *self.progress_texts()], self.template)
 
     def progress_texts(self) -> list[str]:
