@@ -197,6 +197,27 @@ def test_recall_keeps_progress_beside_the_bank_and_states_it_after_the_chosen_fa
         assert memory.progress_texts() == []
 
 
+def test_the_benchmarks_recall_states_the_presses_after_what_the_learner_retrieved(encoder):
+    """MIKASA's harness agent builds its prompt from the recall schedule's facts: the retrieved one, then the presses
+    written so far (a stateless controller that never saw them would press again and again)."""
+    from types import SimpleNamespace
+
+    from sb3_memret.benchmark.agent import RecalledFacts
+
+    learner = SimpleNamespace(settings={"capacity": 6, "age_unit": "steps"},
+                              keep_scores=lambda entries, ages: np.ones(len(entries)),
+                              retrieve=lambda observation: np.array([0]))
+    task = make_task(SPEC)
+    schedule = RecalledFacts(task, learner, task.prompt_template, encoder, seed=0)
+    start = EnvFrame({}, {"blinks": 3}, None, False, steps=0, percepts=_percepts([0.13]))
+    schedule.start(start, task.episode(start))
+    decoy = schedule.memory.bank.entries[0].text
+    assert schedule.facts(0) == [decoy]
+    schedule.observe(EnvFrame({}, {"blinks": 3}, None, False, steps=6,
+                              percepts=_percepts([0.10, 0.05, 0.01, 0.05, 0.09, 0.13])))
+    assert schedule.facts(1) == [decoy, "the red button was pressed once."]
+
+
 @pytest.mark.slow
 def test_written_or_counted_progress_lets_the_stateless_expert_press_as_often_as_the_cue_and_the_cue_alone_not():
     """Development seed 5001 of Medium (three blinks): with the facts the writer wrote (the count, then each press as

@@ -87,7 +87,7 @@ class MemoryLearner:
 class RecalledFacts:
     """The recall condition's facts (a ``sb3_memret.rollout.FactSchedule``): what ``learner`` retrieves at each
     decision from a bank that the task's writer fills and its decoys seed (the learner's run settings), its retention
-    critic evicting."""
+    critic evicting; then, on a task with progress as memory, what the robot has done so far."""
 
     def __init__(self, task: Task, learner: MemoryLearner, template: Any, encoder: Any, seed: int):
         from sb3_memret.envs.configs import MemoryConfig
@@ -109,7 +109,9 @@ class RecalledFacts:
         self.memory.observe(frame)
 
     def facts(self, decision: int) -> list[str]:
-        return [entry.text for entry in self.memory.choose(self.learner.retrieve(self.memory.observation()))]
+        """The retrieved facts, then the progress written so far (kept beside the bank: ``EpisodeMemory``)."""
+        chosen = self.memory.choose(self.learner.retrieve(self.memory.observation()))
+        return [entry.text for entry in chosen] + self.memory.progress_texts()
 
 
 class MemoryAgent:
