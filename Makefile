@@ -145,7 +145,7 @@ controller-multitask: install renderer
 
 # Rebuild the shipped memory learner across the short split (the recall condition's default in `sb3-memret benchmark
 # mikasa`): one learner on every short-split task that runs here, the zoo's `multitask` section (24,576 decisions),
-# the scripted experts as the frozen controller; about 2.5 hours on a 2-core CPU. An interrupted run resumes.
+# the scripted experts as the frozen controller; about 2 hours on a 2-core CPU. An interrupted run resumes.
 LEARNER_RUN ?= runs/learner-multitask
 SHIPPED_LEARNER := sb3_memret/benchmark/checkpoints/mikasa-short-learner
 

@@ -109,9 +109,8 @@ class RecalledFacts:
         self.memory.observe(frame)
 
     def facts(self, decision: int) -> list[str]:
-        """The retrieved facts, then the progress written so far (kept beside the bank: ``EpisodeMemory``)."""
-        chosen = self.memory.choose(self.learner.retrieve(self.memory.observation()))
-        return [entry.text for entry in chosen] + self.memory.progress_texts()
+        """The retrieved facts, then the progress written so far (``EpisodeMemory.prompt_facts``)."""
+        return self.memory.prompt_facts(self.memory.choose(self.learner.retrieve(self.memory.observation())))
 
 
 class MemoryAgent:

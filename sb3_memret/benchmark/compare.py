@@ -12,6 +12,8 @@ from typing import Any
 
 from scipy.stats import binomtest
 
+from sb3_memret.benchmark.runner import RESULTS_FILE
+
 
 @dataclass(frozen=True)
 class PairedCell:
@@ -44,7 +46,7 @@ class PairedCell:
 
 def load_results(run: Path) -> dict[str, Any]:
     """A run folder's results.json; a clear error when ``run`` is not a benchmark run folder."""
-    path = Path(run) / "results.json"
+    path = Path(run) / RESULTS_FILE
     if not path.is_file():
         raise FileNotFoundError(f"{run} holds no results.json: give a `sb3-memret benchmark mikasa --out` folder")
     return json.loads(path.read_text())

@@ -20,7 +20,9 @@ SHIPPED_LEARNER_COMMAND = "make learner-multitask"
 
 def shipped_learner() -> Path:
     """The shipped learner across the short split's tasks; a FileNotFoundError naming how to rebuild it if missing."""
-    for name in (LEARNER_FILE, "config.yml"):
+    from sb3_memret.training import CONFIG_FILE
+
+    for name in (LEARNER_FILE, CONFIG_FILE):
         if not (SHIPPED_LEARNER.parent / name).is_file():
             raise FileNotFoundError(f"the shipped memory learner is missing {name} in {SHIPPED_LEARNER.parent}; "
                                     f"rebuild it with `{SHIPPED_LEARNER_COMMAND}`, or pass --learners")

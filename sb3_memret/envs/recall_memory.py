@@ -176,17 +176,17 @@ class EpisodeMemory:
         return self.truth.target
 
     def prompt(self, chosen: list[MemoryEntry]) -> str:
-        """The controller's prompt: the instruction plus the chosen facts (or the mode's fixed ones), then the
-        progress written so far."""
+        """The controller's prompt: the instruction plus ``prompt_facts``."""
+        return build_prompt(self.task.instruction(self.truth), self.prompt_facts(chosen), self.template)
+
+    def prompt_facts(self, chosen: list[MemoryEntry]) -> list[str]:
+        """The facts a prompt carries: the chosen ones (or the mode's fixed ones), then the progress written so far,
+        in the order first written (an update keeps its place)."""
         if self.mode == "oracle":
             facts = self.task.oracle_facts(self.truth)
         else:
             facts = [] if self.mode == "none" else [e.text for e in chosen]
-        return build_prompt(self.task.instruction(self.truth), [*facts, *self.progress_texts()], self.template)
-
-    def progress_texts(self) -> list[str]:
-        """The episode's progress facts, in the order first written (an update keeps its place)."""
-        return [entry.text for entry in self.progress.values()]
+        return [*facts, *(entry.text for entry in self.progress.values())]
 
     def observe(self, frame: EnvFrame) -> int:
         """After an executed chunk: write the facts that changed, each at the control step it was read; returns
