@@ -21,9 +21,10 @@ shift 2
 chunk=50 first_seed=${SEED:-100000}
 learner=()
 [ -n "${LEARNER:-}" ] && learner=(--learner "$LEARNER")
-for task in "$@"; do
-  mkdir -p "$out/$task"
-  for ((i = 0; i * chunk < episodes; i++)); do
+# chunk i of every task before chunk i + 1 of any, so a recording stopped early leaves the tasks balanced
+for ((i = 0; i * chunk < episodes; i++)); do
+  for task in "$@"; do
+    mkdir -p "$out/$task"
     dest=$out/$task/chunk$i
     [ -f "$dest.done" ] && continue
     rm -rf "$dest"
