@@ -3,7 +3,9 @@
 Accepted values (``CONTROLLER_SPECS``):
 
 - ``learned``: the task's shipped camera-reading learned controller (both cameras and what the robot
-  reads of itself; the drawer's: ``make controller-camera``, RememberColor3's: ``make controller-mikasa``).
+  reads of itself; the drawer's: ``make controller-camera``; on seven MIKASA tasks one controller across them:
+  ``make controller-multitask``).
+- ``learned-task``: a MIKASA task's own camera controller, trained on that task alone (``make controller-mikasa``).
 - ``learned-state``: the drawer's learned controller on the simulator's state (its cube detection is
   perfect perception; ``make controller`` rebuilds it): the drawer's default (``Task.default_controller``).
 - ``learned-objects``: the state policy trained with several objects in the drawers, the instruction
@@ -27,9 +29,10 @@ from urllib.parse import parse_qsl, urlsplit
 from sb3_memret.controllers.base import FrozenController
 from sb3_memret.tasks import Task, make_task
 
-SHIPPED_NAMES = ("learned", "learned-state", "learned-objects")
+SHIPPED_NAMES = ("learned", "learned-task", "learned-state", "learned-objects")
 CONTROLLER_SPECS = (
     "learned",
+    "learned-task",
     "learned-state",
     "learned-objects",
     "learned:/PATH/TO/CHECKPOINT[?device=DEV]",
@@ -44,8 +47,8 @@ LEROBOT_OPTIONS: dict[str, Callable[[str], Any]] = {"adapter": str, "tokenizer":
 
 def make_controller(spec: str, task: str | Task = "drawer") -> FrozenController:
     """Build the controller a CLI ``--controller`` value names for ``task`` (a name or a ``Task``), or raise
-    a ValueError listing the forms. ``scripted`` is the task's expert, ``learned``, ``learned-state`` and
-    ``learned-objects`` its shipped learned controllers."""
+    a ValueError listing the forms. ``scripted`` is the task's expert, the ``SHIPPED_NAMES`` its shipped learned
+    controllers."""
     if spec == "scripted":
         return make_task(task).expert()
     if spec in SHIPPED_NAMES:

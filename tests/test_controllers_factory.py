@@ -130,5 +130,24 @@ def test_the_shipped_learned_controllers_read_cameras_and_proprioception_only(ta
     config = controller.policy.config
     assert controller.spec.needs_images and len(config.image_features) == 2
     assert config.state_names == the_task.proprio_names()
-    # everything else of the task's layout (the object detector, drawer openings) is estimated from the images
-    assert set(config.perceived_names) == set(the_task.state_names()) - set(the_task.proprio_names())
+    # everything else of the task's layout (the object detector, drawer openings) is estimated from the images; one
+    # controller across tasks estimates every task's objects, its own among them
+    perceived = set(the_task.state_names()) - set(the_task.proprio_names())
+    if config.tasks:
+        assert task in config.tasks and perceived <= set(config.perceived_names)
+    else:
+        assert set(config.perceived_names) == perceived
+
+
+def test_one_camera_controller_serves_the_multitask_tasks_and_each_keeps_its_own():
+    from sb3_memret.controllers.shipped import MULTITASK_TASKS, default_checkpoint
+
+    shared = {default_checkpoint("learned", task) for task in MULTITASK_TASKS}
+    assert len(shared) == 1  # one checkpoint for all seven
+    (folder,) = shared
+    config = make_controller("learned", MULTITASK_TASKS[0]).policy.config
+    assert set(config.tasks) == set(MULTITASK_TASKS)
+    own = [task for task in MULTITASK_TASKS if (task, "learned-task") in SHIPPED]
+    assert own and all(default_checkpoint("learned-task", task) != folder for task in own)
+    with pytest.raises(ValueError, match="no shipped learned controller 'learned-task' for task 'drawer'"):
+        make_controller("learned-task", "drawer")

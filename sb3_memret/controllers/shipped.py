@@ -6,29 +6,35 @@ from __future__ import annotations
 from pathlib import Path
 
 CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
+MULTITASK_TASKS = ("RememberColor3-VLA-v0", "RememberShape3-VLA-v0", "RememberColor5-VLA-v0", "TakeItBack-VLA-v0",
+                   "RememberShape5-VLA-v0", "FindImposterColor3-VLA-v0", "RememberShapeAndColor3x2-VLA-v0")
 # shipped checkpoints by (task, controller name): the folder, and the make command that rebuilds it. ``learned`` is
-# the camera-reading controller (cameras and what the robot reads of itself); ``learned-state`` the drawer's policy on
-# the simulator's state, whose cube detection is perfect perception.
+# the camera-reading controller (cameras and what the robot reads of itself): on MULTITASK_TASKS one network across
+# all of them, the prompt telling them apart. ``learned-task`` is a MIKASA task's own camera controller, trained on
+# that task alone. ``learned-state`` is the drawer's policy on the simulator's state, whose cube detection is perfect
+# perception.
 SHIPPED: dict[tuple[str, str], tuple[Path, str]] = {
     ("drawer", "learned"): (CHECKPOINTS / "drawer-camera", "make controller-camera"),
     ("drawer", "learned-state"): (CHECKPOINTS / "drawer-learned", "make controller"),
     ("drawer", "learned-objects"): (CHECKPOINTS / "drawer-objects-learned", "make controller-objects"),  # state
-    ("RememberColor3-VLA-v0", "learned"): (CHECKPOINTS / "RememberColor3-VLA-v0-camera",
-                                           "make controller-mikasa MIKASA_TASK=RememberColor3-VLA-v0"),
-    ("RememberColor5-VLA-v0", "learned"): (CHECKPOINTS / "RememberColor5-VLA-v0-camera",
-                                           "make controller-mikasa MIKASA_TASK=RememberColor5-VLA-v0 MIKASA_STEPS=2000 "
-                                           "MIKASA_DAGGER=150 MIKASA_DAGGER_STEPS=3000 "
-                                           "MIKASA_FINETUNE='--image-dim 128 --keypoints 64'"),
+    **{(task, "learned"): (CHECKPOINTS / "mikasa-multitask-camera", "make controller-multitask")
+       for task in MULTITASK_TASKS},
     ("RememberColor9-VLA-v0", "learned"): (CHECKPOINTS / "RememberColor9-VLA-v0-camera",
                                            "make controller-mikasa MIKASA_TASK=RememberColor9-VLA-v0 MIKASA_EPISODES=800 "
                                            "MIKASA_STEPS=3000 "
                                            "MIKASA_FINETUNE='--image-dim 128 --keypoints 64'"),
-    ("RememberShape3-VLA-v0", "learned"): (CHECKPOINTS / "RememberShape3-VLA-v0-camera",
-                                           "make controller-mikasa MIKASA_TASK=RememberShape3-VLA-v0 MIKASA_STEPS=2000 "
-                                           "MIKASA_DAGGER=150 MIKASA_DAGGER_STEPS=3000"),
-    ("TakeItBack-VLA-v0", "learned"): (CHECKPOINTS / "TakeItBack-VLA-v0-camera",
-                                       "make controller-mikasa MIKASA_TASK=TakeItBack-VLA-v0 MIKASA_EPISODES=300 "
-                                       "MIKASA_DAGGER=116 MIKASA_DAGGER_STEPS=3000"),
+    ("RememberColor3-VLA-v0", "learned-task"): (CHECKPOINTS / "RememberColor3-VLA-v0-camera",
+                                                "make controller-mikasa MIKASA_TASK=RememberColor3-VLA-v0"),
+    ("RememberColor5-VLA-v0", "learned-task"): (CHECKPOINTS / "RememberColor5-VLA-v0-camera",
+                                                "make controller-mikasa MIKASA_TASK=RememberColor5-VLA-v0 "
+                                                "MIKASA_STEPS=2000 MIKASA_DAGGER=150 MIKASA_DAGGER_STEPS=3000 "
+                                                "MIKASA_FINETUNE='--image-dim 128 --keypoints 64'"),
+    ("RememberShape3-VLA-v0", "learned-task"): (CHECKPOINTS / "RememberShape3-VLA-v0-camera",
+                                                "make controller-mikasa MIKASA_TASK=RememberShape3-VLA-v0 "
+                                                "MIKASA_STEPS=2000 MIKASA_DAGGER=150 MIKASA_DAGGER_STEPS=3000"),
+    ("TakeItBack-VLA-v0", "learned-task"): (CHECKPOINTS / "TakeItBack-VLA-v0-camera",
+                                            "make controller-mikasa MIKASA_TASK=TakeItBack-VLA-v0 MIKASA_EPISODES=300 "
+                                            "MIKASA_DAGGER=116 MIKASA_DAGGER_STEPS=3000"),
 }
 
 
@@ -50,4 +56,4 @@ def default_checkpoint(name: str = "learned", task: str = "drawer") -> Path:
     return folder
 
 
-__all__ = ["CHECKPOINTS", "SHIPPED", "default_checkpoint", "shipped_names"]
+__all__ = ["CHECKPOINTS", "MULTITASK_TASKS", "SHIPPED", "default_checkpoint", "shipped_names"]
