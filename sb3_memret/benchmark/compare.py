@@ -48,7 +48,7 @@ def load_results(run: Path) -> dict[str, Any]:
     """A run folder's results.json; a clear error when ``run`` is not a benchmark run folder."""
     path = Path(run) / RESULTS_FILE
     if not path.is_file():
-        raise FileNotFoundError(f"{run} holds no results.json: give a `sb3-memret benchmark mikasa --out` folder")
+        raise FileNotFoundError(f"{run} holds no {RESULTS_FILE}: give a `sb3-memret benchmark mikasa --out` folder")
     return json.loads(path.read_text())
 
 
