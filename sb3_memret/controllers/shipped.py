@@ -21,8 +21,9 @@ SHIPPED: dict[tuple[str, str], tuple[Path, str]] = {
        for task in MULTITASK_TASKS},
     ("RememberColor9-VLA-v0", "learned"): (CHECKPOINTS / "RememberColor9-VLA-v0-camera",
                                            "make controller-mikasa MIKASA_TASK=RememberColor9-VLA-v0 MIKASA_EPISODES=800 "
-                                           "MIKASA_STEPS=3000 "
-                                           "MIKASA_FINETUNE='--image-dim 128 --keypoints 64'"),
+                                           "MIKASA_STEPS=3000 MIKASA_DAGGER=200 MIKASA_DAGGER_STEPS=3000 "
+                                           "MIKASA_FINETUNE='--image-dim 128 --keypoints 64 --pointer "
+                                           "--pointer-hindsight 0.1'"),
     ("RememberColor3-VLA-v0", "learned-task"): (CHECKPOINTS / "RememberColor3-VLA-v0-camera",
                                                 "make controller-mikasa MIKASA_TASK=RememberColor3-VLA-v0"),
     ("RememberColor5-VLA-v0", "learned-task"): (CHECKPOINTS / "RememberColor5-VLA-v0-camera",
