@@ -135,7 +135,7 @@ SHIPPED_MULTITASK := sb3_memret/controllers/checkpoints/mikasa-multitask-camera
 controller-multitask: install renderer
 	scripts/record_task_demos.sh $(MULTITASK_RUN)/demos $(MULTITASK_EPISODES) $(subst $(comma), ,$(MULTITASK_TASKS))
 	for task in $(subst $(comma), ,$(MULTITASK_TASKS)); do \
-		own=$$($(PY) -c "from sb3_memret.controllers.shipped import SHIPPED; print('learned-task' * (('$$task', 'learned-task') in SHIPPED))") && \
+		own=$$($(PY) -c "from sb3_memret.controllers.shipped import SHIPPED; print('learned-task' if ('$$task', 'learned-task') in SHIPPED else '')") && \
 		LEARNER=$$own scripts/record_task_demos.sh $(MULTITASK_RUN)/demos \
 			$$(($(MULTITASK_EPISODES) + $(MULTITASK_ONPOLICY))) $$task || exit 1; \
 	done

@@ -143,7 +143,7 @@ def test_one_camera_controller_serves_the_multitask_tasks_and_each_keeps_its_own
     from sb3_memret.controllers.shipped import MULTITASK_TASKS, default_checkpoint
 
     shared = {default_checkpoint("learned", task) for task in MULTITASK_TASKS}
-    assert len(shared) == 1  # one checkpoint for all seven
+    assert len(shared) == 1  # one checkpoint for all of them
     (folder,) = shared
     config = make_controller("learned", MULTITASK_TASKS[0]).policy.config
     assert set(config.tasks) == set(MULTITASK_TASKS)
