@@ -19,14 +19,13 @@ from sb3_memret.tasks.mikasa.seq_of_colors import (  # noqa: E402
     INSTRUCTION,
     PROGRESS_PROMPT_TEMPLATE,
     SeqOfColorsTask,
-    SeqOfColorsWithProgress,
     SequenceWriter,
     sequence_expert,
     sequence_facts,
 )
 from sb3_memret.tasks.mikasa.sequence_expert import prompt_progress  # noqa: E402
 
-SPEC = "sb3_memret.tasks.mikasa.seq_of_colors:SeqOfColorsWithProgress"
+SPEC = "SeqOfColors3-VLA-v0"  # progress as memory: the registered task
 DEV_SEED = 5000  # cyan, maroon, olive (a development seed: the protocol's stay unseen)
 
 
@@ -99,7 +98,7 @@ def test_the_writer_writes_each_touch_and_the_press_once_from_what_it_saw():
 
 def test_progress_facts_are_worded_for_the_prompt_and_read_back_by_the_stateless_expert():
     task = make_task(SPEC)
-    assert task.prompt_template == PROGRESS_PROMPT_TEMPLATE and isinstance(task, SeqOfColorsWithProgress)
+    assert task.progress and task.prompt_template == PROGRESS_PROMPT_TEMPLATE
     from sb3_memret.memory.schema import linearize
 
     touched = linearize(MemoryType.TASK_PROGRESS, "red cube", "was", "touched", task.wordings)
@@ -158,7 +157,7 @@ def test_written_or_simulated_progress_lets_the_stateless_expert_finish_and_cue_
     the cue's facts alone it never leaves the first cube."""
     from sb3_memret.rollout import condition_schedule, play_task_episodes
 
-    task = SeqOfColorsWithProgress()
+    task = make_task(SPEC)
     monkeypatch.setattr(task, "max_control_steps", 88)
     done = ["the cyan cube was touched.", "the maroon cube was touched.", "the olive cube was touched.",
             "the button was pressed."]
@@ -179,7 +178,7 @@ def test_demonstrations_carry_the_progress_written_so_far_in_each_decisions_prom
     later ones add each touch in turn, so a controller finetuned on them learns to read its progress."""
     from sb3_memret.stage1.task_demos import TaskDemoEpisode, TaskRecorder
 
-    recorder = TaskRecorder(SeqOfColorsWithProgress(), "cpu", frames="decisions")
+    recorder = TaskRecorder(make_task(SPEC), "cpu", frames="decisions")
     try:
         recorded = recorder.record(TaskDemoEpisode(DEV_SEED, "matching"))
     finally:

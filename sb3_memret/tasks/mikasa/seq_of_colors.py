@@ -38,17 +38,17 @@ The writer sees every control step: it reads the cue's colour from the base came
 The controller sees ``SeqControllerObservation`` only (never ``oracle_info``), so the sequence reaches
 it only through its prompt.
 
-**Progress as memory** (``SeqOfColorsTask(progress=True)``, or ``SeqOfColorsWithProgress`` by name): nothing in
-sight changes when a cube is touched, so a controller that reads only the current frame and its prompt cannot tell
-which cubes it has touched. The writer then also writes what has been done, as TASK_PROGRESS facts: ``the red cube
-was touched.`` and ``the button was pressed.``. It reads where each cube stands from the base camera
-(``layout_perception.read_cube_layout``, each colour's first sighting in a frame that shows two or more cubes, so
-never the cue's: within 0.55 cm of the simulator's), and the TCP and joint speeds from the arm's own sensors: a
-touch is the arm static (every joint slower than 0.18 rad/s) with the TCP within 1.8 cm of the point 2.5 cm above
-a seen cube's centre (MIKASA: 2 cm, 0.2 rad/s); a press, the TCP within 3 cm of the button's axis and 2 cm over its
-cap (MIKASA: 6.5 and 2.5 cm), the button standing 4 cm from the seen cubes' mean toward the robot (MIKASA's
-placement). Its expert is the stateless ``SequenceTouchController(progress_from="prompt")``, which learns what it
-has done from those facts alone.
+**Progress as memory**: nothing in sight changes when a cube is touched, so a controller that reads only the current
+frame and its prompt cannot tell which cubes it has touched. The writer then also writes what has been done, as
+TASK_PROGRESS facts: ``the red cube was touched.`` and ``the button was pressed.``. It reads where each cube stands
+from the base camera (``layout_perception.read_cube_layout``, each colour's first sighting in a frame that shows two
+or more cubes, so never the cue's: within 0.55 cm of the simulator's), and the TCP and joint speeds from the arm's
+own sensors: a touch is the arm static (every joint slower than 0.18 rad/s) with the TCP within 1.8 cm of the point
+2.5 cm above a seen cube's centre (MIKASA: 2 cm, 0.2 rad/s); a press, the TCP within 3 cm of the button's axis and
+2 cm over its cap (MIKASA: 6.5 and 2.5 cm), the button standing 4 cm from the seen cubes' mean toward the robot
+(MIKASA's placement). Its expert is the stateless ``SequenceTouchController(progress_from="prompt")``, which learns
+what it has done from those facts alone. ``SeqOfColorsTask(env_id, progress=False)`` is the task without progress
+facts, whose expert keeps track of its own touches (state across calls).
 """
 
 from __future__ import annotations
@@ -209,7 +209,7 @@ class SeqOfColorsTask(MikasaCueTask):
     ends_at_success = True  # MIKASA masks success out of terminated; its success once is over by then
     success_reward = 1.0  # normalized_dense pays 400 / 400 at every step it reads success
 
-    def __init__(self, env_id: str = "SeqOfColors3-VLA-v0", progress: bool = False):
+    def __init__(self, env_id: str = "SeqOfColors3-VLA-v0", progress: bool = True):
         if env_id not in SEQ_TASKS:
             raise ValueError(f"unknown or unmeasured SeqOfColors task {env_id!r}; expected one of {sorted(SEQ_TASKS)}")
         super().__init__(env_id, N_COLOURS)
@@ -291,14 +291,6 @@ class SeqOfColorsTask(MikasaCueTask):
         return demo_layout.append_state(super().demo_frame(obs, with_images), obs["extra"]["button_position"])
 
 
-class SeqOfColorsWithProgress(SeqOfColorsTask):
-    """SeqOfColors3-VLA-v0 with progress as memory, by name (``sb3_memret.tasks.mikasa.seq_of_colors:
-    SeqOfColorsWithProgress``): the writer also writes what has been done, the expert reads it from its prompt."""
-
-    def __init__(self) -> None:
-        super().__init__("SeqOfColors3-VLA-v0", progress=True)
-
-
 __all__ = ["CUE_FACT", "EPISODE_STEPS", "INSTRUCTION", "PROGRESS_PROMPT_TEMPLATE", "PROGRESS_WORDINGS",
-           "PROMPT_TEMPLATE", "SEQ_TASKS", "SeqControllerObservation", "SeqOfColorsTask", "SeqOfColorsWithProgress",
+           "PROMPT_TEMPLATE", "SEQ_TASKS", "SeqControllerObservation", "SeqOfColorsTask",
            "SequenceWriter", "item_entity", "item_key", "sequence_expert", "sequence_facts", "sequence_prompt"]
