@@ -5,15 +5,16 @@
 # CPU an episode of every frame costs, and RememberColor3's controller as good: docs/notes.md); FRAMES=every keeps
 # every control step. One finetune takes chunks of one kind only.
 # A DAgger round: LEARNER=learned:PATH has that policy act while the expert labels every frame; give it seeds of its
-# own with SEED (chunk i starts at SEED + 50 i; default 100000, the expert's demonstrations).
-# Usage: [FRAMES=decisions|every] [LEARNER=learned:PATH] [SEED=N] scripts/record_task_demos.sh OUT EPISODES_PER_TASK TASK...
+# own with SEED (chunk i starts at SEED + 50 i; default 100000, the expert's demonstrations). MAX_STEPS=N ends each
+# episode after N control steps (demos --max-steps; default the task's own limit).
+# Usage: [FRAMES=decisions|every] [LEARNER=learned:PATH] [SEED=N] [MAX_STEPS=N] scripts/record_task_demos.sh OUT EPISODES_PER_TASK TASK...
 #   e.g. scripts/record_task_demos.sh runs/multitask 400 RememberColor3-VLA-v0 RememberShape3-VLA-v0
 #        LEARNER=learned:runs/multitask/policy SEED=100400 scripts/record_task_demos.sh runs/multitask-dagger 150 \
 #          RememberColor3-VLA-v0 RememberShape3-VLA-v0
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ $# -lt 3 ]; then
-  echo "usage: [FRAMES=decisions|every] [LEARNER=learned:PATH] [SEED=N] $0 OUT EPISODES_PER_TASK TASK..." >&2
+  echo "usage: [FRAMES=decisions|every] [LEARNER=learned:PATH] [SEED=N] [MAX_STEPS=N] $0 OUT EPISODES_PER_TASK TASK..." >&2
   exit 2
 fi
 out=$1 episodes=$2
@@ -21,6 +22,8 @@ shift 2
 chunk=50 first_seed=${SEED:-100000}
 learner=()
 [ -n "${LEARNER:-}" ] && learner=(--learner "$LEARNER")
+limit=()
+[ -n "${MAX_STEPS:-}" ] && limit=(--max-steps "$MAX_STEPS")
 # chunk i of every task before chunk i + 1 of any, so a recording stopped early leaves the tasks balanced
 for ((i = 0; i * chunk < episodes; i++)); do
   for task in "$@"; do
@@ -29,7 +32,7 @@ for ((i = 0; i * chunk < episodes; i++)); do
     [ -f "$dest.done" ] && continue
     rm -rf "$dest"
     .venv/bin/sb3-memret demos --task "$task" --episodes "$chunk" --seed $((first_seed + chunk * i)) \
-      --frames "${FRAMES:-decisions}" "${learner[@]}" --no-progress --out "$dest" > "$dest.log" 2>&1
+      --frames "${FRAMES:-decisions}" "${learner[@]}" "${limit[@]}" --no-progress --out "$dest" > "$dest.log" 2>&1
     touch "$dest.done"
   done
 done

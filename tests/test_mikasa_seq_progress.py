@@ -16,6 +16,7 @@ from sb3_memret.tasks import EnvFrame, make_task  # noqa: E402
 from sb3_memret.tasks.mikasa.layout_perception import read_cube_layout, table_points  # noqa: E402
 from sb3_memret.tasks.mikasa.perception import COLOUR_NAMES  # noqa: E402
 from sb3_memret.tasks.mikasa.seq_of_colors import (  # noqa: E402
+    EPISODE_STEPS,
     INSTRUCTION,
     PROGRESS_PROMPT_TEMPLATE,
     SeqOfColorsTask,
@@ -184,6 +185,7 @@ def test_demonstrations_carry_the_progress_written_so_far_in_each_decisions_prom
     finally:
         recorder.env.close()
     assert recorded.success and len(recorded.prompts) == len(recorded.frames) == len(recorded.frame_steps)
+    assert len(recorded.actions) < EPISODE_STEPS  # it ends at success, as the decision env's episodes do
     cue = " ".join(sequence_facts(("cyan", "maroon", "olive")))
     assert recorded.prompts[0] == recorded.prompt == f"{INSTRUCTION} {cue}"
     touched = [f"the {c} cube was touched." for c in ("cyan", "maroon", "olive")]

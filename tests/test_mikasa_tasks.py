@@ -209,6 +209,19 @@ def test_decision_frames_are_recorded_alike_with_the_cameras_paused_between_deci
             np.testing.assert_array_equal(kept[key], every[key])
 
 
+def test_max_steps_ends_a_recorded_episode_early_and_a_bad_one_is_refused():
+    from sb3_memret.stage1.task_demos import TaskDemoEpisode, TaskRecorder
+
+    with pytest.raises(ValueError, match="max_steps must be >= 1"):
+        TaskRecorder(make_task(TASK), "cpu", max_steps=0)
+    recorder = TaskRecorder(make_task(TASK), "cpu", frames="decisions", max_steps=10)
+    try:
+        recorded = recorder.record(TaskDemoEpisode(100_005, "bare"))
+    finally:
+        recorder.env.close()
+    assert len(recorded.actions) == 10 and list(recorded.frame_steps) == [0, 4, 8]  # MIKASA's own limit: 60
+
+
 def test_a_dagger_round_on_a_mikasa_task_follows_the_learner_with_the_experts_labels():
     from sb3_memret.stage1.task_demos import TaskDemoEpisode, TaskRecorder
     from sb3_memret.tasks.mikasa.demo_layout import state_names

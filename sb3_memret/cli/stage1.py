@@ -39,13 +39,16 @@ from sb3_memret.seeds import DEMO_SEED
               help="Keep every control step (pi05 finetuning reads chunks from consecutive frames) or only the "
                    "decision steps, each with its chunk of labels, rendering the cameras only there  "
                    "[default: decisions with a render backend, else every]")
+@click.option("--max-steps", type=click.IntRange(min=1), default=None,
+              help="Control steps an episode lasts at most (an expert whose prompt lacks a fact it needs may hold "
+                   "still to the end: a shorter limit spares those frames)  [default: the task's own]")
 @click.option("--image-size", type=click.IntRange(min=16, max=224), default=None,
               help="Store camera images resized to this square size  [default: 224 drawer, 128 MIKASA]")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
 @render_backend_option
 def demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fraction: float, learner: str | None,
           n_envs: int, objects: str, n_objects: int, replan_every: int | None, frames: str | None,
-          image_size: int | None, progress: bool, render_backend: str) -> None:
+          max_steps: int | None, image_size: int | None, progress: bool, render_backend: str) -> None:
     """Record the task's scripted expert as a LeRobotDataset (v3.0) for finetuning.
 
     \b
@@ -84,7 +87,7 @@ def demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fr
         if learner is not None:
             build_controller(click.get_current_context(), None, learner, task)
         _task_demos(task, episodes, out, seed, noise, noisy_fraction, n_envs, replan_every, progress,
-                    render_backend, frames, learner)
+                    render_backend, frames, learner, max_steps)
         return
     from sb3_memret.stage1.demos import plan_episodes, record_demos
     from sb3_memret.tasks.drawer import DrawerTask
@@ -102,12 +105,13 @@ def demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fr
 
         record_demos(out, planned, render_backend, learner, n_envs, replan_every=replan_every or DrawerTask.replan_every,
                      on_episode=on_episode, objects=objects, n_objects=n_objects, frames=frames,
-                     image_size=image_size or 224)
+                     image_size=image_size or 224, max_steps=max_steps)
     click.echo(f"{episodes} episodes ({wins} successful) written to {out}")
 
 
 def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fraction: float, n_envs: int,
-                replan_every: int | None, progress: bool, render_backend: str, frames: str, learner: str | None) -> None:
+                replan_every: int | None, progress: bool, render_backend: str, frames: str, learner: str | None,
+                max_steps: int | None) -> None:
     """``demos`` for a task other than the drawer, through the Task interface."""
     from tqdm import tqdm
 
@@ -123,7 +127,8 @@ def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, no
 
         try:
             record_task_demos(out, task, plan_task_episodes(episodes, seed, noise, noisy_fraction), render_backend,
-                              n_envs, replan_every, on_episode=on_episode, frames=frames, learner=learner)
+                              n_envs, replan_every, on_episode=on_episode, frames=frames, learner=learner,
+                              max_steps=max_steps)
         except (NotImplementedError, ValueError) as err:
             raise click.UsageError(str(err)) from err
     click.echo(f"{episodes} episodes ({wins} successful) written to {out}")

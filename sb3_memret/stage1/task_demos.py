@@ -83,8 +83,10 @@ class TaskRecorder:
     spec or instance) the learner acts and the expert labels."""
 
     def __init__(self, task: Task | str, render_backend: str, replan_every: int | None = None,
-                 frames: str = "every", learner: str | FrozenController | None = None):
+                 frames: str = "every", learner: str | FrozenController | None = None, max_steps: int | None = None):
         self.task = make_task(task)
+        if max_steps is not None and max_steps < 1:
+            raise ValueError(f"max_steps must be >= 1 (or None: the task's own limit), got {max_steps}")
         replan_every = replan_every or self.task.replan_every  # None: the task's clock
         self.decisions_only = check_frames(frames) == "decisions"
         self.with_images = check_render_backend(render_backend) != "none"
@@ -92,7 +94,8 @@ class TaskRecorder:
         if not 1 <= replan_every <= self.expert.spec.chunk_len:
             raise ValueError(f"replan_every must be in [1, {self.expert.spec.chunk_len}], got {replan_every}")
         self.task.demo_features(self.with_images)  # a task without a layout refuses before any env is made
-        self.env = self.task.make_env(**self.task.env_kwargs(self.with_images, render_backend))
+        self.env = self.task.make_env(**self.task.env_kwargs(self.with_images, render_backend),
+                                      **({"max_episode_steps": max_steps} if max_steps is not None else {}))
         self.expert.check_env(self.env)
         self.learner = make_controller(learner, self.task) if isinstance(learner, str) else learner
         if self.learner is not None:
@@ -147,7 +150,8 @@ class TaskRecorder:
                 if self.progress is not None and self.task.perceives_every_step:
                     percepts.append(self.task.perceive(self.env, obs))
                 success = success or bool(np.any(as_numpy(info["success"])))  # MIKASA counts success once
-                done = bool(np.any(as_numpy(terminated)) or np.any(as_numpy(truncated)))
+                done = bool(np.any(as_numpy(terminated)) or np.any(as_numpy(truncated))
+                            or (self.task.ends_at_success and success))  # as the decision env and the benchmark
                 if done:
                     break
             if self.progress is not None and not done:  # the writer reads the chunk's frame, as the decision env's
@@ -162,13 +166,13 @@ _recorder: TaskRecorder | None = None
 
 
 def _init_recorder(task: Task | str, render_backend: str, replan_every: int, frames: str = "every",
-                   learner: str | None = None, in_worker: bool = True) -> None:
+                   learner: str | None = None, max_steps: int | None = None, in_worker: bool = True) -> None:
     global _recorder
     if in_worker:
         from sb3_memret.parallel_rollout import init_pool_worker
 
         init_pool_worker()
-    _recorder = TaskRecorder(task, render_backend, replan_every, frames, learner)
+    _recorder = TaskRecorder(task, render_backend, replan_every, frames, learner, max_steps)
 
 
 def _record(episode: TaskDemoEpisode) -> TaskEpisodeFrames:
@@ -186,10 +190,12 @@ def record_task_demos(
     on_episode: Callable[[TaskEpisodeFrames], None] | None = None,
     frames: str = "every",
     learner: str | None = None,
+    max_steps: int | None = None,
 ) -> Path:
     """Record ``episodes`` of ``task``'s expert into a new LeRobotDataset at ``out`` and return its folder;
     ``frames`` (``every`` or ``decisions``) says which control steps it keeps; ``learner`` (a controller spec)
-    makes it a DAgger round, the learner acting and the expert labelling."""
+    makes it a DAgger round, the learner acting and the expert labelling; ``max_steps`` ends each episode after
+    that many control steps (None: the task's own limit)."""
     from sb3_memret.parallel_rollout import map_in_workers
 
     the_task = make_task(task)
@@ -215,8 +221,8 @@ def record_task_demos(
 
     global _recorder
     try:
-        map_in_workers(_init_recorder, (task, render_backend, replan_every, frames, learner), _record, list(episodes),
-                       n_workers, save)
+        map_in_workers(_init_recorder, (task, render_backend, replan_every, frames, learner, max_steps), _record,
+                       list(episodes), n_workers, save)
     finally:
         writer.close()
         if _recorder is not None:
