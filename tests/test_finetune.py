@@ -3,6 +3,8 @@ policy learns the expert's labels on a small budget, and the checkpoint loads as
 
 from __future__ import annotations
 
+import json
+
 import numpy as np
 import torch
 import pytest
@@ -88,6 +90,11 @@ def test_demos_finetune_rollout_through_the_cli(tmp_path):
     runner = CliRunner()
     result = runner.invoke(main, ["demos", "--episodes", "2", "--n-envs", "1", "--out", str(tmp_path / "d"), "--no-progress"])
     assert result.exit_code == 0 and "2 episodes" in result.output, result.output
+    result = runner.invoke(main, ["demos", "--episodes", "1", "--n-envs", "1", "--max-steps", "30", "--out",
+                                  str(tmp_path / "short"), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    (episode,) = map(json.loads, (tmp_path / "short" / "sb3_memret_episodes.jsonl").open())
+    assert episode["steps"] == 30 and not episode["success"]  # the expert needs more than 30 steps
     result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "c"), "--steps", "20",
                                   "--no-progress"])
     assert result.exit_code == 0 and f"--controller learned:{tmp_path / 'c'}" in result.output, result.output
