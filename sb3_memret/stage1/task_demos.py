@@ -95,7 +95,7 @@ class TaskRecorder:
             raise ValueError(f"replan_every must be in [1, {self.expert.spec.chunk_len}], got {replan_every}")
         self.task.demo_features(self.with_images)  # a task without a layout refuses before any env is made
         self.env = self.task.make_env(**self.task.env_kwargs(self.with_images, render_backend),
-                                      **({"max_episode_steps": max_steps} if max_steps is not None else {}))
+                                      max_episode_steps=max_steps)
         self.expert.check_env(self.env)
         self.learner = make_controller(learner, self.task) if isinstance(learner, str) else learner
         if self.learner is not None:
