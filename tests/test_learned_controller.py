@@ -275,8 +275,13 @@ def test_a_pointer_groups_the_perceived_entries_per_object_or_says_why_not():
     with pytest.raises(ValueError, match="'opening_1' is not"):
         LearnedPolicyConfig(**camera, state_names=PROPRIO_NAMES, state_dim=len(PROPRIO_NAMES),
                             perceived_names=STATE_NAMES[len(PROPRIO_NAMES):])  # the drawer's entries name no objects
-    with pytest.raises(ValueError, match="the same fields"):
-        LearnedPolicyConfig(**camera, perceived_names=CUBE_NAMES[:-1])  # lime has no visibility flag
+    unflagged = CUBE_NAMES[:-1]  # lime has no visibility flag, as TakeItBack's cube beside RememberColor3's: the
+    assert perceived_objects(unflagged)[1] == ("x", "y", "z")  # pointer hands the fields every object has
+    assert LearnedPolicyConfig(**camera, perceived_names=unflagged).pointer_fields == 3
+    with pytest.raises(ValueError, match=r"position \['x', 'y', 'z'\]; missing \{'cube_lime': \['z'\]\}"):
+        LearnedPolicyConfig(**camera, perceived_names=tuple(n for n in CUBE_NAMES if n != "cube_lime_z"))
+    with pytest.raises(ValueError, match="two or more perceived objects"):
+        perceived_objects(CUBE_NAMES[:3])
     with pytest.raises(ValueError, match="pointer needs perceived entries to point at"):
         LearnedPolicy(LearnedPolicyConfig(**camera))
 

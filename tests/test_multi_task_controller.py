@@ -3,6 +3,7 @@ frame's perception loss on its own task's entries, one checkpoint that serves ev
 
 from __future__ import annotations
 
+import json
 import subprocess
 from pathlib import Path
 
@@ -128,3 +129,21 @@ def test_the_finetune_script_refuses_a_root_that_lacks_a_task(datasets, tmp_path
     result = _finetune_script(f"{expert},{dagger}", tmp_path / "policy", f"{COLOUR},{SHAPE}", *SMALL)
     assert result.returncode == 2 and f"no finished chunks of {SHAPE} under {dagger}" in result.stderr
     assert not (tmp_path / "policy").exists()
+
+
+def test_a_pointer_across_tasks_points_with_the_fields_every_object_has(datasets, tmp_path):
+    back = "TakeItBack-VLA-v0"  # its cube has a position and no visibility flag, RememberColor3's cubes have both
+    demos = tmp_path / back
+    result = CliRunner().invoke(main, ["demos", "--task", back, "--episodes", "1", "--seed", "100013", "--n-envs", "1",
+                                       "--noisy-fraction", "0", "--out", str(demos), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    out = tmp_path / "ckpt"
+    result = CliRunner().invoke(main, ["finetune", str(datasets[COLOUR]), str(demos), "--tasks", f"{COLOUR},{back}",
+                                       "--pointer", "--pointer-hindsight", "0.1", "--out", str(out), "--steps", "5",
+                                       *SMALL])
+    assert result.exit_code == 0, result.output
+    config = make_controller(f"learned:{out}", back).policy.config
+    assert {"cube_red_visible", "cube_x"} <= set(config.perceived_names) and "cube_visible" not in config.perceived_names
+    assert config.pointer_fields == 3  # x, y, z: what TakeItBack's cube and RememberColor3's cubes all have
+    targets = json.loads((out / "pointer_targets.json").read_text())
+    assert {target for prompt, target in targets.items() if "started" in prompt} <= {"cube", None}

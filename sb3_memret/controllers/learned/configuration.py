@@ -13,6 +13,7 @@ from sb3_memret.prompts import PromptTemplate
 
 CONFIG_FILE = "config.json"
 POINTER_FIELDS = ("x", "y", "z", "visible")  # the entries of one perceived object, ``<object>_<field>``
+POSITION_FIELDS = POINTER_FIELDS[:3]  # what every object a pointer points at must have
 POLICY_TYPE = "sb3_memret_learned"
 
 
@@ -121,16 +122,22 @@ class LearnedPolicyConfig:
 
 
 def perceived_objects(names: tuple[str, ...]) -> tuple[tuple[str, ...], tuple[str, ...]]:
-    """(objects, fields) of perceived entries named ``<object>_<field>`` (fields from POINTER_FIELDS), each object
-    with the same fields: MIKASA's ``cube_red_x`` ... ``cube_teal_visible``. A ValueError names what does not fit."""
-    objects: dict[str, list[str]] = {}
+    """(objects, fields) of perceived entries named ``<object>_<field>`` (fields from POINTER_FIELDS): MIKASA's
+    ``cube_red_x`` ... ``cube_teal_visible``. The fields are those every object has, which must include its
+    position: a policy across tasks whose objects differ in a flag (TakeItBack's cube has no ``visible``) points
+    with the position alone. A ValueError names what does not fit."""
+    objects: dict[str, set[str]] = {}
     for name in names:
         obj, _, field_name = name.rpartition("_")
         if not obj or field_name not in POINTER_FIELDS:
             raise ValueError(f"pointer needs perceived entries named <object>_<field> with a field in "
                              f"{list(POINTER_FIELDS)}; {name!r} is not")
-        objects.setdefault(obj, []).append(field_name)
-    shapes = {tuple(fields_) for fields_ in objects.values()}
-    if len(objects) < 2 or len(shapes) != 1:
-        raise ValueError(f"pointer needs two or more perceived objects with the same fields; got {objects}")
-    return tuple(objects), shapes.pop()
+        objects.setdefault(obj, set()).add(field_name)
+    if len(objects) < 2:
+        raise ValueError(f"pointer needs two or more perceived objects; got {sorted(objects)}")
+    unplaced = {obj: sorted(set(POSITION_FIELDS) - have) for obj, have in objects.items() if
+                not set(POSITION_FIELDS) <= have}
+    if unplaced:
+        raise ValueError(f"pointer needs every perceived object's position {list(POSITION_FIELDS)}; missing {unplaced}")
+    common = set.intersection(*objects.values())
+    return tuple(objects), tuple(f for f in POINTER_FIELDS if f in common)
