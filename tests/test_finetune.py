@@ -232,6 +232,19 @@ def test_hindsight_points_each_prompt_at_the_object_its_episodes_hands_mostly_en
         hindsight_objects(demos, ("tcp_x", "tcp_y", "hand_z"), ("a", "b"))
 
 
+def test_hindsight_reads_where_the_hand_was_when_a_progress_fact_changed_the_prompt():
+    """One episode of a sequence: under prompt 0 the hand goes to a (then a fact is written), under prompt 1 to b.
+    Each prompt points at the object its own frames end at, not at the episode's last."""
+    names = ("tcp_x", "tcp_y", "tcp_z", "a_x", "a_y", "a_z", "b_x", "b_y", "b_z")
+    a, b = [0.0, 0.0, 0.0], [1.0, 0.0, 0.0]
+    hands = [[0.5, 0.0, 0.3], [0.1, 0.0, 0.0], [0.5, 0.0, 0.3], [0.9, 0.0, 0.0]]
+    states = np.array([hand + a + b for hand in hands], np.float32)
+    demos = Demonstrations(states=states, actions=np.zeros((4, 7), np.float32), episodes=np.zeros(4, int),
+                           task_ids=np.array([0, 0, 1, 1]), tasks=["p0", "p0 then a"], images={}, state_names=names)
+    assert demos.prompt_ends().tolist() == [1, 3] and demos.last_frames().tolist() == [3]
+    assert hindsight_objects(demos, names[:3], ("a", "b")).tolist() == [0, 1]
+
+
 def test_hindsight_never_points_at_an_object_the_episodes_task_lacks():
     """Two tasks merged: b exists only in the second, so the first's frames hold b at 0 (where its hand ends);
     its prompt still points at a, the nearest object it has."""

@@ -49,6 +49,13 @@ class Demonstrations:
         """The index of each episode's last frame (episodes are runs of equal ids in ``episodes``)."""
         return np.r_[np.flatnonzero(np.diff(self.episodes)), len(self.episodes) - 1]
 
+    def prompt_ends(self) -> np.ndarray:
+        """The index of the last frame of each run of one episode's frames under one prompt: each episode's last
+        frame, and for a task whose writer records progress (``the lime cube was touched.``) each frame before the
+        prompt changed."""
+        changed = (np.diff(self.episodes) != 0) | (np.diff(self.task_ids) != 0)
+        return np.r_[np.flatnonzero(changed), len(self.episodes) - 1]
+
     def chunk_indices(self, chunk_len: int) -> tuple[np.ndarray, np.ndarray]:
         """(N, chunk_len) frame indices of each frame's target chunk and the mask of steps past its episode."""
         last = self.last_frames()
@@ -199,14 +206,14 @@ def has_cameras(roots: Sequence[str | Path]) -> bool:
 def hindsight_objects(demos: Demonstrations, hand_names: Sequence[str], objects: Sequence[str],
                       frames: np.ndarray | None = None) -> np.ndarray:
     """(len(demos.tasks),) for each prompt the index in ``objects`` of the object its episodes' hands end nearest
-    (by the ``<object>_x/_y/_z`` and ``hand_names`` state entries at each episode's last frame; only episodes
-    whose last frame is in the boolean ``frames`` vote), or -1 where no object is nearest in more than half of
-    them: what the prompt was about, read from where the hand went. Exact for an expert's episodes; a DAgger
-    round's, where the learner drove, are outvoted when it erred."""
+    (by the ``<object>_x/_y/_z`` and ``hand_names`` state entries at the last frame under that prompt: an episode's
+    last, or the one before a progress fact changed it, ``prompt_ends``; only ends in the boolean ``frames`` vote),
+    or -1 where no object is nearest in more than half of them: what the prompt was about, read from where the hand
+    went. Exact for an expert's episodes; a DAgger round's, where the learner drove, are outvoted when it erred."""
     def columns(names: Sequence[str]) -> np.ndarray:
         return state_columns(demos.state_names, names, "the datasets' state (for pointer hindsight)")
 
-    last = demos.last_frames()
+    last = demos.prompt_ends()
     if frames is not None:
         last = last[frames[last]]
     hand = demos.states[last][:, columns(hand_names)]
