@@ -201,7 +201,8 @@ def finetune(
         cams = [f[index].float() / 255.0 if from_pixels else f[index] for f in features]
         if from_pixels and model.training:
             cams = [shift_augment(c, settings.image_shift, shifts) for c in cams]
-        prompt = model.encode_prompts(task_tokens, task_mask)[tid]
+        used, which = torch.unique(tid, return_inverse=True)  # only the batch's own prompts (a progress task
+        prompt = model.encode_prompts(task_tokens[used], task_mask[used])[which]  # has hundreds)
         vision = model.encode_cameras(cams, prompt)
         predicted = model.decode(states[index], prompt, vision)
         acting = chunk_loss(predicted, targets_t[index], is_pad_t[index])
