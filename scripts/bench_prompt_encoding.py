@@ -16,17 +16,14 @@ import torch
 
 from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig
 from sb3_memret.controllers.learned.modeling import LearnedPolicy
+from sb3_memret.stage1.finetune import batch_prompts
 
 
 def step_seconds(model: LearnedPolicy, tokens: torch.Tensor, mask: torch.Tensor, tid: torch.Tensor,
                  batch_only: bool) -> float:
     """Seconds of one forward and backward pass of the batch's prompt vectors."""
     started = time.perf_counter()
-    if batch_only:
-        used, which = torch.unique(tid, return_inverse=True)
-        prompt = model.encode_prompts(tokens[used], mask[used])[which]
-    else:
-        prompt = model.encode_prompts(tokens, mask)[tid]
+    prompt = batch_prompts(model, tokens, mask, tid) if batch_only else model.encode_prompts(tokens, mask)[tid]
     prompt.square().mean().backward()
     return time.perf_counter() - started
 

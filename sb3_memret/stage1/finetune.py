@@ -201,8 +201,7 @@ def finetune(
         cams = [f[index].float() / 255.0 if from_pixels else f[index] for f in features]
         if from_pixels and model.training:
             cams = [shift_augment(c, settings.image_shift, shifts) for c in cams]
-        used, which = torch.unique(tid, return_inverse=True)  # only the batch's own prompts (a progress task
-        prompt = model.encode_prompts(task_tokens[used], task_mask[used])[which]  # has hundreds)
+        prompt = batch_prompts(model, task_tokens, task_mask, tid)
         vision = model.encode_cameras(cams, prompt)
         predicted = model.decode(states[index], prompt, vision)
         acting = chunk_loss(predicted, targets_t[index], is_pad_t[index])
@@ -255,6 +254,13 @@ def finetune(
     model.eval()
     model.save_pretrained(out)
     return out
+
+
+def batch_prompts(model: LearnedPolicy, tokens: torch.Tensor, mask: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
+    """(B, text_dim) ``encode_prompts`` vectors of the prompts ``ids`` (indices into ``tokens``), encoding each
+    distinct one once: a progress task has hundreds of training prompts, a batch a fraction of them."""
+    used, which = torch.unique(ids, return_inverse=True)
+    return model.encode_prompts(tokens[used], mask[used])[which]
 
 
 def pointer_targets(model: LearnedPolicy, demos: Demonstrations, training: np.ndarray, tasks: Sequence[Task],
@@ -319,5 +325,5 @@ def read_log(out: str | Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
-__all__ = ["FinetuneSettings", "STATE_CHOICES", "finetune", "masked_mse", "masked_stats", "pointer_targets", "read_log",
+__all__ = ["FinetuneSettings", "STATE_CHOICES", "batch_prompts", "finetune", "masked_mse", "masked_stats", "pointer_targets", "read_log",
            "state_names_for", "tasks_template"]
