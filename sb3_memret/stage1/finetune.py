@@ -325,5 +325,5 @@ def read_log(out: str | Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
-__all__ = ["FinetuneSettings", "STATE_CHOICES", "batch_prompts", "finetune", "masked_mse", "masked_stats", "pointer_targets", "read_log",
-           "state_names_for", "tasks_template"]
+__all__ = ["FinetuneSettings", "STATE_CHOICES", "batch_prompts", "finetune", "masked_mse", "masked_stats",
+           "pointer_targets", "read_log", "state_names_for", "tasks_template"]
