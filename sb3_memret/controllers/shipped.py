@@ -6,8 +6,14 @@ from __future__ import annotations
 from pathlib import Path
 
 CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
+# every short-split task won by touching the object a fact names: the first seven, then twelve more
 MULTITASK_TASKS = ("RememberColor3-VLA-v0", "RememberShape3-VLA-v0", "RememberColor5-VLA-v0", "TakeItBack-VLA-v0",
-                   "RememberShape5-VLA-v0", "FindImposterColor3-VLA-v0", "RememberShapeAndColor3x2-VLA-v0")
+                   "RememberShape5-VLA-v0", "FindImposterColor3-VLA-v0", "RememberShapeAndColor3x2-VLA-v0",
+                   "RememberColor9-VLA-v0", "FindImposterShape3-VLA-v0", "RememberShapeAndColor3x3-VLA-v0",
+                   "FindImposterColor5-VLA-v0", "RememberShape9-VLA-v0", "FindImposterShapeAndColor3x2-VLA-v0",
+                   "RememberShapeAndColor5x3-VLA-v0", "FindImposterColor9-VLA-v0", "FindImposterShape5-VLA-v0",
+                   "FindImposterShapeAndColor3x3-VLA-v0", "FindImposterShape9-VLA-v0",
+                   "FindImposterShapeAndColor5x3-VLA-v0")
 # shipped checkpoints by (task, controller name): the folder, and the make command that rebuilds it. ``learned`` is
 # the camera-reading controller (cameras and what the robot reads of itself): on MULTITASK_TASKS one network across
 # all of them, the prompt telling them apart. ``learned-task`` is a MIKASA task's own camera controller, trained on
@@ -19,17 +25,17 @@ SHIPPED: dict[tuple[str, str], tuple[Path, str]] = {
     ("drawer", "learned-objects"): (CHECKPOINTS / "drawer-objects-learned", "make controller-objects"),  # state
     **{(task, "learned"): (CHECKPOINTS / "mikasa-multitask-camera", "make controller-multitask")
        for task in MULTITASK_TASKS},
-    ("RememberColor9-VLA-v0", "learned"): (CHECKPOINTS / "RememberColor9-VLA-v0-camera",
-                                           "make controller-mikasa MIKASA_TASK=RememberColor9-VLA-v0 MIKASA_EPISODES=800 "
-                                           "MIKASA_STEPS=3000 MIKASA_DAGGER=200 MIKASA_DAGGER_STEPS=3000 "
-                                           "MIKASA_FINETUNE='--image-dim 128 --keypoints 64 --pointer "
-                                           "--pointer-hindsight 0.1'"),
     ("RememberColor3-VLA-v0", "learned-task"): (CHECKPOINTS / "RememberColor3-VLA-v0-camera",
                                                 "make controller-mikasa MIKASA_TASK=RememberColor3-VLA-v0"),
     ("RememberColor5-VLA-v0", "learned-task"): (CHECKPOINTS / "RememberColor5-VLA-v0-camera",
                                                 "make controller-mikasa MIKASA_TASK=RememberColor5-VLA-v0 "
                                                 "MIKASA_STEPS=2000 MIKASA_DAGGER=150 MIKASA_DAGGER_STEPS=3000 "
                                                 "MIKASA_FINETUNE='--image-dim 128 --keypoints 64'"),
+    ("RememberColor9-VLA-v0", "learned-task"): (CHECKPOINTS / "RememberColor9-VLA-v0-camera",
+                                                "make controller-mikasa MIKASA_TASK=RememberColor9-VLA-v0 "
+                                                "MIKASA_EPISODES=800 MIKASA_STEPS=3000 MIKASA_DAGGER=200 "
+                                                "MIKASA_DAGGER_STEPS=3000 MIKASA_FINETUNE='--image-dim 128 "
+                                                "--keypoints 64 --pointer --pointer-hindsight 0.1'"),
     ("RememberShape3-VLA-v0", "learned-task"): (CHECKPOINTS / "RememberShape3-VLA-v0-camera",
                                                 "make controller-mikasa MIKASA_TASK=RememberShape3-VLA-v0 "
                                                 "MIKASA_STEPS=2000 MIKASA_DAGGER=150 MIKASA_DAGGER_STEPS=3000"),
