@@ -1,10 +1,12 @@
 """What encoding only a batch's own prompts saves in ``finetune``: one training step's prompt path (MiniLM token
 features through the policy's attention pooling, forward and backward) for a batch of frames, encoding every
 training prompt and indexing the batch's (the old way) against encoding the batch's distinct prompts, taking turns.
-SeqOfColors3's progress prompts are the case: 549 prompts of about 70 tokens. Prints milliseconds per step and the
-ratio.
+SeqOfColors3's progress prompts are the case: 549 prompts of about 70 tokens. ``--hindsight`` adds the pointer's
+hindsight term, which encodes the prompts again (every prompt with a target the old way, the batch's the new).
+Prints milliseconds per step and the ratio.
 
-Usage: ``python scripts/bench_prompt_encoding.py [--prompts 549] [--tokens 70] [--batch 256] [--steps 20]``
+Usage: ``python scripts/bench_prompt_encoding.py [--prompts 549] [--tokens 70] [--batch 256] [--steps 20]
+[--hindsight]``
 """
 
 from __future__ import annotations
@@ -20,11 +22,15 @@ from sb3_memret.stage1.finetune import batch_prompts
 
 
 def step_seconds(model: LearnedPolicy, tokens: torch.Tensor, mask: torch.Tensor, tid: torch.Tensor,
-                 batch_only: bool) -> float:
-    """Seconds of one forward and backward pass of the batch's prompt vectors."""
+                 batch_only: bool, hindsight: bool) -> float:
+    """Seconds of one forward and backward pass of the batch's prompt vectors (and of the hindsight term's)."""
     started = time.perf_counter()
     prompt = batch_prompts(model, tokens, mask, tid) if batch_only else model.encode_prompts(tokens, mask)[tid]
-    prompt.square().mean().backward()
+    loss = prompt.square().mean()
+    if hindsight:
+        used = torch.unique(tid) if batch_only else torch.arange(len(tokens))
+        loss = loss + model.encode_prompts(tokens[used], mask[used]).square().mean()
+    loss.backward()
     return time.perf_counter() - started
 
 
@@ -34,6 +40,7 @@ def main() -> None:
     parser.add_argument("--tokens", type=int, default=70)
     parser.add_argument("--batch", type=int, default=256)
     parser.add_argument("--steps", type=int, default=20)
+    parser.add_argument("--hindsight", action="store_true", help="add the pointer's hindsight term")
     args = parser.parse_args()
     model = LearnedPolicy(LearnedPolicyConfig(state_names=("x",), state_dim=1))
     generator = torch.Generator().manual_seed(0)
@@ -43,9 +50,10 @@ def main() -> None:
     for _ in range(args.steps):
         tid = torch.randint(0, args.prompts, (args.batch,), generator=generator)
         for batch_only in (False, True):
-            times[batch_only].append(step_seconds(model, tokens, mask, tid, batch_only))
+            times[batch_only].append(step_seconds(model, tokens, mask, tid, batch_only, args.hindsight))
     every, own = (1000 * sorted(times[k])[len(times[k]) // 2] for k in (False, True))
-    print(f"{args.prompts} prompts of {args.tokens} tokens, batch {args.batch}, {torch.get_num_threads()} threads")
+    print(f"{args.prompts} prompts of {args.tokens} tokens, batch {args.batch}, {torch.get_num_threads()} threads"
+          + (", with the hindsight term" if args.hindsight else ""))
     print(f"every prompt, then the batch's: {every:.1f} ms a step (median of {args.steps})")
     print(f"the batch's distinct prompts:   {own:.1f} ms a step ({every / own:.1f}x faster)")
 

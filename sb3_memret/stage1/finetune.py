@@ -221,12 +221,17 @@ def finetune(
     schedule = torch.optim.lr_scheduler.LambdaLR(
         optimizer, lambda step: 0.5 * (1 + math.cos(math.pi * min(step, settings.steps) / settings.steps)))
 
-    def hindsight_loss() -> torch.Tensor:
-        """Cross-entropy of the training prompts' pointer weights against ``hindsight_objects`` (0 without)."""
+    def hindsight_loss(idx: np.ndarray) -> torch.Tensor:
+        """Cross-entropy of the pointer weights of the prompts of frames ``idx`` that have a ``hindsight_objects``
+        target against it, each distinct prompt once (0 without a target): a progress task has hundreds of prompts."""
         if pointed is None:
             return states.new_zeros(())
-        pointing = model.pointer.weights(model.encode_prompts(task_tokens[hinted], task_mask[hinted]))
-        return F.nll_loss(torch.log(pointing.clamp_min(1e-8)), pointed[hinted])
+        used = torch.unique(task_ids[torch.from_numpy(idx)])
+        used = used[hinted[used]]
+        if len(used) == 0:
+            return states.new_zeros(())
+        pointing = model.pointer.weights(model.encode_prompts(task_tokens[used], task_mask[used]))
+        return F.nll_loss(torch.log(pointing.clamp_min(1e-8)), pointed[used])
 
     weights = torch.tensor([1.0, settings.perception_coef])
     log_every = max(1, settings.steps // 50)
@@ -238,7 +243,7 @@ def finetune(
         for step in range(1, settings.steps + 1):
             batch = rng.choice(train_idx, size=min(settings.batch_size, len(train_idx)), replace=False)
             losses = losses_on(batch)
-            loss = (weights * losses).sum() + settings.pointer_hindsight * hindsight_loss()
+            loss = (weights * losses).sum() + settings.pointer_hindsight * hindsight_loss(batch)
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
