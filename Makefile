@@ -122,10 +122,10 @@ controller-mikasa: install renderer
 # controller (`learned-task`) where one ships, the expert labelling; a first policy on them; a DAgger round of
 # $(MULTITASK_DAGGER) episodes of each task played by the first policy; the shipped policy on all of it. On an idle
 # 2-core CPU a chunk takes about 75 s and the finetunes 3.6-5 steps/s after the frozen trunk's features (kept for
-# later finetunes): about 6 hours in all. The shipped checkpoint was built in stages, seven tasks and then twelve
-# more, with the same final training on about as many episodes per task (docs/notes.md lists each task's data).
+# later finetunes): about 5 hours in all. The shipped checkpoint was built in stages, seven tasks and then twelve
+# more, with the same final training on 450-600 episodes a task (docs/notes.md lists each task's data).
 MULTITASK_TASKS ?= RememberColor3-VLA-v0,RememberShape3-VLA-v0,RememberColor5-VLA-v0,TakeItBack-VLA-v0,RememberShape5-VLA-v0,FindImposterColor3-VLA-v0,RememberShapeAndColor3x2-VLA-v0,RememberColor9-VLA-v0,FindImposterShape3-VLA-v0,RememberShapeAndColor3x3-VLA-v0,FindImposterColor5-VLA-v0,RememberShape9-VLA-v0,FindImposterShapeAndColor3x2-VLA-v0,RememberShapeAndColor5x3-VLA-v0,FindImposterColor9-VLA-v0,FindImposterShape5-VLA-v0,FindImposterShapeAndColor3x3-VLA-v0,FindImposterShape9-VLA-v0,FindImposterShapeAndColor5x3-VLA-v0
-MULTITASK_EPISODES ?= 300
+MULTITASK_EPISODES ?= 200
 MULTITASK_ONPOLICY ?= 100
 MULTITASK_STEPS ?= 5000
 MULTITASK_FINETUNE ?= --image-dim 128 --keypoints 64 --pointer --pointer-hindsight 0.1
