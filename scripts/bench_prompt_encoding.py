@@ -2,7 +2,7 @@
 features through the policy's attention pooling, forward and backward) for a batch of frames, encoding every
 training prompt and indexing the batch's (the old way) against encoding the batch's distinct prompts, taking turns.
 SeqOfColors3's progress prompts are the case: 549 prompts of about 70 tokens. ``--hindsight`` adds the pointer's
-hindsight term, which encodes the prompts again (every prompt with a target the old way, the batch's the new).
+hindsight term: the old way encoded every prompt with a target again, the new one reuses the batch's vectors.
 Prints milliseconds per step and the ratio.
 
 Usage: ``python scripts/bench_prompt_encoding.py [--prompts 549] [--tokens 70] [--batch 256] [--steps 20]
@@ -25,11 +25,13 @@ def step_seconds(model: LearnedPolicy, tokens: torch.Tensor, mask: torch.Tensor,
                  batch_only: bool, hindsight: bool) -> float:
     """Seconds of one forward and backward pass of the batch's prompt vectors (and of the hindsight term's)."""
     started = time.perf_counter()
-    prompt = batch_prompts(model, tokens, mask, tid) if batch_only else model.encode_prompts(tokens, mask)[tid]
-    loss = prompt.square().mean()
-    if hindsight:
-        used = torch.unique(tid) if batch_only else torch.arange(len(tokens))
-        loss = loss + model.encode_prompts(tokens[used], mask[used]).square().mean()
+    if batch_only:  # finetune's way: the batch's distinct prompts, once for both terms
+        _, encoded, which = batch_prompts(model, tokens, mask, tid)
+        loss = encoded[which].square().mean() + (encoded.square().mean() if hindsight else 0.0)
+    else:  # every prompt, and every prompt again for the hindsight term
+        loss = model.encode_prompts(tokens, mask)[tid].square().mean()
+        if hindsight:
+            loss = loss + model.encode_prompts(tokens, mask).square().mean()
     loss.backward()
     return time.perf_counter() - started
 

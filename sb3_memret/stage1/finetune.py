@@ -194,20 +194,30 @@ def finetune(
     labels = (torch.from_numpy(hidden) - model.perceived_mean) / model.perceived_std if perceived else None
     label_mask = torch.from_numpy(labelled)
 
+    def hindsight_loss(used: torch.Tensor, encoded: torch.Tensor) -> torch.Tensor:
+        """Cross-entropy of the pointer weights of the distinct prompts ``used`` (their ``encoded`` vectors) that have
+        a ``hindsight_objects`` target against it, each prompt once (0 without a target)."""
+        if pointed is None or not hinted[used].any():
+            return encoded.new_zeros(())
+        has = hinted[used]
+        pointing = model.pointer.weights(encoded[has])
+        return F.nll_loss(torch.log(pointing.clamp_min(1e-8)), pointed[used[has]])
+
     def losses_on(idx: np.ndarray) -> torch.Tensor:
-        """(action chunk L1, perception MSE) on frames ``idx``; the perception term is 0 without perceived entries."""
+        """(action chunk L1, perception MSE, pointer hindsight) on frames ``idx``; the perception term is 0 without
+        perceived entries, the hindsight term without hindsight targets."""
         index = torch.from_numpy(idx)
-        tid = task_ids[index]
         cams = [f[index].float() / 255.0 if from_pixels else f[index] for f in features]
         if from_pixels and model.training:
             cams = [shift_augment(c, settings.image_shift, shifts) for c in cams]
-        prompt = batch_prompts(model, task_tokens, task_mask, tid)
+        used, encoded, which = batch_prompts(model, task_tokens, task_mask, task_ids[index])
+        prompt = encoded[which]
         vision = model.encode_cameras(cams, prompt)
         predicted = model.decode(states[index], prompt, vision)
         acting = chunk_loss(predicted, targets_t[index], is_pad_t[index])
         seen = (masked_mse(model.perceive(vision), labels[index], label_mask[index]) if perceived
                 else acting.new_zeros(()))
-        return torch.stack([acting, seen])
+        return torch.stack([acting, seen, hindsight_loss(used, encoded)])
 
     def ambiguity() -> str:
         """The pointer's ``pointer_ambiguity`` over the training prompts, for the log ('' without a pointer)."""
@@ -221,19 +231,7 @@ def finetune(
     schedule = torch.optim.lr_scheduler.LambdaLR(
         optimizer, lambda step: 0.5 * (1 + math.cos(math.pi * min(step, settings.steps) / settings.steps)))
 
-    def hindsight_loss(idx: np.ndarray) -> torch.Tensor:
-        """Cross-entropy of the pointer weights of the prompts of frames ``idx`` that have a ``hindsight_objects``
-        target against it, each distinct prompt once (0 without a target): a progress task has hundreds of prompts."""
-        if pointed is None:
-            return states.new_zeros(())
-        used = torch.unique(task_ids[torch.from_numpy(idx)])
-        used = used[hinted[used]]
-        if len(used) == 0:
-            return states.new_zeros(())
-        pointing = model.pointer.weights(model.encode_prompts(task_tokens[used], task_mask[used]))
-        return F.nll_loss(torch.log(pointing.clamp_min(1e-8)), pointed[used])
-
-    weights = torch.tensor([1.0, settings.perception_coef])
+    weights = torch.tensor([1.0, settings.perception_coef, settings.pointer_hindsight])
     log_every = max(1, settings.steps // 50)
     started = time.monotonic()
     with open(out / LOG_FILE, "w", newline="") as f:
@@ -243,7 +241,7 @@ def finetune(
         for step in range(1, settings.steps + 1):
             batch = rng.choice(train_idx, size=min(settings.batch_size, len(train_idx)), replace=False)
             losses = losses_on(batch)
-            loss = (weights * losses).sum() + settings.pointer_hindsight * hindsight_loss(batch)
+            loss = (weights * losses).sum()
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
             optimizer.step()
@@ -261,11 +259,13 @@ def finetune(
     return out
 
 
-def batch_prompts(model: LearnedPolicy, tokens: torch.Tensor, mask: torch.Tensor, ids: torch.Tensor) -> torch.Tensor:
-    """(B, text_dim) ``encode_prompts`` vectors of the prompts ``ids`` (indices into ``tokens``), encoding each
-    distinct one once: a progress task has hundreds of training prompts, a batch a fraction of them."""
+def batch_prompts(model: LearnedPolicy, tokens: torch.Tensor, mask: torch.Tensor,
+                  ids: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """The distinct prompts among ``ids`` (indices into ``tokens``), their (P, text_dim) ``encode_prompts`` vectors,
+    and each id's row among them (``encoded[which]`` is the batch's): each prompt encoded once, for the action and
+    hindsight terms alike, since a progress task has hundreds of training prompts and a batch a fraction of them."""
     used, which = torch.unique(ids, return_inverse=True)
-    return model.encode_prompts(tokens[used], mask[used])[which]
+    return used, model.encode_prompts(tokens[used], mask[used]), which
 
 
 def pointer_targets(model: LearnedPolicy, demos: Demonstrations, training: np.ndarray, tasks: Sequence[Task],
