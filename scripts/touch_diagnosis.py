@@ -2,7 +2,7 @@
 one it had to touch, and how far its perception put that cube.
 
 Plays a controller with the oracle prompt at a RememberColor / RememberShape task's protocol seeds (as ``rollout``
-does) and, at every control step once the candidates are in sight, reads the hand's position and each candidate's
+does; ``--seeds dev`` for the development seeds, where choices are made) and, at every control step once the candidates are in sight, reads the hand's position and each candidate's
 (the task's detector, privileged here: for the diagnosis only). For a camera-reading learned controller it also
 reads, at each decision, its perception head's estimate of the target's xy. Prints one line per episode and the
 failures grouped: "went to another cube" (the hand ended nearest another candidate), "short of the target" (nearest
@@ -49,6 +49,8 @@ def main() -> None:
     parser.add_argument("--controller", default="learned")
     parser.add_argument("--episodes", type=int, default=50)
     parser.add_argument("--replan-every", type=int, default=4)
+    parser.add_argument("--seeds", choices=["protocol", "dev"], default="protocol",
+                        help="the task's evaluation seeds, or its development seeds")
     args = parser.parse_args()
 
     task = make_task(args.task)
@@ -61,7 +63,8 @@ def main() -> None:
     print("| seed | target | success | nearest at the end | closest to target (cm) | perception error at decisions (cm) |")
     print("|---|---|---|---|---|---|")
     try:
-        for seed in task.evaluation_seeds(args.episodes):
+        seeds = task.evaluation_seeds if args.seeds == "protocol" else task.development_seeds
+        for seed in seeds(args.episodes):
             frame = runner.reset(seed, {})
             episode = task.episode(frame)
             target = words.index(episode.group)

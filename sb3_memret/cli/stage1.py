@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from sb3_memret.cli.options import DEFAULT_TASK, build_controller, render_backend_option, task_option
+from sb3_memret.cli.options import DEFAULT_TASK, ConvList, build_controller, render_backend_option, task_option
 from sb3_memret.tasks.drawer.cabinet import LAYERS
 from sb3_memret.tasks.drawer.objects import OBJECT_SETS
 from sb3_memret.seeds import DEMO_SEED
@@ -167,6 +167,9 @@ def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, no
 @click.option("--keypoints", type=click.IntRange(min=1), default=32, show_default=True,
               help="learned: per camera, the feature maps whose expected image coordinates its head reads (more for "
                    "scenes with more objects to locate).")
+@click.option("--image-head", type=ConvList(), default="32x3", show_default=True,
+              help="learned, efficientnet_lite0: the convs each camera head runs on the trunk's maps before its "
+                   "keypoints, CHANNELSxKERNEL comma-separated (e.g. 64x3,64x1 to tell apart more objects alike).")
 @click.option("--image-colour/--no-image-colour", default=False, show_default=True,
               help="learned, efficientnet_lite0: the camera heads also read the image's colour on the trunk's grid "
                    "(for objects told apart by hue alone).")
@@ -186,8 +189,8 @@ def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, no
 def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | None, batch_size: int | None,
              learning_rate: float | None, seed: int, pretrained: Path | None, tokenizer: Path | None, lora_rank: int,
              device: str, task: str, dataset_tasks: str | None, state: str | None, image_encoder: str,
-             image_dim: int, keypoints: int, image_colour: bool, image_film: bool, pointer: bool,
-             pointer_hindsight: float, cache_features: bool, progress: bool) -> None:
+             image_dim: int, keypoints: int, image_head: tuple[tuple[int, int], ...], image_colour: bool,
+             image_film: bool, pointer: bool, pointer_hindsight: float, cache_features: bool, progress: bool) -> None:
     """Train a frozen controller from DATASETS (LeRobotDatasets written by `sb3-memret demos`).
 
     The learned policy reads the prompt as frozen MiniLM per-token features, the state (and the
@@ -216,6 +219,7 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
     if pretrained is not None or tokenizer is not None:
         raise click.BadParameter("--pretrained and --tokenizer apply to --policy pi05 only", param_hint="--policy")
     from sb3_memret.controllers.learned import LearnedPolicyConfig
+    from sb3_memret.controllers.learned.vision import TRUNK_HEAD
     from sb3_memret.stage1.datasets import has_cameras
     from sb3_memret.stage1.finetune import FinetuneSettings, tasks_template
     from sb3_memret.stage1.finetune import finetune as train_policy
@@ -233,10 +237,16 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
     if len(set(chunk_lens.values())) > 1:
         raise click.BadParameter(f"the tasks' experts act in chunks of different lengths {chunk_lens}; one policy "
                                  "predicts one chunk length", param_hint="--tasks")
-    config = LearnedPolicyConfig(instructions=template.instructions, fact_templates=template.fact_templates,
-                                 image_encoder=image_encoder, image_dim=image_dim, keypoints=keypoints,
-                                 image_colour=image_colour, image_film=image_film, pointer=pointer,
-                                 chunk_len=chunk_lens[tasks[0].name])
+    if image_encoder == "cnn" and image_head != TRUNK_HEAD:
+        raise click.BadParameter(f"--image-head shapes a frozen trunk's camera heads; --image-encoder cnn has convs "
+                                 "of its own", param_hint="--image-head")
+    try:
+        config = LearnedPolicyConfig(instructions=template.instructions, fact_templates=template.fact_templates,
+                                     image_encoder=image_encoder, image_dim=image_dim, keypoints=keypoints,
+                                     image_head=image_head, image_colour=image_colour, image_film=image_film,
+                                     pointer=pointer, chunk_len=chunk_lens[tasks[0].name])
+    except ValueError as err:
+        raise click.BadParameter(str(err)) from err
     try:
         state = state or ("proprio" if has_cameras(datasets) else "full")
     except (FileNotFoundError, ValueError) as err:

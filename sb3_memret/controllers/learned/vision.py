@@ -32,6 +32,7 @@ from sb3_memret.errors import WeightsNotLoadedError
 IMAGE_ENCODERS = ("cnn", "efficientnet_lite0")
 EFFICIENTNET_BLOCKS = 5  # blocks kept: stride 8, 40 channels (16x16 maps at 128x128: a cube is a few cells wide)
 KEYPOINTS = 32  # feature maps whose expected coordinates a head reads, by default (config.keypoints)
+TRUNK_HEAD = ((32, 3),)  # (channels, kernel) of each conv a trunk's head runs before its keypoint maps, by default
 
 
 class SpatialSoftmax(nn.Module):
@@ -163,22 +164,38 @@ class ColourTrunk(FrozenModule):
         return torch.cat([features, F.adaptive_avg_pool2d(images, features.shape[-2:]).to(features.dtype)], dim=1)
 
 
+def check_trunk_head(convs: tuple[tuple[int, int], ...]) -> None:
+    """Refuse a trunk head's convs that ``CameraHead`` cannot build, naming what would be accepted."""
+    if not convs or any(len(conv) != 2 or conv[0] < 1 or conv[0] % 8 or conv[1] < 1 or conv[1] % 2 == 0
+                        for conv in convs):
+        raise ValueError(f"image_head {[list(conv) for conv in convs]}: expected one or more (channels, kernel) convs "
+                         "with channels a multiple of 8 (the heads' group norm has 8 groups) and an odd kernel, "
+                         "e.g. [[32, 3]] or [[64, 3], [64, 1]]")
+
+
 def make_camera_encoder(kind: str, image_dim: int, trunk_sha256: str | None = None, keypoints: int = KEYPOINTS,
-                        colour: bool = False, film_dim: int = 0) -> tuple[nn.Module | None, CameraHead]:
+                        colour: bool = False, film_dim: int = 0,
+                        trunk_head: tuple[tuple[int, int], ...] = TRUNK_HEAD) -> tuple[nn.Module | None, CameraHead]:
     """(frozen trunk or None, trainable head) of one image encoder kind; the head reads ``keypoints`` maps, with
     ``colour`` a trunk's maps carry the image's colour too (a CNN from pixels reads colour already), and with
-    ``film_dim`` the head is conditioned on prompt vectors of that size."""
+    ``film_dim`` the head is conditioned on prompt vectors of that size. A trunk's head runs the ``trunk_head``
+    convs, (channels, odd kernel) each at stride 1, before its keypoint maps."""
     if kind == "cnn":
         if colour:
             raise ValueError("image_colour needs a frozen trunk (image_encoder 'efficientnet_lite0'): the 'cnn' "
                              "encoder reads the pixels themselves")
+        if tuple(map(tuple, trunk_head)) != TRUNK_HEAD:
+            raise ValueError(f"image_head {list(trunk_head)} shapes a frozen trunk's head (image_encoder "
+                             "'efficientnet_lite0'); the 'cnn' encoder's convs are its own")
         return None, CameraHead(3, image_dim, ((32, 5, 2), (64, 3, 2), (64, 3, 2), (64, 3, 1)), keypoints,
                                 film_dim)
     if kind == "efficientnet_lite0":
         trunk: FrozenModule = EfficientNetLite0Trunk(trunk_sha256)
         if colour:
             trunk = ColourTrunk(trunk)
-        return trunk, CameraHead(trunk.out_channels, image_dim, ((32, 3, 1),), keypoints, film_dim)
+        check_trunk_head(trunk_head)
+        convs = tuple((channels, kernel, 1) for channels, kernel in trunk_head)
+        return trunk, CameraHead(trunk.out_channels, image_dim, convs, keypoints, film_dim)
     raise ValueError(f"unknown image encoder {kind!r}; expected one of {list(IMAGE_ENCODERS)}")
 
 
@@ -198,4 +215,4 @@ def shift_augment(images: torch.Tensor, pad: int, generator: torch.Generator | N
 
 
 __all__ = ["CameraHead", "ColourTrunk", "EfficientNetLite0Trunk", "FrozenModule", "IMAGE_ENCODERS", "SpatialSoftmax",
-           "make_camera_encoder", "shift_augment"]
+           "TRUNK_HEAD", "check_trunk_head", "make_camera_encoder", "shift_augment"]
