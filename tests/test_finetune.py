@@ -105,6 +105,13 @@ def test_demos_finetune_rollout_through_the_cli(tmp_path):
     assert result.exit_code == 2 and "already exists" in result.output
     result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "p"), "--policy", "pi05"])
     assert result.exit_code == 2 and "--policy pi05 needs --pretrained" in result.output
+    for head, message in (("64", "expected CHANNELSxKERNEL convs"), ("60x3", "channels a multiple of 8")):
+        result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "h"), "--image-head",
+                                      head])
+        assert result.exit_code == 2 and message in result.output and not (tmp_path / "h").exists(), result.output
+    result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "h"), "--image-encoder",
+                                  "cnn", "--image-head", "64x3"])
+    assert result.exit_code == 2 and "--image-encoder cnn has convs of its own" in result.output, result.output
 
 
 @pytest.fixture(scope="module")

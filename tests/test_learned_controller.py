@@ -248,6 +248,28 @@ def test_a_frozen_trunk_stays_out_of_the_checkpoint_and_is_checked(tmp_path):
         LearnedPolicyConfig(**SMALL, keypoints=0)
 
 
+def test_a_deeper_trunk_head_round_trips_and_older_configs_keep_theirs(tmp_path):
+    policy = LearnedPolicy(LearnedPolicyConfig(**SMALL, image_features=tuple(IMAGE_KEYS), image_size=32,
+                                               image_encoder="efficientnet_lite0", image_dim=24, keypoints=8,
+                                               image_head=((16, 3), (16, 1))))
+    policy.save_pretrained(tmp_path)
+    config = json.loads((tmp_path / "config.json").read_text())
+    assert config["image_head"] == [[16, 3], [16, 1]]
+    loaded = LearnedPolicy.from_pretrained(tmp_path)
+    assert loaded.config.image_head == ((16, 3), (16, 1))
+    images = [torch.rand(2, 3, 32, 32) for _ in IMAGE_KEYS]
+    state, prompt = torch.randn(2, STATE_DIM), torch.randn(2, SMALL["text_dim"])
+    with torch.no_grad():
+        np.testing.assert_array_equal(policy.eval()(state, prompt, policy.camera_features(images)),
+                                      loaded(state, prompt, loaded.camera_features(images)))
+    (tmp_path / "config.json").write_text(json.dumps({k: v for k, v in config.items() if k != "image_head"}))
+    with pytest.raises(WeightsNotLoadedError, match="does not fit its config"):  # a checkpoint from before the key
+        LearnedPolicy.from_pretrained(tmp_path)  # reads as the one-conv head, which these weights are not
+    (tmp_path / "config.json").write_text(json.dumps({**config, "image_head": [[20, 3]]}))
+    with pytest.raises(ValueError, match=r"image_head \[\[20, 3\]\]"):
+        LearnedPolicy.from_pretrained(tmp_path)
+
+
 def test_images_are_resized_on_the_controllers_device_as_the_demonstrations_were():
     """``image_tensor`` resizes uint8 frames where the policy runs, to exactly the values the stored
     demonstration frames (``resize_images``, uint8) give; a frame already at size passes unchanged."""

@@ -35,6 +35,22 @@ def test_heads_map_images_or_features_to_vectors():
     assert features.shape == (3, 40, 16, 16) and head(features).shape == (3, 24)
     _, wide = make_camera_encoder("efficientnet_lite0", 24, keypoints=48)  # more objects to locate: more keypoints
     assert wide.net[-1].out_channels == 48 and wide(features).shape == (3, 24)
+    _, deep = make_camera_encoder("efficientnet_lite0", 24, trunk_head=((16, 3), (24, 1)))  # two convs, then keypoints
+    convs = [layer for layer in deep.net if isinstance(layer, torch.nn.Conv2d)]
+    assert [(c.in_channels, c.out_channels, c.kernel_size) for c in convs] == [(40, 16, (3, 3)), (16, 24, (1, 1)),
+                                                                                (24, 32, (1, 1))]
+    assert deep(features).shape == (3, 24)
+
+
+@pytest.mark.parametrize("convs", [(), ((12, 3),), ((16, 2),), ((0, 3),)])
+def test_a_trunk_head_it_cannot_build_is_refused(convs):
+    with pytest.raises(ValueError, match="channels a multiple of 8 .* and an odd kernel"):
+        make_camera_encoder("efficientnet_lite0", 24, trunk_head=convs)
+
+
+def test_the_cnn_encoder_keeps_its_own_convs():
+    with pytest.raises(ValueError, match="the 'cnn' encoder's convs are its own"):
+        make_camera_encoder("cnn", 24, trunk_head=((64, 3),))
 
 
 def test_the_pretrained_trunk_is_frozen():
