@@ -1,8 +1,9 @@
 """How far off are a camera controller's perception estimates? Per perceived entry, on demonstration frames.
 
 Runs a trained camera-reading learned controller's perception head on the validation episodes its finetune held
-out (the split rebuilt from ``--seed`` and ``--validation-fraction``, finetune's defaults) of the dataset it was
-trained on, and prints, per perceived entry, the normalised MSE and the median absolute error in the state's
+out (the split rebuilt from ``--seed`` and ``--validation-fraction``, finetune's defaults) of the datasets it was
+trained on (``--split training``: on its training episodes instead, to tell overfitting from what the cameras cannot
+tell), and prints, per task, the normalised MSE over the task's own entries; then, per perceived entry, the normalised MSE and the median absolute error in the state's
 units; for entries named ``<object>_x`` / ``_y`` with a ``<object>_visible`` flag (MIKASA's cubes), also the
 median xy error over the frames where the object is in sight. For a policy with a pointer (``finetune --pointer``),
 also the object each of its training prompts points at, and how sharply: a pointer that learned nothing spreads its
@@ -10,6 +11,8 @@ weight.
 
     python scripts/perception_error.py sb3_memret/controllers/checkpoints/RememberColor9-VLA-v0-camera \\
         runs/stage1-RememberColor9-VLA-v0/demos --task RememberColor9-VLA-v0
+
+A multi-task controller reads its datasets as ``finetune --tasks`` does (each DATASET's task, in order).
 """
 
 from __future__ import annotations
@@ -23,15 +26,19 @@ from sb3_memret.controllers.learned import LearnedPolicy
 from sb3_memret.controllers.learned.configuration import perceived_objects
 from sb3_memret.controllers.learned.modeling import pointer_ambiguity
 from sb3_memret.controllers.learned.processing import PromptTokenizer
-from sb3_memret.stage1.datasets import load_demonstrations, validation_episodes
+from sb3_memret.stage1.datasets import load_demonstrations, load_task_demonstrations, validation_episodes
 from sb3_memret.stage1.finetune import FinetuneSettings, camera_inputs
+from sb3_memret.tasks import make_task
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("checkpoint")
-    parser.add_argument("dataset")
+    parser.add_argument("datasets", nargs="+")
     parser.add_argument("--task", default="drawer")
+    parser.add_argument("--tasks", default=None, help="each DATASET's task, a comma list in their order")
+    parser.add_argument("--split", choices=["validation", "training"], default="validation",
+                        help="the finetune's held-out episodes, or its training ones")
     parser.add_argument("--seed", type=int, default=FinetuneSettings.seed, help="the finetune's --seed")
     parser.add_argument("--validation-fraction", type=float, default=FinetuneSettings.validation_fraction)
     parser.add_argument("--frames", type=int, default=1500, help="validation frames drawn at most")
@@ -41,14 +48,24 @@ def main() -> None:
     names = policy.config.perceived_names
     if not names:
         raise SystemExit(f"{args.checkpoint} estimates nothing: its config has no perceived_names")
-    demos = load_demonstrations([args.dataset], args.task)
+    if args.tasks is None:
+        demos, tasks = load_demonstrations(args.datasets, args.task), None
+    else:
+        task_names = args.tasks.split(",")
+        if len(task_names) != len(args.datasets):
+            raise SystemExit(f"{len(task_names)} tasks for {len(args.datasets)} datasets: name each DATASET's task")
+        by_task: dict[str, list[str]] = {}
+        for task_name, root in zip(task_names, args.datasets):
+            by_task.setdefault(task_name, []).append(root)
+        demos, tasks = load_task_demonstrations(by_task)
     missing = sorted(set(names) - set(demos.state_names))
     if missing:
         raise SystemExit(f"the dataset's state has no entries {missing}: record it for task {policy.config.task!r}")
     rng = np.random.default_rng(args.seed)
-    held = np.flatnonzero(np.isin(demos.episodes, validation_episodes(demos.episodes, args.validation_fraction, rng)))
+    is_val = np.isin(demos.episodes, validation_episodes(demos.episodes, args.validation_fraction, rng))
+    held = np.flatnonzero(is_val if args.split == "validation" else ~is_val)
     if not len(held):
-        raise SystemExit("no validation episodes: --validation-fraction is 0")
+        raise SystemExit(f"no {args.split} episodes (--validation-fraction {args.validation_fraction})")
     idx = np.sort(np.random.default_rng(0).choice(held, size=min(args.frames, len(held)), replace=False))
     features = camera_inputs(policy, {k: v[idx] for k, v in demos.images.items()}, policy.config.image_features,
                              cache=False)
@@ -59,11 +76,23 @@ def main() -> None:
     labels = torch.from_numpy(demos.states[idx][:, [demos.state_names.index(n) for n in names]])
     error = estimates - labels
     normalised_error = error / policy.perceived_std
-    print(f"{len(idx)} of the {len(held)} frames of the finetune's validation episodes")
+    known = (torch.ones_like(labels, dtype=torch.bool) if demos.known is None else
+             torch.from_numpy(demos.known[idx][:, [demos.state_names.index(n) for n in names]]))
+    print(f"{len(idx)} of the {len(held)} frames of the finetune's {args.split} episodes")
+    if tasks is not None:
+        print("\n| task | frames | normalised MSE over its own entries |\n|---|---|---|")
+        for task in tasks:  # a frame's task: the one whose layout is exactly the entries the frame knows
+            own = np.isin(demos.state_names, make_task(task.name).state_names())
+            rows = torch.from_numpy((demos.known[idx] == own).all(axis=1))
+            mask = known[rows]
+            value = float(((normalised_error[rows] ** 2) * mask).sum() / mask.sum().clamp_min(1))
+            print(f"| {task.name} | {int(rows.sum())} | {value:.3f} |")
+        print()
     print("| entry | normalised MSE | median abs error |\n|---|---|---|")
-    for i, name in enumerate(names):
-        print(f"| {name} | {float((normalised_error[:, i] ** 2).mean()):.3f} | "
-              f"{float(error[:, i].abs().median()):.4f} |")
+    for i, name in enumerate(names):  # over the frames whose task has the entry
+        rows = known[:, i]
+        print(f"| {name} | {float((normalised_error[rows, i] ** 2).mean()):.3f} | "
+              f"{float(error[rows, i].abs().median()):.4f} |")
     objects = [n.removesuffix("_visible") for n in names if n.endswith("_visible")]
     located = [o for o in objects if f"{o}_x" in names and f"{o}_y" in names]
     if located:
