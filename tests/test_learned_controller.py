@@ -341,3 +341,79 @@ def test_a_pointer_policy_round_trips_exactly(tmp_path):
     with torch.no_grad():
         np.testing.assert_array_equal(policy.eval()(state, prompt, policy.camera_features(images)),
                                       loaded(state, prompt, loaded.camera_features(images)))
+
+
+def object_keypoint_policy(**overrides) -> LearnedPolicy:
+    config = {**SMALL, "task": "RememberColor3-VLA-v0", "state_names": ("tcp_x", "tcp_y"), "state_dim": 2,
+              "image_features": tuple(IMAGE_KEYS), "image_size": 32, "image_encoder": "cnn", "image_dim": 8,
+              "keypoints": 8, "perceived_names": CUBE_NAMES, "object_keypoints": True, **overrides}
+    return LearnedPolicy(LearnedPolicyConfig(**config))
+
+
+def test_object_keypoints_give_each_object_a_base_camera_map_and_place_it_from_there(tmp_path):
+    torch.manual_seed(0)
+    policy = object_keypoint_policy()
+    base, wrist = policy.cameras
+    assert (base.object_maps, wrist.object_maps) == (len(CUBES), 0)  # only the fixed camera locates objects
+    images = [torch.rand(2, 3, 32, 32) for _ in IMAGE_KEYS]
+    vision = policy.encode_cameras(policy.camera_features(images))
+    assert vision.shape == (2, 2 * 8 + 3 * len(CUBES))
+    assert policy.head[0].in_features == 2 + 16 + vision.shape[1] + len(CUBE_NAMES)
+    before = policy.perceive(vision).detach()
+    torch.nn.init.normal_(policy.locator.codes)  # another height per object: only the positions move
+    after = policy.perceive(vision).detach()
+    moved = (after != before).any(dim=0)
+    assert moved.tolist() == [name.rsplit("_", 1)[1] in "xyz" for name in CUBE_NAMES]
+    policy.save_pretrained(tmp_path)
+    loaded = LearnedPolicy.from_pretrained(tmp_path)
+    state, prompt = torch.randn(2, 2), torch.randn(2, 16)
+    with torch.no_grad():
+        np.testing.assert_array_equal(policy.eval()(state, prompt, policy.camera_features(images)),
+                                      loaded(state, prompt, loaded.camera_features(images)))
+
+
+def test_object_keypoints_need_objects_and_the_base_camera_first():
+    with pytest.raises(ValueError, match="must be the first camera"):
+        object_keypoint_policy(image_features=tuple(reversed(IMAGE_KEYS)))
+    with pytest.raises(ValueError, match="object_keypoints locates perceived objects"):
+        object_keypoint_policy(perceived_names=())
+    with pytest.raises(ValueError, match="'opening_1' is not"):
+        object_keypoint_policy(state_names=PROPRIO_NAMES, state_dim=len(PROPRIO_NAMES),
+                               perceived_names=STATE_NAMES[len(PROPRIO_NAMES):])  # the drawer's entries name no objects
+
+
+def test_object_keypoints_learn_where_each_of_two_objects_lies():
+    """Two squares on a 16 x 16 grid, each labelled with its position on a 'table' (an affine map of the grid): the
+    head's map for each must find its own square, through one locator shared by both."""
+    from sb3_memret.controllers.learned.modeling import ObjectLocator
+    from sb3_memret.controllers.learned.vision import CameraHead
+
+    torch.manual_seed(0)
+    generator = torch.Generator().manual_seed(0)
+    head, locator = CameraHead(3, 16, ((16, 3, 1),), keypoints=4, object_maps=2), ObjectLocator(2)
+    optimizer = torch.optim.Adam([*head.parameters(), *locator.parameters()], lr=3e-3)
+
+    def squares(n: int) -> tuple[torch.Tensor, torch.Tensor]:
+        maps, centres = torch.zeros(n, 3, 16, 16), torch.zeros(n, 2, 2)
+        for i in range(n):
+            for colour, cell in zip((0, 2), torch.randperm(4, generator=generator)[:2].tolist()):
+                row = 8 * (cell // 2) + int(torch.randint(0, 5, (1,), generator=generator))
+                col = 8 * (cell % 2) + int(torch.randint(0, 5, (1,), generator=generator))
+                maps[i, colour, row: row + 3, col: col + 3] = 1.0
+                centres[i, colour // 2] = torch.tensor([col + 1, row + 1]) / 7.5 - 1.0
+        table = torch.cat([0.2 * centres + 0.1, torch.full((n, 2, 1), 0.02)], dim=-1)  # metres, on the table
+        return maps, table
+
+    def located(maps: torch.Tensor) -> torch.Tensor:
+        return locator(head(maps)[:, 16:].view(len(maps), 2, 3))
+
+    for _ in range(500):
+        maps, table = squares(64)
+        loss = torch.nn.functional.mse_loss(located(maps), table)
+        optimizer.zero_grad()
+        loss.backward()
+        optimizer.step()
+    maps, table = squares(256)
+    with torch.no_grad():
+        error = (located(maps) - table).norm(dim=-1)
+    assert error.median() < 0.02 and error.quantile(0.9) < 0.04, error.median()  # 0.2 m across the grid
