@@ -140,6 +140,8 @@ def test_a_camera_policy_learns_from_decision_frames_and_sees_only_the_hand(came
     assert config.perceived_names == STATE_NAMES[len(PROPRIO_NAMES):]
     perception = [float(row["val_perception_mse"]) for row in read_log(out)]
     assert perception[-1] < 0.7 * perception[0], perception
+    fitted = [float(row["train_perception_mse"]) for row in read_log(out)]  # the batch's: beside the held-out one,
+    assert fitted[-1] < 0.7 * fitted[0], fitted  # it tells overfitting from what the cameras cannot tell
     obs, _ = rgb_task_env.reset(seed=43, options={"target_layer": 1})
     controller.reset([43])
     assert controller.act(obs, [condition_prompt("oracle", 1)]).shape == (1, 32, 7)
@@ -205,7 +207,8 @@ def test_a_prompt_conditioned_camera_policy_round_trips_and_its_vision_follows_t
 def test_a_policy_without_cameras_estimates_nothing(demos, tmp_path):
     out = finetune([demos], tmp_path / "ckpt", SMALL, FinetuneSettings(steps=2, batch_size=8))
     assert make_controller(f"learned:{out}").policy.config.perceived_names == ()
-    assert {row["val_perception_mse"] for row in read_log(out)} == {""}
+    rows = read_log(out)
+    assert {row["val_perception_mse"] for row in rows} == {row["train_perception_mse"] for row in rows} == {""}
 
 
 def test_the_pointer_ambiguity_is_zero_when_each_prompt_points_at_its_own_object_and_largest_when_none_tells():

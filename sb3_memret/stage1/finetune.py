@@ -236,7 +236,8 @@ def finetune(
     started = time.monotonic()
     with open(out / LOG_FILE, "w", newline="") as f:
         log = csv.writer(f)
-        log.writerow(["step", "train_loss", "val_loss", "val_perception_mse", "pointer_ambiguity", "seconds"])
+        log.writerow(["step", "train_loss", "train_perception_mse", "val_loss", "val_perception_mse", "pointer_ambiguity",
+                      "seconds"])
         model.train()
         for step in range(1, settings.steps + 1):
             batch = rng.choice(train_idx, size=min(settings.batch_size, len(train_idx)), replace=False)
@@ -250,8 +251,8 @@ def finetune(
                 on_step(step, loss.item())
             if step % log_every == 0 or step == settings.steps:
                 val = _validation_losses(model, losses_on, val_idx, settings.batch_size * 8)
-                log.writerow([step, f"{losses[0].item():.5f}", *(["", ""] if val is None else
-                                                                 [f"{val[0]:.5f}", f"{val[1]:.5f}" if perceived else ""]),
+                held = ["", ""] if val is None else [f"{val[0]:.5f}", f"{val[1]:.5f}" if perceived else ""]
+                log.writerow([step, f"{losses[0].item():.5f}", f"{losses[1].item():.5f}" if perceived else "", *held,
                               ambiguity(), f"{time.monotonic() - started:.1f}"])
                 f.flush()
     model.eval()
