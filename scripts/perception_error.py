@@ -72,7 +72,8 @@ def main() -> None:
     tokenizer = PromptTokenizer()
     with torch.no_grad():  # heads conditioned on the prompt (image_film) read each frame's own prompt
         prompts = policy.encode_prompts(*tokenizer(demos.tasks))[torch.from_numpy(demos.task_ids[idx])]
-    estimates = policy.estimate_perceived([f.float() for f in features], prompts)
+    states = torch.from_numpy(demos.states[idx][:, [demos.state_names.index(n) for n in policy.config.state_names]])
+    estimates = policy.estimate_perceived([f.float() for f in features], prompts, states)
     labels = torch.from_numpy(demos.states[idx][:, [demos.state_names.index(n) for n in names]])
     error = estimates - labels
     normalised_error = error / policy.perceived_std

@@ -39,7 +39,7 @@ def perceived_target_xy(controller: LearnedController, obs, prompt: str, key: st
     policy = controller.policy
     with torch.no_grad():
         prompt_vector = policy.encode_prompts(inputs["tokens"], inputs["token_mask"])
-    estimate = policy.estimate_perceived(policy.camera_features(inputs["images"]), prompt_vector)[0]
+    estimate = policy.estimate_perceived(policy.camera_features(inputs["images"]), prompt_vector, inputs["state"])[0]
     return np.array([float(estimate[names.index(f"{key}_{word}_{axis}")]) for axis in "xy"])
 
 

@@ -215,7 +215,7 @@ def finetune(
         vision = model.encode_cameras(cams, prompt)
         predicted = model.decode(states[index], prompt, vision)
         acting = chunk_loss(predicted, targets_t[index], is_pad_t[index])
-        seen = (masked_mse(model.perceive(vision), labels[index], label_mask[index]) if perceived
+        seen = (masked_mse(model.perceive(vision, states[index]), labels[index], label_mask[index]) if perceived
                 else acting.new_zeros(()))
         return torch.stack([acting, seen, hindsight_loss(used, encoded)])
 

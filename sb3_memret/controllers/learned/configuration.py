@@ -56,6 +56,7 @@ class LearnedPolicyConfig:
     image_film: bool = False  # the camera heads' keypoints are conditioned on the prompt (FiLM)
     pointer: bool = False  # the action head also reads the perceived entries of the object the prompt points at
     object_keypoints: bool = False  # each perceived object's position is read off a base-camera keypoint of its own
+    perception_state: bool = False  # the perception head also reads the state (the hand's pose), through a hidden layer
     trunk_sha256: str = ""  # the frozen pretrained trunk's weights file, for encoders that have one
     action_convention: str = "pd_ee_delta_pose"
     robot: str | None = None  # the robot its training cameras showed (ManiSkill robot uid); None: not recorded

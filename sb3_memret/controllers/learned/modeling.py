@@ -28,6 +28,7 @@ from sb3_memret.weights import WeightsNotLoadedError, check_loaded
 
 WEIGHTS_FILE = "model.safetensors"
 MIN_STATE_STD = 1e-2  # features that never vary in the demos (the cube's tilt) are not blown up
+PERCEPTION_HIDDEN = 256  # the hidden layer of a perception head that reads the state too (perception_state)
 
 
 class AttentionPool(nn.Module):
@@ -134,11 +135,13 @@ class LearnedPolicy(nn.Module):
         self.cameras = nn.ModuleList(heads)
         vision_dim = config.image_dim * len(config.image_features) + 3 * len(objects)
         n_perceived = len(config.perceived_names)
-        self.perception: nn.Linear | None = None
+        self.perception: nn.Module | None = None
         if n_perceived:  # a policy without perceived entries holds none of these tensors (older checkpoints load)
             self.register_buffer("perceived_mean", torch.zeros(n_perceived))
             self.register_buffer("perceived_std", torch.ones(n_perceived))
-            self.perception = nn.Linear(vision_dim, n_perceived)
+            self.perception = (nn.Sequential(nn.Linear(vision_dim + config.state_dim, PERCEPTION_HIDDEN), nn.GELU(),
+                                             nn.Linear(PERCEPTION_HIDDEN, n_perceived))
+                               if config.perception_state else nn.Linear(vision_dim, n_perceived))
         self.pointer: ObjectPointer | None = None
         if config.pointer:
             if not n_perceived:
@@ -200,11 +203,18 @@ class LearnedPolicy(nn.Module):
         return torch.cat([head(features.float(), prompt) for head, features in zip(self.cameras, camera_features)],
                          dim=-1)
 
-    def perceive(self, vision: torch.Tensor) -> torch.Tensor:
-        """``encode_cameras`` vectors -> (B, len(perceived_names)) normalised estimates of the perceived entries; with
-        ``object_keypoints`` the objects' positions come from their own keypoints (``ObjectLocator``)."""
+    def perceive(self, vision: torch.Tensor, state: torch.Tensor | None = None) -> torch.Tensor:
+        """``encode_cameras`` vectors (and, for a head that reads it, ``perception_state``, the (B, state_dim) states)
+        -> (B, len(perceived_names)) normalised estimates of the perceived entries; with ``object_keypoints`` the
+        objects' positions come from their own keypoints (``ObjectLocator``). Where an object lies in the wrist
+        camera's picture tells where it is on the table only with where the hand is: hence the state."""
         if self.perception is None:
             return vision.new_zeros((len(vision), 0))
+        if self.config.perception_state:
+            if state is None:
+                raise ValueError("this policy's perception head reads the state too (perception_state): pass the "
+                                 "states to perceive")
+            vision = torch.cat([vision, (state - self.state_mean) / self.state_std], dim=-1)
         estimates = self.perception(vision)
         if self.locator is None:
             return estimates
@@ -216,10 +226,12 @@ class LearnedPolicy(nn.Module):
         return estimates.scatter(1, index.expand(len(vision), -1), normalised)
 
     @torch.no_grad()
-    def estimate_perceived(self, camera_features: list[torch.Tensor], prompt: torch.Tensor) -> torch.Tensor:
-        """Per camera ``camera_features`` and (B, text_dim) prompts -> (B, len(perceived_names)) estimates in the
-        state's units: what the perception head makes of the images, for diagnosis."""
-        estimates = self.perceive(self.encode_cameras(camera_features, prompt))
+    def estimate_perceived(self, camera_features: list[torch.Tensor], prompt: torch.Tensor,
+                           state: torch.Tensor | None = None) -> torch.Tensor:
+        """Per camera ``camera_features``, (B, text_dim) prompts (and (B, state_dim) states, for a head that reads
+        them) -> (B, len(perceived_names)) estimates in the state's units: what the perception head makes of the
+        images, for diagnosis."""
+        estimates = self.perceive(self.encode_cameras(camera_features, prompt), state)
         return estimates * self.perceived_std + self.perceived_mean if self.perception is not None else estimates
 
     def decode(self, state: torch.Tensor, prompt: torch.Tensor, vision: torch.Tensor) -> torch.Tensor:
@@ -227,7 +239,7 @@ class LearnedPolicy(nn.Module):
         head reads the perception estimates as they are: only their labels train them."""
         parts = [(state - self.state_mean) / self.state_std, prompt]
         if self.cameras:
-            perceived = self.perceive(vision).detach()
+            perceived = self.perceive(vision, state).detach()
             parts += [vision, perceived]
             if self.pointer is not None:
                 parts.append(self.pointer(perceived, prompt))
