@@ -417,3 +417,64 @@ def test_object_keypoints_learn_where_each_of_two_objects_lies():
     with torch.no_grad():
         error = (located(maps) - table).norm(dim=-1)
     assert error.median() < 0.02 and error.quantile(0.9) < 0.04, error.median()  # 0.2 m across the grid
+
+
+def wrist_policy(perception_state: bool) -> LearnedPolicy:
+    return LearnedPolicy(LearnedPolicyConfig(**SMALL, task="RememberColor3-VLA-v0", state_names=("tcp_x", "tcp_y"),
+                                             state_dim=2, image_features=("observation.images.wrist_image",),
+                                             image_size=32, image_encoder="cnn", image_dim=16, keypoints=8,
+                                             perceived_names=("cube_red_x", "cube_red_y"),
+                                             perception_state=perception_state))
+
+
+def test_a_perception_head_that_reads_the_state_needs_it_and_round_trips(tmp_path):
+    torch.manual_seed(0)
+    policy = wrist_policy(perception_state=True)
+    vision = policy.encode_cameras(policy.camera_features([torch.rand(2, 3, 32, 32)]))
+    with pytest.raises(ValueError, match="reads the state too"):
+        policy.perceive(vision)
+    here, there = torch.zeros(2, 2), torch.ones(2, 2)
+    assert not torch.allclose(policy.perceive(vision, here), policy.perceive(vision, there))  # where the hand is
+    plain = wrist_policy(perception_state=False)
+    plain_vision = plain.encode_cameras(plain.camera_features([torch.rand(2, 3, 32, 32)]))
+    torch.testing.assert_close(plain.perceive(plain_vision, here), plain.perceive(plain_vision, there))
+    policy.save_pretrained(tmp_path)
+    loaded = LearnedPolicy.from_pretrained(tmp_path)
+    images, prompt = [torch.rand(2, 3, 32, 32)], torch.randn(2, 16)
+    with torch.no_grad():
+        np.testing.assert_array_equal(policy.eval()(here, prompt, policy.camera_features(images)),
+                                      loaded(here, prompt, loaded.camera_features(images)))
+
+
+def test_a_wrist_camera_places_an_object_only_with_the_hands_pose():
+    """A square seen by a camera riding on the hand: where it lies on the table is where it shows in the picture
+    plus where the hand is. Read with the state, the perception head learns it; from the picture alone it cannot."""
+    generator = torch.Generator().manual_seed(0)
+
+    def batch(n: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+        images, hand = torch.zeros(n, 3, 32, 32), torch.rand(n, 2, generator=generator) * 0.4 - 0.2
+        cells = torch.randint(0, 28, (n, 2), generator=generator)
+        for i, (row, col) in enumerate(cells.tolist()):
+            images[i, 0, row: row + 4, col: col + 4] = 1.0
+        seen = (cells.float() + 1.5) / 31 * 0.2 - 0.1  # the square's centre in the picture, in metres (row, col)
+        return images, hand, hand + seen.flip(1)  # x from the column, y from the row
+
+    errors = {}
+    for reads_state in (True, False):
+        torch.manual_seed(0)
+        policy = wrist_policy(reads_state)
+        policy.set_state_stats(torch.zeros(2), torch.full((2,), 0.115))
+        policy.set_perceived_stats(torch.zeros(2), torch.full((2,), 0.12))
+        optimizer = torch.optim.Adam(policy.parameters(), lr=3e-3)
+        for _ in range(300):
+            images, hand, target = batch(64)
+            estimate = policy.perceive(policy.encode_cameras([images]), hand) * 0.12
+            loss = torch.nn.functional.mse_loss(estimate, target)
+            optimizer.zero_grad()
+            loss.backward()
+            optimizer.step()
+        images, hand, target = batch(256)
+        with torch.no_grad():
+            estimate = policy.eval().perceive(policy.encode_cameras([images]), hand) * 0.12
+        errors[reads_state] = float((estimate - target).norm(dim=1).median())
+    assert errors[True] < 0.01 and errors[False] > 0.1, errors  # the hand alone moves the square's place 0.16 m
