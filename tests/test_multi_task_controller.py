@@ -149,24 +149,22 @@ def test_a_pointer_across_tasks_points_with_the_fields_every_object_has(datasets
     assert {target for prompt, target in targets.items() if "started" in prompt} <= {"cube", None}
 
 
-def test_object_keypoints_across_tasks_and_their_perception_per_task(datasets, tmp_path):
-    """A controller over two tasks with a keypoint per object of either (cubes and shapes), and the perception script
-    reading its error per task on the finetune's training episodes."""
+def test_a_perception_head_that_reads_the_hand_across_tasks_and_its_error_per_task(datasets, tmp_path):
+    """A controller over two tasks whose perception head reads the hand's pose, and the perception script reading its
+    error per task on the finetune's training episodes."""
     import sys
 
     out = tmp_path / "ckpt"
     result = CliRunner().invoke(main, ["finetune", str(datasets[COLOUR]), str(datasets[SHAPE]), "--tasks",
-                                       f"{COLOUR},{SHAPE}", "--object-keypoints", "--out", str(out), "--steps", "5",
+                                       f"{COLOUR},{SHAPE}", "--perception-state", "--out", str(out), "--steps", "5",
                                        *SMALL])
     assert result.exit_code == 0, result.output
     policy = make_controller(f"learned:{out}", SHAPE).policy
-    objects = {name.rsplit("_", 1)[0] for name in policy.config.perceived_names}
-    assert policy.config.object_keypoints and policy.cameras[0].object_maps == len(objects) == 6  # 3 cubes, 3 shapes
+    assert policy.config.perception_state and policy.perception[0].in_features == 2 * 8 + len(proprio_names())
     script = [sys.executable, str(REPO / "scripts" / "perception_error.py"), str(out), str(datasets[COLOUR]),
               str(datasets[SHAPE]), "--tasks", f"{COLOUR},{SHAPE}", "--split", "training", "--frames", "40"]
     run = subprocess.run(script, capture_output=True, text=True, timeout=600)
     assert run.returncode == 0, run.stderr
     assert "of the finetune's training episodes" in run.stdout
-    rows = [line.split("|") for line in run.stdout.splitlines() if line.startswith(f"| {COLOUR} |")
-            or line.startswith(f"| {SHAPE} |")]
+    rows = [line.split("|") for line in run.stdout.splitlines() if line.startswith((f"| {COLOUR} |", f"| {SHAPE} |"))]
     assert len(rows) == 2 and all(int(row[2]) > 0 for row in rows)  # both tasks' frames found, by their layouts

@@ -179,10 +179,6 @@ def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, no
 @click.option("--pointer/--no-pointer", default=False, show_default=True,
               help="learned: the action head also reads the perceived entries of the object the prompt points at "
                    "(attention over the perceived objects, named <object>_x/_y/_z/_visible), for scenes of many alike.")
-@click.option("--object-keypoints/--no-object-keypoints", default=False, show_default=True,
-              help="learned: each perceived object gets a base-camera keypoint of its own, and its position is read "
-                   "off that keypoint through one image-to-table map shared by all objects (for scenes of many "
-                   "objects: a keypoint can only be right by finding its own).")
 @click.option("--perception-state/--no-perception-state", default=False, show_default=True,
               help="learned: the perception head also reads the state (the hand's pose) through a hidden layer: "
                    "where an object lies in the wrist camera's picture says where it is only with where the hand is.")
@@ -197,7 +193,7 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
              learning_rate: float | None, seed: int, pretrained: Path | None, tokenizer: Path | None, lora_rank: int,
              device: str, task: str, dataset_tasks: str | None, state: str | None, image_encoder: str,
              image_dim: int, keypoints: int, image_head: tuple[tuple[int, int], ...], image_colour: bool,
-             image_film: bool, pointer: bool, object_keypoints: bool, perception_state: bool, pointer_hindsight: float,
+             image_film: bool, pointer: bool, perception_state: bool, pointer_hindsight: float,
              cache_features: bool, progress: bool) -> None:
     """Train a frozen controller from DATASETS (LeRobotDatasets written by `sb3-memret demos`).
 
@@ -252,8 +248,7 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
         config = LearnedPolicyConfig(instructions=template.instructions, fact_templates=template.fact_templates,
                                      image_encoder=image_encoder, image_dim=image_dim, keypoints=keypoints,
                                      image_head=image_head, image_colour=image_colour, image_film=image_film,
-                                     pointer=pointer, object_keypoints=object_keypoints,
-                                     perception_state=perception_state,
+                                     pointer=pointer, perception_state=perception_state,
                                      chunk_len=chunk_lens[tasks[0].name])
     except ValueError as err:
         raise click.BadParameter(str(err)) from err

@@ -15,7 +15,6 @@ CONFIG_FILE = "config.json"
 POINTER_FIELDS = ("x", "y", "z", "visible")  # the entries of one perceived object, ``<object>_<field>``
 POSITION_FIELDS = POINTER_FIELDS[:3]  # what every object a pointer points at must have
 POLICY_TYPE = "sb3_memret_learned"
-BASE_CAMERA = next(iter(IMAGE_KEYS))  # the camera fixed in the world (the other rides on the wrist)
 
 
 @dataclass
@@ -55,7 +54,6 @@ class LearnedPolicyConfig:
     image_colour: bool = False  # a frozen trunk's heads also read the image's colour on the trunk's grid
     image_film: bool = False  # the camera heads' keypoints are conditioned on the prompt (FiLM)
     pointer: bool = False  # the action head also reads the perceived entries of the object the prompt points at
-    object_keypoints: bool = False  # each perceived object's position is read off a base-camera keypoint of its own
     perception_state: bool = False  # the perception head also reads the state (the hand's pose), through a hidden layer
     trunk_sha256: str = ""  # the frozen pretrained trunk's weights file, for encoders that have one
     action_convention: str = "pd_ee_delta_pose"
@@ -85,11 +83,6 @@ class LearnedPolicyConfig:
                              "image_features is empty")
         if self.pointer and self.perceived_names:
             perceived_objects(self.perceived_names)  # entries grouped per object, or a clear error
-        if self.object_keypoints and self.perceived_names:  # (a config without them yet is filled in by finetune)
-            if self.image_features[0] != BASE_CAMERA:
-                raise ValueError(f"object_keypoints reads the objects off the fixed base camera {BASE_CAMERA!r}, "
-                                 f"which must be the first camera; image_features are {list(self.image_features)}")
-            perceived_objects(self.perceived_names)
         both = sorted(set(self.perceived_names) & set(self.state_names))
         if both:
             raise ValueError(f"entries {both} are both read from the state and estimated from the cameras")

@@ -7,8 +7,8 @@ so a checkpoint carries them. A camera policy also estimates, from its image vec
 entries a robot does not read of itself (``perceived_names``: where the cube is, how far each drawer is
 open), trained on the simulator's labels: the action head reads those estimates, as a modular
 visuomotor policy reads its detector. With ``pointer`` the action head also reads the estimates of the one object
-the prompt points at (``ObjectPointer``), with ``object_keypoints`` each object's position is read off a keypoint of
-its own (``ObjectLocator``), and with ``image_film`` the camera heads read the prompt too. An MLP maps
+the prompt points at (``ObjectPointer``), with ``perception_state`` the perception head reads the hand's pose too, and
+with ``image_film`` the camera heads read the prompt too. An MLP maps
 the concatenation to ``chunk_len`` x ``action_dim``.
 """
 
@@ -83,25 +83,6 @@ def pointer_ambiguity(weights: torch.Tensor) -> torch.Tensor:
     return math.log(weights.shape[1]) - entropy(weights.mean(dim=0)) + entropy(weights).mean()
 
 
-class ObjectLocator(nn.Module):
-    """Each perceived object's position from its own base-camera keypoint: (B, objects, 3) expected x, y and mean
-    activation of the object's map -> (B, objects, 3) positions, through one map shared by every object (and a
-    learned code per object, for its height). Sharing the image-to-table map leaves each keypoint one way to be
-    right, to peak on its own object, where a linear read-out of every keypoint fits the training layouts instead."""
-
-    CODE_DIM = 8
-
-    def __init__(self, objects: int, hidden: int = 64):
-        super().__init__()
-        self.codes = nn.Parameter(torch.zeros(objects, self.CODE_DIM))
-        self.net = nn.Sequential(nn.Linear(3 + self.CODE_DIM, hidden), nn.GELU(), nn.Linear(hidden, hidden), nn.GELU(),
-                                 nn.Linear(hidden, 3))
-
-    def forward(self, located: torch.Tensor) -> torch.Tensor:
-        codes = self.codes.expand(len(located), -1, -1)
-        return self.net(torch.cat([located, codes], dim=-1))
-
-
 class LearnedPolicy(nn.Module):
     """Predicts an action chunk (B, chunk_len, action_dim) from state, prompt tokens and optional images.
 
@@ -118,22 +99,17 @@ class LearnedPolicy(nn.Module):
         self.register_buffer("state_std", torch.ones(config.state_dim))
         self.text = AttentionPool(config.token_dim, config.text_dim, config.text_heads)
         self.trunk: nn.Module | None = None
-        if config.object_keypoints and not config.perceived_names:
-            raise ValueError("object_keypoints locates perceived objects: a camera policy trained with its perception "
-                             "head (perception_coef > 0) on a task whose state has objects to perceive")
-        objects = perceived_objects(config.perceived_names)[0] if config.object_keypoints else ()
         heads = []
-        for camera, _ in enumerate(config.image_features):
+        for _ in config.image_features:
             trunk, head = make_camera_encoder(config.image_encoder, config.image_dim, config.trunk_sha256 or None,
                                               config.keypoints, config.image_colour,
-                                              config.text_dim if config.image_film else 0, config.image_head,
-                                              len(objects) if camera == 0 else 0)
+                                              config.text_dim if config.image_film else 0, config.image_head)
             heads.append(head)
             if trunk is not None and self.trunk is None:
                 self.trunk = trunk
                 config.trunk_sha256 = trunk.sha256
         self.cameras = nn.ModuleList(heads)
-        vision_dim = config.image_dim * len(config.image_features) + 3 * len(objects)
+        vision_dim = config.image_dim * len(config.image_features)
         n_perceived = len(config.perceived_names)
         self.perception: nn.Module | None = None
         if n_perceived:  # a policy without perceived entries holds none of these tensors (older checkpoints load)
@@ -148,11 +124,6 @@ class LearnedPolicy(nn.Module):
                 raise ValueError("pointer needs perceived entries to point at: a camera policy trained with its "
                                  "perception head (perception_coef > 0) on a task whose state has objects to perceive")
             self.pointer = ObjectPointer(config.perceived_names, config.text_dim)
-        self.locator: ObjectLocator | None = None
-        if objects:
-            self.locator = ObjectLocator(len(objects))
-            positions = [[config.perceived_names.index(f"{obj}_{axis}") for axis in "xyz"] for obj in objects]
-            self.register_buffer("positions", torch.tensor(positions), persistent=False)  # (objects, 3)
         width = config.state_dim + config.text_dim + vision_dim + n_perceived + config.pointer_fields
         layers: list[nn.Module] = []
         for _ in range(config.n_layers):
@@ -205,8 +176,7 @@ class LearnedPolicy(nn.Module):
 
     def perceive(self, vision: torch.Tensor, state: torch.Tensor | None = None) -> torch.Tensor:
         """``encode_cameras`` vectors (and, for a head that reads it, ``perception_state``, the (B, state_dim) states)
-        -> (B, len(perceived_names)) normalised estimates of the perceived entries; with ``object_keypoints`` the
-        objects' positions come from their own keypoints (``ObjectLocator``). Where an object lies in the wrist
+        -> (B, len(perceived_names)) normalised estimates of the perceived entries. Where an object lies in the wrist
         camera's picture tells where it is on the table only with where the hand is: hence the state."""
         if self.perception is None:
             return vision.new_zeros((len(vision), 0))
@@ -215,15 +185,7 @@ class LearnedPolicy(nn.Module):
                 raise ValueError("this policy's perception head reads the state too (perception_state): pass the "
                                  "states to perceive")
             vision = torch.cat([vision, (state - self.state_mean) / self.state_std], dim=-1)
-        estimates = self.perception(vision)
-        if self.locator is None:
-            return estimates
-        objects = len(self.positions)
-        start = self.config.image_dim  # the base camera's vector comes first, its objects' keypoints after it
-        located = self.locator(vision[:, start: start + 3 * objects].view(len(vision), objects, 3))
-        index = self.positions.flatten()
-        normalised = (located.flatten(1) - self.perceived_mean[index]) / self.perceived_std[index]
-        return estimates.scatter(1, index.expand(len(vision), -1), normalised)
+        return self.perception(vision)
 
     @torch.no_grad()
     def estimate_perceived(self, camera_features: list[torch.Tensor], prompt: torch.Tensor,

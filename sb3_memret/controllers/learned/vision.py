@@ -57,16 +57,11 @@ class CameraHead(nn.Module):
     scale and shift computed from the prompt vector, as in language-conditioned visuomotor policies), so a
     keypoint can follow the object the prompt names rather than every object of the scene. The modulation
     starts as the identity.
-
-    With ``object_maps`` O it draws O more keypoint maps, one per object to locate, and appends each one's
-    expected x, y and mean activation to its vector: (B, image_dim + 3 O), objects in order.
     """
 
     def __init__(self, in_channels: int, image_dim: int, convs: tuple[tuple[int, int, int], ...],
-                 keypoints: int = KEYPOINTS, film_dim: int = 0, object_maps: int = 0):
+                 keypoints: int = KEYPOINTS, film_dim: int = 0):
         super().__init__()
-        self.object_maps = object_maps
-        keypoints += object_maps
         layers: list[nn.Module] = []
         channels = in_channels
         for out, kernel, stride in convs:
@@ -93,14 +88,7 @@ class CameraHead(nn.Module):
             hidden = self.net[:-1](features)
             scale, shift = self.film(prompt).chunk(2, dim=-1)
             maps = self.net[-1](hidden * (1.0 + scale[:, :, None, None]) + shift[:, :, None, None])
-        coordinates, pooled = self.keypoints(maps), maps.mean(dim=(2, 3))
-        vector = self.out(torch.cat([coordinates, pooled], dim=1))
-        if not self.object_maps:
-            return vector
-        maps_in, objects = maps.shape[1], self.object_maps
-        located = torch.stack([coordinates[:, maps_in - objects: maps_in], coordinates[:, 2 * maps_in - objects:],
-                               pooled[:, maps_in - objects:]], dim=-1)
-        return torch.cat([vector, located.flatten(1)], dim=1)
+        return self.out(torch.cat([self.keypoints(maps), maps.mean(dim=(2, 3))], dim=1))
 
 
 def efficientnet_lite0_file() -> Path:
@@ -187,13 +175,11 @@ def check_trunk_head(convs: tuple[tuple[int, int], ...]) -> None:
 
 def make_camera_encoder(kind: str, image_dim: int, trunk_sha256: str | None = None, keypoints: int = KEYPOINTS,
                         colour: bool = False, film_dim: int = 0,
-                        trunk_head: tuple[tuple[int, int], ...] = TRUNK_HEAD,
-                        object_maps: int = 0) -> tuple[nn.Module | None, CameraHead]:
+                        trunk_head: tuple[tuple[int, int], ...] = TRUNK_HEAD) -> tuple[nn.Module | None, CameraHead]:
     """(frozen trunk or None, trainable head) of one image encoder kind; the head reads ``keypoints`` maps, with
     ``colour`` a trunk's maps carry the image's colour too (a CNN from pixels reads colour already), and with
     ``film_dim`` the head is conditioned on prompt vectors of that size. A trunk's head runs the ``trunk_head``
-    convs, (channels, odd kernel) each at stride 1, before its keypoint maps; ``object_maps`` adds keypoints of
-    objects to locate (``CameraHead``)."""
+    convs, (channels, odd kernel) each at stride 1, before its keypoint maps."""
     if kind == "cnn":
         if colour:
             raise ValueError("image_colour needs a frozen trunk (image_encoder 'efficientnet_lite0'): the 'cnn' "
@@ -202,14 +188,14 @@ def make_camera_encoder(kind: str, image_dim: int, trunk_sha256: str | None = No
             raise ValueError(f"image_head {list(trunk_head)} shapes a frozen trunk's head (image_encoder "
                              "'efficientnet_lite0'); the 'cnn' encoder's convs are its own")
         return None, CameraHead(3, image_dim, ((32, 5, 2), (64, 3, 2), (64, 3, 2), (64, 3, 1)), keypoints,
-                                film_dim, object_maps)
+                                film_dim)
     if kind == "efficientnet_lite0":
         trunk: FrozenModule = EfficientNetLite0Trunk(trunk_sha256)
         if colour:
             trunk = ColourTrunk(trunk)
         check_trunk_head(trunk_head)
         convs = tuple((channels, kernel, 1) for channels, kernel in trunk_head)
-        return trunk, CameraHead(trunk.out_channels, image_dim, convs, keypoints, film_dim, object_maps)
+        return trunk, CameraHead(trunk.out_channels, image_dim, convs, keypoints, film_dim)
     raise ValueError(f"unknown image encoder {kind!r}; expected one of {list(IMAGE_ENCODERS)}")
 
 
