@@ -2,10 +2,13 @@
 # One camera controller across TASKS (or one task's own, on the same chunks), from what scripts/record_task_demos.sh
 # recorded into DEMOS: every finished chunk of each task is a dataset, named with its task (finetune --tasks), and the
 # policy lands in OUT. DEMOS may list several roots, comma-separated (the experts' demonstrations and a DAgger
-# round's): each must hold finished chunks of every task.
+# round's): each must hold finished chunks of every task, except a root marked optional with a trailing '?' (more
+# episodes of some tasks only), whose tasks without chunks are skipped.
 # Usage: scripts/finetune_task_demos.sh DEMOS[,DEMOS...] OUT TASK[,TASK...] [finetune options...]
 #   e.g. scripts/finetune_task_demos.sh runs/multitask runs/multitask/policy \
 #          RememberColor3-VLA-v0,RememberShape3-VLA-v0 --steps 4000
+#        scripts/finetune_task_demos.sh 'runs/multitask,runs/more-shapes?' runs/multitask/policy \
+#          RememberColor3-VLA-v0,RememberShape3-VLA-v0
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ $# -lt 3 ]; then
@@ -18,17 +21,22 @@ IFS=, read -r -a wanted <<< "$3"
 shift 3
 datasets=() tasks=()
 for task in "${wanted[@]}"; do
-  for root in "${roots[@]}"; do
-    found=0
+  before=${#datasets[@]}
+  for spec in "${roots[@]}"; do
+    root=${spec%\?} found=0
     for done in "$root/$task"/chunk*.done; do
       [ -e "$done" ] || continue
       datasets+=("${done%.done}") tasks+=("$task") found=1
     done
-    if [ $found -eq 0 ]; then
+    if [ $found -eq 0 ] && [ "$root" = "$spec" ]; then
       echo "no finished chunks of $task under $root: record them with scripts/record_task_demos.sh $root EPISODES $task" >&2
       exit 2
     fi
   done
+  if [ ${#datasets[@]} -eq "$before" ]; then
+    echo "no finished chunks of $task under any of ${roots[*]}" >&2
+    exit 2
+  fi
 done
 if [ ${#wanted[@]} -eq 1 ]; then  # one task's chunks: a per-task policy, on the same data as a multi-task one
   task_args=(--task "${wanted[0]}")

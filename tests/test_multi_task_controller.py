@@ -131,6 +131,19 @@ def test_the_finetune_script_refuses_a_root_that_lacks_a_task(datasets, tmp_path
     assert not (tmp_path / "policy").exists()
 
 
+def test_an_optional_root_adds_the_chunks_of_the_tasks_it_has(datasets, tmp_path):
+    expert = _chunks(tmp_path / "demos", datasets, (COLOUR, SHAPE))
+    more = _chunks(tmp_path / "more", datasets, (SHAPE,))  # more episodes of one task only
+    result = _finetune_script(f"{expert},{more}?", tmp_path / "policy", f"{COLOUR},{SHAPE}", "--steps", "2", *SMALL)
+    assert result.returncode == 0, result.stdout + result.stderr
+    assert "finetuning on 3 chunks of 2 task(s)" in result.stdout
+    nothing = tmp_path / "nothing"
+    nothing.mkdir()
+    result = _finetune_script(f"{more}?,{nothing}?", tmp_path / "none", f"{COLOUR},{SHAPE}", *SMALL)
+    assert result.returncode == 2 and f"no finished chunks of {COLOUR} under any of" in result.stderr
+    assert not (tmp_path / "none").exists()
+
+
 def test_a_pointer_across_tasks_points_with_the_fields_every_object_has(datasets, tmp_path):
     back = "TakeItBack-VLA-v0"  # its cube has a position and no visibility flag, RememberColor3's cubes have both
     demos = tmp_path / back
