@@ -3,7 +3,7 @@
 Runs a trained camera-reading learned controller's perception head on the validation episodes its finetune held
 out (the split rebuilt from ``--seed`` and ``--validation-fraction``, finetune's defaults) of the datasets it was
 trained on (``--split training``: on its training episodes instead, to tell overfitting from what the cameras cannot
-tell), and prints, per task, the normalised MSE over the task's own entries; then, per perceived entry, the normalised MSE and the median absolute error in the state's
+tell; ``--split all``: on every episode, for datasets no controller compared saw), and prints, per task, the normalised MSE over the task's own entries; then, per perceived entry, the normalised MSE and the median absolute error in the state's
 units; for entries named ``<object>_x`` / ``_y`` with a ``<object>_visible`` flag (MIKASA's cubes), also the
 median xy error over the frames where the object is in sight. For a policy with a pointer (``finetune --pointer``),
 also the object each of its training prompts points at, and how sharply: a pointer that learned nothing spreads its
@@ -37,8 +37,9 @@ def main() -> None:
     parser.add_argument("datasets", nargs="+")
     parser.add_argument("--task", default="drawer")
     parser.add_argument("--tasks", default=None, help="each DATASET's task, a comma list in their order")
-    parser.add_argument("--split", choices=["validation", "training"], default="validation",
-                        help="the finetune's held-out episodes, or its training ones")
+    parser.add_argument("--split", choices=["validation", "training", "all"], default="validation",
+                        help="the finetune's held-out episodes, its training ones, or every episode (datasets it "
+                             "never saw, to compare controllers trained on different data)")
     parser.add_argument("--seed", type=int, default=FinetuneSettings.seed, help="the finetune's --seed")
     parser.add_argument("--validation-fraction", type=float, default=FinetuneSettings.validation_fraction)
     parser.add_argument("--frames", type=int, default=1500, help="validation frames drawn at most")
@@ -63,7 +64,7 @@ def main() -> None:
         raise SystemExit(f"the dataset's state has no entries {missing}: record it for task {policy.config.task!r}")
     rng = np.random.default_rng(args.seed)
     is_val = np.isin(demos.episodes, validation_episodes(demos.episodes, args.validation_fraction, rng))
-    held = np.flatnonzero(is_val if args.split == "validation" else ~is_val)
+    held = np.flatnonzero({"validation": is_val, "training": ~is_val, "all": np.ones_like(is_val)}[args.split])
     if not len(held):
         raise SystemExit(f"no {args.split} episodes (--validation-fraction {args.validation_fraction})")
     idx = np.sort(np.random.default_rng(0).choice(held, size=min(args.frames, len(held)), replace=False))
