@@ -81,7 +81,8 @@ def main() -> None:
     normalised_error = error / policy.perceived_std
     known = (torch.ones_like(labels, dtype=torch.bool) if demos.known is None else
              torch.from_numpy(demos.known[idx][:, [demos.state_names.index(n) for n in names]]))
-    print(f"{len(idx)} of the {len(held)} frames of the finetune's {args.split} episodes")
+    where = "every episode of the datasets" if args.split == "all" else f"the finetune's {args.split} episodes"
+    print(f"{len(idx)} of the {len(held)} frames of {where}")
     if tasks is not None:
         print("\n| task | frames | normalised MSE over its own entries |\n|---|---|---|")
         for task in tasks:  # a frame's task: the one whose layout is exactly the entries the frame knows
