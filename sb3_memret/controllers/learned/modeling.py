@@ -8,8 +8,8 @@ entries a robot does not read of itself (``perceived_names``: where the cube is,
 open), trained on the simulator's labels: the action head reads those estimates, as a modular
 visuomotor policy reads its detector. With ``pointer`` the action head also reads the estimates of the one object
 the prompt points at (``ObjectPointer``), with ``perception_state`` the perception head reads the hand's pose too, and
-with ``image_film`` the camera heads read the prompt too. An MLP maps
-the concatenation to ``chunk_len`` x ``action_dim``.
+with ``image_film`` the camera heads read the prompt too. An MLP maps the concatenation to ``chunk_len`` x
+``action_dim``.
 """
 
 from __future__ import annotations
