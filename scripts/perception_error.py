@@ -6,9 +6,9 @@ trained on (``--split training``: on its training episodes instead, to tell over
 tell; ``--split all``: on every episode, for datasets no controller compared saw), and prints, per task, the
 normalised MSE over the task's own entries; then, per perceived entry, the normalised MSE and the median absolute
 error in the state's units; for entries named ``<object>_x`` / ``_y`` with a ``<object>_visible`` flag (MIKASA's
-cubes), also the median xy error over the frames where the object is in sight. For a policy with a pointer (``finetune --pointer``),
-also the object each of its training prompts points at, and how sharply: a pointer that learned nothing spreads its
-weight.
+cubes), also the median xy error over the frames where the object is in sight. For a policy with a pointer
+(``finetune --pointer``), also the object each of its training prompts points at, and how sharply: a pointer that
+learned nothing spreads its weight.
 
     python scripts/perception_error.py sb3_memret/controllers/checkpoints/RememberColor9-VLA-v0-camera \\
         runs/stage1-RememberColor9-VLA-v0/demos --task RememberColor9-VLA-v0

@@ -236,8 +236,8 @@ def finetune(
     started = time.monotonic()
     with open(out / LOG_FILE, "w", newline="") as f:
         log = csv.writer(f)
-        log.writerow(["step", "train_loss", "train_perception_mse", "val_loss", "val_perception_mse", "pointer_ambiguity",
-                      "seconds"])
+        log.writerow(["step", "train_loss", "train_perception_mse", "val_loss", "val_perception_mse",
+                      "pointer_ambiguity", "seconds"])
         model.train()
         for step in range(1, settings.steps + 1):
             batch = rng.choice(train_idx, size=min(settings.batch_size, len(train_idx)), replace=False)
