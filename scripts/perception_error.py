@@ -26,10 +26,9 @@ import torch
 from sb3_memret.controllers.learned import LearnedPolicy
 from sb3_memret.controllers.learned.configuration import perceived_objects
 from sb3_memret.controllers.learned.modeling import pointer_ambiguity
-from sb3_memret.controllers.learned.processing import PromptTokenizer
+from sb3_memret.controllers.learned.processing import PromptTokenizer, state_columns
 from sb3_memret.stage1.datasets import load_demonstrations, load_task_demonstrations, validation_episodes
 from sb3_memret.stage1.finetune import FinetuneSettings, camera_inputs
-from sb3_memret.tasks import make_task
 
 
 def main() -> None:
@@ -74,19 +73,21 @@ def main() -> None:
     tokenizer = PromptTokenizer()
     with torch.no_grad():  # heads conditioned on the prompt (image_film) read each frame's own prompt
         prompts = policy.encode_prompts(*tokenizer(demos.tasks))[torch.from_numpy(demos.task_ids[idx])]
-    states = torch.from_numpy(demos.states[idx][:, [demos.state_names.index(n) for n in policy.config.state_names]])
+    columns = state_columns(demos.state_names, names, "the datasets' state")
+    states = torch.from_numpy(demos.states[idx][:, state_columns(demos.state_names, policy.config.state_names,
+                                                                 "the datasets' state")])
     estimates = policy.estimate_perceived([f.float() for f in features], prompts, states)
-    labels = torch.from_numpy(demos.states[idx][:, [demos.state_names.index(n) for n in names]])
+    labels = torch.from_numpy(demos.states[idx][:, columns])
     error = estimates - labels
     normalised_error = error / policy.perceived_std
     known = (torch.ones_like(labels, dtype=torch.bool) if demos.known is None else
-             torch.from_numpy(demos.known[idx][:, [demos.state_names.index(n) for n in names]]))
+             torch.from_numpy(demos.known[idx][:, columns]))
     where = "every episode of the datasets" if args.split == "all" else f"the finetune's {args.split} episodes"
     print(f"{len(idx)} of the {len(held)} frames of {where}")
     if tasks is not None:
         print("\n| task | frames | normalised MSE over its own entries |\n|---|---|---|")
         for task in tasks:  # a frame's task: the one whose layout is exactly the entries the frame knows
-            own = np.isin(demos.state_names, make_task(task.name).state_names())
+            own = np.isin(demos.state_names, task.state_names())
             rows = torch.from_numpy((demos.known[idx] == own).all(axis=1))
             mask = known[rows]
             value = float(((normalised_error[rows] ** 2) * mask).sum() / mask.sum().clamp_min(1))

@@ -2,8 +2,9 @@
 one it had to touch, and how far its perception put that cube.
 
 Plays a controller with the oracle prompt at a RememberColor / RememberShape task's protocol seeds (as ``rollout``
-does; ``--seeds dev`` for the development seeds, where choices are made) and, at every control step once the candidates are in sight, reads the hand's position and each candidate's
-(the task's detector, privileged here: for the diagnosis only). For a camera-reading learned controller it also
+does; ``--seeds dev`` for the development seeds, where choices are made) and, at every control step once the
+candidates are in sight, reads the hand's position and each candidate's (the task's detector, privileged here: for
+the diagnosis only). For a camera-reading learned controller it also
 reads, at each decision, its perception head's estimate of the target's xy. Prints one line per episode and the
 failures grouped: "went to another cube" (the hand ended nearest another candidate), "short of the target" (nearest
 the target but never within the task's 5 cm), "reached, not held" (within 5 cm, no success: not still).
