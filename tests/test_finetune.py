@@ -112,6 +112,12 @@ def test_demos_finetune_rollout_through_the_cli(tmp_path):
     result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "h"), "--image-encoder",
                                   "cnn", "--image-head", "64x3"])
     assert result.exit_code == 2 and "--image-encoder cnn has convs of its own" in result.output, result.output
+    result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "h"), "--image-encoder",
+                                  "cnn", "--trunk-stride", "4"])
+    assert result.exit_code == 2 and "--image-encoder cnn has strides of its own" in result.output, result.output
+    result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "h"), "--trunk-stride",
+                                  "2"])
+    assert result.exit_code == 2 and "'2' is not one of '8', '4'" in result.output, result.output
 
 
 @pytest.fixture(scope="module")

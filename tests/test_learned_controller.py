@@ -270,6 +270,27 @@ def test_a_deeper_trunk_head_round_trips_and_older_configs_keep_theirs(tmp_path)
         LearnedPolicy.from_pretrained(tmp_path)
 
 
+def test_a_trunk_cut_at_stride_4_round_trips_and_fails_loudly_read_as_the_default(tmp_path):
+    policy = LearnedPolicy(LearnedPolicyConfig(**SMALL, image_features=tuple(IMAGE_KEYS), image_size=32,
+                                               image_encoder="efficientnet_lite0", image_dim=24, keypoints=8,
+                                               trunk_stride=4))
+    policy.save_pretrained(tmp_path)
+    config = json.loads((tmp_path / "config.json").read_text())
+    loaded = LearnedPolicy.from_pretrained(tmp_path)
+    assert config["trunk_stride"] == 4 and loaded.config.trunk_stride == 4
+    images = [torch.rand(2, 3, 32, 32) for _ in IMAGE_KEYS]
+    assert policy.camera_features(images)[0].shape == (2, 24, 8, 8)
+    state, prompt = torch.randn(2, STATE_DIM), torch.randn(2, SMALL["text_dim"])
+    with torch.no_grad():
+        np.testing.assert_array_equal(policy.eval()(state, prompt, policy.camera_features(images)),
+                                      loaded(state, prompt, loaded.camera_features(images)))
+    (tmp_path / "config.json").write_text(json.dumps({k: v for k, v in config.items() if k != "trunk_stride"}))
+    with pytest.raises(WeightsNotLoadedError, match="does not fit its config"):  # heads of 24 maps, not 40
+        LearnedPolicy.from_pretrained(tmp_path)
+    with pytest.raises(ValueError, match=r"trunk_stride 16: expected one of \[4, 8\]"):
+        LearnedPolicyConfig(**SMALL, trunk_stride=16)
+
+
 def test_images_are_resized_on_the_controllers_device_as_the_demonstrations_were():
     """``image_tensor`` resizes uint8 frames where the policy runs, to exactly the values the stored
     demonstration frames (``resize_images``, uint8) give; a frame already at size passes unchanged."""

@@ -7,6 +7,7 @@ import pytest
 import torch
 
 from sb3_memret.controllers.learned.vision import CameraHead, EfficientNetLite0Trunk, SpatialSoftmax, make_camera_encoder, shift_augment
+from sb3_memret.stage1.feature_cache import trunk_id
 
 
 def test_spatial_softmax_finds_a_peak():
@@ -40,6 +41,29 @@ def test_heads_map_images_or_features_to_vectors():
     assert [(c.in_channels, c.out_channels, c.kernel_size) for c in convs] == [(40, 16, (3, 3)), (16, 24, (1, 1)),
                                                                                 (24, 32, (1, 1))]
     assert deep(features).shape == (3, 24)
+
+
+def test_a_trunk_cut_at_stride_4_gives_finer_maps_cached_apart():
+    """Cut at stride 4 the trunk gives 24 maps at 1/4 of the picture's side (objects of a few pixels get a cell or
+    two each); its features are other features, so the cache names them apart."""
+    fine, head = make_camera_encoder("efficientnet_lite0", 24, trunk_stride=4)
+    features = fine(torch.rand(3, 3, 128, 128))
+    assert features.shape == (3, 24, 32, 32) and head(features).shape == (3, 24)
+    assert head.net[0].in_channels == 24
+    coarse, _ = make_camera_encoder("efficientnet_lite0", 24)
+    assert trunk_id(coarse) == f"EfficientNetLite0Trunk-{coarse.sha256[:16]}"  # features cached before the option
+    assert trunk_id(fine) != trunk_id(coarse)
+    coloured, _ = make_camera_encoder("efficientnet_lite0", 24, colour=True, trunk_stride=4)
+    assert coloured(torch.rand(1, 3, 64, 64)).shape == (1, 27, 16, 16)
+    assert len({trunk_id(coloured), trunk_id(fine), trunk_id(coarse)}) == 3
+
+
+@pytest.mark.parametrize("stride", [2, 16])
+def test_a_trunk_stride_it_does_not_cut_at_is_refused(stride):
+    with pytest.raises(ValueError, match=rf"trunk_stride {stride}: expected one of \[4, 8\]"):
+        make_camera_encoder("efficientnet_lite0", 24, trunk_stride=stride)
+    with pytest.raises(ValueError, match="the 'cnn' encoder's strides are its own"):
+        make_camera_encoder("cnn", 24, trunk_stride=4)
 
 
 @pytest.mark.parametrize("convs", [(), ((12, 3),), ((16, 2),), ((0, 3),)])

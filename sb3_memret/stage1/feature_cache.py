@@ -26,11 +26,12 @@ FOLDER = "trunk-features"
 
 
 def trunk_id(trunk: torch.nn.Module) -> str:
-    """A name for a frozen trunk's features: its class and the first 16 hex digits of its weights' SHA-256."""
+    """A name for a frozen trunk's features: its class (or its ``cache_name``, which says where it is cut) and the
+    first 16 hex digits of its weights' SHA-256."""
     digest = getattr(trunk, "sha256", None)
     if not digest:
         raise ValueError(f"{type(trunk).__name__} has no weights checksum (sha256); its features cannot be cached")
-    return f"{type(trunk).__name__}-{digest[:16]}"
+    return f"{getattr(trunk, 'cache_name', type(trunk).__name__)}-{digest[:16]}"
 
 
 def frames_digest(frames: np.ndarray) -> str:

