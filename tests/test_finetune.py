@@ -115,6 +115,9 @@ def test_demos_finetune_rollout_through_the_cli(tmp_path):
     result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "h"), "--image-encoder",
                                   "cnn", "--trunk-stride", "4"])
     assert result.exit_code == 2 and "--image-encoder cnn has strides of its own" in result.output, result.output
+    result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "h"), "--image-encoder",
+                                  "cnn", "--trunk-scale", "2"])
+    assert result.exit_code == 2 and "--trunk-scale 2 shape a frozen trunk" in result.output, result.output
     result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "h"), "--trunk-stride",
                                   "2"])
     assert result.exit_code == 2 and "'2' is not one of '8', '4'" in result.output, result.output

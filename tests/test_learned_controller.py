@@ -289,6 +289,8 @@ def test_a_trunk_cut_at_stride_4_round_trips_and_fails_loudly_read_as_the_defaul
         LearnedPolicy.from_pretrained(tmp_path)
     with pytest.raises(ValueError, match=r"trunk_stride 16: expected one of \[4, 8\]"):
         LearnedPolicyConfig(**SMALL, trunk_stride=16)
+    with pytest.raises(ValueError, match=r"trunk_scale 4: expected one of \[1, 2\]"):
+        LearnedPolicyConfig(**SMALL, trunk_scale=4)
 
 
 def test_images_are_resized_on_the_controllers_device_as_the_demonstrations_were():

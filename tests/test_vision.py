@@ -58,12 +58,32 @@ def test_a_trunk_cut_at_stride_4_gives_finer_maps_cached_apart():
     assert len({trunk_id(coloured), trunk_id(fine), trunk_id(coarse)}) == 3
 
 
-@pytest.mark.parametrize("stride", [2, 16])
-def test_a_trunk_stride_it_does_not_cut_at_is_refused(stride):
-    with pytest.raises(ValueError, match=rf"trunk_stride {stride}: expected one of \[4, 8\]"):
-        make_camera_encoder("efficientnet_lite0", 24, trunk_stride=stride)
+def test_a_trunk_fed_the_picture_enlarged_gives_finer_maps_cached_apart():
+    """Enlarged 2x before the trunk, a 64-px picture gives the full trunk's 40 maps at 16x16, not 8x8; the
+    features are those of the enlarged picture, cached under a name of their own."""
+    enlarged, head = make_camera_encoder("efficientnet_lite0", 24, trunk_scale=2)
+    coarse, _ = make_camera_encoder("efficientnet_lite0", 24)
+    images = torch.rand(2, 3, 64, 64)
+    features = enlarged(images)
+    assert features.shape == (2, 40, 16, 16) and head(features).shape == (2, 24)
+    big = torch.nn.functional.interpolate(images, scale_factor=2, mode="bilinear", align_corners=False)
+    torch.testing.assert_close(features, coarse(big))
+    assert trunk_id(enlarged) != trunk_id(coarse)
+    both, _ = make_camera_encoder("efficientnet_lite0", 24, trunk_stride=4, trunk_scale=2)
+    assert both(images).shape == (2, 24, 32, 32)
+    assert len({trunk_id(enlarged), trunk_id(both), trunk_id(coarse)}) == 3
+
+
+@pytest.mark.parametrize("stride, scale", [(2, 1), (16, 1), (8, 3), (8, 0)])
+def test_a_trunk_cut_or_scale_it_does_not_make_is_refused(stride, scale):
+    message = (rf"trunk_stride {stride}: expected one of \[4, 8\]" if stride not in (4, 8)
+               else rf"trunk_scale {scale}: expected one of \[1, 2\]")
+    with pytest.raises(ValueError, match=message):
+        make_camera_encoder("efficientnet_lite0", 24, trunk_stride=stride, trunk_scale=scale)
     with pytest.raises(ValueError, match="the 'cnn' encoder's strides are its own"):
         make_camera_encoder("cnn", 24, trunk_stride=4)
+    with pytest.raises(ValueError, match="the 'cnn' encoder's strides are its own"):
+        make_camera_encoder("cnn", 24, trunk_scale=2)
 
 
 @pytest.mark.parametrize("convs", [(), ((12, 3),), ((16, 2),), ((0, 3),)])

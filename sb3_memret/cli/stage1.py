@@ -173,6 +173,9 @@ def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, no
 @click.option("--trunk-stride", type=click.Choice(["8", "4"]), default="8", show_default=True,
               help="learned, efficientnet_lite0: where the frozen trunk is cut: its maps are 1/stride of the picture's "
                    "side (4: 32x32 maps at 128x128, shallower features, for objects a few pixels wide).")
+@click.option("--trunk-scale", type=click.Choice(["1", "2"]), default="1", show_default=True,
+              help="learned, efficientnet_lite0: the picture is enlarged this many times before the frozen trunk "
+                   "(2: 32x32 maps of the full trunk at 128x128, four times its cost).")
 @click.option("--image-colour/--no-image-colour", default=False, show_default=True,
               help="learned, efficientnet_lite0: the camera heads also read the image's colour on the trunk's grid "
                    "(for objects told apart by hue alone).")
@@ -196,7 +199,7 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
              learning_rate: float | None, seed: int, pretrained: Path | None, tokenizer: Path | None, lora_rank: int,
              device: str, task: str, dataset_tasks: str | None, state: str | None, image_encoder: str,
              image_dim: int, keypoints: int, image_head: tuple[tuple[int, int], ...], trunk_stride: str,
-             image_colour: bool,
+             trunk_scale: str, image_colour: bool,
              image_film: bool, pointer: bool, perception_state: bool, pointer_hindsight: float,
              cache_features: bool, progress: bool) -> None:
     """Train a frozen controller from DATASETS (LeRobotDatasets written by `sb3-memret demos`).
@@ -248,14 +251,15 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
     if image_encoder == "cnn" and image_head != TRUNK_HEAD:
         raise click.BadParameter(f"--image-head shapes a frozen trunk's camera heads; --image-encoder cnn has convs "
                                  "of its own", param_hint="--image-head")
-    if image_encoder == "cnn" and int(trunk_stride) != TRUNK_STRIDE:
-        raise click.BadParameter(f"--trunk-stride {trunk_stride} cuts a frozen trunk; --image-encoder cnn has strides "
-                                 "of its own", param_hint="--trunk-stride")
+    if image_encoder == "cnn" and (int(trunk_stride) != TRUNK_STRIDE or int(trunk_scale) != 1):
+        raise click.BadParameter(f"--trunk-stride {trunk_stride} and --trunk-scale {trunk_scale} shape a frozen "
+                                 "trunk; --image-encoder cnn has strides of its own", param_hint="--trunk-stride")
     try:
         config = LearnedPolicyConfig(instructions=template.instructions, fact_templates=template.fact_templates,
                                      image_encoder=image_encoder, image_dim=image_dim, keypoints=keypoints,
-                                     image_head=image_head, trunk_stride=int(trunk_stride), image_colour=image_colour,
-                                     image_film=image_film, pointer=pointer, perception_state=perception_state,
+                                     image_head=image_head, trunk_stride=int(trunk_stride),
+                                     trunk_scale=int(trunk_scale), image_colour=image_colour, image_film=image_film,
+                                     pointer=pointer, perception_state=perception_state,
                                      chunk_len=chunk_lens[tasks[0].name])
     except ValueError as err:
         raise click.BadParameter(str(err)) from err

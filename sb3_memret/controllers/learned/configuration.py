@@ -8,7 +8,7 @@ from pathlib import Path
 from typing import Any
 
 from sb3_memret.controllers.learned.vision import (IMAGE_ENCODERS, KEYPOINTS, TRUNK_HEAD, TRUNK_STRIDE, check_trunk_head,
-                                                   check_trunk_stride)
+                                                   check_trunk_scale, check_trunk_stride)
 from sb3_memret.controllers.observation import ACTION_DIM, IMAGE_KEYS, STATE_NAMES
 from sb3_memret.prompts import PromptTemplate
 
@@ -53,6 +53,7 @@ class LearnedPolicyConfig:
     image_encoder: str = "cnn"  # one of vision.IMAGE_ENCODERS
     image_head: tuple[tuple[int, int], ...] = TRUNK_HEAD  # a frozen trunk's head: (channels, kernel) of each conv
     trunk_stride: int = TRUNK_STRIDE  # where the frozen trunk is cut: its maps are 1/stride of the picture's side
+    trunk_scale: int = 1  # the picture is enlarged this many times before the frozen trunk (finer maps)
     image_colour: bool = False  # a frozen trunk's heads also read the image's colour on the trunk's grid
     image_film: bool = False  # the camera heads' keypoints are conditioned on the prompt (FiLM)
     pointer: bool = False  # the action head also reads the perceived entries of the object the prompt points at
@@ -72,6 +73,7 @@ class LearnedPolicyConfig:
         self.image_head = tuple(tuple(conv) for conv in self.image_head)  # JSON stores lists
         check_trunk_head(self.image_head)
         check_trunk_stride(self.trunk_stride)
+        check_trunk_scale(self.trunk_scale)
         if self.tasks and (self.tasks[0] != self.task or len(set(self.tasks)) != len(self.tasks)):
             raise ValueError(f"tasks {list(self.tasks)} must be distinct and start with task {self.task!r}")
         if self.state_dim != len(self.state_names):

@@ -104,7 +104,7 @@ class LearnedPolicy(nn.Module):
             trunk, head = make_camera_encoder(config.image_encoder, config.image_dim, config.trunk_sha256 or None,
                                               config.keypoints, config.image_colour,
                                               config.text_dim if config.image_film else 0, config.image_head,
-                                              config.trunk_stride)
+                                              config.trunk_stride, config.trunk_scale)
             heads.append(head)
             if trunk is not None and self.trunk is None:
                 self.trunk = trunk

