@@ -115,6 +115,8 @@ def test_demos_finetune_rollout_through_the_cli(tmp_path):
     result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "h"), "--image-encoder",
                                   "cnn", "--trunk-stride", "4"])
     assert result.exit_code == 2 and "--image-encoder cnn has strides of its own" in result.output, result.output
+    result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "c"), "--resume"])
+    assert result.exit_code == 2 and "nothing to resume" in result.output, result.output
     result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "h"), "--image-encoder",
                                   "cnn", "--trunk-scale", "2"])
     assert result.exit_code == 2 and "--trunk-scale 2 shape a frozen trunk" in result.output, result.output
@@ -179,6 +181,43 @@ def test_a_frozen_trunks_features_are_cached_per_dataset_and_train_the_same_poli
         if name == "first":
             assert len(set((cache_root() / FOLDER).rglob("*.npy")) - before) == 2  # the base and wrist cameras
     assert all(torch.equal(weights[0][key], other[key]) for other in weights[1:] for key in weights[0])
+
+
+def test_a_stopped_finetune_resumes_to_the_weights_of_one_never_stopped(camera_demos, tmp_path):
+    """Stopped after step 7, a finetune keeps its state; resumed, it trains the very same weights as a run that was
+    never stopped (its optimiser, schedule, batches and pixel shifts go on where they were) and logs every step once.
+    A folder with an unfinished run is not overwritten, and other settings cannot resume it."""
+    from safetensors.torch import load_file
+
+    from sb3_memret.stage1.finetune import STATE_FILE
+
+    config = LearnedPolicyConfig(hidden_dim=32, n_layers=1, text_dim=16, text_heads=2, image_encoder="cnn",
+                                 image_dim=8, keypoints=8)
+    settings = FinetuneSettings(steps=12, batch_size=8)
+    whole = finetune([camera_demos], tmp_path / "whole", config, settings, state="proprio")
+    assert not (whole / STATE_FILE).exists()
+
+    def stop_after_7(step: int, loss: float) -> None:
+        if step == 8:
+            raise KeyboardInterrupt
+
+    out = tmp_path / "stopped"
+    with pytest.raises(KeyboardInterrupt):
+        finetune([camera_demos], out, config, settings, state="proprio", on_step=stop_after_7)
+    assert (out / STATE_FILE).is_file() and not (out / "model.safetensors").exists()
+    with pytest.raises(FileExistsError, match="holds an unfinished finetune"):
+        finetune([camera_demos], out, config, settings, state="proprio")
+    with pytest.raises(ValueError, match="other datasets, settings or policy options"):
+        finetune([camera_demos], out, config, FinetuneSettings(steps=12, batch_size=4), state="proprio", resume=True)
+    steps = []
+    finetune([camera_demos], out, config, settings, state="proprio", resume=True,
+             on_step=lambda step, loss: steps.append(step))
+    assert steps == list(range(8, 13)) and not (out / STATE_FILE).exists()
+    assert [int(row["step"]) for row in read_log(out)] == list(range(1, 13))
+    expected, resumed = load_file(whole / "model.safetensors"), load_file(out / "model.safetensors")
+    assert all(torch.equal(expected[key], resumed[key]) for key in expected)
+    with pytest.raises(FileNotFoundError, match="nothing to resume"):
+        finetune([camera_demos], out, config, settings, state="proprio", resume=True)
 
 
 def test_a_colour_reading_policy_round_trips_and_acts(camera_demos, tmp_path, rgb_task_env):

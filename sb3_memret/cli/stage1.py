@@ -194,6 +194,9 @@ def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, no
 @click.option("--cache-features/--no-cache-features", default=True, show_default=True,
               help="learned, with a frozen trunk: keep each dataset's trunk features on disk ($SB3_MEMRET_CACHE, else "
                    "~/.cache/sb3-memret) and read them back in later finetunes of the same frames.")
+@click.option("--resume", is_flag=True, default=False,
+              help="learned: go on from the unfinished finetune in OUT (its state at the last logged step), on the "
+                   "same datasets and options.")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
 def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | None, batch_size: int | None,
              learning_rate: float | None, seed: int, pretrained: Path | None, tokenizer: Path | None, lora_rank: int,
@@ -201,7 +204,7 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
              image_dim: int, keypoints: int, image_head: tuple[tuple[int, int], ...], trunk_stride: str,
              trunk_scale: str, image_colour: bool,
              image_film: bool, pointer: bool, perception_state: bool, pointer_hindsight: float,
-             cache_features: bool, progress: bool) -> None:
+             cache_features: bool, resume: bool, progress: bool) -> None:
     """Train a frozen controller from DATASETS (LeRobotDatasets written by `sb3-memret demos`).
 
     The learned policy reads the prompt as frozen MiniLM per-token features, the state (and the
@@ -212,6 +215,9 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
     from tqdm import tqdm
 
     if policy == "pi05":
+        if resume:
+            raise click.BadParameter("--resume goes on from a learned policy's finetune; --policy pi05 starts afresh",
+                                     param_hint="--resume")
         if pretrained is None:
             raise click.BadParameter("--policy pi05 needs --pretrained PATH (a PI05 checkpoint folder)",
                                      param_hint="--pretrained")
@@ -269,14 +275,15 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
         raise click.UsageError(str(err)) from err
     with tqdm(total=settings.steps, desc="finetune learned", disable=not progress) as bar:
         def on_step(step: int, loss: float) -> None:
-            bar.update(1)
+            bar.update(step - bar.n)  # a resumed run starts past 0
             if step % 100 == 0:
                 bar.set_postfix(loss=f"{loss:.4f}")
 
         try:
             train_policy(by_task or datasets, out, config, settings=settings, on_step=on_step,
-                         task=None if by_task else task, state=state, cache_features=cache_features)
-        except (FileNotFoundError, ValueError) as err:
+                         task=None if by_task else task, state=state, cache_features=cache_features,
+                         resume=resume)
+        except (FileNotFoundError, FileExistsError, ValueError) as err:
             raise click.UsageError(str(err)) from err
     click.echo(f"checkpoint written: --controller learned:{out}")
 

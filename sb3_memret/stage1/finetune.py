@@ -23,12 +23,15 @@ cloning alone did not learn to use them.)
 from __future__ import annotations
 
 import csv
+import hashlib
 import json
 import math
+import os
+import tempfile
 import time
-from dataclasses import dataclass, replace
+from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Callable, Mapping, Sequence
+from typing import Callable, Mapping, Sequence, TextIO
 
 import numpy as np
 import torch
@@ -45,6 +48,7 @@ from sb3_memret.stage1.feature_cache import cached_features
 from sb3_memret.tasks import DEFAULT_TASK, Task, make_task
 
 LOG_FILE = "train_log.csv"
+STATE_FILE = "training_state.pt"  # an unfinished finetune at its last logged step, removed once the policy is saved
 POINTER_TARGETS_FILE = "pointer_targets.json"  # finetune's hindsight target of each training prompt, for reading
 STATE_CHOICES = ("full", "proprio")  # the whole state layout, or what a robot reads of itself
 FEATURE_BATCH = 64  # frames per batch when a frozen trunk's features are computed
@@ -122,14 +126,23 @@ def finetune(
     state: str = "full",
     cameras: bool = True,
     cache_features: bool = True,
+    resume: bool = False,
 ) -> Path:
     """Train a LearnedPolicy on ``datasets`` of ``task`` (default the drawer), or on a mapping from each of several
     tasks to its datasets (one multi-task policy), and save it to ``out`` (``save_pretrained``); returns ``out``.
     ``state`` picks the state entries it reads (``full`` or ``proprio``); ``cameras=False`` leaves the datasets'
     camera images out; ``cache_features`` keeps a frozen trunk's features of each dataset on disk for the next
     finetune (``feature_cache``). The prompt contract is the config's fact templates for the drawer, the tasks' own
-    templates (together) for any other."""
+    templates (together) for any other. At every logged step the run's state is kept in ``out/training_state.pt``;
+    ``resume`` goes on from it, to the same weights as a run never stopped, on the same data and settings only."""
     settings = settings or FinetuneSettings()
+    out = Path(out)
+    state_path = out / STATE_FILE
+    if resume and not state_path.is_file():
+        raise FileNotFoundError(f"nothing to resume: {out} holds no unfinished finetune ({STATE_FILE})")
+    if not resume and state_path.is_file():
+        raise FileExistsError(f"{out} holds an unfinished finetune ({STATE_FILE}): resume it (--resume) or delete "
+                              "the folder")
     if isinstance(datasets, Mapping):
         if task is not None:
             raise ValueError(f"datasets given per task name their tasks; task {task!r} is not needed")
@@ -181,7 +194,6 @@ def finetune(
     train_idx, val_idx = np.flatnonzero(~is_val), np.flatnonzero(is_val)
     if len(train_idx) == 0:
         raise ValueError("no training frames left after the validation split")
-    out = Path(out)
     out.mkdir(parents=True, exist_ok=True)
     pointed = pointer_targets(model, demos, ~is_val, tasks, out) if settings.pointer_hindsight > 0 else None
     hinted = pointed >= 0 if pointed is not None else None  # the prompts with a hindsight target
@@ -233,13 +245,15 @@ def finetune(
 
     weights = torch.tensor([1.0, settings.perception_coef, settings.pointer_hindsight])
     log_every = max(1, settings.steps // 50)
-    started = time.monotonic()
-    with open(out / LOG_FILE, "w", newline="") as f:
+    run = _run_fingerprint(config, settings, demos.spans, len(train_idx))
+    done, elapsed = 0, 0.0
+    if resume:
+        done, elapsed = _load_training_state(state_path, run, model, optimizer, schedule, rng, shifts)
+    started = time.monotonic() - elapsed
+    with _open_log(out / LOG_FILE, done) as f:
         log = csv.writer(f)
-        log.writerow(["step", "train_loss", "train_perception_mse", "val_loss", "val_perception_mse",
-                      "pointer_ambiguity", "seconds"])
         model.train()
-        for step in range(1, settings.steps + 1):
+        for step in range(done + 1, settings.steps + 1):
             batch = rng.choice(train_idx, size=min(settings.batch_size, len(train_idx)), replace=False)
             losses = losses_on(batch)
             loss = (weights * losses).sum()
@@ -255,9 +269,77 @@ def finetune(
                 log.writerow([step, f"{losses[0].item():.5f}", f"{losses[1].item():.5f}" if perceived else "", *held,
                               ambiguity(), f"{time.monotonic() - started:.1f}"])
                 f.flush()
+                if step < settings.steps:
+                    _save_training_state(state_path, run, step, time.monotonic() - started, model, optimizer,
+                                         schedule, rng, shifts)
     model.eval()
     model.save_pretrained(out)
+    state_path.unlink(missing_ok=True)
     return out
+
+
+LOG_HEADER = ["step", "train_loss", "train_perception_mse", "val_loss", "val_perception_mse", "pointer_ambiguity",
+              "seconds"]
+
+
+def _open_log(path: Path, done: int) -> TextIO:
+    """``train_log.csv`` opened for the rows after step ``done``: a new log, or a resumed run's rows up to ``done``
+    (rows logged after its last kept state are dropped, since they are trained again)."""
+    if done == 0:
+        f = open(path, "w", newline="")
+        csv.writer(f).writerow(LOG_HEADER)
+        return f
+    kept = [row for row in read_log(path.parent) if int(row["step"]) <= done]
+    f = open(path, "w", newline="")
+    writer = csv.DictWriter(f, LOG_HEADER)
+    writer.writeheader()
+    writer.writerows(kept)
+    f.flush()
+    return f
+
+
+def _run_fingerprint(config: LearnedPolicyConfig, settings: FinetuneSettings, spans: Sequence[int],
+                     n_train: int) -> str:
+    """SHA-256 of what a resumed finetune must share with the run it goes on from: the policy's config, the
+    settings, the datasets' frame counts and the training split's size."""
+    facts = {"config": asdict(config), "settings": asdict(settings), "spans": [int(n) for n in spans],
+             "train_frames": n_train}
+    return hashlib.sha256(json.dumps(facts, sort_keys=True, default=str).encode()).hexdigest()
+
+
+def _save_training_state(path: Path, run: str, step: int, elapsed: float, model: LearnedPolicy,
+                         optimizer: torch.optim.Optimizer, schedule: torch.optim.lr_scheduler.LRScheduler,
+                         rng: np.random.Generator, shifts: torch.Generator) -> None:
+    """Write the run's state at ``step`` atomically (a run stopped while writing keeps the previous one)."""
+    state = {"run": run, "step": step, "elapsed": elapsed, "model": model.state_dict(),
+             "optimizer": optimizer.state_dict(), "schedule": schedule.state_dict(),
+             "numpy_rng": json.dumps(rng.bit_generator.state), "torch_rng": torch.get_rng_state(),
+             "shifts": shifts.get_state()}
+    handle, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
+    try:
+        with os.fdopen(handle, "wb") as f:
+            torch.save(state, f)
+        os.replace(tmp, path)
+    finally:
+        Path(tmp).unlink(missing_ok=True)
+
+
+def _load_training_state(path: Path, run: str, model: LearnedPolicy, optimizer: torch.optim.Optimizer,
+                         schedule: torch.optim.lr_scheduler.LRScheduler, rng: np.random.Generator,
+                         shifts: torch.Generator) -> tuple[int, float]:
+    """Restore a run's state from ``path`` into the objects given; (its step, seconds trained). A ValueError when
+    it was written by a run on other data or settings."""
+    state = torch.load(path, map_location="cpu", weights_only=True)
+    if state["run"] != run:
+        raise ValueError(f"{path} was written by a finetune on other datasets, settings or policy options; resume "
+                         "with the same ones, or delete the folder to start afresh")
+    model.load_state_dict(state["model"])
+    optimizer.load_state_dict(state["optimizer"])
+    schedule.load_state_dict(state["schedule"])
+    rng.bit_generator.state = json.loads(state["numpy_rng"])
+    torch.set_rng_state(state["torch_rng"])
+    shifts.set_state(state["shifts"])
+    return int(state["step"]), float(state["elapsed"])
 
 
 def batch_prompts(model: LearnedPolicy, tokens: torch.Tensor, mask: torch.Tensor,
@@ -331,5 +413,5 @@ def read_log(out: str | Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
-__all__ = ["FinetuneSettings", "STATE_CHOICES", "batch_prompts", "finetune", "masked_mse", "masked_stats",
+__all__ = ["FinetuneSettings", "STATE_CHOICES", "STATE_FILE", "batch_prompts", "finetune", "masked_mse", "masked_stats",
            "pointer_targets", "read_log", "state_names_for", "tasks_template"]
