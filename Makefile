@@ -140,7 +140,8 @@ controller-multitask: install renderer
 		LEARNER=$$own scripts/record_task_demos.sh $(MULTITASK_RUN)/demos \
 			$$(($(MULTITASK_EPISODES) + $(MULTITASK_ONPOLICY))) $$task || exit 1; \
 	done
-	rm -rf $(MULTITASK_RUN)/policy-first $(MULTITASK_RUN)/policy
+	for policy in $(MULTITASK_RUN)/policy-first $(MULTITASK_RUN)/policy; do \
+		[ -f $$policy/training_state.pt ] || rm -rf $$policy; done  # an unfinished finetune resumes
 	scripts/finetune_task_demos.sh $(MULTITASK_RUN)/demos $(MULTITASK_RUN)/policy-first $(MULTITASK_TASKS) \
 		--steps $(MULTITASK_STEPS) $(MULTITASK_FINETUNE)
 	LEARNER=learned:$(MULTITASK_RUN)/policy-first SEED=$$((100000 + $(MULTITASK_EPISODES) + $(MULTITASK_ONPOLICY))) \

@@ -3,7 +3,8 @@
 # recorded into DEMOS: every finished chunk of each task is a dataset, named with its task (finetune --tasks), and the
 # policy lands in OUT. DEMOS may list several roots, comma-separated (the experts' demonstrations and a DAgger
 # round's): each must hold finished chunks of every task, except a root marked optional with a trailing '?' (more
-# episodes of some tasks only), whose tasks without chunks are skipped.
+# episodes of some tasks only), whose tasks without chunks are skipped. An unfinished finetune in OUT (stopped or
+# crashed: OUT/training_state.pt) goes on where it stopped (finetune --resume; refused if the data or options differ).
 # Usage: scripts/finetune_task_demos.sh DEMOS[,DEMOS...] OUT TASK[,TASK...] [finetune options...]
 #   e.g. scripts/finetune_task_demos.sh runs/multitask runs/multitask/policy \
 #          RememberColor3-VLA-v0,RememberShape3-VLA-v0 --steps 4000
@@ -43,5 +44,10 @@ if [ ${#wanted[@]} -eq 1 ]; then  # one task's chunks: a per-task policy, on the
 else
   task_args=(--tasks "$(IFS=,; echo "${tasks[*]}")")
 fi
+resume=()
+if [ -f "$out/training_state.pt" ]; then
+  resume=(--resume)
+  echo "resuming the unfinished finetune in $out"
+fi
 echo "finetuning on ${#datasets[@]} chunks of ${#wanted[@]} task(s) from ${roots[*]}"
-.venv/bin/sb3-memret finetune "${datasets[@]}" "${task_args[@]}" --out "$out" "$@"
+.venv/bin/sb3-memret finetune "${datasets[@]}" "${task_args[@]}" --out "$out" "${resume[@]}" "$@"

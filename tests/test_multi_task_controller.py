@@ -144,6 +144,17 @@ def test_an_optional_root_adds_the_chunks_of_the_tasks_it_has(datasets, tmp_path
     assert not (tmp_path / "none").exists()
 
 
+def test_the_finetune_script_resumes_an_unfinished_finetune(datasets, tmp_path):
+    """An OUT holding a finetune's state is resumed (here one that cannot be read, refused by name)."""
+    expert = _chunks(tmp_path / "demos", datasets, (COLOUR, SHAPE))
+    out = tmp_path / "policy"
+    out.mkdir()
+    (out / "training_state.pt").write_bytes(b"not a state")
+    result = _finetune_script(expert, out, f"{COLOUR},{SHAPE}", "--steps", "2", *SMALL)
+    assert "resuming the unfinished finetune" in result.stdout
+    assert result.returncode == 2 and "cannot be read as a finetune's state" in result.stderr, result.stderr
+
+
 def test_a_pointer_across_tasks_points_with_the_fields_every_object_has(datasets, tmp_path):
     back = "TakeItBack-VLA-v0"  # its cube has a position and no visibility flag, RememberColor3's cubes have both
     demos = tmp_path / back

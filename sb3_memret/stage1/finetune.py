@@ -329,8 +329,12 @@ def _load_training_state(path: Path, run: str, model: LearnedPolicy, optimizer: 
                          shifts: torch.Generator) -> tuple[int, float]:
     """Restore a run's state from ``path`` into the objects given; (its step, seconds trained). A ValueError when
     it was written by a run on other data or settings."""
-    state = torch.load(path, map_location="cpu", weights_only=True)
-    if state["run"] != run:
+    try:
+        state = torch.load(path, map_location="cpu", weights_only=True)
+    except Exception as err:  # torch raises several kinds for a truncated or foreign file
+        raise ValueError(f"{path} cannot be read as a finetune's state ({type(err).__name__}): delete the folder to "
+                         "start afresh") from err
+    if not isinstance(state, dict) or state.get("run") != run:
         raise ValueError(f"{path} was written by a finetune on other datasets, settings or policy options; resume "
                          "with the same ones, or delete the folder to start afresh")
     model.load_state_dict(state["model"])
