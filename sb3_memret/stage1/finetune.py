@@ -48,6 +48,8 @@ from sb3_memret.stage1.feature_cache import cached_features
 from sb3_memret.tasks import DEFAULT_TASK, Task, make_task
 
 LOG_FILE = "train_log.csv"
+LOG_HEADER = ["step", "train_loss", "train_perception_mse", "val_loss", "val_perception_mse", "pointer_ambiguity",
+              "seconds"]
 STATE_FILE = "training_state.pt"  # an unfinished finetune at its last logged step, removed once the policy is saved
 POINTER_TARGETS_FILE = "pointer_targets.json"  # finetune's hindsight target of each training prompt, for reading
 STATE_CHOICES = ("full", "proprio")  # the whole state layout, or what a robot reads of itself
@@ -278,18 +280,10 @@ def finetune(
     return out
 
 
-LOG_HEADER = ["step", "train_loss", "train_perception_mse", "val_loss", "val_perception_mse", "pointer_ambiguity",
-              "seconds"]
-
-
 def _open_log(path: Path, done: int) -> TextIO:
     """``train_log.csv`` opened for the rows after step ``done``: a new log, or a resumed run's rows up to ``done``
     (rows logged after its last kept state are dropped, since they are trained again)."""
-    if done == 0:
-        f = open(path, "w", newline="")
-        csv.writer(f).writerow(LOG_HEADER)
-        return f
-    kept = [row for row in read_log(path.parent) if int(row["step"]) <= done]
+    kept = [row for row in read_log(path.parent) if int(row["step"]) <= done] if done else []
     f = open(path, "w", newline="")
     writer = csv.DictWriter(f, LOG_HEADER)
     writer.writeheader()
