@@ -202,9 +202,8 @@ def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | No
              learning_rate: float | None, seed: int, pretrained: Path | None, tokenizer: Path | None, lora_rank: int,
              device: str, task: str, dataset_tasks: str | None, state: str | None, image_encoder: str,
              image_dim: int, keypoints: int, image_head: tuple[tuple[int, int], ...], trunk_stride: str,
-             trunk_scale: str, image_colour: bool,
-             image_film: bool, pointer: bool, perception_state: bool, pointer_hindsight: float,
-             cache_features: bool, resume: bool, progress: bool) -> None:
+             trunk_scale: str, image_colour: bool, image_film: bool, pointer: bool, perception_state: bool,
+             pointer_hindsight: float, cache_features: bool, resume: bool, progress: bool) -> None:
     """Train a frozen controller from DATASETS (LeRobotDatasets written by `sb3-memret demos`).
 
     The learned policy reads the prompt as frozen MiniLM per-token features, the state (and the
