@@ -13,12 +13,14 @@ learned nothing spreads its weight.
     python scripts/perception_error.py sb3_memret/controllers/checkpoints/RememberColor9-VLA-v0-camera \\
         runs/stage1-RememberColor9-VLA-v0/demos --task RememberColor9-VLA-v0
 
-A multi-task controller reads its datasets as ``finetune --tasks`` does (each DATASET's task, in order).
+A multi-task controller reads its datasets as ``finetune --tasks`` does (each DATASET's task, in order); given some
+of its tasks only, the entries of the others are left out.
 """
 
 from __future__ import annotations
 
 import argparse
+from dataclasses import replace
 
 import numpy as np
 import torch
@@ -59,9 +61,13 @@ def main() -> None:
         for task_name, root in zip(task_names, args.datasets):
             by_task.setdefault(task_name, []).append(root)
         demos, tasks = load_task_demonstrations(by_task)
-    missing = sorted(set(names) - set(demos.state_names))
-    if missing:
+    missing = [name for name in names if name not in demos.state_names]
+    if missing and tasks is None:
         raise SystemExit(f"the dataset's state has no entries {missing}: record it for task {policy.config.task!r}")
+    if missing:  # some of a multi-task controller's tasks: the others' entries are unknown in every frame
+        demos = replace(demos, state_names=demos.state_names + tuple(missing),
+                        states=np.pad(demos.states, ((0, 0), (0, len(missing)))),
+                        known=np.pad(demos.known, ((0, 0), (0, len(missing)))))
     rng = np.random.default_rng(args.seed)
     is_val = np.isin(demos.episodes, validation_episodes(demos.episodes, args.validation_fraction, rng))
     held = np.flatnonzero({"validation": is_val, "training": ~is_val, "all": np.ones_like(is_val)}[args.split])
@@ -96,10 +102,12 @@ def main() -> None:
     print("| entry | normalised MSE | median abs error |\n|---|---|---|")
     for i, name in enumerate(names):  # over the frames whose task has the entry
         rows = known[:, i]
+        if not rows.any():
+            continue
         print(f"| {name} | {float((normalised_error[rows, i] ** 2).mean()):.3f} | "
               f"{float(error[rows, i].abs().median()):.4f} |")
     objects = [n.removesuffix("_visible") for n in names if n.endswith("_visible")]
-    located = [o for o in objects if f"{o}_x" in names and f"{o}_y" in names]
+    located = [o for o in objects if f"{o}_x" in names and f"{o}_y" in names and known[:, names.index(f"{o}_x")].any()]
     if located:
         print("\n| object | frames in sight | median xy error |\n|---|---|---|")
     for obj in located:
