@@ -11,8 +11,6 @@ delete.
 from __future__ import annotations
 
 import hashlib
-import os
-import tempfile
 import warnings
 from pathlib import Path
 from typing import Callable, Sequence
@@ -20,7 +18,7 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from sb3_memret.cache import CACHE_ENV, cache_root
+from sb3_memret.cache import CACHE_ENV, cache_root, write_atomically
 
 FOLDER = "trunk-features"
 
@@ -70,13 +68,7 @@ def _save(path: Path, array: np.ndarray) -> None:
     """Write ``array`` to ``path`` atomically (a finetune stopped midway leaves no half file)."""
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
-        handle, tmp = tempfile.mkstemp(dir=path.parent, suffix=".npy.tmp")
-        try:
-            with os.fdopen(handle, "wb") as f:
-                np.save(f, array)
-            os.replace(tmp, path)
-        finally:
-            Path(tmp).unlink(missing_ok=True)
+        write_atomically(path, lambda f: np.save(f, array))
     except OSError as err:
         warnings.warn(f"trunk features not cached: {path.parent} cannot be written ({err}); set ${CACHE_ENV} to a "
                       "writable folder to keep them for the next finetune", stacklevel=3)

@@ -26,8 +26,6 @@ import csv
 import hashlib
 import json
 import math
-import os
-import tempfile
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
@@ -37,6 +35,7 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
+from sb3_memret.cache import write_atomically
 from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig, perceived_objects
 from sb3_memret.controllers.learned.modeling import LearnedPolicy, chunk_loss, pointer_ambiguity
 from sb3_memret.controllers.learned.processing import PromptTokenizer, state_columns
@@ -309,13 +308,7 @@ def _save_training_state(path: Path, run: str, step: int, elapsed: float, model:
              "optimizer": optimizer.state_dict(), "schedule": schedule.state_dict(),
              "numpy_rng": json.dumps(rng.bit_generator.state), "torch_rng": torch.get_rng_state(),
              "shifts": shifts.get_state()}
-    handle, tmp = tempfile.mkstemp(dir=path.parent, suffix=".tmp")
-    try:
-        with os.fdopen(handle, "wb") as f:
-            torch.save(state, f)
-        os.replace(tmp, path)
-    finally:
-        Path(tmp).unlink(missing_ok=True)
+    write_atomically(path, lambda f: torch.save(state, f))
 
 
 def _load_training_state(path: Path, run: str, model: LearnedPolicy, optimizer: torch.optim.Optimizer,

@@ -149,8 +149,8 @@ class EfficientNetLite0Trunk(FrozenModule):
         self.scale = scale
         # features of another cut or scale are other features: the cache keeps them apart (the default keeps its
         # older name)
-        self.cache_name = (type(self).__name__ + ("" if stride == TRUNK_STRIDE else f"-stride{stride}")
-                           + ("" if scale == 1 else f"-x{scale}"))
+        self.cut = ("" if stride == TRUNK_STRIDE else f"-stride{stride}") + ("" if scale == 1 else f"-x{scale}")
+        self.cache_name = type(self).__name__ + self.cut
 
         path = efficientnet_lite0_file()
         digest = file_sha256(path)
@@ -183,7 +183,7 @@ class ColourTrunk(FrozenModule):
         self.trunk = trunk
         self.sha256 = trunk.sha256
         self.out_channels = trunk.out_channels + 3
-        self.cache_name = trunk.cache_name.replace(type(trunk).__name__, type(self).__name__)
+        self.cache_name = type(self).__name__ + trunk.cut
         self.freeze()
 
     @torch.no_grad()
