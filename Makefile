@@ -114,40 +114,54 @@ controller-mikasa: install renderer
 	cp $(MIKASA_RUN)/policy/config.json $(MIKASA_RUN)/policy/model.safetensors \
 		$(MIKASA_RUN)/policy/train_log.csv sb3_memret/controllers/checkpoints/$(MIKASA_TASK)-camera/
 
-# The one camera controller across nineteen MIKASA tasks (`--controller learned` on each; finetune --tasks): every
-# short-split task whose success is touching the object a fact names, the prompt telling the tasks apart, with the
-# wider camera heads and the object pointer. Data in resumable chunks of 50 (scripts/record_task_demos.sh: decision
-# frames, the cameras rendering only there; a rerun records only the missing chunks; keep the counts multiples of 50):
-# $(MULTITASK_EPISODES) expert episodes of each task, then $(MULTITASK_ONPOLICY) more played by the task's own camera
-# controller (`learned-task`) where one ships, the expert labelling; a first policy on them; a DAgger round of
-# $(MULTITASK_DAGGER) episodes of each task played by the first policy; the shipped policy on all of it. On an idle
-# 2-core CPU a chunk takes about 75 s and the finetunes 3.6-5 steps/s after the frozen trunk's features (kept for
-# later finetunes): about 5 hours in all. The shipped checkpoint was built in stages, seven tasks and then twelve
-# more, with the same final training on 450-600 episodes a task (docs/notes.md lists each task's data).
-MULTITASK_TASKS ?= RememberColor3-VLA-v0,RememberShape3-VLA-v0,RememberColor5-VLA-v0,TakeItBack-VLA-v0,RememberShape5-VLA-v0,FindImposterColor3-VLA-v0,RememberShapeAndColor3x2-VLA-v0,RememberColor9-VLA-v0,FindImposterShape3-VLA-v0,RememberShapeAndColor3x3-VLA-v0,FindImposterColor5-VLA-v0,RememberShape9-VLA-v0,FindImposterShapeAndColor3x2-VLA-v0,RememberShapeAndColor5x3-VLA-v0,FindImposterColor9-VLA-v0,FindImposterShape5-VLA-v0,FindImposterShapeAndColor3x3-VLA-v0,FindImposterShape9-VLA-v0,FindImposterShapeAndColor5x3-VLA-v0
+# The one camera controller across twenty MIKASA tasks (`--controller learned` on each; finetune --tasks): every
+# short-split task whose success is touching the object a fact names, and SeqOfColors3, whose prompt also says which
+# cubes were touched (progress as memory); the prompt tells the tasks apart. Wider camera heads, the object pointer.
+# Data in resumable chunks of 50 (scripts/record_task_demos.sh: decision frames, the cameras rendering only there; a
+# rerun records only the missing chunks; keep the counts multiples of 50): $(MULTITASK_EPISODES) expert episodes of each
+# touch task, then $(MULTITASK_ONPOLICY) more played by the task's own camera controller (`learned-task`) where one
+# ships, the expert labelling; a first policy on them; a DAgger round of $(MULTITASK_DAGGER) episodes of each played by
+# the first policy; $(MULTITASK_EXTRA) more expert episodes of the tasks the first policies left below 90%
+# (MULTITASK_EXTRA_TASKS); $(MULTITASK_PROGRESS) expert episodes of the progress tasks, ended after
+# $(MULTITASK_PROGRESS_STEPS) steps; the shipped policy on all of it. On an idle 2-core CPU a chunk takes about 75 s
+# (SeqOfColors3's 10 minutes) and the finetunes 2-5 steps/s after the frozen trunk's features (kept for later
+# finetunes): about 7 hours in all. The shipped checkpoint was built in stages, with the same final training on
+# 450-800 episodes a task and 200 of SeqOfColors3 (docs/notes.md lists each task's data).
+MULTITASK_TOUCH_TASKS ?= RememberColor3-VLA-v0,RememberShape3-VLA-v0,RememberColor5-VLA-v0,TakeItBack-VLA-v0,RememberShape5-VLA-v0,FindImposterColor3-VLA-v0,RememberShapeAndColor3x2-VLA-v0,RememberColor9-VLA-v0,FindImposterShape3-VLA-v0,RememberShapeAndColor3x3-VLA-v0,FindImposterColor5-VLA-v0,RememberShape9-VLA-v0,FindImposterShapeAndColor3x2-VLA-v0,RememberShapeAndColor5x3-VLA-v0,FindImposterColor9-VLA-v0,FindImposterShape5-VLA-v0,FindImposterShapeAndColor3x3-VLA-v0,FindImposterShape9-VLA-v0,FindImposterShapeAndColor5x3-VLA-v0
+MULTITASK_EXTRA_TASKS ?= RememberShape5-VLA-v0,RememberShapeAndColor3x2-VLA-v0,RememberColor9-VLA-v0,FindImposterShape3-VLA-v0,RememberShapeAndColor3x3-VLA-v0,RememberShape9-VLA-v0,FindImposterShapeAndColor3x2-VLA-v0,RememberShapeAndColor5x3-VLA-v0,FindImposterColor9-VLA-v0,FindImposterShape5-VLA-v0,FindImposterShapeAndColor3x3-VLA-v0,FindImposterShape9-VLA-v0,FindImposterShapeAndColor5x3-VLA-v0
+MULTITASK_PROGRESS_TASKS ?= SeqOfColors3-VLA-v0
+MULTITASK_TASKS = $(MULTITASK_TOUCH_TASKS)$(if $(MULTITASK_PROGRESS_TASKS),$(comma)$(MULTITASK_PROGRESS_TASKS))
 MULTITASK_EPISODES ?= 200
 MULTITASK_ONPOLICY ?= 100
 MULTITASK_STEPS ?= 5000
 MULTITASK_FINETUNE ?= --image-dim 128 --keypoints 64 --pointer --pointer-hindsight 0.1
 MULTITASK_DAGGER ?= 150
-MULTITASK_DAGGER_STEPS ?= 12000
+MULTITASK_EXTRA ?= 200
+MULTITASK_PROGRESS ?= 200
+MULTITASK_PROGRESS_STEPS ?= 160
+MULTITASK_FINAL_STEPS ?= 12000
 MULTITASK_RUN = $(STAGE1)-multitask
 SHIPPED_MULTITASK := sb3_memret/controllers/checkpoints/mikasa-multitask-camera
+touch_tasks = $(subst $(comma), ,$(MULTITASK_TOUCH_TASKS))
 controller-multitask: install renderer
-	scripts/record_task_demos.sh $(MULTITASK_RUN)/demos $(MULTITASK_EPISODES) $(subst $(comma), ,$(MULTITASK_TASKS))
-	for task in $(subst $(comma), ,$(MULTITASK_TASKS)); do \
+	scripts/record_task_demos.sh $(MULTITASK_RUN)/demos $(MULTITASK_EPISODES) $(touch_tasks)
+	for task in $(touch_tasks); do \
 		own=$$($(PY) -c "from sb3_memret.controllers.shipped import SHIPPED; print('learned-task' if ('$$task', 'learned-task') in SHIPPED else '')") && \
 		LEARNER=$$own scripts/record_task_demos.sh $(MULTITASK_RUN)/demos \
 			$$(($(MULTITASK_EPISODES) + $(MULTITASK_ONPOLICY))) $$task || exit 1; \
 	done
 	for policy in $(MULTITASK_RUN)/policy-first $(MULTITASK_RUN)/policy; do \
 		[ -f $$policy/training_state.pt ] || rm -rf $$policy; done  # an unfinished finetune resumes
-	scripts/finetune_task_demos.sh $(MULTITASK_RUN)/demos $(MULTITASK_RUN)/policy-first $(MULTITASK_TASKS) \
+	scripts/finetune_task_demos.sh $(MULTITASK_RUN)/demos $(MULTITASK_RUN)/policy-first $(MULTITASK_TOUCH_TASKS) \
 		--steps $(MULTITASK_STEPS) $(MULTITASK_FINETUNE)
 	LEARNER=learned:$(MULTITASK_RUN)/policy-first SEED=$$((100000 + $(MULTITASK_EPISODES) + $(MULTITASK_ONPOLICY))) \
-		scripts/record_task_demos.sh $(MULTITASK_RUN)/dagger $(MULTITASK_DAGGER) $(subst $(comma), ,$(MULTITASK_TASKS))
-	scripts/finetune_task_demos.sh $(MULTITASK_RUN)/demos,$(MULTITASK_RUN)/dagger $(MULTITASK_RUN)/policy \
-		$(MULTITASK_TASKS) --steps $(MULTITASK_DAGGER_STEPS) $(MULTITASK_FINETUNE)
+		scripts/record_task_demos.sh $(MULTITASK_RUN)/dagger $(MULTITASK_DAGGER) $(touch_tasks)
+	SEED=$$((100000 + $(MULTITASK_EPISODES) + $(MULTITASK_ONPOLICY) + $(MULTITASK_DAGGER))) scripts/record_task_demos.sh \
+		$(MULTITASK_RUN)/extra $(MULTITASK_EXTRA) $(subst $(comma), ,$(MULTITASK_EXTRA_TASKS))
+	$(if $(MULTITASK_PROGRESS_TASKS),MAX_STEPS=$(MULTITASK_PROGRESS_STEPS) scripts/record_task_demos.sh \
+		$(MULTITASK_RUN)/progress $(MULTITASK_PROGRESS) $(subst $(comma), ,$(MULTITASK_PROGRESS_TASKS)))
+	scripts/finetune_task_demos.sh '$(MULTITASK_RUN)/demos?,$(MULTITASK_RUN)/dagger?,$(MULTITASK_RUN)/extra?,$(MULTITASK_RUN)/progress?' \
+		$(MULTITASK_RUN)/policy $(MULTITASK_TASKS) --steps $(MULTITASK_FINAL_STEPS) $(MULTITASK_FINETUNE)
 	if $(PY) -c "import sys; from sb3_memret.controllers.shipped import MULTITASK_TASKS as t; \
 			sys.exit(set(t) != set('$(MULTITASK_TASKS)'.split(',')))"; then \
 		mkdir -p $(SHIPPED_MULTITASK) && cp $(MULTITASK_RUN)/policy/config.json \

@@ -7,7 +7,7 @@ import pytest
 
 from sb3_memret.controller_specs import CONTROLLER_SPECS, make_controller, parse_lerobot_spec, parse_openpi_spec
 from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
-from sb3_memret.controllers.shipped import SHIPPED
+from sb3_memret.controllers.shipped import SHIPPED, shipped_names
 
 
 def test_scripted():
@@ -117,7 +117,8 @@ def test_each_task_names_its_default_controller():
 
     assert make_task("drawer").default_controller == "learned"  # the main job reads cameras
     assert make_task("RememberColor3-VLA-v0").default_controller == "learned"  # its shipped camera controller
-    # none ships for SeqOfColors3 (nothing in sight tells a reactive policy which cubes it has touched): its expert
+    # the one camera controller reads SeqOfColors3's prompts but does not yet finish a sequence: its expert
+    assert "learned" in shipped_names("SeqOfColors3-VLA-v0")
     assert make_task("SeqOfColors3-VLA-v0").default_controller == "scripted"
 
 

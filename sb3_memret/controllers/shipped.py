@@ -6,14 +6,15 @@ from __future__ import annotations
 from pathlib import Path
 
 CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
-# every short-split task won by touching the object a fact names: the first seven, then twelve more
+# every short-split task won by touching the object a fact names (the first seven, then twelve more), and
+# SeqOfColors3, whose prompt also says which cubes were touched (progress as memory)
 MULTITASK_TASKS = ("RememberColor3-VLA-v0", "RememberShape3-VLA-v0", "RememberColor5-VLA-v0", "TakeItBack-VLA-v0",
                    "RememberShape5-VLA-v0", "FindImposterColor3-VLA-v0", "RememberShapeAndColor3x2-VLA-v0",
                    "RememberColor9-VLA-v0", "FindImposterShape3-VLA-v0", "RememberShapeAndColor3x3-VLA-v0",
                    "FindImposterColor5-VLA-v0", "RememberShape9-VLA-v0", "FindImposterShapeAndColor3x2-VLA-v0",
                    "RememberShapeAndColor5x3-VLA-v0", "FindImposterColor9-VLA-v0", "FindImposterShape5-VLA-v0",
                    "FindImposterShapeAndColor3x3-VLA-v0", "FindImposterShape9-VLA-v0",
-                   "FindImposterShapeAndColor5x3-VLA-v0")
+                   "FindImposterShapeAndColor5x3-VLA-v0", "SeqOfColors3-VLA-v0")
 # shipped checkpoints by (task, controller name): the folder, and the make command that rebuilds it. ``learned`` is
 # the camera-reading controller (cameras and what the robot reads of itself): on MULTITASK_TASKS one network across
 # all of them, the prompt telling them apart. ``learned-task`` is a MIKASA task's own camera controller, trained on
