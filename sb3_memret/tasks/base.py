@@ -250,10 +250,12 @@ class Task(ABC):
     @property
     def default_controller(self) -> str:
         """The frozen controller a command runs on this task when none is named: the task's shipped camera-reading
-        ``learned`` controller where one ships, else its expert (``scripted``)."""
-        from sb3_memret.controllers.shipped import shipped_names
+        ``learned`` controller where one ships and does the task (not ``LEARNED_NOT_DEFAULT``), else its expert
+        (``scripted``)."""
+        from sb3_memret.controllers.shipped import LEARNED_NOT_DEFAULT, shipped_names
 
-        return "learned" if "learned" in shipped_names(self.name) else "scripted"
+        learned = "learned" in shipped_names(self.name) and self.name not in LEARNED_NOT_DEFAULT
+        return "learned" if learned else "scripted"
 
     def evaluation_seeds(self, n_episodes: int) -> list[int] | None:
         """The env seeds of the task's benchmark protocol for ``n_episodes`` held-out episodes, or None

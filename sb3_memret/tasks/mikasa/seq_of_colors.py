@@ -260,12 +260,6 @@ class SeqOfColorsTask(MikasaCueTask):
                        {"cue_colours": " ".join(colours), "cue_step_duration": frame.state["cue_step_duration"]})
 
     # ------------------------------------------------------------ prompts and controllers
-    @property
-    def default_controller(self) -> str:
-        """The expert: the shipped camera controller (``learned``) reads this task's prompts but does not yet
-        finish the sequence (docs/notes.md), so a command runs it only when ``--controller learned`` asks."""
-        return "scripted"
-
     @staticmethod
     def sequence(episode: Episode) -> tuple[str, ...]:
         return tuple(value for _, value in episode.true_facts)
