@@ -1,7 +1,7 @@
 """Write the documentation's results pages (``docs/results/``) from the result files committed under ``benchmarks/``.
 
 Every ``benchmarks/**/results.json`` (what ``sb3-memret benchmark mikasa`` writes into its run folder) becomes one
-page: its tables come from the benchmark's own renderer (``sb3_memret.benchmark.report.render_report``), its figure
+page, and so does every seed sweep (a folder whose subfolders are training runs, what ``sb3-memret train`` writes): its tables come from the benchmark's own renderer (``sb3_memret.benchmark.report.render_report``), its figure
 from ``plot_success``, each table names the file it came from, and the page gives the command that produces (and
 resumes) the run, rebuilt from the run's recorded protocol. The run folder's episode log (``episodes.jsonl``) adds a
 table of what was played. Nothing on these pages is typed by hand: a figure changes only with the files.
@@ -132,6 +132,51 @@ def run_page(root: Path, results: Path, out: Path) -> tuple[str, dict[str, Any]]
     return name, content
 
 
+def sweeps(root: Path) -> list[Path]:
+    """The seed sweeps under ``root/benchmarks``: folders whose subfolders are finished training runs."""
+    from sb3_memret.analysis.sweep import is_run
+
+    folders = {run.parent.parent for run in (root / BENCHMARKS).glob("**/evaluations.jsonl") if is_run(run.parent)}
+    return sorted(folders)
+
+
+def sweep_page(root: Path, folder: Path, out: Path) -> tuple[str, list[dict[str, Any]]]:
+    """Write the page (and figure) of one seed sweep into ``out``; its page name and its rows."""
+    from sb3_memret.analysis.sweep import is_run, plot_sweep, run_row, sweep_table
+
+    runs = sorted((run for run in folder.iterdir() if is_run(run)), key=lambda run: run_row(run)["seed"])
+    rows = [run_row(run) for run in runs]
+    where = folder.relative_to(root).as_posix()
+    name = slug(folder.relative_to(root / BENCHMARKS))
+    figure = f"{name}.png"
+    plot_sweep(runs, out / figure)
+    summaries = {run.name: json.loads((run / "summary.json").read_text()) for run in runs}
+    oracle = next(((run, s["baselines"]) for run, s in summaries.items() if s.get("baselines")), None)
+    first = summaries[runs[0].name]
+    config = f"{where}/{runs[0].name}/config.yml"
+    lines = [f"# Seed sweep: {folder.name}", "",
+             f"Generated from the training runs committed under `{where}/` when the documentation was built: each "
+             f"row is one run folder's `summary.json` and `evaluations.jsonl`. The runs differ only in their training "
+             f"seed; each was made with the frozen controller `{first.get('controller', '?')}` and the hyperparameters "
+             f"in its `config.yml`, held-out evaluations at seed {first.get('eval_seed')} (never trained on):", "",
+             "```bash", f"sb3-memret train recall --seed SEED --config {config} --out {where}/seedSEED", "```", "",
+             *sweep_table(rows, oracle[1]["oracle"]["success"]["overall"] if oracle else None), "",
+             f"Source: `{where}/*/evaluations.jsonl`, `{where}/*/summary.json`.", ""]
+    if oracle:
+        run, baselines = oracle
+        lines += ["The oracle (the true fact in the prompt) and no-memory baselines do not depend on the retriever; "
+                  f"they were played once, by the report of `{where}/{run}`, on the same held-out episodes as the "
+                  "final evaluations: " + ", ".join(f"{condition} {b['success']['overall']:.0%} ({b['episodes']} "
+                                                      "episodes)" for condition, b in baselines.items()) + ".", ""]
+    lines += [f"![held-out greedy accuracy, sampled fraction and entropy of every run]({figure})", "",
+              "*Held-out greedy accuracy (solid), sampled fraction (dotted) and policy entropy of each run, by "
+              "round.*", "", "## Files", "",
+              f"Each run folder under `{where}/` holds: " + ", ".join(
+                  f"`{f}`" for f in sorted({p.name for run in runs for p in run.iterdir() if p.is_file()})) + ".", ""]
+    _write(out / f"{name}.md", "\n".join(lines))
+    return name, rows
+
+
 def _progress(content: Mapping[str, Any]) -> str:
     cells = [cell for t in content["tasks"].values() for cell in t.get("conditions", {}).values()]
     complete = sum(bool(cell.get("complete")) for cell in cells)
@@ -144,6 +189,7 @@ def main(root: Path, out: Path) -> list[Path]:
     out.mkdir(parents=True, exist_ok=True)
     runs = sorted((root / BENCHMARKS).glob(f"**/{RESULTS_FILE}"))
     pages = [run_page(root, results, out) for results in runs]
+    sweep_pages = [sweep_page(root, folder, out) for folder in sweeps(root)]
     lines = ["# Results", "",
              "One page per benchmark run committed under `benchmarks/`, generated from its `results.json` when the "
              "documentation is built (`docs/generate_results.py`). A run in progress shows the cells it has "
@@ -157,15 +203,23 @@ def main(root: Path, out: Path) -> list[Path]:
             lines.append(f"| [{name}]({name}.md) | {p['benchmark']} | `{p['controller']}` | {p['seed_set']} "
                          f"({p['episodes']} a cell) | {', '.join(p['conditions'])} | {len(content['tasks'])} | "
                          f"{_progress(content)} |")
-        lines += ["", "```{toctree}", ":hidden:", "", *[name for name, _ in pages], "```", ""]
     else:
         lines += ["No benchmark run is committed yet.", ""]
+    if sweep_pages:
+        lines += ["", "Seed sweeps of training runs:", "", "| sweep | runs | seeds | mastered and held from the middle "
+                  "on |", "|---|---|---|---|"]
+        for name, rows in sweep_pages:
+            lines.append(f"| [{name}]({name}.md) | {len(rows)} | {', '.join(str(r['seed']) for r in rows)} | "
+                         f"{sum(r['held_from_middle'] for r in rows)} of {len(rows)} |")
+    names = [name for name, _ in pages] + [name for name, _ in sweep_pages]
+    if names:
+        lines += ["", "```{toctree}", ":hidden:", "", *names, "```", ""]
     _write(out / "index.md", "\n".join(lines))
-    keep = {"index.md", *(f"{name}.md" for name, _ in pages), *(f"{name}.png" for name, _ in pages)}
+    keep = {"index.md", *(f"{name}.md" for name in names), *(f"{name}.png" for name in names)}
     for stale in out.iterdir():
         if stale.name not in keep:
             stale.unlink()
-    return [out / "index.md", *(out / f"{name}.md" for name, _ in pages)]
+    return [out / "index.md", *(out / f"{name}.md" for name in names)]
 
 
 if __name__ == "__main__":

@@ -2,11 +2,13 @@
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any, Callable
 
 import yaml
+from stable_baselines3.common.utils import LinearSchedule
 
 from sb3_memret.tasks.drawer.cabinet import LAYERS
 from sb3_memret.tasks.drawer.objects import OBJECT_SETS
@@ -43,6 +45,19 @@ def _are_tasks(value: list | dict) -> bool:
     return True
 
 
+def learning_rate_schedule(value: float | str) -> float | LinearSchedule | None:
+    """A config's ``learning_rate`` as PPO takes it: a number > 0 as it is; rl-zoo's ``lin_X`` (X > 0) as SB3's
+    ``LinearSchedule`` from X at the run's start to 0 at its end; None for anything else."""
+    if isinstance(value, str):
+        number = value.removeprefix("lin_")
+        try:
+            start = float(number) if number != value else None
+        except ValueError:
+            return None
+        return LinearSchedule(start, 0.0, 1.0) if start is not None and 0 < start < math.inf else None
+    return value if 0 < value < math.inf else None
+
+
 def _positive_int() -> Check:
     return (int, lambda v: v >= 1, "an integer >= 1")
 
@@ -59,12 +74,16 @@ PPO_KEYS: dict[str, Check] = {
     # held-out episodes of round 0's evaluation (the untrained learner's, whose episodes tend to run to the time
     # limit); default eval_episodes
     "initial_eval_episodes": _positive_int(),
+    # held-out episodes of the evaluation at training's end, the final figure (the report's baselines play the same
+    # episodes); default eval_episodes
+    "final_eval_episodes": _positive_int(),
     "n_steps": _positive_int(),
     "batch_size": _positive_int(),
     "n_epochs": _positive_int(),
     "gamma": _unit(),
     "gae_lambda": _unit(),
-    "learning_rate": ((int, float), lambda v: v > 0, "a number > 0"),
+    "learning_rate": ((int, float, str), lambda v: learning_rate_schedule(v) is not None,
+                      "a number > 0, or 'lin_<number>' (rl-zoo's: falls linearly from that number to 0 at the run's end)"),
     "clip_range": ((int, float), lambda v: 0 < v < 1, "a number in (0, 1)"),
     "ent_coef": ((int, float), lambda v: v >= 0, "a number >= 0"),
     "vf_coef": ((int, float), lambda v: v >= 0, "a number >= 0"),
@@ -72,7 +91,7 @@ PPO_KEYS: dict[str, Check] = {
     "advantage_std_floor": ((int, float), lambda v: 0 <= v <= 1, "a number in [0, 1] (the least spread a round's "
                             "advantages are divided by, as a fraction of the widest so far; 0: always unit spread)"),
 }
-RUN_KEYS = ("n_timesteps", "n_envs", "eval_episodes", "eval_every", "initial_eval_episodes")  # how a run goes, not PPO's arguments
+RUN_KEYS = ("n_timesteps", "n_envs", "eval_episodes", "eval_every", "initial_eval_episodes", "final_eval_episodes")  # how a run goes, not PPO's arguments
 DEFAULT_EVAL_EPISODES, DEFAULT_EVAL_EVERY = 50, 5
 POLICY_KEYS: dict[str, Check] = {
     "temperature": ((int, float), lambda v: v > 0, "a number > 0"),
@@ -157,6 +176,11 @@ class TrainConfig:
         return self.ppo.get("initial_eval_episodes")
 
     @property
+    def final_eval_episodes(self) -> int | None:
+        """Held-out episodes of the evaluation at training's end; None: as many as every other's."""
+        return self.ppo.get("final_eval_episodes")
+
+    @property
     def eval_every(self) -> int:
         """Rounds between held-out evaluations."""
         return self.ppo.get("eval_every", DEFAULT_EVAL_EVERY)
@@ -164,6 +188,8 @@ class TrainConfig:
     def algo_kwargs(self) -> dict[str, Any]:
         """Keyword arguments for MemRetPPO (everything but the run's length, env count and evaluations)."""
         kwargs = {k: v for k, v in self.ppo.items() if k not in RUN_KEYS}
+        if "learning_rate" in kwargs:
+            kwargs["learning_rate"] = learning_rate_schedule(kwargs["learning_rate"])
         policy_kwargs = dict(self.policy_kwargs)
         if "age_unit" in self.env_kwargs:  # the critic reads ages in the unit the env counts them in
             policy_kwargs["age_unit"] = self.env_kwargs["age_unit"]
@@ -242,6 +268,10 @@ def parse_section(section: Any, env_id: str, where: str = "config") -> TrainConf
     if initial is not None and initial > every:
         raise ValueError(f"{where}: {env_id}: initial_eval_episodes={initial} exceeds eval_episodes={every}; round 0's "
                          "evaluation plays at most as many episodes as the others")
+    final = ppo.get("final_eval_episodes")
+    if final is not None and final < every:
+        raise ValueError(f"{where}: {env_id}: final_eval_episodes={final} is below eval_episodes={every}; the final "
+                         "evaluation plays at least as many episodes as the others")
     return TrainConfig(env_id, ppo, policy_kwargs, env_kwargs)
 
 

@@ -11,7 +11,7 @@ A run lives in one folder::
     best_model.zip          the best held-out policy so far
     initial_model.zip       the untrained policy (round 0), for before/after traces
     final_model.zip         the policy when training ended
-    summary.json            wall time and the last evaluation
+    summary.json            wall time and where it went (``seconds``), the last evaluation
 """
 
 from __future__ import annotations
@@ -26,8 +26,8 @@ from typing import Any, Callable
 import yaml
 from stable_baselines3.common.save_util import load_from_zip_file
 
-from sb3_memret.callbacks import (RetrievalEvalCallback, RolloutRetrievalCallback, RoundCheckpointCallback,
-                                  RunProgressCallback, latest_checkpoint)
+from sb3_memret.callbacks import (PhaseTimingCallback, RetrievalEvalCallback, RolloutRetrievalCallback,
+                                  RoundCheckpointCallback, RunProgressCallback, latest_checkpoint)
 from sb3_memret.callbacks.checkpoint import checkpoints as list_checkpoints
 from sb3_memret.config import TrainConfig, parse_section
 from sb3_memret.controllers import FrozenController
@@ -60,6 +60,8 @@ class RunOptions:
     eval_every: int | None = None  # None: the config's (eval_every, else 5)
     # None: the config's (initial_eval_episodes, else eval_episodes); never more than eval_episodes
     initial_eval_episodes: int | None = None
+    # None: the config's (final_eval_episodes, else eval_episodes); never fewer than eval_episodes
+    final_eval_episodes: int | None = None
     eval_seed: int = HELD_OUT_SEED
     progress_bar: bool = False
     log_formats: tuple[str, ...] = ("stdout", "csv", "tensorboard")
@@ -83,6 +85,8 @@ class RunResult:
     stopped_by: str | None = None  # why training stopped early (Ctrl-C, SIGTERM, a dead env worker), if it did
     final: RetrievalReport | None = None
     history: list[dict[str, Any]] = field(default_factory=list)
+    # where the wall time went: setup (envs and model), collect (training decisions), update (PPO), evaluate
+    seconds: dict[str, Any] = field(default_factory=dict)
     report: Path | None = None  # the report RunOptions.report wrote
 
     @property
@@ -152,6 +156,7 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
     ``controller`` is the one ``options.controller`` names when the caller has built it already
     (one model in memory, whatever the number of envs).
     """
+    began = time.perf_counter()
     out = Path(options.out)
     checkpoints = out / "checkpoints"
     last = latest_checkpoint(checkpoints)
@@ -181,7 +186,9 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
     options = replace(options, eval_episodes=options.eval_episodes or config.eval_episodes,
                       eval_every=options.eval_every or config.eval_every)
     initial = options.initial_eval_episodes or config.initial_eval_episodes or options.eval_episodes
-    options = replace(options, initial_eval_episodes=min(initial, options.eval_episodes))  # never more than later ones
+    final = options.final_eval_episodes or config.final_eval_episodes or options.eval_episodes
+    options = replace(options, initial_eval_episodes=min(initial, options.eval_episodes),  # never more than later ones
+                      final_eval_episodes=max(final, options.eval_episodes))  # never fewer
     env_kwargs = env_kwargs_for(config, options.controller, options.render_backend)
     if controller is None and "tasks" not in config.env_kwargs:  # across tasks, each task makes its own by name
         controller = make_controller(options.controller, config.env_kwargs.get("task", DEFAULT_TASK))
@@ -198,9 +205,12 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
         raise
     checkpointer = RoundCheckpointCallback(checkpoints, verbose=options.verbose)
     evaluator = RetrievalEvalCallback(eval_env, options.eval_episodes, options.eval_seed, options.eval_every,
-                                      n_initial_episodes=options.initial_eval_episodes, best_model_save_path=out, history_path=out / HISTORY_FILE,
+                                      n_initial_episodes=options.initial_eval_episodes,
+                                      n_final_episodes=options.final_eval_episodes, best_model_save_path=out,
+                                      history_path=out / HISTORY_FILE,
                                       verbose=options.verbose)
     evaluator.listeners.extend(options.evaluation_listeners)
+    timer = PhaseTimingCallback(evaluator)
     start, stopped_by = time.perf_counter(), None
     try:
         if options.resume:
@@ -215,10 +225,11 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
             model.save(out / INITIAL_MODEL)
         checkpointer.init_callback(model)  # so an interrupt even before the first round can save
         remaining = config.n_timesteps - model.num_timesteps
+        learning = time.perf_counter()
         try:
             with stop_signals_interrupt():
                 if remaining > 0:
-                    callbacks = [RolloutRetrievalCallback(), evaluator, checkpointer]
+                    callbacks = [RolloutRetrievalCallback(), evaluator, timer, checkpointer]
                     if options.progress_bar:  # SB3's own bar stalls during evaluations and leaves them out of its time left
                         callbacks.append(RunProgressCallback(evaluator))
                     model.learn(remaining, callback=callbacks, reset_num_timesteps=not options.resume)
@@ -231,9 +242,10 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
         model_path = out / "final_model.zip"
         if stopped_by is None:
             model.save(model_path)
+        seconds = {"setup": learning - began, **timer.split(), "learn": time.perf_counter() - learning}
         result = RunResult(out, model_path if stopped_by is None else latest_checkpoint(checkpoints),
                            model.num_timesteps, model._n_updates // model.n_epochs, time.perf_counter() - start,
-                           stopped_by, evaluator.last_report, read_history(out))
+                           stopped_by, evaluator.last_report, read_history(out), seconds)
         _write_summary(result, options)
         model.logger.close()
         if options.report is not None and stopped_by is None:
@@ -290,10 +302,11 @@ def retrieval_chance(out: Path) -> float | None:
 
 def _write_summary(result: RunResult, options: RunOptions) -> None:
     summary = {"num_timesteps": result.num_timesteps, "rounds": result.rounds, "wall_seconds": result.wall_seconds,
+               "seconds": result.seconds,
                "interrupted": result.interrupted, "stopped_by": result.stopped_by, "model": str(result.model_path), "controller": options.controller,
                "seed": options.seed, "retriever_from": str(options.retriever_from) if options.retriever_from else None,
                "eval_seed": options.eval_seed, "eval_episodes": options.eval_episodes,
-               "initial_eval_episodes": options.initial_eval_episodes,
+               "initial_eval_episodes": options.initial_eval_episodes, "final_eval_episodes": options.final_eval_episodes,
                "final_eval": result.final.to_dict() if result.final else None}
     (result.out / "summary.json").write_text(json.dumps(summary, indent=2))
 

@@ -29,26 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from sb3_memret.analysis.report import MASTERY, first_mastered
-from sb3_memret.training import read_history
-
-
-def run_row(run: Path) -> dict[str, Any]:
-    """The figures of one run; ``first_mastered`` (an evaluated round) and ``mastered_decisions`` (the decisions
-    trained by then) are NaN when greedy accuracy never reached MASTERY, and ``held`` says whether every
-    evaluation after it stayed at MASTERY or above."""
-    history = read_history(run)
-    if not history:
-        raise SystemExit(f"{run}: no evaluations.jsonl, so not a training run")
-    summary = json.loads((run / "summary.json").read_text()) if (run / "summary.json").exists() else {}
-    first = first_mastered(history)
-    held = first is not None and all(row["greedy_accuracy"] >= MASTERY for row in history if row["round"] >= first["round"])
-    last = history[-1]
-    return {"seed": summary.get("seed", "?"), "first_mastered": first["round"] if first else float("nan"),
-            "mastered_decisions": first["timesteps"] if first else float("nan"),
-            "held": held, "round": last["round"], "episodes": last["episodes"], "greedy": last["greedy_accuracy"],
-            "sampled": last["sampled_fraction"], "entropy": last["entropy"], "success": last["success"]["overall"],
-            "minutes": summary.get("wall_seconds", float("nan")) / 60}
+from sb3_memret.analysis.sweep import run_row, sweep_table
 
 
 def oracle_success(run: Path, episodes: int, n_envs: int) -> float:
@@ -66,12 +47,6 @@ def oracle_success(run: Path, episodes: int, n_envs: int) -> float:
         return evaluate_retrieval(model, venv, episodes, seed=summary["eval_seed"]).success["overall"]
     finally:
         venv.close()
-
-
-def _mean_std(values: list[float]) -> tuple[float, float]:
-    """Mean and standard deviation over the runs that have the figure (NaN where none has)."""
-    present = [v for v in values if not np.isnan(v)]
-    return (float(np.mean(present)), float(np.std(present))) if present else (float("nan"), float("nan"))
 
 
 def _mastered(row: dict[str, Any]) -> str:
@@ -110,26 +85,7 @@ def main() -> None:
     args = parser.parse_args()
     rows = [run_row(run) for run in args.runs]
     oracle = oracle_success(args.runs[0], args.oracle_episodes, args.n_envs) if args.oracle_episodes else None
-    print(f"| run | seed | first round with greedy ≥ {MASTERY:.0%} | decisions by then | held after | last round | "
-          "episodes | greedy | sampled | entropy | success | " + ("recall / oracle | " if oracle is not None else "") + "minutes |")
-    print("|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if oracle is not None else "") + "---|")
-    for run, row in zip(args.runs, rows):
-        ratio = f"{row['success'] / oracle:.2f} | " if oracle else ("– | " if oracle is not None else "")
-        print(f"| {run.name} | {row['seed']} | {row['first_mastered']} | {row['mastered_decisions']} | "
-              f"{'yes' if row['held'] else 'no'} | "
-              f"{row['round']} | {row['episodes']} | {row['greedy']:.0%} | {row['sampled']:.0%} | {row['entropy']:.2f} | "
-              f"{row['success']:.0%} | {ratio}{row['minutes']:.1f} |")
-    stats = {k: _mean_std([r[k] for r in rows]) for k in ("first_mastered", "mastered_decisions", "greedy", "sampled",
-                                                          "entropy", "success", "minutes")}
-    mastered = sum(not np.isnan(r["first_mastered"]) for r in rows)
-    held = sum(r["held"] for r in rows)
-    ratio = (f"{stats['success'][0] / oracle:.2f} | " if oracle else "– | ") if oracle is not None else ""
-    print(f"| mean ± std | | {stats['first_mastered'][0]:.1f} ± {stats['first_mastered'][1]:.1f} "
-          f"({mastered} of {len(rows)} runs reached it) | {stats['mastered_decisions'][0]:.0f} ± "
-          f"{stats['mastered_decisions'][1]:.0f} | {held} of {len(rows)} | | | "
-          f"{stats['greedy'][0]:.0%} ± {stats['greedy'][1]:.0%} | {stats['sampled'][0]:.0%} ± {stats['sampled'][1]:.0%} | "
-          f"{stats['entropy'][0]:.2f} ± {stats['entropy'][1]:.2f} | {stats['success'][0]:.0%} ± {stats['success'][1]:.0%} | "
-          f"{ratio}{stats['minutes'][0]:.1f} |")
+    print("\n".join(sweep_table(rows, oracle)))
     if oracle is not None:
         print(f"\noracle success on the held-out episodes ({args.oracle_episodes}): {oracle:.0%}")
     if args.against:

@@ -6,7 +6,8 @@ import json
 import pytest
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-from sb3_memret.callbacks import (RetrievalEvalCallback, RolloutRetrievalCallback, RoundCheckpointCallback,
+from sb3_memret.callbacks import (PhaseTimingCallback, RetrievalEvalCallback, RolloutRetrievalCallback,
+                                  RoundCheckpointCallback,
                                   checkpoint_path, latest_checkpoint)
 from sb3_memret.policy.policy import MemoryRetrievalPolicy
 from sb3_memret.policy.ppo import MemRetPPO
@@ -128,22 +129,43 @@ def test_the_progress_bar_follows_evaluations_and_counts_them_in_the_time_left(t
     assert evaluator.episodes_left(ROUND * 5) == 2 * 8
 
 
-def test_round_zero_may_play_fewer_held_out_episodes(tmp_path):
-    """n_initial_episodes sets round 0's evaluation (the untrained learner's) apart; later ones play n_eval_episodes,
-    and the history says how many each played."""
+def test_round_zero_and_the_final_evaluation_may_play_their_own_episode_counts(tmp_path):
+    """n_initial_episodes sets round 0's evaluation (the untrained learner's) apart and n_final_episodes the one at
+    training's end; the others play n_eval_episodes, and the history says how many each played."""
     model = MemRetPPO(MemoryRetrievalPolicy, DummyVecEnv([ToyBankEnv]), n_steps=ROUND, batch_size=ROUND, seed=0)
     evaluator = RetrievalEvalCallback(DummyVecEnv([ToyBankEnv]), n_eval_episodes=8, eval_every=2,
-                                      n_initial_episodes=3, history_path=tmp_path / "evaluations.jsonl")
+                                      n_initial_episodes=3, n_final_episodes=12,
+                                      history_path=tmp_path / "evaluations.jsonl")
     started = []
     evaluator.listeners.append(type("Listener", (), {"evaluation_started": lambda self, r, n: started.append((r, n)),
                                                      "evaluation_episode": lambda self: None,
                                                      "evaluation_finished": lambda self, report: None})())
     model.learn(ROUND * 3, callback=evaluator)
-    assert started == [(0, 3), (2, 8), (3, 8)]
+    assert started == [(0, 3), (2, 8), (3, 12)]
     rows = [json.loads(line) for line in (tmp_path / "evaluations.jsonl").read_text().splitlines()]
-    assert [(row["round"], row["episodes"]) for row in rows] == [(0, 3), (2, 8), (3, 8)]
-    with pytest.raises(ValueError, match="n_initial_episodes"):
-        RetrievalEvalCallback(DummyVecEnv([ToyBankEnv]), n_initial_episodes=0)
+    assert [(row["round"], row["episodes"]) for row in rows] == [(0, 3), (2, 8), (3, 12)]
+    for bad in ({"n_initial_episodes": 0}, {"n_final_episodes": 0}):
+        with pytest.raises(ValueError, match="n_initial_episodes, n_final_episodes"):
+            RetrievalEvalCallback(DummyVecEnv([ToyBankEnv]), **bad)
+
+
+def test_the_phase_timer_splits_learning_into_collection_updates_and_evaluations():
+    """PhaseTimingCallback: each phase measured, every evaluation counted once whichever side of the evaluator the
+    timer stands, and the parts no more than the whole."""
+    import time
+
+    for timer_first in (True, False):
+        model = MemRetPPO(MemoryRetrievalPolicy, DummyVecEnv([ToyBankEnv]), n_steps=ROUND, batch_size=ROUND, seed=0)
+        evaluator = RetrievalEvalCallback(DummyVecEnv([ToyBankEnv]), n_eval_episodes=4, eval_every=2)
+        timer = PhaseTimingCallback(evaluator)
+        start = time.perf_counter()
+        model.learn(ROUND * 3, callback=[timer, evaluator] if timer_first else [evaluator, timer])
+        whole = time.perf_counter() - start
+        split = timer.split()
+        assert list(split["evaluate_by_round"]) == ["0", "2", "3"]
+        assert min(split["collect"], split["update"], split["evaluate"]) > 0
+        assert split["evaluate"] == pytest.approx(sum(split["evaluate_by_round"].values()))
+        assert split["collect"] + split["update"] + split["evaluate"] <= whole
 
 
 def test_evaluations_leave_training_as_it_was():

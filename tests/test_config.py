@@ -9,10 +9,13 @@ ZOO = Path(__file__).resolve().parents[1] / "zoo_configs" / "memret_ppo.yml"
 ENV_ID = "sb3_memret/DrawerRecall-v0"
 
 
-def test_shipped_config_has_the_paper_hyperparameters():
+def test_shipped_config_has_the_paper_hyperparameters_but_its_learning_rate():
     cfg = load_config(ZOO, ENV_ID)
     assert cfg.ppo["gamma"] == 0.97 and cfg.ppo["clip_range"] == 0.2 and cfg.ppo["n_epochs"] == 4
-    assert cfg.ppo["learning_rate"] == 3e-4 and cfg.ppo["ent_coef"] == 0.001 and cfg.ppo["vf_coef"] == 0.5
+    assert cfg.ppo["ent_coef"] == 0.001 and cfg.ppo["vf_coef"] == 0.5
+    # the paper's 3e-4 never clipped a sample in the camera main job's rounds: ten times it, falling to 0
+    schedule = cfg.algo_kwargs()["learning_rate"]
+    assert cfg.ppo["learning_rate"] == "lin_3e-3" and (schedule(1.0), schedule(0.5), schedule(0.0)) == (3e-3, 1.5e-3, 0)
     assert cfg.policy_kwargs == {"temperature": 0.5, "exploration": "episode"}
     assert cfg.env_kwargs["capacity"] == 6 and cfg.env_kwargs["k"] == 1
     kwargs = cfg.algo_kwargs()
@@ -26,14 +29,17 @@ def test_set_retriever_config_differs_from_the_default_only_in_its_retriever():
 
 
 def test_benchmark_configs_differ_from_the_default_only_in_what_they_name():
-    """... and in their length, round size and evaluations: instruction-conditioned retrieval of three objects takes more
-    decisions, in rounds of more episodes (with rounds of ~3 the retriever could settle on a safe memory)."""
+    """... and in their length, round size, evaluations and learning rate: instruction-conditioned retrieval of three
+    objects takes more decisions, in rounds of more episodes (with rounds of ~3 the retriever could settle on a safe
+    memory), at the paper's learning rate; the main job's ten-fold one is for its 10-minute budget."""
     default = load_config(ZOO, ENV_ID)
     objects = load_config(ZOO.with_name("memret_ppo_objects.yml"), ENV_ID)
-    evaluations = {key: default.ppo[key] for key in ("eval_episodes", "eval_every", "initial_eval_episodes")
-                   if key in default.ppo}  # the main job's budget
-    assert {**objects.ppo, "n_timesteps": default.n_timesteps, "n_steps": default.ppo["n_steps"],
-            **evaluations} == default.ppo
+    budget = {key: default.ppo[key] for key in ("eval_episodes", "eval_every", "initial_eval_episodes",
+                                                 "final_eval_episodes", "learning_rate")
+              if key in default.ppo}  # the main job's
+    assert {key: value for key, value in objects.ppo.items() if key != "initial_eval_episodes"} | {
+        "n_timesteps": default.n_timesteps, "n_steps": default.ppo["n_steps"], **budget} == default.ppo
+    assert objects.ppo["learning_rate"] == 3e-4
     assert objects.ppo["n_steps"] > default.ppo["n_steps"]
     assert objects.policy_kwargs == default.policy_kwargs
     assert objects.env_kwargs == {**default.env_kwargs, "objects": "train", "n_objects": 3, "location_decoys": 2,
@@ -86,6 +92,34 @@ def test_a_section_may_set_its_evaluations_which_are_not_ppo_arguments():
         parse_section({"n_timesteps": 10, "initial_eval_episodes": 0}, ENV_ID)
     with pytest.raises(ValueError, match="initial_eval_episodes=60 exceeds eval_episodes=50"):
         parse_section({"n_timesteps": 10, "initial_eval_episodes": 60}, ENV_ID)
+    final = parse_section({"n_timesteps": 10, "eval_episodes": 8, "final_eval_episodes": 24}, ENV_ID)
+    assert final.final_eval_episodes == 24 and "final_eval_episodes" not in final.algo_kwargs()
+    assert plain.final_eval_episodes is None
+    with pytest.raises(ValueError, match="final_eval_episodes=4 is below eval_episodes=8"):
+        parse_section({"n_timesteps": 10, "eval_episodes": 8, "final_eval_episodes": 4}, ENV_ID)
+
+
+@pytest.mark.parametrize("bad", ["lin_", "lin_-1e-3", "lin_abc", "lin_inf", "cos_3e-3", "3e-3", 0, -1e-3])
+def test_a_learning_rate_is_a_positive_number_or_a_linear_schedule_from_one(bad):
+    with pytest.raises(ValueError, match=r"learning_rate=.* is invalid; expected a number > 0, or 'lin_<number>'"):
+        parse_section({"n_timesteps": 10, "learning_rate": bad}, ENV_ID)
+
+
+def test_a_linear_learning_rate_falls_as_ppo_trains_and_survives_save_and_load(tmp_path):
+    from stable_baselines3.common.vec_env import DummyVecEnv
+
+    from sb3_memret.policy.policy import MemoryRetrievalPolicy
+    from sb3_memret.policy.ppo import MemRetPPO
+    from toy_bank import ToyBankEnv
+
+    config = parse_section({"n_timesteps": 64, "n_steps": 16, "batch_size": 8, "learning_rate": "lin_1e-3"}, ENV_ID)
+    model = MemRetPPO(MemoryRetrievalPolicy, DummyVecEnv([ToyBankEnv]), seed=0, **config.algo_kwargs())
+    seen = []
+    model._update_learning_rate = lambda optimizers: seen.append(model.lr_schedule(model._current_progress_remaining))
+    model.learn(64)
+    assert seen == pytest.approx([7.5e-4, 5e-4, 2.5e-4, 0.0])  # SB3 counts a round's progress before its update
+    model.save(tmp_path / "model.zip")
+    assert MemRetPPO.load(tmp_path / "model.zip").lr_schedule(0.5) == pytest.approx(5e-4)
 
 
 def test_the_policy_reads_ages_in_the_unit_the_env_counts_them_in():

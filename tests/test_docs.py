@@ -299,9 +299,17 @@ def test_the_results_pages_name_each_tables_file_and_a_command_the_benchmark_acc
         sys.path.remove(str(DOCS))
     pages = generate_results.main(ROOT, tmp_path)
     runs = sorted((ROOT / "benchmarks").glob("**/results.json"))
-    assert len(pages) == 1 + len(runs)
+    sweeps = generate_results.sweeps(ROOT)
+    assert len(pages) == 1 + len(runs) + len(sweeps)
     cli = _cli()
-    for page, results in zip(pages[1:], runs):
+    for page, folder in zip(pages[1 + len(runs):], sweeps):  # a seed sweep: its table from its runs' files
+        text = page.read_text()
+        assert f"Source: `{folder.relative_to(ROOT).as_posix()}/*/evaluations.jsonl`" in text, page
+        assert len(re.findall(r"^\| seed\d+ \| \d+ \|", text, re.M)) == len(list(folder.glob("*/summary.json")))
+        (command,) = re.findall(r"^sb3-memret train recall .*$", text, re.M)
+        assert check_command(shlex.split(command)[1:], page.name, cli) == 3
+        assert (tmp_path / f"{page.stem}.png").is_file()
+    for page, results in zip(pages[1:1 + len(runs)], runs):
         text = page.read_text()
         source = f"Source: `{results.relative_to(ROOT).as_posix()}`."
         tables = len(re.findall(r"^\|---", text, re.M))

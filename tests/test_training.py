@@ -29,8 +29,9 @@ def cli(*args):
 def run(tmp_path_factory):
     folder = tmp_path_factory.mktemp("runs")
     config = folder / "tiny.yml"
-    # the evaluations the config asks for: 2 episodes each, 1 for the untrained learner's at round 0
-    config.write_text(TINY + "  eval_episodes: 2\n  eval_every: 1\n  initial_eval_episodes: 1\n")
+    # the evaluations the config asks for: 2 episodes each, 1 for the untrained learner's at round 0, 3 at the end
+    config.write_text(TINY + "  eval_episodes: 2\n  eval_every: 1\n  initial_eval_episodes: 1\n"
+                      "  final_eval_episodes: 3\n")
     out = folder / "run"
     result = cli("train", "recall", "--config", config, "--out", out, "--no-progress", "--report")
     assert result.exit_code == 0, result.output
@@ -56,15 +57,23 @@ def test_train_writes_a_complete_run(run):
     summary = json.loads((out / "summary.json").read_text())
     assert summary["num_timesteps"] == 32 and summary["rounds"] == 2 and not summary["interrupted"]
     assert summary["eval_episodes"] == 2 and summary["initial_eval_episodes"] == 1
-    assert [r["episodes"] for r in read_history(out)] == [1, 2, 2]
+    assert summary["final_eval_episodes"] == 3
+    assert [r["episodes"] for r in read_history(out)] == [1, 2, 3]
+    # where the time went: each phase measured, the evaluations' part per round, the report's beside training's
+    seconds = summary["seconds"]
+    assert min(seconds[k] for k in ("setup", "collect", "update", "evaluate")) > 0
+    assert list(seconds["evaluate_by_round"]) == ["0", "1", "2"]
+    assert seconds["evaluate"] == pytest.approx(sum(seconds["evaluate_by_round"].values()))
+    assert seconds["collect"] + seconds["update"] + seconds["evaluate"] <= seconds["learn"] + 1e-6
+    assert set(seconds["report"]) == {"plot", "oracle", "none", "trace"}
     assert summary["controller"] == "learned"  # the drawer's default: the camera controller
     model = PPO.load(out / "final_model.zip")  # plain SB3 restores it
     assert model.num_timesteps == 32
     # --report: the report, its baselines played on the run's held-out workers, on the final evaluation's episodes
     assert f"report: {out / 'report.md'}" in output
     report = (out / "report.md").read_text()
-    assert "2 episodes per evaluation (1 at round 0, the untrained learner's)" in report
-    assert "| oracle | the instruction + the true memory | 2 |" in report and "| none | the bare instruction | 2 |" in report
+    assert "2 episodes per evaluation (1 at round 0, the untrained learner's; 3 at round 2, the final one)" in report
+    assert "| oracle | the instruction + the true memory | 3 |" in report and "| none | the bare instruction | 3 |" in report
 
 
 def test_a_report_across_tasks_is_refused_before_training():

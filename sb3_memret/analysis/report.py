@@ -10,6 +10,7 @@ and the before/after introspection trace.
 from __future__ import annotations
 
 import json
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -22,13 +23,13 @@ from sb3_memret.tasks import DEFAULT_TASK
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.evaluation import RetrievalReport, evaluate_retrieval
 from sb3_memret.analysis.plotting import PLOT_FILE, plot_learning_curves
+from sb3_memret.analysis.sweep import MASTERY, first_mastered
 from sb3_memret.policy.ppo import MemRetPPO, load_model
 from sb3_memret.analysis.trace import model_label, trace_models
 from sb3_memret.training import (CONFIG_FILE, INITIAL_MODEL, eval_env_kwargs, format_history, load_run_config,
                                  read_history, retrieval_chance)
 
 REPORT_FILE = "report.md"
-MASTERY = 0.95  # greedy accuracy that counts as "learned"
 CONDITION_PROMPTS = {
     "recall": "the instruction + the memory the retriever picks",
     "oracle": "the instruction + the true memory",
@@ -68,15 +69,20 @@ def write_report(run: Path, options: ReportOptions | None = None,
     final_path = run / "final_model.zip"
     if not final_path.exists():
         raise FileNotFoundError(f"{str(run)!r} has no final_model.zip (an interrupted run: resume it to finish)")
+    seconds: dict[str, float] = {}  # where the report's time goes, kept in summary.json
+    clock = time.perf_counter()
     say("plotting learning curves")
     chance = retrieval_chance(run)
     plot_learning_curves(run, run / PLOT_FILE, chance=chance)
+    seconds["plot"] = time.perf_counter() - clock
     eval_seed = summary.get("eval_seed", HELD_OUT_SEED)
     final = RetrievalReport.from_dict(summary["final_eval"]) if summary.get("final_eval") else None
     model = load_model(final_path)
-    baselines = _baselines(model, final_path, final, eval_seed, options, say, venv)
+    baselines = _baselines(model, final_path, final, eval_seed, options, say, venv, seconds)
+    clock = time.perf_counter()
     say("tracing the first decision")
     traces = _traces(run, model, final_path, options, options.trace_seed if options.trace_seed is not None else eval_seed)
+    seconds["trace"] = time.perf_counter() - clock
     sections = [
         f"# Training report: {run.name}",
         _overview(summary, history, chance, final, baselines),
@@ -114,21 +120,25 @@ def write_report(run: Path, options: ReportOptions | None = None,
     ]
     path = run / REPORT_FILE
     path.write_text("\n\n".join(sections) + "\n")
+    summary = json.loads(summary_path.read_text())  # as training wrote it, with the report's time beside training's
+    summary.setdefault("seconds", {})["report"] = seconds
+    summary["baselines"] = {name: report.to_dict() for name, report in baselines.items()}
+    summary_path.write_text(json.dumps(summary, indent=2))
     return path
 
 
 def _episodes_per_evaluation(history: list[dict[str, Any]]) -> str:
-    """'N episodes per evaluation', naming round 0's count where the config set it apart (initial_eval_episodes)."""
+    """'N episodes per evaluation', naming round 0's and the final one's counts where the config set them apart
+    (initial_eval_episodes, final_eval_episodes)."""
     first, last = history[0], history[-1]
-    text = f"{last['episodes']} episodes per evaluation"
-    if first["round"] == 0 and first["episodes"] != last["episodes"]:
-        text += f" ({first['episodes']} at round 0, the untrained learner's)"
-    return text
-
-
-def first_mastered(history: list[dict[str, Any]]) -> dict[str, Any] | None:
-    """The first evaluation whose greedy accuracy reached MASTERY, or None."""
-    return next((row for row in history if row["greedy_accuracy"] >= MASTERY), None)
+    middle = [row["episodes"] for row in history[1:-1]] or [last["episodes"]]
+    usual = max(set(middle), key=middle.count)
+    apart = []
+    if first["round"] == 0 and first["episodes"] != usual:
+        apart.append(f"{first['episodes']} at round 0, the untrained learner's")
+    if len(history) > 1 and last["episodes"] != usual:
+        apart.append(f"{last['episodes']} at round {last['round']}, the final one")
+    return f"{usual} episodes per evaluation" + (f" ({'; '.join(apart)})" if apart else "")
 
 
 def _overview(summary: dict[str, Any], history: list[dict[str, Any]], chance: float | None,
@@ -162,23 +172,29 @@ def _overview(summary: dict[str, Any], history: list[dict[str, Any]], chance: fl
 
 
 def _baselines(model: MemRetPPO, model_path: Path, final: RetrievalReport | None, eval_seed: int,
-               options: ReportOptions, say: Callable[[str], None], venv: VecEnv | None) -> dict[str, RetrievalReport]:
+               options: ReportOptions, say: Callable[[str], None], venv: VecEnv | None,
+               seconds: dict[str, float]) -> dict[str, RetrievalReport]:
     """The oracle and no-memory conditions on the final evaluation's episodes, one after the other on one
-    set of physics workers (``RecallVecEnv.set_mode``): ``venv``'s, else new ones."""
+    set of physics workers (``RecallVecEnv.set_mode``): ``venv``'s, else new ones; ``seconds`` gets each one's time
+    (and the workers' start, if new ones were started)."""
     episodes = options.baseline_episodes if options.baseline_episodes is not None else (final.episodes if final else 0)
     if episodes == 0:
         return {}
     own = venv is None
     if own:
+        clock = time.perf_counter()
         venv = make_recall_vec_env(options.n_envs, eval_env_kwargs(model, model_path, "oracle", options.controller,
                                                                    options.render_backend),
                                    backend=options.backend, ray_address=options.ray_address)
+        seconds["baseline_workers"] = time.perf_counter() - clock
     reports = {}
     try:
         for condition in ("oracle", "none"):
+            clock = time.perf_counter()
             say(f"evaluating the {condition} baseline ({episodes} episodes)")
             venv.env_method("set_mode", condition)
             reports[condition] = evaluate_retrieval(model, venv, episodes, seed=eval_seed)
+            seconds[condition] = time.perf_counter() - clock
     finally:
         if own:
             venv.close()

@@ -23,7 +23,9 @@ class RetrievalEvalCallback(BaseCallback):
     """Evaluates the current policy greedily on held-out seeds at the start of every
     ``eval_every``-th round (so row r of the log describes the policy after r updates, the same
     policy that collects round r) and once more when training ends. Round 0's evaluation plays
-    ``n_initial_episodes`` (default ``n_eval_episodes``): the untrained learner's episodes cost the most.
+    ``n_initial_episodes`` (default ``n_eval_episodes``): the untrained learner's episodes cost the most; the
+    final one ``n_final_episodes`` (default ``n_eval_episodes``): many cheap points make the curve, one larger
+    evaluation the final figure (the report plays its baselines on the same episodes).
 
     Logs ``eval/*`` (greedy accuracy, sampled fraction, entropy, success overall and per group,
     shaped return and reward, true-memory eviction rate) through the model's logger (per-group success leaves the
@@ -34,14 +36,15 @@ class RetrievalEvalCallback(BaseCallback):
 
     def __init__(self, eval_env: VecEnv, n_eval_episodes: int = 50, eval_seed: int = 1_000_000, eval_every: int = 1,
                  best_model_save_path: str | Path | None = None, history_path: str | Path | None = None,
-                 verbose: int = 0, n_initial_episodes: int | None = None):
+                 verbose: int = 0, n_initial_episodes: int | None = None, n_final_episodes: int | None = None):
         super().__init__(verbose)
         n_initial_episodes = n_eval_episodes if n_initial_episodes is None else n_initial_episodes
-        if min(n_eval_episodes, n_initial_episodes, eval_every) < 1:
-            raise ValueError(f"n_eval_episodes, n_initial_episodes and eval_every must be >= 1, got {n_eval_episodes}, "
-                             f"{n_initial_episodes}, {eval_every}")
+        n_final_episodes = n_eval_episodes if n_final_episodes is None else n_final_episodes
+        if min(n_eval_episodes, n_initial_episodes, n_final_episodes, eval_every) < 1:
+            raise ValueError(f"n_eval_episodes, n_initial_episodes, n_final_episodes and eval_every must be >= 1, got "
+                             f"{n_eval_episodes}, {n_initial_episodes}, {n_final_episodes}, {eval_every}")
         self.eval_env, self.n_eval_episodes, self.eval_seed = eval_env, n_eval_episodes, eval_seed
-        self.n_initial_episodes = n_initial_episodes
+        self.n_initial_episodes, self.n_final_episodes = n_initial_episodes, n_final_episodes
         self.eval_every = eval_every
         self.best_model_save_path = Path(best_model_save_path) if best_model_save_path else None
         self.history_path = Path(history_path) if history_path else None
@@ -76,7 +79,7 @@ class RetrievalEvalCallback(BaseCallback):
 
     def _on_training_end(self) -> None:
         if self._evaluated_round != self.round:
-            self.evaluate()
+            self.evaluate(final=True)
             self.logger.dump(self.num_timesteps)
 
     def episodes_left(self, final_timesteps: int) -> int:
@@ -85,7 +88,7 @@ class RetrievalEvalCallback(BaseCallback):
         round_size = self.model.n_steps * self.model.get_env().num_envs
         last = math.ceil(final_timesteps / round_size)  # the round training ends at
         later = sum(1 for r in range(self.round + 1, last) if r % self.eval_every == 0)
-        return (later + 1) * self.n_eval_episodes
+        return later * self.n_eval_episodes + self.n_final_episodes
 
     def _stdout_collides(self, metrics: dict[str, Any]) -> bool:
         """Whether SB3's stdout table, which cuts keys to its ``max_length``, would show two of ``metrics`` alike
@@ -98,9 +101,11 @@ class RetrievalEvalCallback(BaseCallback):
         shown = [key if len(key) <= width else key[:width - 3] for key in shown]
         return len(set(shown)) < len(shown)
 
-    def evaluate(self) -> RetrievalReport:
+    def evaluate(self, final: bool = False) -> RetrievalReport:
+        """Play one held-out evaluation of the current policy (``final``: the one at training's end) and log it."""
         start = time.perf_counter()
-        episodes = self.n_initial_episodes if self.round == 0 else self.n_eval_episodes
+        episodes = (self.n_final_episodes if final else self.n_initial_episodes if self.round == 0
+                    else self.n_eval_episodes)
         for listener in self.listeners:
             listener.evaluation_started(self.round, episodes)
         try:
