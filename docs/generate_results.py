@@ -150,24 +150,19 @@ def sweep_page(root: Path, folder: Path, out: Path) -> tuple[str, list[dict[str,
     name = slug(folder.relative_to(root / BENCHMARKS))
     figure = f"{name}.png"
     plot_sweep(runs, out / figure)
-    summaries = {run.name: json.loads((run / "summary.json").read_text()) for run in runs}
-    oracle = next(((run, s["baselines"]) for run, s in summaries.items() if s.get("baselines")), None)
-    first = summaries[runs[0].name]
+    first = json.loads((runs[0] / "summary.json").read_text())
     config = f"{where}/{runs[0].name}/config.yml"
     lines = [f"# Seed sweep: {folder.name}", "",
              f"Generated from the training runs committed under `{where}/` when the documentation was built: each "
              f"row is one run folder's `summary.json` and `evaluations.jsonl`. The runs differ only in their training "
              f"seed; each was made with the frozen controller `{first.get('controller', '?')}` and the hyperparameters "
              f"in its `config.yml`, held-out evaluations at seed {first.get('eval_seed')} (never trained on):", "",
-             "```bash", f"sb3-memret train recall --seed SEED --config {config} --out {where}/seedSEED", "```", "",
-             *sweep_table(rows, oracle[1]["oracle"]["success"]["overall"] if oracle else None), "",
+             "```bash", f"sb3-memret train recall --report --seed SEED --config {config} --out {where}/seedSEED",
+             "```", "", *sweep_table(rows), "",
              f"Source: `{where}/*/evaluations.jsonl`, `{where}/*/summary.json`.", ""]
-    if oracle:
-        run, baselines = oracle
-        lines += ["The oracle (the true fact in the prompt) and no-memory baselines do not depend on the retriever; "
-                  f"they were played once, by the report of `{where}/{run}`, on the same held-out episodes as the "
-                  "final evaluations: " + ", ".join(f"{condition} {b['success']['overall']:.0%} ({b['episodes']} "
-                                                      "episodes)" for condition, b in baselines.items()) + ".", ""]
+    if any(row["oracle"] == row["oracle"] for row in rows):  # some report played the baselines (not NaN)
+        lines += ["The oracle (the true fact in the prompt) and no-memory (the bare instruction) columns are each "
+                  "run's report's, played on the same held-out episodes as its final evaluation.", ""]
     lines += [f"![held-out greedy accuracy, sampled fraction and entropy of every run]({figure})", "",
               "*Held-out greedy accuracy (solid), sampled fraction (dotted) and policy entropy of each run, by "
               "round.*", "", "## Files", "",

@@ -11,7 +11,8 @@ A run lives in one folder::
     best_model.zip          the best held-out policy so far
     initial_model.zip       the untrained policy (round 0), for before/after traces
     final_model.zip         the policy when training ended
-    summary.json            wall time and where it went (``seconds``), the last evaluation
+    summary.json            wall time and where it went (``seconds``), the last evaluation (a report adds its own
+                            time and its baselines)
 """
 
 from __future__ import annotations

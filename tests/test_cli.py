@@ -5,12 +5,26 @@ from click.testing import CliRunner
 from sb3_memret.cli import main
 
 
+def _command_paths(group, path=()):
+    """Every command path under ``group`` (its subgroups' commands too), discovered rather than listed."""
+    import click
+
+    yield path
+    if isinstance(group, click.Group):
+        for name in group.list_commands(click.Context(group)):
+            yield from _command_paths(group.get_command(click.Context(group), name), (*path, name))
+
+
 def test_every_command_has_help():
+    """Every command and subcommand, found by walking the CLI, answers --help with its usage and a description."""
     runner = CliRunner()
-    for args in ([], ["rollout"], ["train"], ["tune"], ["eval"], ["ablate"], ["plot"], ["trace"], ["report"], ["demos"],
-                 ["finetune"]):
+    paths = list(_command_paths(main))
+    assert {("serve",), ("benchmark",), ("train",), ("finetune",)} <= set(paths) and len(paths) > 15
+    for args in paths:
         result = runner.invoke(main, [*args, "--help"])
-        assert result.exit_code == 0 and "Usage" in result.output
+        assert result.exit_code == 0 and "Usage" in result.output, (args, result.output)
+        described = result.output.split("Options:")[0].split("\n", 2)[-1].strip()
+        assert described, f"sb3-memret {' '.join(args)} --help says nothing of what it does"
 
 
 def test_help_and_argument_errors_load_no_heavy_library():

@@ -307,7 +307,7 @@ def test_the_results_pages_name_each_tables_file_and_a_command_the_benchmark_acc
         assert f"Source: `{folder.relative_to(ROOT).as_posix()}/*/evaluations.jsonl`" in text, page
         assert len(re.findall(r"^\| seed\d+ \| \d+ \|", text, re.M)) == len(list(folder.glob("*/summary.json")))
         (command,) = re.findall(r"^sb3-memret train recall .*$", text, re.M)
-        assert check_command(shlex.split(command)[1:], page.name, cli) == 3
+        assert check_command(shlex.split(command)[1:], page.name, cli) == 4
         assert (tmp_path / f"{page.stem}.png").is_file()
     for page, results in zip(pages[1:1 + len(runs)], runs):
         text = page.read_text()

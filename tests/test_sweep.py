@@ -8,13 +8,17 @@ import pytest
 from sb3_memret.analysis.sweep import is_run, plot_sweep, run_row, sweep_table
 
 
-def fake_run(folder, seed, greedy, sampled=0.9, entropy=0.3, success=0.9, minutes=7.0):
-    """A run folder as ``train`` leaves it, as far as the sweep reads: an evaluation every 5 rounds."""
+def fake_run(folder, seed, greedy, sampled=0.9, entropy=0.3, success=0.9, minutes=7.0, baselines=None):
+    """A run folder as ``train`` leaves it, as far as the sweep reads: an evaluation every 5 rounds; ``baselines``
+    (condition: success) as its report records them."""
     folder.mkdir(parents=True)
     rows = [{"round": 5 * i, "timesteps": 640 * i, "episodes": 8, "greedy_accuracy": g, "sampled_fraction": sampled,
              "entropy": entropy, "success": {"overall": success}} for i, g in enumerate(greedy)]
     (folder / "evaluations.jsonl").write_text("".join(json.dumps(row) + "\n" for row in rows))
-    (folder / "summary.json").write_text(json.dumps({"seed": seed, "wall_seconds": minutes * 60}))
+    summary = {"seed": seed, "wall_seconds": minutes * 60}
+    if baselines:
+        summary["baselines"] = {name: {"success": {"overall": value}} for name, value in baselines.items()}
+    (folder / "summary.json").write_text(json.dumps(summary))
     return folder
 
 
@@ -39,6 +43,11 @@ def test_the_table_has_a_row_per_run_and_their_mean(tmp_path):
     assert "| seed2 | 2 | 3 | 5 (640) | yes | yes (100%) |" in lines[4] and "| 1.00 |" in lines[4]  # 0.5 / 0.5
     assert "3 of 3" in lines[-1] and "25% ± 20%" in lines[-1]
     assert "recall / oracle" not in sweep_table(rows)[0]
+    # a run whose report played the baselines is set over its own oracle, and shows its no-memory success
+    own = run_row(fake_run(tmp_path / "seed9", 9, [0.1, 1.0, 1.0], success=0.9, baselines={"oracle": 0.95, "none": 0.2}))
+    assert (own["oracle"], own["none"]) == (0.95, 0.2)
+    line = sweep_table([own], oracle=0.5)[2]
+    assert "| 90% | 95% | 20% | 0.95 |" in line
 
 
 def test_only_finished_runs_count_and_the_figure_is_drawn(tmp_path):

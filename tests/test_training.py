@@ -76,6 +76,30 @@ def test_train_writes_a_complete_run(run):
     assert "| oracle | the instruction + the true memory | 3 |" in report and "| none | the bare instruction | 3 |" in report
 
 
+def test_the_main_job_benchmark_splits_a_runs_wall_time_by_phase(run, load_script):
+    """scripts/bench_main_job.py: every recorded phase of the run, its evaluations' sum, the process's start-up and
+    exit as what is left of the wall time, and each phase's ratio to a baseline's."""
+    out, _, _ = run
+    bench = load_script("bench_main_job")
+    phases = bench.split(out, wall=1000.0)
+    summary = json.loads((out / "summary.json").read_text())
+    assert phases["training decisions (32)"] == summary["seconds"]["collect"]
+    assert phases["held-out evaluations, all (3)"] == pytest.approx(
+        sum(v for k, v in phases.items() if k.startswith("held-out evaluation, round")))
+    assert {"report: oracle", "report: none", "report: trace", "report: plot"} <= set(phases)
+    parts = sum(v for k, v in phases.items() if not k.startswith(("held-out evaluations, all", "start-up", "total",
+                                                                    "decisions/s")))
+    assert phases["start-up and exit (imports, weights, MiniLM)"] == pytest.approx(1000.0 - parts)
+    assert phases["decisions/s while training"] > 0
+    half = {key: value / 2 for key, value in phases.items()}
+    import contextlib
+    import io
+    printed = io.StringIO()
+    with contextlib.redirect_stdout(printed):
+        bench.print_split("job", phases, half)
+    assert printed.getvalue().count("2.00x the baseline's") == len(phases) - 3  # the rounds' own lines have no pair
+
+
 def test_a_report_across_tasks_is_refused_before_training():
     result = cli("train", "recall", "--tasks", "drawer,RememberColor3-VLA-v0", "--report")
     assert result.exit_code == 2 and "--report writes one task's report" in result.output

@@ -74,7 +74,9 @@ def _plot(ax: Axes, x: np.ndarray, y: np.ndarray, **style) -> None:
 
 def plot_learning_curves(run: Path, out: Path | None = None, title: str | None = None,
                          chance: float | None = None) -> Path:
-    """Save the run's Figure 5 (retrieval accuracy, success and policy entropy per PPO round) as a PNG.
+    """Save the run's Figure 5 as a PNG: at each held-out evaluation greedy accuracy, sampled fraction (the chance a
+    training-time draw holds the true memory), entropy and success, and per PPO round the training draws' share that
+    held it and the training entropy.
 
     ``chance`` (1/capacity) draws the random-retrieval baseline when given; the PNG goes to
     ``out`` (default ``run/learning_curves.png``), whose path is returned.
@@ -87,8 +89,10 @@ def plot_learning_curves(run: Path, out: Path | None = None, title: str | None =
     entropy_ax = ax.twinx()
     _plot(ax, curves.eval_round, curves.eval_greedy_accuracy, color="tab:blue", marker="o",
           label="held-out greedy accuracy")
-    _plot(ax, curves.train_round, curves.train_sampled_fraction, color="tab:orange", alpha=0.8,
-          label="training sampled fraction")
+    _plot(ax, curves.eval_round, curves.eval_sampled_fraction, color="tab:orange", marker="D", markersize=5,
+          label="held-out sampled fraction")
+    _plot(ax, curves.train_round, curves.train_sampled_fraction, color="tab:orange", alpha=0.35, linewidth=1,
+          label="training draws holding the true memory")
     _plot(ax, curves.eval_round, curves.eval_success, color="tab:green", marker="s", markersize=4,
           label="held-out success")
     if chance is not None:

@@ -4,7 +4,8 @@ It reads what the run folder already holds (``summary.json``, ``evaluations.json
 ``progress.csv``, ``config.yml``, the initial and final models, any ``ablations/*.md`` written
 by ``sb3-memret ablate --out RUN/ablations``) and adds what only a fresh evaluation can say:
 the oracle and no-memory baselines on the same held-out episodes as the final evaluation,
-and the before/after introspection trace.
+and the before/after introspection trace. The baselines and the report's time go into the run's ``summary.json``
+beside training's, so a seed sweep's page can show them without playing anything again.
 """
 
 from __future__ import annotations
@@ -87,9 +88,9 @@ def write_report(run: Path, options: ReportOptions | None = None,
         f"# Training report: {run.name}",
         _overview(summary, history, chance, final, baselines),
         f"![learning curves]({PLOT_FILE})",
-        "*Held-out greedy retrieval accuracy and task success (markers at each evaluation), the fraction of "
-        "training-time sampled retrievals that held the true memory (every round), and the policy entropy "
-        "(right axis).*",
+        "*At each held-out evaluation (markers): greedy retrieval accuracy, the sampled fraction (the chance a "
+        "training-time draw holds the true memory), task success and the policy entropy (right axis); every round "
+        "(thin lines): the share of that round's training draws that held it, and the training entropy.*",
         "## Held-out evaluations during training",
         f"{_episodes_per_evaluation(history)}, evaluation seed {eval_seed} (and the task's protocol "
         "seeds where it has them); "

@@ -37,7 +37,11 @@ def run_row(run: Path) -> dict[str, Any]:
     summary = json.loads((run / "summary.json").read_text()) if (run / "summary.json").exists() else {}
     first = first_mastered(history)
     last = history[-1]
-    held = first is not None and all(row["greedy_accuracy"] >= MASTERY for row in history if row["round"] >= first["round"])
+    baselines = summary.get("baselines") or {}  # the report's, on the final evaluation's episodes
+    baseline = {name: baselines[name]["success"]["overall"] if name in baselines else float("nan")
+                for name in ("oracle", "none")}
+    held = first is not None and all(row["greedy_accuracy"] >= MASTERY for row in history
+                                     if row["round"] >= first["round"])
     middle = [row for row in history if row["round"] >= last["round"] / 2]
     return {"run": run.name, "seed": summary.get("seed", "?"),
             "first_mastered": first["round"] if first else float("nan"),
@@ -46,7 +50,8 @@ def run_row(run: Path) -> dict[str, Any]:
             "lowest_from_middle": min(row["greedy_accuracy"] for row in middle),
             "evaluations": len(history), "round": last["round"], "episodes": last["episodes"],
             "greedy": last["greedy_accuracy"], "sampled": last["sampled_fraction"], "entropy": last["entropy"],
-            "success": last["success"]["overall"], "minutes": summary.get("wall_seconds", float("nan")) / 60}
+            "success": last["success"]["overall"], "oracle": baseline["oracle"], "none": baseline["none"],
+            "minutes": summary.get("wall_seconds", float("nan")) / 60}
 
 
 def _mean_std(values: list[float]) -> tuple[float, float]:
@@ -56,31 +61,46 @@ def _mean_std(values: list[float]) -> tuple[float, float]:
 
 
 def sweep_table(rows: Sequence[dict[str, Any]], oracle: float | None = None) -> list[str]:
-    """The markdown table of ``rows`` (``run_row``'s), one line a run and their mean ± std; with ``oracle`` (the
-    oracle condition's success on the runs' held-out episodes) each run's final success over it."""
-    ratio_head = "recall / oracle | " if oracle is not None else ""
+    """The markdown table of ``rows`` (``run_row``'s), one line a run and their mean ± std. Each run's final success
+    is set over the oracle's (the true fact in the prompt) on the same episodes: its own report's, else ``oracle``
+    (played once for all); the no-memory baseline beside it where the report played it."""
+    rows = [{**row, "oracle": row["oracle"] if not np.isnan(row["oracle"]) else (oracle if oracle else float("nan"))}
+            for row in rows]
+    baselines = any(not np.isnan(row["oracle"]) for row in rows)
+
+    def percent(value: float) -> str:
+        return "–" if np.isnan(value) else f"{value:.0%}"
+
+    extra_head, extra_rule = ("oracle | none | recall / oracle | ", "---|---|---|") if baselines else ("", "")
     lines = [f"| run | seed | evaluations | first round with greedy ≥ {MASTERY:.0%} (decisions) | held after | "
              f"≥ {MASTERY:.0%} from the middle on (lowest) | last round | episodes | greedy | sampled | entropy | "
-             f"success | {ratio_head}minutes |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|" + ("---|" if oracle is not None else "") + "---|"]
+             f"success | {extra_head}minutes |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|" + extra_rule + "---|"]
     for row in rows:
-        ratio = f"{row['success'] / oracle:.2f} | " if oracle else ("– | " if oracle is not None else "")
+        extra = ""
+        if baselines:
+            ratio = "–" if np.isnan(row["oracle"]) or not row["oracle"] else f"{row['success'] / row['oracle']:.2f}"
+            extra = f"{percent(row['oracle'])} | {percent(row['none'])} | {ratio} | "
         first = "never" if np.isnan(row["first_mastered"]) else f"{row['first_mastered']} ({row['mastered_decisions']})"
-        lines.append(f"| {row['run']} | {row['seed']} | {row['evaluations']} | {first} | {'yes' if row['held'] else 'no'} | "
+        lines.append(f"| {row['run']} | {row['seed']} | {row['evaluations']} | {first} | "
+                     f"{'yes' if row['held'] else 'no'} | "
                      f"{'yes' if row['held_from_middle'] else 'no'} ({row['lowest_from_middle']:.0%}) | "
                      f"{row['round']} | {row['episodes']} | {row['greedy']:.1%} | {row['sampled']:.1%} | "
-                     f"{row['entropy']:.2f} | {row['success']:.0%} | {ratio}{row['minutes']:.1f} |")
+                     f"{row['entropy']:.2f} | {row['success']:.0%} | {extra}{row['minutes']:.1f} |")
     stats = {k: _mean_std([r[k] for r in rows]) for k in ("first_mastered", "greedy", "sampled", "entropy", "success",
-                                                          "minutes")}
+                                                          "oracle", "none", "minutes")}
     mastered = sum(not np.isnan(r["first_mastered"]) for r in rows)
-    ratio = (f"{stats['success'][0] / oracle:.2f} | " if oracle else "– | ") if oracle is not None else ""
+    extra = ""
+    if baselines:
+        ratio = stats["success"][0] / stats["oracle"][0] if stats["oracle"][0] else float("nan")
+        extra = f"{percent(stats['oracle'][0])} | {percent(stats['none'][0])} | {ratio:.2f} | "
     lines.append(f"| mean ± std | | | {stats['first_mastered'][0]:.1f} ± {stats['first_mastered'][1]:.1f} "
                  f"({mastered} of {len(rows)} reached it) | {sum(r['held'] for r in rows)} of {len(rows)} | "
                  f"{sum(r['held_from_middle'] for r in rows)} of {len(rows)} | | | "
                  f"{stats['greedy'][0]:.1%} ± {stats['greedy'][1]:.1%} | "
                  f"{stats['sampled'][0]:.1%} ± {stats['sampled'][1]:.1%} | "
                  f"{stats['entropy'][0]:.2f} ± {stats['entropy'][1]:.2f} | "
-                 f"{stats['success'][0]:.0%} ± {stats['success'][1]:.0%} | {ratio}{stats['minutes'][0]:.1f} |")
+                 f"{stats['success'][0]:.0%} ± {stats['success'][1]:.0%} | {extra}{stats['minutes'][0]:.1f} |")
     return lines
 
 
