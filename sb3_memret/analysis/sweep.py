@@ -74,7 +74,7 @@ def sweep_table(rows: Sequence[dict[str, Any]], oracle: float | None = None) -> 
     extra_head, extra_rule = ("oracle | none | recall / oracle | ", "---|---|---|") if baselines else ("", "")
     lines = [f"| run | seed | evaluations | first round with greedy ≥ {MASTERY:.0%} (decisions) | held after | "
              f"≥ {MASTERY:.0%} from the middle on (lowest) | last round | episodes | greedy | sampled | entropy | "
-             f"success | {extra_head}minutes |",
+             f"success | {extra_head}training minutes |",
              "|---|---|---|---|---|---|---|---|---|---|---|---|" + extra_rule + "---|"]
     for row in rows:
         extra = ""

@@ -222,8 +222,8 @@ def trace(models: tuple[Path, ...], task: str | None, seed: int, sample_seed: in
 @click.option("--out", type=click.Path(dir_okay=False, path_type=Path), default=None,
               help="PNG to write  [default: RUN/learning_curves.png]")
 def plot(run: Path, out: Path | None) -> None:
-    """Plot the learning curves of a training run: held-out greedy accuracy and success, training
-    sampled fraction, and policy entropy on a second axis."""
+    """Plot the learning curves of a training run (the seed's Figure 5): held-out greedy accuracy, sampled
+    fraction and success, the training draws that held the true memory, and policy entropy on a second axis."""
     from sb3_memret.analysis.plotting import plot_learning_curves
     from sb3_memret.training import retrieval_chance
 
