@@ -189,7 +189,8 @@ bench: install
 # The main job at training seeds 0-4 (SWEEP_SEEDS), each as `make train` runs it (--report), into runs/main-job/seedS;
 # a finished seed is skipped and an unfinished one resumed. Each run's small files (config, evaluations, summary with
 # its baselines and time split, progress log, curves, report) are copied to benchmarks/main-job/seedS, from which the
-# docs' results page draws the sweep's table. About 8 minutes a seed on a 2-core CPU.
+# docs' results page draws the sweep's table, beside the folder's about.md (written by hand: what the controller
+# reads, on which seeds the settings were chosen). About 8 minutes a seed on a 2-core CPU.
 SWEEP_SEEDS ?= 0 1 2 3 4
 SWEEP_RUNS ?= runs/main-job
 SWEEP_OUT ?= benchmarks/main-job

@@ -1,7 +1,8 @@
 """Write the documentation's results pages (``docs/results/``) from the result files committed under ``benchmarks/``.
 
 Every ``benchmarks/**/results.json`` (what ``sb3-memret benchmark mikasa`` writes into its run folder) becomes one
-page, and so does every seed sweep (a folder whose subfolders are training runs, what ``sb3-memret train`` writes): its tables come from the benchmark's own renderer (``sb3_memret.benchmark.report.render_report``), its figure
+page, and so does every seed sweep (a folder whose subfolders are training runs, what ``sb3-memret train`` writes, and
+whose ``about.md`` says what the controller reads and on which seeds the settings were chosen): its tables come from the benchmark's own renderer (``sb3_memret.benchmark.report.render_report``), its figure
 from ``plot_success``, each table names the file it came from, and the page gives the command that produces (and
 resumes) the run, rebuilt from the run's recorded protocol. The run folder's episode log (``episodes.jsonl``) adds a
 table of what was played. Nothing on these pages is typed by hand: a figure changes only with the files.
@@ -18,6 +19,7 @@ from pathlib import Path
 from typing import Any, Mapping
 
 RESULTS_FILE, EPISODES_FILE, PROTOCOL_FILE = "results.json", "episodes.jsonl", "protocol.json"
+SWEEP_ABOUT = "about.md"  # a seed sweep's own words: what its controller reads, where its settings were chosen
 BENCHMARKS = "benchmarks"
 
 
@@ -144,8 +146,12 @@ def sweep_page(root: Path, folder: Path, out: Path) -> tuple[str, list[dict[str,
     """Write the page (and figure) of one seed sweep into ``out``; its page name and its rows."""
     from sb3_memret.analysis.sweep import is_run, plot_sweep, run_row, sweep_table
 
-    runs = sorted((run for run in folder.iterdir() if is_run(run)), key=lambda run: run_row(run)["seed"])
-    rows = [run_row(run) for run in runs]
+    pairs = sorted(((run_row(run), run) for run in folder.iterdir() if is_run(run)), key=lambda pair: pair[0]["seed"])
+    rows, runs = [row for row, _ in pairs], [run for _, run in pairs]
+    about = folder / SWEEP_ABOUT
+    if not about.is_file():
+        raise FileNotFoundError(f"{about} is missing: a seed sweep states what its controller reads and on which seeds "
+                                "its settings were chosen")
     where = folder.relative_to(root).as_posix()
     name = slug(folder.relative_to(root / BENCHMARKS))
     figure = f"{name}.png"
@@ -158,7 +164,7 @@ def sweep_page(root: Path, folder: Path, out: Path) -> tuple[str, list[dict[str,
              f"seed; each was made with the frozen controller `{first.get('controller', '?')}` and the hyperparameters "
              f"in its `config.yml`, held-out evaluations at seed {first.get('eval_seed')} (never trained on):", "",
              "```bash", f"sb3-memret train recall --report --seed SEED --config {config} --out {where}/seedSEED",
-             "```", "", *sweep_table(rows), "",
+             "```", "", about.read_text().strip(), "", *sweep_table(rows), "",
              f"Source: `{where}/*/evaluations.jsonl`, `{where}/*/summary.json`.", ""]
     if any(row["oracle"] == row["oracle"] for row in rows):  # some report played the baselines (not NaN)
         lines += ["The oracle (the true fact in the prompt) and no-memory (the bare instruction) columns are each "

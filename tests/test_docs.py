@@ -305,6 +305,7 @@ def test_the_results_pages_name_each_tables_file_and_a_command_the_benchmark_acc
     for page, folder in zip(pages[1 + len(runs):], sweeps):  # a seed sweep: its table from its runs' files
         text = page.read_text()
         assert f"Source: `{folder.relative_to(ROOT).as_posix()}/*/evaluations.jsonl`" in text, page
+        assert (folder / "about.md").read_text().strip() in text  # what the controller reads, where choices were made
         assert len(re.findall(r"^\| seed\d+ \| \d+ \|", text, re.M)) == len(list(folder.glob("*/summary.json")))
         (command,) = re.findall(r"^sb3-memret train recall .*$", text, re.M)
         assert check_command(shlex.split(command)[1:], page.name, cli) == 4
