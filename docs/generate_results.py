@@ -1,11 +1,13 @@
 """Write the documentation's results pages (``docs/results/``) from the result files committed under ``benchmarks/``.
 
 Every ``benchmarks/**/results.json`` (what ``sb3-memret benchmark mikasa`` writes into its run folder) becomes one
-page, and so does every seed sweep (a folder whose subfolders are training runs, what ``sb3-memret train`` writes, and
-whose ``about.md`` says what the controller reads and on which seeds the settings were chosen): its tables come from the benchmark's own renderer (``sb3_memret.benchmark.report.render_report``), its figure
+page: its tables come from the benchmark's own renderer (``sb3_memret.benchmark.report.render_report``), its figure
 from ``plot_success``, each table names the file it came from, and the page gives the command that produces (and
 resumes) the run, rebuilt from the run's recorded protocol. The run folder's episode log (``episodes.jsonl``) adds a
-table of what was played. Nothing on these pages is typed by hand: a figure changes only with the files.
+table of what was played. So does every seed sweep, a folder whose subfolders are training runs (what ``sb3-memret
+train`` writes): its table and figure come from the runs' files, beside the folder's ``about.md``, the one text
+written by hand (what the controller reads, on which seeds the settings were chosen). No figure is typed by hand: a
+figure changes only with the files.
 
 Run by ``docs/conf.py`` before Sphinx reads the pages; ``python docs/generate_results.py`` writes them alone.
 """
