@@ -127,7 +127,7 @@ controller-mikasa: install renderer
 # $(MULTITASK_PROGRESS_STEPS) steps; the shipped policy on all of it. On an idle 2-core CPU a chunk takes about 75 s
 # (SeqOfColors3's 10 minutes) and the finetunes 2-5 steps/s after the frozen trunk's features (kept for later
 # finetunes): about 7 hours in all. The shipped checkpoint was built in stages, with the same final training on
-# 450-800 episodes a task and 200 of SeqOfColors3 (docs/notes.md lists each task's data).
+# 450-800 episodes a task and 200 of SeqOfColors3 (lab/2026-11-30-one-camera-controller-across-twenty-tasks-the-added lists each task's data).
 MULTITASK_TOUCH_TASKS ?= RememberColor3-VLA-v0,RememberShape3-VLA-v0,RememberColor5-VLA-v0,TakeItBack-VLA-v0,RememberShape5-VLA-v0,FindImposterColor3-VLA-v0,RememberShapeAndColor3x2-VLA-v0,RememberColor9-VLA-v0,FindImposterShape3-VLA-v0,RememberShapeAndColor3x3-VLA-v0,FindImposterColor5-VLA-v0,RememberShape9-VLA-v0,FindImposterShapeAndColor3x2-VLA-v0,RememberShapeAndColor5x3-VLA-v0,FindImposterColor9-VLA-v0,FindImposterShape5-VLA-v0,FindImposterShapeAndColor3x3-VLA-v0,FindImposterShape9-VLA-v0,FindImposterShapeAndColor5x3-VLA-v0
 MULTITASK_EXTRA_TASKS ?= RememberShape5-VLA-v0,RememberShapeAndColor3x2-VLA-v0,RememberColor9-VLA-v0,FindImposterShape3-VLA-v0,RememberShapeAndColor3x3-VLA-v0,RememberShape9-VLA-v0,FindImposterShapeAndColor3x2-VLA-v0,RememberShapeAndColor5x3-VLA-v0,FindImposterColor9-VLA-v0,FindImposterShape5-VLA-v0,FindImposterShapeAndColor3x3-VLA-v0,FindImposterShape9-VLA-v0,FindImposterShapeAndColor5x3-VLA-v0
 MULTITASK_PROGRESS_TASKS ?= SeqOfColors3-VLA-v0

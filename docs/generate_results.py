@@ -196,8 +196,9 @@ def main(root: Path, out: Path) -> list[Path]:
     lines = ["# Results", "",
              "One page per benchmark run committed under `benchmarks/`, generated from its `results.json` when the "
              "documentation is built (`docs/generate_results.py`). A run in progress shows the cells it has "
-             "completed; the protocol is on [the benchmark page](../benchmark.md). Figures measured by hand during "
-             "development are on [the notes page](../notes.md), with their dates.", ""]
+             "completed; the protocol is on [the benchmark page](../benchmark.md). Studies made during development (pilots, "
+             "probes, figures measured by hand) are kept apart from the product, in the repository's `lab/` folder: "
+             "a dated folder per study, with its command and its result files.", ""]
     if pages:
         lines += ["| run | benchmark | controller | seeds | conditions | tasks | cells complete |",
                   "|---|---|---|---|---|---|---|"]

@@ -2,7 +2,7 @@
 # Expert demonstrations of MIKASA tasks for one camera controller across them, in chunks of 50 episodes, resumable: a
 # finished chunk leaves OUT/TASK/chunkN.done, and a rerun records only the missing ones. FRAMES=decisions (the
 # default) keeps the decision frames with their chunks of labels, the cameras rendering only there (a third of the
-# CPU an episode of every frame costs, and RememberColor3's controller as good: docs/notes.md); FRAMES=every keeps
+# CPU an episode of every frame costs, and RememberColor3's controller as good: lab/2026-11-28-one-camera-controller-across-tasks-the-pilot); FRAMES=every keeps
 # every control step. One finetune takes chunks of one kind only.
 # A DAgger round: LEARNER=learned:PATH has that policy act while the expert labels every frame; give it seeds of its
 # own with SEED (chunk i starts at SEED + 50 i; default 100000, the expert's demonstrations). MAX_STEPS=N ends each

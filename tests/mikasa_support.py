@@ -1,7 +1,7 @@
 """What the MIKASA test modules share: the skip reason when the package is missing, and the leak check."""
 
 #: the first of MIKASA's evaluation seeds (4242424242 + i) that the protocol tests play: the suite's budget; the
-#: figures over all 50 come from ``scripts/mikasa_probe.py --episodes 50`` (README, Tasks)
+#: figures over all 50 come from ``lab/2026-11-23-the-memory-learner-on-the-scripted-experts/mikasa_probe.py --episodes 50`` (README, Tasks)
 PROTOCOL_SEEDS = 12
 
 MIKASA_MISSING = ("mikasa-robo-suite is not installed "

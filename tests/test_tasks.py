@@ -379,7 +379,7 @@ def test_a_retrieval_counts_only_with_every_needed_fact_in_the_bank_and_hits_onl
 def test_the_memory_learner_learns_to_retrieve_every_needed_fact(encoder):
     """K = 2 over 2 facts and 2 decoys: a uniform draw holds both 1 time in 6; PPO, at the paper's settings and
     with one Plackett-Luce draw per episode (the default), learns to hold both within 1024 decisions and keeps it
-    for 1024 more (seeds 0-3; ``scripts/exploration_stability.py``)."""
+    for 1024 more (seeds 0-3; ``lab/2026-11-26-exploration-stability/exploration_stability.py``)."""
     from sb3_memret.evaluation import evaluate_retrieval
 
     venv = pair_doors_env(encoder)

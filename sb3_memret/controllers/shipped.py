@@ -16,7 +16,7 @@ MULTITASK_TASKS = ("RememberColor3-VLA-v0", "RememberShape3-VLA-v0", "RememberCo
                    "FindImposterShapeAndColor3x3-VLA-v0", "FindImposterShape9-VLA-v0",
                    "FindImposterShapeAndColor5x3-VLA-v0", "SeqOfColors3-VLA-v0")
 # tasks whose shipped ``learned`` controller reads their prompts but does not yet do the task (SeqOfColors3: it does
-# not finish the sequence, docs/notes.md): a command runs their expert unless ``--controller learned`` asks
+# not finish the sequence, lab/2026-11-29-seqofcolors3-s-own-camera-controller-a-first-try): a command runs their expert unless ``--controller learned`` asks
 LEARNED_NOT_DEFAULT = frozenset({"SeqOfColors3-VLA-v0"})
 # shipped checkpoints by (task, controller name): the folder, and the make command that rebuilds it. ``learned`` is
 # the camera-reading controller (cameras and what the robot reads of itself): on MULTITASK_TASKS one network across

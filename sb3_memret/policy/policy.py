@@ -56,7 +56,7 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
     ``"episode"`` is the default: it held what it learned where ``"decision"`` learned and unlearned (the
     drawer's learned controller, above; RememberShape3's camera controller; on the tests' K = 2 toy task at 10x
     the paper's step and entropy bonus it fell back on 2 seeds of 4, episode draws on none:
-    ``scripts/exploration_stability.py``). Neither steadies SeqOfColors3, whose advantages favour the wrong
+    ``lab/2026-11-26-exploration-stability/exploration_stability.py``). Neither steadies SeqOfColors3, whose advantages favour the wrong
     facts (docs: tasks).
 
     ``retriever_lr_scale`` scales the retriever's learning rate against the critic's (0 freezes it: a

@@ -16,7 +16,7 @@ layout: all of it, or with ``state="proprio"`` only what a robot reads of itself
 not read (the simulator's detection, drawer openings) become the policy's ``perceived_names``: its
 perception head estimates them from the images, trained on the simulator's labels (``perception_coef``),
 and its action head reads the estimates. (Measured here: frozen EfficientNet-Lite0 features locate the
-cube within 0.8 cm and its yaw within 7 degrees, ``scripts/probe_camera_features.py``, yet behaviour
+cube within 0.8 cm and its yaw within 7 degrees, ``lab/2026-11-26-the-learned-controllers/probe_camera_features.py``, yet behaviour
 cloning alone did not learn to use them.)
 """
 

@@ -31,7 +31,7 @@ phase lamp hidden). The count is a word (``once``, ``twice``, ``three times``, .
 fields are fixed, and words read as English. Decoys are worded alike about other things (``the key blinked
 twice.``). The controller sees ``BlinkCountObservation`` only (never ``oracle_info``, ``task_cue`` nor MIKASA's
 press counters), so the count reaches it only through its prompt. Measured at the development seeds 5000-5039
-(``scripts/blink_reader_error.py``, the arm moving as the expert moves it): 40 of 40 counts right on each task, each
+(``lab/2026-11-27-blink-reader-error/blink_reader_error.py``, the arm moving as the expert moves it): 40 of 40 counts right on each task, each
 written at the step the phase lamp turned green.
 
 **Progress as memory**: how often the red button was pressed is not in sight (its cap springs back), so a

@@ -29,7 +29,7 @@ wordings (``wording``):
 The expert (``ImposterTouchController``) touches the object in sight whose word no fact of its prompt names, once
 all N are in sight; with no fact it touches the first object (a guess: success at chance).
 
-**Which wording** (``scripts/imposter_wordings.py``, the scripted expert standing in for a controller finetuned on
+**Which wording** (``lab/2026-11-27-imposter-wordings/imposter_wordings.py``, the scripted expert standing in for a controller finetuned on
 each wording, 10 episodes per cell at seeds 5000-5009): the expert follows both alike, episode for episode on
 every task: oracle 10/10 with either wording everywhere (5x3 9/10 before its reach cap), written (the writer's
 facts, no retriever) Color3/5/9 10/10, Shape3 10/10, Shape5 9/10, Shape9 7/10, ShapeAndColor3x2 10/10, 3x3 9/10,

@@ -27,7 +27,7 @@ renders at the full level of its colour's channel (255, the other two <= 3), whi
 reaches (the red cube's faces render at 231 and 148); the colour of at least ``MIN_FLASH_PIXELS`` such pixels is
 written as ``the flash was green.``. Over 20 expert episodes at development seeds 5000-5019 (912 frames, 214 of
 them lit) every lit frame read its colour and no other frame read one; the flash was first read at steps 24-26
-(``scripts/gather_and_recall_reader.py``). Decoys are worded alike about other things (``the key was blue.``). The
+(``lab/2026-11-27-gather-and-recall-reader/gather_and_recall_reader.py``). Decoys are worded alike about other things (``the key was blue.``). The
 controller sees ``GatherObservation`` only (never ``oracle_info``, nor the lamp), so the colour reaches it only
 through its prompt.
 

@@ -100,7 +100,7 @@ VARIANTS: dict[str, InterceptVariant] = {
 ROLLING_SPEEDS = (ROLLING * SPEEDS["Slow"][0], ROLLING * SPEEDS["Fast"][1])  # every variant's, m/s: 0.18-0.71
 EPISODE_STEPS = 60
 SPEED_TOLERANCE = 5  # cm/s: a written speed this close to the truth is the true fact (metrics only); the reader's
-# error was at most 3 cm/s (mean -0.3 to -0.8) over 120 development episodes (scripts/intercept_probe.py)
+# error was at most 3 cm/s (mean -0.3 to -0.8) over 120 development episodes (lab/2026-11-27-intercept-probe/intercept_probe.py)
 
 BALL_CENTRE_Z = 0.02  # the rolling ball's centre: its radius
 ROLLING_FROM = 3  # the first control step at which the ball rolls (it slides, or drops, before)

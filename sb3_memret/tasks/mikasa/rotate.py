@@ -24,7 +24,7 @@ the peg's angle) is cast onto the plane of that face (z = 5 cm) through the came
 the principal axis of those points (``peg_on_table``): ``the peg started at 35 degrees.``, the angle of the axis
 from the table's x axis, counter-clockwise, in whole degrees from 0 to 179 (the halves look alike, so a camera
 cannot tell 35 from 215 degrees; nor need it: the rotation counts from the peg as it lay). Measured at the
-development seeds 5000-5099 (``scripts/rotate_reader_error.py``): the reading is off the simulator's angle by 0.25
+development seeds 5000-5099 (``lab/2026-11-27-rotate-reader-error/rotate_reader_error.py``): the reading is off the simulator's angle by 0.25
 degrees on average, 0.67 at the 95th percentile, 1.32 at most (rounding to whole degrees adds up to 0.5, and
 MIKASA's instruction rounds the rotation to whole degrees, up to 0.5 more): well inside MIKASA's 5.7. Decoys are worded
 alike about other things (``the key started at 57 degrees.``). The controller sees ``RotateObservation`` only (never

@@ -86,7 +86,7 @@ PROGRESS_WORDINGS = {(MemoryType.TASK_PROGRESS, TOUCHED): "the {entity} was touc
                      (MemoryType.TASK_PROGRESS, PRESSED): "the {entity} was pressed."}
 BUTTON_BASE_Z = 0.015  # MIKASA's button base centre height
 BUTTON_TOWARD_ROBOT = 0.04  # MIKASA places the button at the cubes' mean position, this far toward the robot (-x)
-SEQ_TASKS = {"SeqOfColors3-VLA-v0": 3}  # measured (scripts/mikasa_probe.py) for these only
+SEQ_TASKS = {"SeqOfColors3-VLA-v0": 3}  # measured (lab/2026-11-23-the-memory-learner-on-the-scripted-experts/mikasa_probe.py) for these only
 EPISODE_STEPS = 400
 N_COLOURS = 9  # every SeqOfColors task has all nine cubes
 

@@ -6,7 +6,7 @@ error against the simulator's start angle (modulo 180 degrees: the peg's halves 
 absolute, 95th percentile, largest, and the mean (a bias). The fact rounds the reading to whole degrees (up to 0.5
 more). All four Rotate tasks place the peg alike.
 
-    .venv/bin/python scripts/rotate_reader_error.py [--task RotateLenientPos-VLA-v0] [--episodes 100]
+    .venv/bin/python lab/2026-11-27-rotate-reader-error/rotate_reader_error.py [--task RotateLenientPos-VLA-v0] [--episodes 100]
 """
 
 from __future__ import annotations

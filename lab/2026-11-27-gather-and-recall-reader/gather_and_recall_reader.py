@@ -6,7 +6,7 @@ is scored against MIKASA's state (``flash_active``, ``flash_color``: read here f
 colour while the lamp was white, flash frames read as another colour or missed, whether the fact the writer would
 keep (its last reading) names the flash, and the step it was first read at.
 
-    .venv/bin/python scripts/gather_and_recall_reader.py [--episodes 20] [--seed 5000]
+    .venv/bin/python lab/2026-11-27-gather-and-recall-reader/gather_and_recall_reader.py [--episodes 20] [--seed 5000]
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ decisions) and hands over to the scripted expert from there, which reads its pha
 per failed episode, how it ended (privileged state, for the diagnosis only: the target drawer's opening, grasped,
 the target's layer, the hand's distance to it) and whether the expert recovered from each hand-over point.
 
-    python scripts/drawer_takeover.py --layer 3 --episodes 30 --seed 2000000
+    python lab/2026-11-27-drawer-takeover/drawer_takeover.py --layer 3 --episodes 30 --seed 2000000
 """
 
 from __future__ import annotations

@@ -7,7 +7,7 @@ the camera's frame perceived at every control step and read by the task's writer
 counts were right, wrong (with the seeds, the truth and the reading) or never written, and the control step each
 was written at against the step the phase lamp turned green (MIKASA's ``cue_steps_per_env``).
 
-    .venv/bin/python scripts/blink_reader_error.py [--task BlinkCountButtonPressEasy-VLA-v0] [--episodes 40]
+    .venv/bin/python lab/2026-11-27-blink-reader-error/blink_reader_error.py [--task BlinkCountButtonPressEasy-VLA-v0] [--episodes 40]
 """
 
 from __future__ import annotations

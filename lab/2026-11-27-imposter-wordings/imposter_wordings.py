@@ -6,7 +6,7 @@ For each task and wording, ``--episodes`` episodes at development seeds ``--seed
 in the prompt, no retriever), through ``evaluate_task_condition`` (the rollout's code). The expert stands in for a
 controller finetuned on that wording; it reads both exactly, so what differs is what reaches it.
 
-    .venv/bin/python scripts/imposter_wordings.py [--tasks FindImposterColor3-VLA-v0 ...] [--episodes 10]
+    .venv/bin/python lab/2026-11-27-imposter-wordings/imposter_wordings.py [--tasks FindImposterColor3-VLA-v0 ...] [--episodes 10]
 """
 
 from __future__ import annotations

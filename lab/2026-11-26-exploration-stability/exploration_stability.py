@@ -2,7 +2,7 @@
 for each Plackett-Luce exploration kind, on the test suite's K = 2 toy task (PairDoors: two facts and two decoys,
 the scripted controller needs both in its prompt; seconds a round).
 
-Usage: python scripts/exploration_stability.py [--seeds 0 1 2 3] [--rounds 3] [--learning-rate 3e-4] [--ent-coef 0.001]
+Usage: python lab/2026-11-26-exploration-stability/exploration_stability.py [--seeds 0 1 2 3] [--rounds 3] [--learning-rate 3e-4] [--ent-coef 0.001]
 Prints one line per exploration kind and seed: greedy accuracy after each round of 1024 decisions, and a summary
 (seeds that reached >= 0.9, and of those, how many fell back below it later).
 """
@@ -13,7 +13,7 @@ import argparse
 import sys
 from pathlib import Path
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "tests"))
+sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))
 
 from test_tasks import pair_doors_env  # noqa: E402  (the toy task lives with the tests that define it)
 

@@ -9,7 +9,7 @@ reads, at each decision, its perception head's estimate of the target's xy. Prin
 failures grouped: "went to another cube" (the hand ended nearest another candidate), "short of the target" (nearest
 the target but never within the task's 5 cm), "reached, not held" (within 5 cm, no success: not still).
 
-    python scripts/touch_diagnosis.py --task RememberColor9-VLA-v0 --controller learned --episodes 50
+    python lab/2026-11-26-the-learned-controllers/touch_diagnosis.py --task RememberColor9-VLA-v0 --controller learned --episodes 50
 """
 
 from __future__ import annotations

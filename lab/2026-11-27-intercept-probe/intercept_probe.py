@@ -8,7 +8,7 @@ velocity, read from the simulator for scoring only) and says at which step it wa
 and ``wrong`` prompts do not depend on the camera, so those episodes run without rendering. Success is MIKASA's
 success-once over the 60 steps; the expert replans every ``--replan`` steps.
 
-    .venv/bin/python scripts/intercept_probe.py [--tasks InterceptSlow-VLA-v0] [--episodes 20] [--conditions written]
+    .venv/bin/python lab/2026-11-27-intercept-probe/intercept_probe.py [--tasks InterceptSlow-VLA-v0] [--episodes 20] [--conditions written]
 """
 
 from __future__ import annotations

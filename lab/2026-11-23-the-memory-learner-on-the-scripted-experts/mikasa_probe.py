@@ -11,7 +11,7 @@ step the base-camera frame goes through the task's reader (``Task.perceive``), s
 episode's phase (cue / delay / manipulation) and, in the cue, the item on show; a task that reads its cue
 from the first frame alone (TakeItBack's start) has its writer's reading of that frame scored.
 
-    .venv/bin/python scripts/mikasa_probe.py [--tasks RememberColor9-VLA-v0 RememberShape3-VLA-v0] [--episodes 50]
+    .venv/bin/python lab/2026-11-23-the-memory-learner-on-the-scripted-experts/mikasa_probe.py [--tasks RememberColor9-VLA-v0 RememberShape3-VLA-v0] [--episodes 50]
 """
 
 from __future__ import annotations

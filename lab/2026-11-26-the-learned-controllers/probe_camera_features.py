@@ -5,7 +5,7 @@ target's position and yaw from both cameras, on the demonstration frames where t
 prints R^2 on held-out episodes beside the mean-predicting baseline (R^2 = 0). The pose comes from the
 dataset's full state (the simulator's detection): a label for this probe only, never a controller's input.
 
-    python scripts/probe_camera_features.py runs/stage1-camera/demos --encoder efficientnet_lite0 --steps 1500
+    python lab/2026-11-26-the-learned-controllers/probe_camera_features.py runs/stage1-camera/demos --encoder efficientnet_lite0 --steps 1500
 """
 
 from __future__ import annotations

@@ -7,8 +7,8 @@ wrappers, success once, the expert replanning every 4 steps) with the env in ``s
 perception, about ten times faster. The writer on these tasks is checked with the cameras on by
 ``rollout --condition written`` (a few episodes: see ``--written``).
 
-    .venv/bin/python scripts/mikasa_long.py [--tasks RememberColor3-Long-VLA-v0 ...] [--episodes 20] [--seed 5000]
-    .venv/bin/python scripts/mikasa_long.py --written 3   # the writer's facts in the prompt, cameras on
+    .venv/bin/python lab/2026-11-27-mikasa-long/mikasa_long.py [--tasks RememberColor3-Long-VLA-v0 ...] [--episodes 20] [--seed 5000]
+    .venv/bin/python lab/2026-11-27-mikasa-long/mikasa_long.py --written 3   # the writer's facts in the prompt, cameras on
 """
 
 from __future__ import annotations
