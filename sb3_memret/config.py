@@ -10,11 +10,9 @@ from typing import Any, Callable
 import yaml
 from stable_baselines3.common.utils import LinearSchedule
 
-from sb3_memret.tasks.drawer.cabinet import LAYERS
-from sb3_memret.tasks.drawer.objects import OBJECT_SETS
 from sb3_memret.memory.retention import RETENTION_RULES
 from sb3_memret.memory.schema import AGE_UNITS
-from sb3_memret.tasks import DEFAULT_TASK, check_task_name, make_task
+from sb3_memret.tasks import check_task_name, make_task, task_in
 
 ZOO_CONFIGS = Path(__file__).resolve().parents[1] / "zoo_configs"  # the shipped hyperparameters, one file per family
 
@@ -40,8 +38,8 @@ def _are_tasks(value: list | dict) -> bool:
         check_task_name(name)
     if isinstance(value, dict):
         for name, own in value.items():
-            _validate(own or {}, {k: v for k, v in ENV_KEYS.items() if k not in MULTI_TASK_SHARED + ("task", "tasks")},
-                      f"tasks.{name}")
+            keys = {k: v for k, v in ENV_KEYS.items() if k not in MULTI_TASK_SHARED + ("task", "tasks")}
+            _validate(own or {}, {**keys, **make_task(name).option_checks()}, f"tasks.{name}")
     return True
 
 
@@ -116,14 +114,9 @@ ENV_KEYS: dict[str, Check] = {
     "retrieve_on_write": (bool, lambda v: True, "true or false (a decision ends when its writer adds a fact)"),
     "max_control_steps": _positive_int(),
     "success_bonus": ((int, float), lambda v: v >= 0, "a number >= 0"),
-    "objects": (str, lambda v: v in OBJECT_SETS, f"one of the object sets {sorted(OBJECT_SETS)}"),
-    "n_objects": (int, lambda v: 1 <= v <= len(LAYERS), f"an integer in [1, {len(LAYERS)}] (one object per drawer)"),
     "location_decoys": (int, lambda v: v >= 0, "an integer >= 0"),
     "holding_decoys": (int, lambda v: v >= 0, "an integer >= 0"),
     "long_term_capacity": (int, lambda v: v >= 0, "an integer >= 0 (0: no long-term store)"),
-    "move_probability": ((int, float), lambda v: 0 <= v <= 1, "a number in [0, 1]"),
-    "hearsay_per_episode": (int, lambda v: v >= 0, "an integer >= 0"),
-    "glimpses_per_episode": (int, lambda v: 0 <= v <= len(LAYERS), f"an integer in [0, {len(LAYERS)}] (drawers looked into)"),
     "retention": (str, lambda v: v in RETENTION_RULES, f"one of {list(RETENTION_RULES)}"),
     "tasks_per_episode": _positive_int(),
     "age_unit": (str, lambda v: v in AGE_UNITS, f"one of {list(AGE_UNITS)} (what a memory's age counts)"),
@@ -162,8 +155,7 @@ class TrainConfig:
     @property
     def task_names(self) -> list[str]:
         """The tasks this config trains on: its ``tasks``, else its one ``task``."""
-        return list(self.env_kwargs["tasks"]) if "tasks" in self.env_kwargs else \
-            [self.env_kwargs.get("task", DEFAULT_TASK)]
+        return list(self.env_kwargs["tasks"]) if "tasks" in self.env_kwargs else [task_in(self.env_kwargs)]
 
     @property
     def eval_episodes(self) -> int:
@@ -214,7 +206,7 @@ def load_config(path: str | Path, env_id: str) -> TrainConfig:
     return parse_section(data[env_id], env_id, where=str(path))
 
 
-def load_task_config(task: str = DEFAULT_TASK, path: Path | None = None) -> TrainConfig:
+def load_task_config(task: str, path: Path | None = None) -> TrainConfig:
     """The hyperparameters of ``task``: its section (``Task.config_key``) of ``path``, by default of the task's own
     zoo config (``Task.zoo_config``). Without ``path``, a task that has no section there (a task of your own) is
     told where they were looked for and how to pass them: no other task's section stands in for its own."""
@@ -255,7 +247,8 @@ def parse_section(section: Any, env_id: str, where: str = "config") -> TrainConf
         raise ValueError(f"{where}: section {env_id!r} must be a mapping, got {type(section).__name__}")
     section = dict(section)
     policy_kwargs = _validate(section.pop("policy_kwargs", {}) or {}, POLICY_KEYS, f"{where}: {env_id}.policy_kwargs")
-    env_kwargs = _validate(section.pop("env_kwargs", {}) or {}, ENV_KEYS, f"{where}: {env_id}.env_kwargs")
+    env_kwargs = section.pop("env_kwargs", {}) or {}
+    env_kwargs = _validate(env_kwargs, env_keys(env_kwargs, f"{where}: {env_id}.env_kwargs"), f"{where}: {env_id}.env_kwargs")
     ppo = _validate(section, PPO_KEYS, f"{where}: {env_id}")
     if "n_timesteps" not in ppo:
         raise ValueError(f"{where}: {env_id} must set n_timesteps")
@@ -273,6 +266,17 @@ def parse_section(section: Any, env_id: str, where: str = "config") -> TrainConf
         raise ValueError(f"{where}: {env_id}: final_eval_episodes={final} is below eval_episodes={every}; the final "
                          "evaluation plays at least as many episodes as the others")
     return TrainConfig(env_id, ppo, policy_kwargs, env_kwargs)
+
+
+def env_keys(env_kwargs: Any, where: str) -> dict[str, Check]:
+    """The keys ``env_kwargs`` may set: the decision env's (``ENV_KEYS``) and the options of the task(s) they name
+    (``Task.option_checks``: the drawer's objects and households)."""
+    named = _validate({k: v for k, v in env_kwargs.items() if k in ("task", "tasks")} if isinstance(env_kwargs, dict)
+                      else env_kwargs, ENV_KEYS, where)
+    keys = dict(ENV_KEYS)
+    for name in list(named["tasks"]) if "tasks" in named else [task_in(named)]:
+        keys.update(make_task(name).option_checks())
+    return keys
 
 
 def _validate(values: Any, spec: dict[str, Check], where: str) -> dict[str, Any]:

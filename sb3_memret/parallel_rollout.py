@@ -1,6 +1,6 @@
 """Controller episodes over many task envs and ONE controller, and a plain worker-process map.
 
-``run_jobs`` plays episode jobs (a prompt, a placement, a replan interval) in ``n_envs`` task
+``run_jobs`` plays episode jobs (a prompt, a seed and reset options, a replan interval) of one task in ``n_envs``
 envs placed by a physics backend (``sb3_memret.physics``: worker processes, a batched GPU
 simulation or Ray actors) while one controller in this process serves them all: one ``act``
 call per round for every env. Results come back in job order whatever order they finish in.
@@ -14,8 +14,8 @@ import signal
 from collections import deque
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
-from dataclasses import dataclass
-from typing import Callable, Sequence, TypeVar
+from dataclasses import dataclass, field
+from typing import Any, Callable, Mapping, Sequence, TypeVar
 
 from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers.base import FrozenController
@@ -24,40 +24,46 @@ from sb3_memret.physics.backends import ResetRequest
 from sb3_memret.physics import make_physics
 from sb3_memret.obs_trees import stack_obs
 from sb3_memret.prompts import parse_prompt
-from sb3_memret.rollout import DEFAULT_REPLAN_EVERY, EpisodeResult, task_env_kwargs
+from sb3_memret.rollout import EpisodeResult, check_replan_every, task_env_kwargs
+from sb3_memret.tasks import Task, make_task
 from sb3_memret.workers import START_METHOD, WorkerDiedError, init_worker_process, torch_threads
 
 J = TypeVar("J")
 R = TypeVar("R")
-MAX_CONTROL_STEPS = 400  # DrawerCubeTakeOut-v1's episode limit
 
 
 @dataclass(frozen=True)
 class EpisodeJob:
-    """One episode to play: the cube's layer and placement seed, the prompt, the replan interval."""
+    """One episode to play: the prompt, the seed and the task's reset options (the drawer's ``target_layer``), the
+    replan interval (None: the task's)."""
 
     prompt: str
-    layer: int
     seed: int
-    replan_every: int = DEFAULT_REPLAN_EVERY
+    reset_options: Mapping[str, Any] = field(default_factory=dict)
+    replan_every: int | None = None
     check_prompt: bool = True  # False only where an ablation measures untrained wording
+
+    def __hash__(self) -> int:  # the options are a mapping: hashed by their items
+        return hash((self.prompt, self.seed, tuple(sorted(self.reset_options.items())), self.replan_every,
+                     self.check_prompt))
 
 
 def run_jobs(
     controller: str | FrozenController,
     jobs: Sequence[EpisodeJob],
+    task: Task | str,
     n_envs: int = 1,
     render_backend: str = "none",
     on_result: Callable[[EpisodeJob, EpisodeResult], None] | None = None,
     backend: str = "auto",
     ray_address: str | None = None,
 ) -> list[EpisodeResult]:
-    """Play ``jobs`` in ``n_envs`` task envs with one controller; results in job order.
+    """Play ``jobs`` in ``n_envs`` envs of ``task`` with one controller; results in job order.
 
     Every round the controller acts once for all envs (an env with no job left repeats its last
     observation and its chunk is dropped); each env executes the first ``replan_every`` actions
-    of its job's chunk. Each episode starts as ``run_episode`` starts it (reset with the job's
-    seed and layer, the controller's env reset with the seed), so it plays the same whatever
+    of its job's chunk. Each episode starts as ``rollout.play_episode`` starts it (reset with the job's
+    seed and options, the controller's env reset with the seed), so it plays the same whatever
     ``n_envs`` and the backend. Prompts are checked against the controller's template before
     anything starts, except those of jobs that waive the check.
     """
@@ -65,15 +71,15 @@ def run_jobs(
         raise ValueError(f"n_envs must be >= 1, got {n_envs}")
     if not jobs:
         return []
-    controller = make_controller(controller) if isinstance(controller, str) else controller
-    chunk_len = controller.spec.chunk_len
+    task = make_task(task)
+    controller = make_controller(controller, task) if isinstance(controller, str) else controller
+    executed_steps = [check_replan_every(job.replan_every, task, controller) for job in jobs]
     for job in jobs:
-        if not 1 <= job.replan_every <= chunk_len:
-            raise ValueError(f"replan_every must be in [1, {chunk_len}] (the chunk length), got {job.replan_every}")
         if job.check_prompt:
             parse_prompt(job.prompt, controller.spec.prompt_template)
     n = min(n_envs, len(jobs))
-    physics = make_physics(backend, n, task_env_kwargs(controller, render_backend), MAX_CONTROL_STEPS, ray_address)
+    physics = make_physics(backend, n, task_env_kwargs(controller, render_backend, task), task.max_control_steps,
+                           ray_address, task=task)
     results: list[EpisodeResult | None] = [None] * len(jobs)
     try:
         controller.check_env(physics.env_info)
@@ -81,13 +87,14 @@ def run_jobs(
         playing: dict[int, int] = {}  # env -> index of the job it plays
         latest = [0] * n  # env -> index of the job it last started (an idle env repeats its prompt)
         steps = [0] * n
+        groups = [""] * n  # env -> the group of the episode it plays (``Episode.group``)
         frames: dict[int, EnvFrame] = {}
 
         def start(envs: list[int]) -> None:
             starting = {i: queue.popleft() for i in envs if queue}
             if not starting:
                 return
-            requests = [ResetRequest(i, jobs[j].seed, {"target_layer": jobs[j].layer}) for i, j in starting.items()]
+            requests = [ResetRequest(i, jobs[j].seed, jobs[j].reset_options) for i, j in starting.items()]
             first = not frames
             frames.update(physics.reset(requests))
             seeds = [jobs[j].seed for j in starting.values()]
@@ -97,23 +104,23 @@ def run_jobs(
                 controller.reset_envs(list(starting), seeds)
             playing.update(starting)
             for i, j in starting.items():
-                steps[i], latest[i] = 0, j
+                steps[i], latest[i], groups[i] = 0, j, task.episode(frames[i]).group
 
         start(list(range(n)))
         while playing:
-            last = {i: jobs[j] for i, j in playing.items()}
+            last = {i: j for i, j in playing.items()}
             prompts = [jobs[j].prompt for j in latest]
             check = all(jobs[j].check_prompt for j in latest)
             with torch_threads(1 if physics.shares_cores else None):
                 chunks = controller.act(stack_obs([frames[i].obs for i in range(n)]), prompts, check)
-            executed = physics.execute({i: chunks[i, : job.replan_every] for i, job in last.items()})
+            executed = physics.execute({i: chunks[i, : executed_steps[j]] for i, j in last.items()})
             ended = []
             for i, frame in executed.items():
                 frames[i] = frame
                 steps[i] += frame.steps
                 if frame.terminated or frame.truncated:
                     j = playing.pop(i)
-                    results[j] = EpisodeResult(jobs[j].layer, jobs[j].seed, frame.success, steps[i])
+                    results[j] = EpisodeResult(groups[i], jobs[j].seed, frame.success, steps[i])
                     if on_result is not None:
                         on_result(jobs[j], results[j])
                     ended.append(i)
@@ -172,4 +179,4 @@ def map_in_workers(
     return results  # type: ignore[return-value]
 
 
-__all__ = ["EpisodeJob", "MAX_CONTROL_STEPS", "init_pool_worker", "map_in_workers", "run_jobs"]
+__all__ = ["EpisodeJob", "init_pool_worker", "map_in_workers", "run_jobs"]

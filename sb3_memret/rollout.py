@@ -5,106 +5,43 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence
 
-import gymnasium as gym
 import numpy as np
 
-import sb3_memret.tasks.drawer.drawer_cube  # noqa: F401  (registers DrawerCubeTakeOut-v1)
 from sb3_memret.controllers.base import FrozenController
-from sb3_memret.tasks.drawer.cabinet import LAYERS, check_layer
 from sb3_memret.memory.schema import Key, MemoryType
 from sb3_memret.memory.writer import EventCompiler
 from sb3_memret.obs_trees import stack_obs
 from sb3_memret.physics.backends import TaskRunner
-from sb3_memret.physics.chunks import execute_chunk
-from sb3_memret.prompts import CONDITIONS, build_prompt, check_fixed_condition
-from sb3_memret.tasks.drawer.prompts import condition_prompt
+from sb3_memret.prompts import CONDITIONS, PromptTemplate, build_prompt, check_fixed_condition
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import RENDER_BACKENDS, EnvFrame, Episode, check_render_backend
-from sb3_memret.tasks.drawer import DrawerTask
-
-DEFAULT_REPLAN_EVERY = DrawerTask.replan_every  # the drawer's episodes (run_episode, evaluate_condition)
 
 
 @dataclass(frozen=True)
 class EpisodeResult:
-    layer: int | str  # the drawer's layer; a task's group (e.g. the cue's colour) elsewhere
+    group: str  # the group success is reported by (``Episode.group``: the drawer's layer, a cue's colour)
     seed: int
     success: bool
-    steps: int  # control steps until success (the drawer ends there), or the episode's length
+    steps: int  # control steps until success (at the end of the chunk it succeeded in), or the episode's length
 
 
-def make_task_env(obs_mode: str = "state_dict", render_backend: str = "none", **kwargs) -> gym.Env:
-    """DrawerCubeTakeOut-v1 as a frozen controller consumes it (CPU physics; cameras only with a
-    render backend, ``"cpu"`` being the project's lavapipe)."""
-    return DrawerTask().make_env(obs_mode=obs_mode, render_backend=render_backend, **kwargs)
-
-
-def task_env_kwargs(controller: FrozenController, render_backend: str = "none", task: Task | None = None) -> dict[str, str]:
-    """The obs mode and render backend ``controller`` needs on ``task`` (the drawer by default): camera
-    images ("rgb") for an image controller, which therefore cannot run without a render backend."""
+def task_env_kwargs(controller: FrozenController, render_backend: str, task: Task) -> dict[str, str]:
+    """The obs mode and render backend ``controller`` needs on ``task``: camera images ("rgb") for an image
+    controller, which therefore cannot run without a render backend."""
     check_render_backend(render_backend)
     try:
-        return (task or DrawerTask()).env_kwargs(controller.spec.needs_images, render_backend)
+        return task.env_kwargs(controller.spec.needs_images, render_backend)
     except ValueError as err:
         raise ValueError(f"{type(controller).__name__} {err}") from None
 
 
-def run_episode(
-    env: gym.Env,
-    controller: FrozenController,
-    prompt: str,
-    seed: int,
-    layer: int,
-    replan_every: int = DEFAULT_REPLAN_EVERY,
-    check_prompt: bool = True,
-) -> EpisodeResult:
-    """One episode: replan every ``replan_every`` steps, execute that prefix of each chunk.
-
-    ``check_prompt=False`` waives the prompt contract (``FrozenController.act``)."""
+def check_replan_every(replan_every: int | None, task: Task, controller: FrozenController) -> int:
+    """The control steps executed from each chunk: ``replan_every``, or the task's own (``Task.replan_every``) when
+    None; refused unless in [1, the controller's chunk length]. Every command and runner resolves it here."""
+    replan_every = task.replan_every if replan_every is None else replan_every
     if not 1 <= replan_every <= controller.spec.chunk_len:
         raise ValueError(f"replan_every must be in [1, {controller.spec.chunk_len}] (the chunk length), got {replan_every}")
-    obs, _ = env.reset(seed=seed, options={"target_layer": check_layer(layer)})
-    controller.reset([seed])
-    steps = 0
-    while True:
-        outcome = execute_chunk(env, controller.act(obs, [prompt], check_prompt)[0][:replan_every])
-        obs, steps = outcome.obs, steps + outcome.steps
-        if outcome.terminated or outcome.truncated:
-            return EpisodeResult(layer, seed, bool(outcome.info["success"]), steps)
-
-
-def evaluate_condition(
-    controller: FrozenController,
-    condition: str,
-    episodes: int,
-    layers: Sequence[int] = LAYERS,
-    seed: int = 0,
-    replan_every: int = DEFAULT_REPLAN_EVERY,
-    env: gym.Env | None = None,
-    on_episode: Callable[[EpisodeResult], None] | None = None,
-    render_backend: str = "none",
-) -> list[EpisodeResult]:
-    """``episodes`` episodes per layer with the fixed prompt of ``condition``; seeds seed..seed+episodes-1. (The
-    drawer's ``written`` condition reads the writer's frames: ``evaluate_task_condition``.)"""
-    check_fixed_condition(condition)
-    if episodes < 1:
-        raise ValueError(f"episodes must be >= 1, got {episodes}")
-    own_env = env is None
-    env = make_task_env(**task_env_kwargs(controller, render_backend)) if own_env else env
-    controller.check_env(env)
-    results = []
-    try:
-        for layer in layers:
-            prompt = condition_prompt(condition, layer)
-            for k in range(episodes):
-                result = run_episode(env, controller, prompt, seed + k, layer, replan_every)
-                results.append(result)
-                if on_episode is not None:
-                    on_episode(result)
-    finally:
-        if own_env:
-            env.close()
-    return results
+    return replan_every
 
 
 class FactSchedule(Protocol):
@@ -119,6 +56,27 @@ class FactSchedule(Protocol):
 
     def observe(self, frame: EnvFrame) -> None:
         """The frame an executed chunk left (its per-step percepts included), before the next decision."""
+
+    def prompt(self, instruction: str, template: PromptTemplate, decision: int) -> str:
+        """The prompt of ``decision``: the instruction and this decision's facts, checked against ``template``."""
+        return build_prompt(instruction, self.facts(decision), template)
+
+
+@dataclass
+class LiteralPrompt(FactSchedule):
+    """One prompt text at every decision, as given (with ``check_prompt=False``, wording a controller was never
+    trained on: the ablations' untrained wordings)."""
+
+    text: str
+
+    def start(self, frame: EnvFrame, episode: Episode) -> None:
+        pass
+
+    def facts(self, decision: int) -> Sequence[str]:
+        return []
+
+    def prompt(self, instruction: str, template: PromptTemplate, decision: int) -> str:
+        return self.text
 
 
 @dataclass
@@ -191,6 +149,36 @@ def condition_schedule(task: Task, condition: str) -> FactSchedule:
     return WrittenFacts(task) if condition == "written" else ConditionFacts(task, condition)
 
 
+def play_episode(
+    runner: TaskRunner,
+    controller: FrozenController,
+    seed: int,
+    schedule: FactSchedule,
+    replan_every: int | None = None,
+    reset_options: Mapping[str, Any] | None = None,
+    check_prompt: bool = True,
+) -> EpisodeResult:
+    """One episode of ``runner``'s task from ``seed`` (its env reset with ``reset_options``, e.g. the drawer's
+    ``target_layer``): the controller replans every ``replan_every`` control steps (None: the task's) with the
+    prompt ``schedule`` gives that decision, and ``schedule`` observes every frame. Success is the task's (once per
+    episode). ``check_prompt=False`` waives the prompt contract (``FrozenController.act``)."""
+    task = runner.task
+    replan_every = check_replan_every(replan_every, task, controller)
+    frame = runner.reset(seed, reset_options or {})
+    episode = task.episode(frame)
+    schedule.start(frame, episode)
+    controller.reset([seed])
+    decision, steps, success_steps = 0, 0, 0 if frame.success else None
+    while not (frame.terminated or frame.truncated):
+        prompt = schedule.prompt(task.instruction(episode), controller.spec.prompt_template, decision)
+        frame = runner.execute(controller.act(stack_obs([frame.obs]), [prompt], check_prompt)[0][:replan_every])
+        schedule.observe(frame)
+        decision, steps = decision + 1, steps + frame.steps
+        if frame.success and success_steps is None:
+            success_steps = steps  # at the end of the chunk it succeeded in
+    return EpisodeResult(episode.group, seed, frame.success, steps if success_steps is None else success_steps)
+
+
 def play_task_episodes(
     controller: FrozenController,
     task: Task,
@@ -201,34 +189,15 @@ def play_task_episodes(
     render_backend: str | None = None,
     reset_options: Mapping[str, Any] | None = None,
 ) -> list[EpisodeResult]:
-    """One episode of ``task`` per seed (its env reset with ``reset_options``, e.g. the drawer's ``target_layer``),
-    the controller replanning every ``replan_every`` control steps (None: the task's ``Task.replan_every``) with the
-    instruction and ``schedule``'s facts of that decision; ``schedule`` observes every frame. Success is the task's
-    (once per episode)."""
-    replan_every = replan_every or task.replan_every
-    if not 1 <= replan_every <= controller.spec.chunk_len:
-        raise ValueError(f"replan_every must be in [1, {controller.spec.chunk_len}] (the chunk length), got {replan_every}")
+    """One episode of ``task`` per seed (``play_episode``), in one env of the task made for ``controller``."""
+    replan_every = check_replan_every(replan_every, task, controller)
     runner = TaskRunner(task_env_kwargs(controller, render_backend or task.default_render_backend, task),
                         task.max_control_steps, task)
     results = []
     try:
         controller.check_env(runner.info())
         for episode_seed in seeds:
-            frame = runner.reset(episode_seed, reset_options or {})
-            episode = task.episode(frame)
-            schedule.start(frame, episode)
-            controller.reset([episode_seed])
-            decision, steps, success_steps = 0, 0, 0 if frame.success else None
-            while not (frame.terminated or frame.truncated):
-                facts = schedule.facts(decision)
-                prompt = build_prompt(task.instruction(episode), facts, controller.spec.prompt_template)
-                frame = runner.execute(controller.act(stack_obs([frame.obs]), [prompt])[0][:replan_every])
-                schedule.observe(frame)
-                decision, steps = decision + 1, steps + frame.steps
-                if frame.success and success_steps is None:
-                    success_steps = steps  # at the end of the chunk it succeeded in
-            results.append(EpisodeResult(episode.group, episode_seed, frame.success,
-                                         steps if success_steps is None else success_steps))
+            results.append(play_episode(runner, controller, episode_seed, schedule, replan_every, reset_options))
             if on_episode is not None:
                 on_episode(results[-1])
     finally:
@@ -263,10 +232,10 @@ def evaluate_task_condition(
 
 
 def summarize(results: Iterable[EpisodeResult]) -> dict:
-    """Success rate and median steps-to-success per layer and overall."""
+    """Success rate and median steps-to-success per group and overall."""
     results = list(results)
     summary: dict = {"success": {}, "median_steps_to_success": {}, "episodes": {}}
-    groups = {str(key): [r for r in results if r.layer == key] for key in sorted({r.layer for r in results}, key=str)}
+    groups = {str(key): [r for r in results if r.group == key] for key in sorted({r.group for r in results}, key=str)}
     groups["overall"] = results
     for key, group in groups.items():
         wins = [r.steps for r in group if r.success]
@@ -276,6 +245,6 @@ def summarize(results: Iterable[EpisodeResult]) -> dict:
     return summary
 
 
-__all__ = ["ConditionFacts", "EpisodeResult", "FactSchedule", "RENDER_BACKENDS", "WrittenFacts", "condition_schedule",
-           "evaluate_condition", "evaluate_task_condition", "make_task_env", "play_task_episodes", "run_episode",
+__all__ = ["ConditionFacts", "EpisodeResult", "FactSchedule", "LiteralPrompt", "RENDER_BACKENDS", "WrittenFacts",
+           "check_replan_every", "condition_schedule", "evaluate_task_condition", "play_episode", "play_task_episodes",
            "summarize", "task_env_kwargs"]

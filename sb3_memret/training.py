@@ -35,7 +35,7 @@ from sb3_memret.controllers import FrozenController
 from sb3_memret.controller_specs import make_controller
 from sb3_memret.envs.multi_task import make_decision_vec_env
 from sb3_memret.seeds import HELD_OUT_SEED
-from sb3_memret.tasks import DEFAULT_TASK, make_task
+from sb3_memret.tasks import make_task, task_in
 from sb3_memret.evaluation import RetrievalReport
 from sb3_memret.policy.networks import HIDDEN
 from sb3_memret.policy.policy import MemoryRetrievalPolicy, saved_retriever
@@ -130,7 +130,7 @@ def eval_env_kwargs(model: MemRetPPO, model_path: Path, mode: str, controller: s
             kwargs = dict(load_run_config(folder).env_kwargs)
             break
     nvec = model.action_space.nvec
-    first_task = next(iter(kwargs["tasks"])) if "tasks" in kwargs else kwargs.get("task", DEFAULT_TASK)
+    first_task = next(iter(kwargs["tasks"])) if "tasks" in kwargs else task_in(kwargs)
     render_backend = render_backend or make_task(first_task).default_render_backend
     kwargs.update(mode=mode, controller=controller, gamma=model.gamma, k=len(nvec), render_backend=render_backend,
                   capacity=int(nvec[0]) - kwargs.get("long_term_capacity", 0),
@@ -192,7 +192,7 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
                       final_eval_episodes=max(final, options.eval_episodes))  # never fewer
     env_kwargs = env_kwargs_for(config, options.controller, options.render_backend)
     if controller is None and "tasks" not in config.env_kwargs:  # across tasks, each task makes its own by name
-        controller = make_controller(options.controller, config.env_kwargs.get("task", DEFAULT_TASK))
+        controller = make_controller(options.controller, config.task_names[0])
     env_kwargs["controller"] = controller or options.controller
     done_steps = list_checkpoints(checkpoints)[-1][0] if options.resume else 0
     placement = {"backend": options.backend, "ray_address": options.ray_address}

@@ -54,14 +54,15 @@ class Timing:
 
 def controller_episodes(n_envs: int, episodes: int) -> Timing:
     """Oracle episodes spread over the layers; work = control steps."""
-    jobs = [EpisodeJob(condition_prompt("oracle", LAYERS[k % 3]), LAYERS[k % 3], SEED + k) for k in range(episodes)]
+    jobs = [EpisodeJob(condition_prompt("oracle", LAYERS[k % 3]), SEED + k, {"target_layer": LAYERS[k % 3]})
+            for k in range(episodes)]
     timing, start = Timing([], []), time.perf_counter()
 
     def record(job: EpisodeJob, result: EpisodeResult) -> None:
         timing.ends.append(time.perf_counter() - start)
         timing.work.append(result.steps)
 
-    run_jobs("scripted", jobs, n_envs, on_result=record)
+    run_jobs("scripted", jobs, "drawer", n_envs, on_result=record)
     return timing
 
 

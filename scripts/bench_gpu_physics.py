@@ -37,7 +37,7 @@ from sb3_memret.obs_trees import stack_obs, to_numpy
 from sb3_memret.envs.vec_env import RecallVecEnv, make_recall_vec_env
 from sb3_memret.tasks.drawer import DrawerTask
 from sb3_memret.tasks.drawer.prompts import condition_prompt
-from sb3_memret.rollout import make_task_env, task_env_kwargs
+from sb3_memret.rollout import task_env_kwargs
 
 SEED = 1_000_000
 
@@ -153,7 +153,7 @@ def oracle_success(n: int, args: argparse.Namespace) -> tuple[int, int, dict[int
 def controller_alone(name: str, device: str, batches: list[int], calls: int) -> dict[int, float]:
     """Milliseconds per ``act`` call at each batch size, on an observation of a real episode start."""
     ctrl = build_controller(name, device)
-    env = make_task_env(**task_env_kwargs(ctrl))
+    env = DrawerTask().make_env(**task_env_kwargs(ctrl, "none", DrawerTask()))
     obs, _ = env.reset(seed=SEED)
     frame = to_numpy(obs)
     env.close()

@@ -22,14 +22,13 @@ from sb3_memret.memory.writer import EventCompiler
 from sb3_memret.tasks.drawer.seeding import seed_memories
 from sb3_memret.tasks.drawer.writer import RELATIONS, BoundingBoxPredicateExtractor
 from sb3_memret.tasks.drawer.prompts import condition_prompt
-from sb3_memret.rollout import make_task_env
 
 REPLAN_EVERY = 8
 
 
 def run(episodes: int) -> list[tuple[float, float]]:
     """(memory seconds, control seconds) for every decision step of every episode."""
-    env, controller = make_task_env(), ScriptedDrawerController()
+    env, controller = DrawerTask().make_env(), ScriptedDrawerController()
     encoder = MiniLMEncoder()
     extractor, compiler, bank = BoundingBoxPredicateExtractor(), EventCompiler(encoder, RELATIONS, DrawerTask.wordings), MemoryBank(6)
     timings = []

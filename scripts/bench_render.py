@@ -21,12 +21,12 @@ from pathlib import Path
 
 import numpy as np
 
+from sb3_memret.tasks.drawer import DrawerTask
 from sb3_memret.tasks.drawer.drawer_cube import IMAGE_SIZE
 from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
 from sb3_memret.tasks.drawer.robot import LIGHT_PANDA_UID
 from sb3_memret.tasks.drawer.prompts import condition_prompt
 from sb3_memret.physics.chunks import execute_chunk
-from sb3_memret.rollout import make_task_env
 
 
 def every_step(env, actions: np.ndarray) -> tuple[dict, bool]:
@@ -61,7 +61,7 @@ def decisions_per_second(env, controller, step_chunk, decisions: int, replan_eve
 
 def picture_ms(robot: str, size: int, pictures: int, render_backend: str) -> float:
     """Milliseconds per observation with both cameras at ``size`` pixels, the robot ``robot`` (a warm-up left out)."""
-    env = make_task_env(obs_mode="rgb", render_backend=render_backend, robot_uids=robot,
+    env = DrawerTask().make_env(obs_mode="rgb", render_backend=render_backend, robot_uids=robot,
                         sensor_configs={"width": size, "height": size})
     try:
         env.reset(seed=0, options={"target_layer": 2})
@@ -101,7 +101,7 @@ def main() -> None:
     parser.add_argument("--save-images", type=Path, default=None, help="also save both cameras, drawer closed/open")
     args = parser.parse_args()
 
-    env = make_task_env(obs_mode="rgb", render_backend=args.render_backend)
+    env = DrawerTask().make_env(obs_mode="rgb", render_backend=args.render_backend)
     controller = ScriptedDrawerController()
     decisions_per_second(env, controller, at_decisions, 2, args.replan_every, seed=0)  # warm-up: shaders, caches
     rates = {name: decisions_per_second(env, controller, fn, args.decisions, args.replan_every, seed=100)

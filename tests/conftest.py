@@ -8,7 +8,22 @@ from types import ModuleType
 
 import pytest
 
-from sb3_memret.rollout import make_task_env
+from sb3_memret.physics.backends import TaskRunner
+from sb3_memret.rollout import EpisodeResult, LiteralPrompt, play_episode
+from sb3_memret.tasks.drawer import DrawerTask
+
+
+def make_task_env(**kwargs):
+    """DrawerCubeTakeOut-v1 as a frozen controller consumes it (state, no renderer unless asked)."""
+    return DrawerTask().make_env(**kwargs)
+
+
+def drawer_episode(env, controller, prompt: str, seed: int, layer: int, replan_every: int | None = None,
+                   check_prompt: bool = True) -> EpisodeResult:
+    """One drawer episode in ``env`` with the cube in ``layer`` and ``prompt`` at every decision (the task's one
+    episode runner, ``rollout.play_episode``)."""
+    return play_episode(TaskRunner.around(env, DrawerTask()), controller, seed, LiteralPrompt(prompt), replan_every,
+                        {"target_layer": layer}, check_prompt)
 
 
 @pytest.fixture(scope="session", autouse=True)

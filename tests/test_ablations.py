@@ -1,4 +1,4 @@
-"""Controller ablations: the table specs, the Wilson interval and the result tables (no simulator),
+"""Controller ablations: the drawer's table specs, the Wilson interval and the result tables (no simulator),
 then the prompt and memory-count ablations played by the scripted controller on the real simulator."""
 
 import csv
@@ -9,24 +9,25 @@ from collections import Counter
 import pytest
 
 from sb3_memret.analysis import ablations
-from sb3_memret.analysis.ablations import (
-    AblationResult,
-    AblationSpec,
-    Cell,
-    CellResult,
-    memcount_ablation,
-    prompt_ablation,
-    replan_ablation,
-    run_ablation,
-    wilson_interval,
-)
+from sb3_memret.analysis.ablations import AblationOptions, AblationResult, AblationSpec, Cell, CellResult, wilson_interval
 from sb3_memret.parallel_rollout import EpisodeJob
+from sb3_memret.tasks.drawer import DrawerTask
+from sb3_memret.tasks.drawer import ablations as drawer_ablations
+from sb3_memret.tasks.drawer.ablations import memcount_ablation, prompt_ablation, replan_ablation
 from sb3_memret.prompts import parse_prompt
 from sb3_memret.rollout import EpisodeResult
 
 INSTRUCTION = "pick out the cube."
 LAYER_COLUMNS = ("layer 1", "layer 2", "layer 3")
 SEED = 1_000_000
+
+
+def at(layer):
+    return {"target_layer": layer}
+
+
+def run_ablation(spec, controller, **kwargs):
+    return ablations.run_ablation(spec, DrawerTask(), controller, **kwargs)
 
 
 def oracle(layer, entity="cube"):
@@ -52,7 +53,7 @@ def test_replan_spec_is_oracle_per_layer_for_each_interval():
     for interval in intervals:
         for layer in (1, 2, 3):
             cell = cells[str(interval), f"layer {layer}"]
-            assert (cell.layer, cell.replan_every, cell.prompt) == (layer, interval, oracle(layer))
+            assert (cell.reset_options, cell.replan_every, cell.prompt) == (at(layer), interval, oracle(layer))
             assert parse_prompt(cell.prompt).layer == layer
 
 
@@ -75,7 +76,7 @@ def test_prompt_spec_crosses_object_word_with_layer(layer, wrong):
     (bare,) = [c for c in spec.cells if c.row == none_row]
     assert bare.prompt == INSTRUCTION
     for cell in spec.cells:
-        assert cell.layer == layer  # the cube never moves; only the prompt does
+        assert cell.reset_options == at(layer)  # the cube never moves; only the prompt does
         parse_prompt(cell.prompt)
 
 
@@ -92,11 +93,12 @@ def test_memcount_spec_adds_memories_one_at_a_time():
         assert cells[two_row, column].prompt == oracle(layer) + " the robot is holding nothing."
         facts = parse_prompt(cells[two_row, column].prompt).facts
         assert len(facts) == 2 and facts[0].layer == layer
-        assert {c.layer for c in spec.cells if c.column == column} == {layer}
+        assert [c.reset_options for c in spec.cells if c.column == column] == [at(layer)] * 3
 
 
 def test_replan_interval_is_passed_to_every_cell():
     assert {c.replan_every for c in memcount_ablation(12).cells} == {12}
+    assert {c.replan_every for c in memcount_ablation().cells} == {None}  # the task's
     assert {c.replan_every for c in prompt_ablation(1, replan_every=5).cells} == {5}
 
 
@@ -120,18 +122,19 @@ def test_run_ablation_plays_each_cell_on_the_same_seeds(monkeypatch):
     """The job grid and how results are cut back into cells, with the simulator replaced."""
     calls = []
 
-    def fake_run_jobs(controller, jobs, n_envs, render_backend, on_result, backend, ray_address):
-        calls.append((controller, list(jobs), n_envs, render_backend))
+    def fake_run_jobs(controller, jobs, task, n_envs, render_backend, on_result, backend, ray_address):
+        calls.append((controller, list(jobs), task.name, n_envs, render_backend))
         # succeed when the prompt names the cube's layer, on odd seeds only
-        return [EpisodeResult(j.layer, j.seed, parse_prompt(j.prompt).layer == j.layer and j.seed % 2 == 1, 10)
-                for j in jobs]
+        layer = [j.reset_options["target_layer"] for j in jobs]
+        return [EpisodeResult(str(layer), j.seed, parse_prompt(j.prompt).layer == layer and j.seed % 2 == 1, 10)
+                for j, layer in zip(jobs, layer)]
 
     monkeypatch.setattr(ablations, "run_jobs", fake_run_jobs)
     spec = prompt_ablation(2, replan_every=10)
     result = run_ablation(spec, "scripted", episodes=3, seed=7, n_envs=2)
-    (controller, jobs, n_envs, backend), = calls
-    assert (controller, n_envs, backend) == ("scripted", 2, "none")
-    assert jobs == [EpisodeJob(c.prompt, c.layer, s, 10) for c in spec.cells for s in (7, 8, 9)]
+    (controller, jobs, task, n_envs, backend), = calls
+    assert (controller, task, n_envs, backend) == ("scripted", "drawer", 2, "none")
+    assert jobs == [EpisodeJob(c.prompt, s, at(2), 10) for c in spec.cells for s in (7, 8, 9)]
     assert [(c.row, c.column) for c in result.cells] == [(c.row, c.column) for c in spec.cells]
     correct_row, wrong_row, none_row = spec.rows
     assert result.rate(correct_row, "correct layer") == pytest.approx(2 / 3)  # seeds 7 and 9
@@ -181,9 +184,9 @@ def test_wilson_interval_needs_an_episode_and_a_possible_count():
 def hand_result():
     """Row 'a' fills every layer (1/2, 2/2, 0/2); row 'b' only layer 1 (1/1)."""
     counts = {("a", 1): (2, 1), ("a", 2): (2, 2), ("a", 3): (2, 0), ("b", 1): (1, 1)}
-    cells = [CellResult(row, f"layer {layer}", oracle(layer), layer, 8, n, k) for (row, layer), (n, k) in counts.items()]
+    cells = [CellResult(row, f"layer {layer}", oracle(layer), at(layer), 8, n, k) for (row, layer), (n, k) in counts.items()]
     spec = AblationSpec("test", "A test table", "condition", ("a", "b"), (*LAYER_COLUMNS, "overall"),
-                        tuple(Cell(c.row, c.column, c.prompt, c.layer) for c in cells), pooled_column="overall")
+                        tuple(Cell(c.row, c.column, c.prompt, c.reset_options) for c in cells), pooled_column="overall")
     return AblationResult(spec, episodes=2, seed=SEED, controller="scripted", cells=cells)
 
 
@@ -198,7 +201,7 @@ def test_rate_of_cells_and_pooled_column(hand_result):
 
 
 def test_cell_result_success_and_interval():
-    cell = CellResult("a", "layer 1", INSTRUCTION, 1, 8, episodes=4, successes=1)
+    cell = CellResult("a", "layer 1", INSTRUCTION, at(1), 8, episodes=4, successes=1)
     assert cell.success == 0.25
     assert (cell.ci_low, cell.ci_high) == wilson_interval(1, 4)
 
@@ -218,7 +221,8 @@ def test_csv_has_one_row_per_cell(hand_result):
     assert len(rows) == len(hand_result.cells)
     for row, cell in zip(rows, hand_result.cells):
         assert (row["ablation"], row["row"], row["column"], row["prompt"]) == ("test", cell.row, cell.column, cell.prompt)
-        assert (int(row["layer"]), int(row["episodes"]), int(row["successes"])) == (cell.layer, cell.episodes, cell.successes)
+        assert (json.loads(row["reset_options"]), int(row["episodes"]), int(row["successes"])) == \
+            (cell.reset_options, cell.episodes, cell.successes)
         assert float(row["success"]) == pytest.approx(cell.successes / cell.episodes)
         assert float(row["ci_low"]) <= float(row["success"]) <= float(row["ci_high"])
 
@@ -244,10 +248,11 @@ def play(spec, n_envs):
 
 
 def assert_called_once_per_episode(spec, played):
-    expected = [EpisodeJob(c.prompt, c.layer, SEED, c.replan_every) for c in spec.cells]
-    assert Counter(job for job, _ in played) == Counter(expected)
+    expected = [(c.prompt, SEED, c.reset_options["target_layer"], c.replan_every) for c in spec.cells]
+    assert Counter((job.prompt, job.seed, job.reset_options["target_layer"], job.replan_every)
+                   for job, _ in played) == Counter(expected)
     for job, outcome in played:
-        assert (outcome.layer, outcome.seed) == (job.layer, job.seed)
+        assert (outcome.group, outcome.seed) == (str(job.reset_options["target_layer"]), job.seed)
 
 
 @pytest.fixture(scope="module")
@@ -295,7 +300,7 @@ def test_memory_count_on_the_simulator_with_two_workers(memcount_run):
 
 def test_prompt_legend_lists_each_prompt_once_with_where_it_is_used():
     spec = replan_ablation()
-    result = AblationResult(spec, 1, 0, "scripted", [CellResult(c.row, c.column, c.prompt, c.layer, c.replan_every,
+    result = AblationResult(spec, 1, 0, "scripted", [CellResult(c.row, c.column, c.prompt, c.reset_options, c.replan_every,
                                                                 1, 1, (200,)) for c in spec.cells])
     legend = result.to_markdown().split("Prompts:")[1].strip().splitlines()
     assert legend == [f"- layer {layer}: `pick out the cube. the cube is in drawer layer {layer}.`" for layer in (1, 2, 3)]
@@ -303,8 +308,8 @@ def test_prompt_legend_lists_each_prompt_once_with_where_it_is_used():
 
 
 def test_wording_spec_rewords_only_the_oracle_fact_and_waives_the_contract():
-    spec = ablations.wording_ablation()
-    assert spec.rows[0] == "the cube is in drawer layer L." and len(spec.cells) == 3 * len(ablations.WORDINGS)
+    spec = drawer_ablations.wording_ablation()
+    assert spec.rows[0] == "the cube is in drawer layer L." and len(spec.cells) == 3 * len(drawer_ablations.WORDINGS)
     trained = [c for c in spec.cells if c.row == spec.rows[0]]
     assert [parse_prompt(c.prompt).layer for c in trained] == [1, 2, 3]
     for cell in spec.cells:
@@ -317,10 +322,19 @@ def test_wording_spec_rewords_only_the_oracle_fact_and_waives_the_contract():
 
 def test_wording_cells_reach_the_controller_unchecked(task_env):
     from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
-    from sb3_memret.rollout import run_episode
+    from conftest import drawer_episode
 
     prompt = "pick out the cube. the cube is in layer 3."
     with pytest.raises(ValueError, match="matches no trained template"):
-        run_episode(task_env, ScriptedDrawerController(), prompt, seed=0, layer=1)
+        drawer_episode(task_env, ScriptedDrawerController(), prompt, seed=0, layer=1)
     # unchecked, the expert cannot parse it and falls back to its bare-prompt behaviour: the top drawer
-    assert run_episode(task_env, ScriptedDrawerController(), prompt, seed=0, layer=1, check_prompt=False).success
+    assert drawer_episode(task_env, ScriptedDrawerController(), prompt, seed=0, layer=1, check_prompt=False).success
+
+
+def test_the_drawer_names_its_tables_and_builds_them_from_a_commands_options():
+    tables = DrawerTask().ablations()
+    assert sorted(tables) == ["memcount", "prompt", "replan", "wording"]
+    assert {c.reset_options["target_layer"] for c in tables["prompt"](AblationOptions(group="3")).cells} == {3}
+    assert [s.rows for s in (tables["replan"](AblationOptions(intervals=(4, 8))),)] == [("4", "8")]
+    with pytest.raises(ValueError, match=r"the cube's drawer layer, one of \[1, 2, 3\]; got 'top'"):
+        tables["prompt"](AblationOptions(group="top"))

@@ -46,7 +46,7 @@ def test_help_and_argument_errors_load_no_heavy_library():
 
 
 def test_rollout_json():
-    result = CliRunner().invoke(main, ["rollout", "--controller", "scripted", "--episodes", "1", "--layer", "1", "--json"])
+    result = CliRunner().invoke(main, ["rollout", "--controller", "scripted", "--episodes", "1", "--group", "1", "--json"])
     assert result.exit_code == 0, result.output
     payload = json.loads(result.stdout.strip().splitlines()[-1])
     assert payload["condition"] == "oracle" and payload["episodes"] == 1
@@ -60,8 +60,8 @@ def test_bad_options_give_clear_errors():
     assert result.exit_code == 2 and "'maybe' is not one of 'oracle', 'none', 'wrong'" in result.output
     result = runner.invoke(main, ["rollout", "--controller", "pi0"])
     assert result.exit_code == 2 and "unknown controller 'pi0'" in result.output
-    result = runner.invoke(main, ["rollout", "--layer", "4"])
-    assert result.exit_code == 2 and "--layer" in result.output
+    result = runner.invoke(main, ["rollout", "--group", "4"])
+    assert result.exit_code == 2 and "--group" in result.output and "has no layer '4' to choose; expected one of ['1', '2', '3']" in result.output
 
 
 def test_ablate_refuses_intervals_the_controller_cannot_run():
@@ -73,7 +73,12 @@ def test_ablate_refuses_intervals_the_controller_cannot_run():
     result = runner.invoke(main, ["ablate", "prompt", "--replan-every", "33", "--no-progress"])
     assert result.exit_code == 2 and "33 exceeds the controller's chunk length 32" in result.output
     result = runner.invoke(main, ["ablate", "tables"])
-    assert result.exit_code == 2 and "'tables' is not one of 'replan', 'prompt', 'memcount'" in result.output
+    assert result.exit_code == 2 and ("unknown ablation 'tables' for task 'drawer'; expected one of ['memcount', "
+                                      "'prompt', 'replan', 'wording']") in result.output
+    result = runner.invoke(main, ["ablate", "prompt", "--group", "5", "--no-progress"])
+    assert result.exit_code == 2 and "the cube's drawer layer, one of [1, 2, 3]; got '5'" in result.output
+    result = runner.invoke(main, ["ablate", "prompt", "--task", "RememberColor3-VLA-v0", "--controller", "scripted"])
+    assert result.exit_code == 2 and "task 'RememberColor3-VLA-v0' defines no ablation tables" in result.output
 
 
 def test_run_commands_refuse_folders_that_are_not_runs(tmp_path):
@@ -86,11 +91,14 @@ def test_run_commands_refuse_folders_that_are_not_runs(tmp_path):
     assert result.exit_code == 2 and "lacks ['initial_model.zip', 'final_model.zip']" in result.output
 
 
-def test_ablate_default_intervals_are_the_library_default():
-    from sb3_memret.analysis.ablations import REPLAN_INTERVALS
+def test_ablate_default_intervals_are_the_tasks():
+    from sb3_memret.analysis.ablations import AblationOptions
+    from sb3_memret.tasks.drawer import DrawerTask
+    from sb3_memret.tasks.drawer.ablations import REPLAN_INTERVALS
 
     option = next(p for p in main.commands["ablate"].params if p.name == "intervals")
-    assert tuple(int(i) for i in option.default.split(",")) == REPLAN_INTERVALS
+    assert option.default is None
+    assert DrawerTask().ablations()["replan"](AblationOptions()).rows == tuple(map(str, REPLAN_INTERVALS))
 
 
 def test_mistakes_are_one_line_without_a_traceback(tmp_path, monkeypatch):

@@ -11,7 +11,7 @@ from sb3_memret.tasks.drawer.cabinet import LAYERS
 from sb3_memret.tasks.drawer.state import layer_containing
 from sb3_memret.tasks.drawer.objects import OBJECT_SETS
 from sb3_memret.rewards import PHI_MAX
-from sb3_memret.rollout import make_task_env
+from conftest import make_task_env
 
 
 def place_cube(env, xyz):

@@ -10,7 +10,7 @@ from sb3_memret.controller_specs import make_controller
 from sb3_memret.tasks.drawer.expert import PLANT_GAIN, POS_SCALE, ROT_SCALE, Perception, Phase
 from sb3_memret.tasks.drawer.cabinet import LAYERS
 from sb3_memret.tasks.drawer.prompts import condition_prompt
-from sb3_memret.rollout import make_task_env, run_episode
+from conftest import drawer_episode, make_task_env
 
 
 @pytest.fixture(scope="module")
@@ -20,21 +20,21 @@ def controller():
 
 @pytest.mark.parametrize("layer", LAYERS)
 def test_oracle_prompt_takes_cube_out_of_each_layer(task_env, controller, layer):
-    result = run_episode(task_env, controller, condition_prompt("oracle", layer), seed=11, layer=layer)
+    result = drawer_episode(task_env, controller, condition_prompt("oracle", layer), seed=11, layer=layer)
     assert result.success
     assert result.steps < 300
 
 
 @pytest.mark.parametrize("layer", [2, 3])
 def test_wrong_layer_prompt_fails(task_env, controller, layer):
-    result = run_episode(task_env, controller, condition_prompt("wrong", layer), seed=12, layer=layer)
+    result = drawer_episode(task_env, controller, condition_prompt("wrong", layer), seed=12, layer=layer)
     assert not result.success
     assert controller.phases() == [Phase.IDLE]  # opened the named drawer, saw no cube, stopped
 
 
 def test_no_memory_prompt_opens_top_drawer(task_env, controller):
-    assert run_episode(task_env, controller, condition_prompt("none", 1), seed=13, layer=1).success
-    assert not run_episode(task_env, controller, condition_prompt("none", 2), seed=13, layer=2).success
+    assert drawer_episode(task_env, controller, condition_prompt("none", 1), seed=13, layer=1).success
+    assert not drawer_episode(task_env, controller, condition_prompt("none", 2), seed=13, layer=2).success
     assert task_env.unwrapped.privileged_state().drawer_qpos[0, 0] > 0.2  # it opened layer 1
 
 

@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 import trimesh
 
-from sb3_memret.rollout import make_task_env
+from conftest import make_task_env
 from sb3_memret.tasks.drawer import robot
 from sb3_memret.tasks.drawer.drawer_cube import DEFAULT_ROBOT
 from sb3_memret.tasks.drawer.robot import LIGHT_PANDA_UID, decimate_glb, light_panda_dir, light_panda_urdf

@@ -99,7 +99,7 @@ def test_demos_finetune_rollout_through_the_cli(tmp_path):
                                   "--no-progress"])
     assert result.exit_code == 0 and f"--controller learned:{tmp_path / 'c'}" in result.output, result.output
     result = runner.invoke(main, ["rollout", "--controller", f"learned:{tmp_path / 'c'}", "--episodes", "1",
-                                  "--layer", "2", "--json"])
+                                  "--group", "2", "--json"])
     assert result.exit_code == 0, result.output
     result = runner.invoke(main, ["demos", "--out", str(tmp_path / "d")])
     assert result.exit_code == 2 and "already exists" in result.output

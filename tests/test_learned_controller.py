@@ -21,7 +21,7 @@ from sb3_memret.tasks.drawer import DrawerTask
 from sb3_memret.tasks.drawer.objects import OBJECT_SETS
 from sb3_memret.tasks.drawer.prompts import condition_prompt
 from sb3_memret.physics.chunks import execute_chunk
-from sb3_memret.rollout import make_task_env, run_episode
+from conftest import drawer_episode, make_task_env
 
 SMALL = {"hidden_dim": 32, "n_layers": 2, "text_dim": 16, "text_heads": 2, "chunk_len": 8}
 
@@ -135,8 +135,8 @@ def test_the_layer_digit_steers_the_shipped_policy(shipped, task_env):
 @pytest.mark.parametrize("layer", [1, 3])
 def test_shipped_policy_takes_the_cube_out_of_the_named_drawer(shipped, task_env, layer):
     shipped.check_env(task_env)
-    assert run_episode(task_env, shipped, condition_prompt("oracle", layer), seed=1_000_000 + layer, layer=layer).success
-    assert not run_episode(task_env, shipped, condition_prompt("wrong", layer), seed=1_000_000 + layer,
+    assert drawer_episode(task_env, shipped, condition_prompt("oracle", layer), seed=1_000_000 + layer, layer=layer).success
+    assert not drawer_episode(task_env, shipped, condition_prompt("wrong", layer), seed=1_000_000 + layer,
                            layer=layer).success
 
 

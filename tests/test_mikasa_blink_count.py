@@ -221,7 +221,7 @@ def test_the_task_runs_through_the_rollout(medium):
     task = make_task(EASY)
     results = evaluate_task_condition(task.expert(), "written", task, episodes=2, seed=DEV_SEED + 8,
                                       protocol_seeds=False)
-    assert [(r.layer, r.success) for r in results] == [("twice", True), ("once", True)]
+    assert [(r.group, r.success) for r in results] == [("twice", True), ("once", True)]
 
 
 def test_the_count_is_written_and_retrieved(encoder):

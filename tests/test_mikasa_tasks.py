@@ -78,9 +78,10 @@ def test_rollout_plays_development_seeds_when_asked():
     assert summary["seeds"] == [5000] and summary["success"]["overall"] == 1.0
 
 
-def test_rollout_refuses_a_layer_on_a_task_without_drawers():
-    result = CliRunner().invoke(main, ["rollout", "--task", TASK, "--controller", "scripted", "--layer", "2"])
-    assert result.exit_code == 2 and "--layer chooses a drawer; task 'RememberColor3-VLA-v0' has none" in result.output
+def test_rollout_refuses_a_group_on_a_task_whose_env_draws_its_groups():
+    result = CliRunner().invoke(main, ["rollout", "--task", TASK, "--controller", "scripted", "--group", "2"])
+    assert result.exit_code == 2 and ("task 'RememberColor3-VLA-v0' has no group '2' to choose; expected none: its env "
+                                      "draws every episode's group itself") in result.output
 
 
 @pytest.fixture(scope="module")

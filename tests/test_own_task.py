@@ -146,9 +146,9 @@ def test_the_written_condition_reads_a_cue_shown_between_two_decisions():
     schedule = Recorded(task)
     schedule.seen = []
     result, = play_task_episodes(DoorsExpert(), task, [0], schedule, replan_every=4)
-    assert schedule.seen[0] == [] and schedule.seen[1] == [f"the light was {result.layer}."] and result.success
+    assert schedule.seen[0] == [] and schedule.seen[1] == [f"the light was {result.group}."] and result.success
     written = evaluate_task_condition(DoorsExpert(), "written", task, 12, replan_every=4)
-    assert all(r.success for r in written) and {r.layer for r in written} == set(COLOURS)
+    assert all(r.success for r in written) and {r.group for r in written} == set(COLOURS)
 
 
 MY_CUE_MODULE = '''

@@ -9,8 +9,9 @@ from sb3_memret.physics.backends import BatchedSimPhysics, InProcessPhysics, Res
 from sb3_memret.tasks.base import EnvFrame
 from sb3_memret.obs_trees import select_obs, stack_obs
 from sb3_memret.rollout import task_env_kwargs
+from sb3_memret.tasks import make_task
 
-KWARGS = task_env_kwargs(ScriptedDrawerController())
+KWARGS = task_env_kwargs(ScriptedDrawerController(), "none", make_task("drawer"))
 
 
 def chunk(rng: np.random.Generator, steps: int) -> np.ndarray:
@@ -42,7 +43,7 @@ def test_a_replayed_episode_lands_where_it_was():
     """What a restarted Ray actor relies on: the same seed and chunks give the same state."""
     rng = np.random.default_rng(0)
     chunks = [chunk(rng, 8) for _ in range(4)]
-    first, second = TaskRunner(KWARGS, 400), TaskRunner(KWARGS, 400)
+    first, second = TaskRunner(KWARGS, 400, "drawer"), TaskRunner(KWARGS, 400, "drawer")
     try:
         first.reset(11, {"target_layer": 3})
         for c in chunks:
@@ -58,8 +59,8 @@ def test_the_batched_simulation_path_plays_as_a_plain_env():
     simulation holds one env, so here it runs at N = 1 on the CPU against a plain task env: the same frames after
     a reset, after chunks, and when the episode ends inside a chunk (20-step limit, chunks of 8)."""
     rng = np.random.default_rng(1)
-    batched = BatchedSimPhysics(1, {**KWARGS, "sim_backend": "cpu"}, 20)
-    plain = InProcessPhysics(1, KWARGS, 20)
+    batched = BatchedSimPhysics(1, {**KWARGS, "sim_backend": "cpu"}, 20, "drawer")
+    plain = InProcessPhysics(1, KWARGS, 20, "drawer")
     try:
         request = [ResetRequest(0, 5, {"target_layer": 2})]
         assert_same_frame(batched.reset(request)[0], plain.reset(request)[0])

@@ -52,5 +52,5 @@ def test_a_killed_actor_is_restarted_and_replays_its_episode(local_ray, encoder,
 
 def test_ablation_episodes_on_ray_actors_play_as_in_one_env(local_ray):
     """run_jobs (ablate) with its physics on Ray actors: the same episodes as one in-process env."""
-    jobs = [EpisodeJob(condition_prompt("oracle", layer), layer, 1_000_000 + layer) for layer in (1, 2, 3)]
-    assert run_jobs("scripted", jobs, n_envs=2, backend="ray") == run_jobs("scripted", jobs, n_envs=1)
+    jobs = [EpisodeJob(condition_prompt("oracle", layer), 1_000_000 + layer, {"target_layer": layer}) for layer in (1, 2, 3)]
+    assert run_jobs("scripted", jobs, "drawer", n_envs=2, backend="ray") == run_jobs("scripted", jobs, "drawer", n_envs=1)

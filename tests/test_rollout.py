@@ -6,7 +6,10 @@ import pytest
 from sb3_memret.controllers.base import ControllerSpec, FrozenController
 from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
 from sb3_memret.envs.recall import DrawerRecallEnv
-from sb3_memret.rollout import evaluate_condition, task_env_kwargs
+from sb3_memret.rollout import evaluate_task_condition, task_env_kwargs
+from sb3_memret.tasks.drawer import DrawerTask
+
+DRAWER = DrawerTask()
 
 
 class CameraController(FrozenController):
@@ -25,26 +28,27 @@ class CameraController(FrozenController):
 
 
 def test_state_controller_gets_state_and_any_backend():
-    assert task_env_kwargs(ScriptedDrawerController()) == {"obs_mode": "state_dict", "render_backend": "none"}
-    assert task_env_kwargs(ScriptedDrawerController(), "cpu")["render_backend"] == "cpu"
+    assert task_env_kwargs(ScriptedDrawerController(), "none", DRAWER) == {"obs_mode": "state_dict",
+                                                                           "render_backend": "none"}
+    assert task_env_kwargs(ScriptedDrawerController(), "cpu", DRAWER)["render_backend"] == "cpu"
 
 
 def test_image_controller_gets_rgb_with_a_backend():
-    assert task_env_kwargs(CameraController(), "gpu") == {"obs_mode": "rgb", "render_backend": "gpu"}
+    assert task_env_kwargs(CameraController(), "gpu", DRAWER) == {"obs_mode": "rgb", "render_backend": "gpu"}
 
 
 def test_image_controller_without_a_backend_is_refused_before_any_env_is_built():
     with pytest.raises(ValueError, match="CameraController needs camera images.*--render-backend cpu or gpu"):
-        task_env_kwargs(CameraController())
+        task_env_kwargs(CameraController(), "none", DRAWER)
     with pytest.raises(ValueError, match="needs camera images"):
-        evaluate_condition(CameraController(), "oracle", 1)
+        evaluate_task_condition(CameraController(), "oracle", DRAWER, 1, render_backend="none")
     with pytest.raises(ValueError, match="needs camera images"):
         DrawerRecallEnv(controller=CameraController())
 
 
 def test_unknown_backend_is_named():
     with pytest.raises(ValueError, match="unknown render backend 'vulkan'; expected one of"):
-        task_env_kwargs(ScriptedDrawerController(), "vulkan")
+        task_env_kwargs(ScriptedDrawerController(), "vulkan", DRAWER)
 
 
 def test_a_condition_gives_its_facts_at_every_decision_and_an_unknown_one_is_named():
@@ -66,8 +70,6 @@ def test_a_condition_gives_its_facts_at_every_decision_and_an_unknown_one_is_nam
         ConditionFacts(task, "nonsense")
     with pytest.raises(ValueError, match="condition 'written' has no fixed prompt.*WrittenFacts"):
         ConditionFacts(task, "written")
-    with pytest.raises(ValueError, match="condition 'written' has no fixed prompt.*evaluate_task_condition"):
-        evaluate_condition(ScriptedDrawerController(), "written", 1)
 
 
 def test_the_drawers_written_condition_plays_the_fixed_prompts_placements():
@@ -85,7 +87,7 @@ def test_the_drawers_written_condition_plays_the_fixed_prompts_placements():
     with pytest.raises(ValueError, match=r"unknown condition 'nonsense'; expected one of \['oracle', 'none', 'wrong', "
                                          r"'written'\]"):
         condition_schedule(make_task("drawer"), "nonsense")
-    result = CliRunner().invoke(main, ["rollout", "--controller", "scripted", "--condition", "written", "--layer", "3",
+    result = CliRunner().invoke(main, ["rollout", "--controller", "scripted", "--condition", "written", "--group", "3",
                                        "--episodes", "1", "--seed", "5", "--json"])
     assert result.exit_code == 0, result.output
     summary = json.loads(result.output.strip().splitlines()[-1])

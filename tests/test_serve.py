@@ -27,7 +27,7 @@ from sb3_memret.controllers.base import as_numpy  # noqa: E402
 from sb3_memret.controllers.openpi import PolicyServerClient, PolicyServerError  # noqa: E402
 from sb3_memret.tasks.drawer.expert import ScriptedDrawerController  # noqa: E402
 from sb3_memret.tasks.drawer.prompts import condition_prompt  # noqa: E402
-from sb3_memret.rollout import evaluate_condition  # noqa: E402
+from conftest import drawer_episode  # noqa: E402
 from sb3_memret.physics.chunks import execute_chunk
 from sb3_memret.stage1.serve import ControllerPolicy, serve, serve_until_stopped  # noqa: E402
 from sb3_memret.workers import StopRequested, stop_signals_interrupt  # noqa: E402
@@ -317,9 +317,10 @@ def test_the_cli_serves_the_scripted_expert_for_a_whole_episode(task_env):
     process, port = start_cli_server("scripted")
     try:
         remote = make_controller(f"openpi://127.0.0.1:{port}")
-        served = evaluate_condition(remote, "oracle", episodes=1, layers=[2], env=task_env)
-        in_process = evaluate_condition(ScriptedDrawerController(), "oracle", episodes=1, layers=[2], env=task_env)
-        assert served == in_process and served[0].success
+        prompt = condition_prompt("oracle", 2)
+        served = drawer_episode(task_env, remote, prompt, seed=0, layer=2)
+        in_process = drawer_episode(task_env, ScriptedDrawerController(), prompt, seed=0, layer=2)
+        assert served == in_process and served.success
         remote.close()
     finally:
         lines = stop_cli_server(process, signal.SIGINT)  # Ctrl-C

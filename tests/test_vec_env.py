@@ -129,9 +129,9 @@ def test_one_env_stays_in_process_and_bad_arguments_are_refused(encoder):
     with pytest.raises(ValueError, match="n_envs must be >= 1, got 0"):
         make_recall_vec_env(0)
     with pytest.raises(ValueError, match=r"unknown physics backend 'threads'; expected one of \['auto', 'inprocess'"):
-        make_physics("threads", 2, {}, 16)
+        make_physics("threads", 2, {}, 16, task="drawer")
     with pytest.raises(ValueError, match="a Ray address .* needs the ray backend, not 'process'"):
-        make_physics("process", 2, {}, 16, ray_address="ray://head:10001")
+        make_physics("process", 2, {}, 16, ray_address="ray://head:10001", task="drawer")
 
 
 def test_stepping_before_reset_is_refused(encoder):

@@ -1,50 +1,55 @@
-"""Controller ablations: how a frozen controller consumes memory (the seed paper's Tables 1-3).
+"""Controller ablations: how a frozen controller consumes memory (the seed paper's Tables 1-3), as tables of cells.
 
-Each ablation is a grid of cells; a cell is a prompt, a cube layer and a replan interval,
-played for the same ``episodes`` held-out placements (seeds ``seed .. seed+episodes-1``) as
-every other cell, so cells differ only in what they vary.
-
-- ``replan``: oracle memory, success per layer for each replan interval (Table 1).
-- ``prompt``: correct/wrong object word x correct/wrong layer, plus the bare prompt, with the
-  cube in one layer (Table 2).
-- ``memcount``: zero, one (oracle) and two (oracle + another true fact) memories, per layer
-  (Table 3).
-- ``wording``: the oracle memory reworded in ways no training prompt was, per layer. Its cells
-  waive the prompt contract, which every other command enforces: that is what it measures.
+A cell is a prompt, the task's reset options (which episode it plays: the drawer's cube layer) and a replan interval,
+played for the same ``episodes`` held-out seeds (``seed .. seed+episodes-1``) as every other cell, so cells differ
+only in what they vary. A task names the tables it defines (``Task.ablations``: the drawer's replan, prompt, memcount
+and wording tables, ``sb3_memret.tasks.drawer.ablations``).
 """
 
 from __future__ import annotations
 
 import csv
 import io
+import json
 import math
 from dataclasses import asdict, dataclass, field
-from typing import Any, Callable, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from sb3_memret.controllers.base import FrozenController
-from sb3_memret.tasks.drawer.cabinet import LAYERS, check_layer
 from sb3_memret.parallel_rollout import EpisodeJob, run_jobs
-from sb3_memret.prompts import HOLDING_NOTHING_TEXT, INSTRUCTION, build_prompt
-from sb3_memret.tasks.drawer.prompts import location_text
-from sb3_memret.rollout import DEFAULT_REPLAN_EVERY, EpisodeResult
+from sb3_memret.rollout import EpisodeResult
 from sb3_memret.seeds import HELD_OUT_SEED
+from sb3_memret.tasks import Task, make_task
 
-REPLAN_INTERVALS: tuple[int, ...] = (5, 8, 10, 12, 16, 20, 24, 28, 32)
-WRONG_OBJECT = "key"
 OVERALL = "overall"
 
 
 @dataclass(frozen=True)
+class AblationOptions:
+    """What a command may set of a task's ablation tables: the replan intervals of a table that varies them, the
+    group its episodes play (the drawer: the cube's layer) and the replan interval of the others (None: the task's
+    defaults)."""
+
+    intervals: tuple[int, ...] | None = None
+    group: str | None = None
+    replan_every: int | None = None
+
+
+#: a task's ablation tables by name, each built from the options a command sets (``Task.ablations``)
+AblationBuilder = Callable[[AblationOptions], "AblationSpec"]
+
+
+@dataclass(frozen=True)
 class Cell:
-    """One table cell: the episodes' prompt, cube layer and replan interval."""
+    """One table cell: the episodes' prompt, the task's reset options and the replan interval (None: the task's)."""
 
     row: str
     column: str
     prompt: str
-    layer: int
-    replan_every: int = DEFAULT_REPLAN_EVERY
+    reset_options: Mapping[str, Any] = field(default_factory=dict)
+    replan_every: int | None = None
     check_prompt: bool = True
 
 
@@ -69,7 +74,7 @@ class CellResult:
     row: str
     column: str
     prompt: str
-    layer: int
+    reset_options: Mapping[str, Any]
     replan_every: int
     episodes: int
     successes: int
@@ -142,12 +147,13 @@ class AblationResult:
     def to_csv(self) -> str:
         """One line per cell, long format."""
         buffer = io.StringIO()
-        fields = ["ablation", "row", "column", "layer", "replan_every", "episodes", "successes", "success",
+        fields = ["ablation", "row", "column", "reset_options", "replan_every", "episodes", "successes", "success",
                   "ci_low", "ci_high", "median_steps", "prompt"]
         writer = csv.DictWriter(buffer, fieldnames=fields, lineterminator="\n")
         writer.writeheader()
         for cell in self.cells:
             writer.writerow({"ablation": self.spec.name, **{k: v for k, v in asdict(cell).items() if k in fields},
+                             "reset_options": json.dumps(dict(cell.reset_options), sort_keys=True),
                              "success": cell.success, "median_steps": cell.median_steps})
         return buffer.getvalue()
 
@@ -164,82 +170,9 @@ def wilson_interval(successes: int, n: int, z: float = 1.96) -> tuple[float, flo
     return max(0.0, min(p, centre - half)), min(1.0, max(p, centre + half))  # p stays inside despite rounding
 
 
-def _layer_column(layer: int) -> str:
-    return f"layer {layer}"
-
-
-def replan_ablation(intervals: Sequence[int] = REPLAN_INTERVALS) -> AblationSpec:
-    """Oracle memory; success per layer for each replan interval."""
-    if not intervals or any(i < 1 for i in intervals):
-        raise ValueError(f"replan intervals must be positive integers, got {list(intervals)}")
-    rows = tuple(str(i) for i in intervals)
-    cells = tuple(Cell(str(i), _layer_column(layer), build_prompt(INSTRUCTION, [location_text("cube", layer)]), layer, i)
-                  for i in intervals for layer in LAYERS)
-    return AblationSpec("replan", "Replan interval: success with the oracle memory", "replan steps", rows,
-                        (*map(_layer_column, LAYERS), OVERALL), cells, pooled_column=OVERALL)
-
-
-def prompt_ablation(layer: int = 2, replan_every: int = DEFAULT_REPLAN_EVERY) -> AblationSpec:
-    """The cube in ``layer``; correct/wrong object word x correct/wrong layer, and the bare prompt."""
-    check_layer(layer)
-    wrong_layer = layer % len(LAYERS) + 1
-    correct_word, wrong_word = "correct object word (cube)", f"wrong object word ({WRONG_OBJECT})"
-    none_row = "no-memory prompt"
-    cells = []
-    for row, entity in ((correct_word, "cube"), (wrong_word, WRONG_OBJECT)):
-        for column, named in (("correct layer", layer), ("wrong layer", wrong_layer)):
-            cells.append(Cell(row, column, build_prompt(INSTRUCTION, [location_text(entity, named)]), layer, replan_every))
-    cells.append(Cell(none_row, "wrong layer", build_prompt(INSTRUCTION, []), layer, replan_every))
-    return AblationSpec("prompt", f"Prompt ablation: cube in drawer layer {layer}", "prompt condition",
-                        (correct_word, wrong_word, none_row), ("correct layer", "wrong layer"), tuple(cells))
-
-
-def memcount_ablation(replan_every: int = DEFAULT_REPLAN_EVERY) -> AblationSpec:
-    """Zero, one (oracle) and two (oracle + 'the robot is holding nothing.', true at the start) memories."""
-    rows = {"no memory (bare prompt)": lambda layer: [],
-            "one memory (oracle)": lambda layer: [location_text("cube", layer)],
-            "two memories (oracle + true)": lambda layer: [location_text("cube", layer), HOLDING_NOTHING_TEXT]}
-    cells = tuple(Cell(row, _layer_column(layer), build_prompt(INSTRUCTION, memories(layer)), layer, replan_every)
-                  for row, memories in rows.items() for layer in LAYERS)
-    return AblationSpec("memcount", "Memory count: success per layer", "condition", tuple(rows),
-                        (*map(_layer_column, LAYERS), OVERALL), cells, pooled_column=OVERALL)
-
-
-ORDINALS = {1: "first", 2: "second", 3: "third"}
-# The trained wording first, as the reference; then paraphrases never in any training prompt.
-WORDINGS: tuple[str, ...] = (
-    "the cube is in drawer layer {layer}.",
-    "the cube is inside drawer layer {layer}.",
-    "the cube is located in drawer layer {layer}.",
-    "the cube is in layer {layer}.",
-    "the cube is in drawer {layer}.",
-    "the cube is in the {ordinal} drawer.",
-    "drawer layer {layer} holds the cube.",
-)
-
-
-def wording_ablation(replan_every: int = DEFAULT_REPLAN_EVERY, wordings: Sequence[str] = WORDINGS) -> AblationSpec:
-    """The oracle memory in each wording, per layer; prompts are not checked against the template."""
-    rows = tuple(w.replace("{layer}", "L").replace("{ordinal}", "N-th") for w in wordings)
-    cells = tuple(
-        Cell(row, _layer_column(layer),
-             f"{INSTRUCTION} {wording.format(layer=layer, ordinal=ORDINALS[layer])}", layer, replan_every,
-             check_prompt=False)
-        for row, wording in zip(rows, wordings) for layer in LAYERS)
-    return AblationSpec("wording", "Memory wording: success with the oracle memory reworded", "memory sentence", rows,
-                        (*map(_layer_column, LAYERS), OVERALL), cells, pooled_column=OVERALL)
-
-
-ABLATIONS: dict[str, Callable[..., AblationSpec]] = {
-    "replan": replan_ablation,
-    "prompt": prompt_ablation,
-    "memcount": memcount_ablation,
-    "wording": wording_ablation,
-}
-
-
 def run_ablation(
     spec: AblationSpec,
+    task: Task | str,
     controller: str = "scripted",
     episodes: int = 17,
     seed: int = HELD_OUT_SEED,
@@ -250,21 +183,22 @@ def run_ablation(
     ray_address: str | None = None,
     built: FrozenController | None = None,
 ) -> AblationResult:
-    """Play every cell for ``episodes`` placements (seeds seed..seed+episodes-1) over ``n_envs`` envs served
+    """Play every cell of ``task`` for ``episodes`` seeds (seed..seed+episodes-1) over ``n_envs`` envs served
     by one controller (``run_jobs``; ``backend`` and ``ray_address`` place the physics). ``built`` is the
     controller ``controller`` names when the caller has already built it."""
     if episodes < 1:
         raise ValueError(f"episodes per cell must be >= 1, got {episodes}")
-    jobs = [EpisodeJob(cell.prompt, cell.layer, seed + k, cell.replan_every, cell.check_prompt) for cell in spec.cells for k in range(episodes)]
-    results = run_jobs(built or controller, jobs, n_envs, render_backend, on_episode, backend, ray_address)
+    task = make_task(task)
+    jobs = [EpisodeJob(cell.prompt, seed + k, cell.reset_options, cell.replan_every, cell.check_prompt)
+            for cell in spec.cells for k in range(episodes)]
+    results = run_jobs(built or controller, jobs, task, n_envs, render_backend, on_episode, backend, ray_address)
     cells = []
     for i, cell in enumerate(spec.cells):
         outcome = results[i * episodes:(i + 1) * episodes]
         wins = [r.steps for r in outcome if r.success]
-        cells.append(CellResult(cell.row, cell.column, cell.prompt, cell.layer, cell.replan_every, episodes, len(wins),
-                                tuple(wins)))
+        cells.append(CellResult(cell.row, cell.column, cell.prompt, dict(cell.reset_options),
+                                cell.replan_every or task.replan_every, episodes, len(wins), tuple(wins)))
     return AblationResult(spec, episodes, seed, controller, cells)
 
 
-__all__ = ["ABLATIONS", "AblationResult", "AblationSpec", "Cell", "CellResult", "REPLAN_INTERVALS", "memcount_ablation",
-           "prompt_ablation", "replan_ablation", "run_ablation", "wilson_interval", "wording_ablation"]
+__all__ = ["AblationBuilder", "AblationOptions", "AblationResult", "AblationSpec", "Cell", "CellResult", "OVERALL", "run_ablation", "wilson_interval"]

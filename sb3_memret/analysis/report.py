@@ -18,9 +18,8 @@ from typing import Any, Callable
 
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_memret.analysis.ablations import ABLATIONS
 from sb3_memret.seeds import HELD_OUT_SEED
-from sb3_memret.tasks import DEFAULT_TASK
+from sb3_memret.tasks import make_task, task_in
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.evaluation import RetrievalReport, evaluate_retrieval
 from sb3_memret.analysis.plotting import PLOT_FILE, plot_learning_curves
@@ -62,7 +61,7 @@ def write_report(run: Path, options: ReportOptions | None = None,
         raise FileNotFoundError(f"{str(run)!r} has no summary.json: not a finished training run "
                                 f"(sb3-memret train writes it when training ends)")
     summary = json.loads(summary_path.read_text())
-    task = load_run_config(run).env_kwargs.get("task", DEFAULT_TASK) if (run / CONFIG_FILE).exists() else DEFAULT_TASK
+    task = task_in(load_run_config(run).env_kwargs if (run / CONFIG_FILE).exists() else {})
     summary.setdefault("task", task)
     history = read_history(run)
     if not history:
@@ -102,7 +101,7 @@ def write_report(run: Path, options: ReportOptions | None = None,
         "## Introspection trace",
         *_trace_section(traces),
         "## Controller ablations",
-        _ablations(run),
+        _ablations(run, task),
         "## Configuration",
         f"`{run / CONFIG_FILE}`:",
         "```yaml\n" + (run / CONFIG_FILE).read_text().rstrip() + "\n```",
@@ -235,11 +234,13 @@ def _trace_section(traces: list) -> list[str]:
     return [head + note, "```text\n" + "\n\n".join(t.format() for t in traces) + "\n```"]
 
 
-def _ablations(run: Path) -> str:
-    order = list(ABLATIONS)  # replan, prompt, memcount: the seed paper's order
+def _ablations(run: Path, task: str) -> str:
+    order = list(make_task(task).ablations())  # the task's order (the drawer's: the seed paper's)
     tables = [run / "ablations" / f"{name}.md" for name in order if (run / "ablations" / f"{name}.md").exists()]
+    if not order:
+        return f"Task {task!r} defines no controller ablation tables (`Task.ablations`)."
     if not tables:
-        return (f"None saved with this run. `sb3-memret ablate replan|prompt|memcount --out {run / 'ablations'}` "
+        return (f"None saved with this run. `sb3-memret ablate {'|'.join(order)} --out {run / 'ablations'}` "
                 "measures how the frozen controller consumes memory, and the next report includes the tables.")
     return "\n\n".join(path.read_text().strip() for path in tables)
 

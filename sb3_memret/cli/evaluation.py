@@ -9,12 +9,10 @@ from pathlib import Path
 
 import click
 
-from sb3_memret.cli.options import (DEFAULT_TASK, RUN_CONTROLLER, TASK_CONTROLLER, build_controller,
+from sb3_memret.cli.options import (RUN_CONTROLLER, TASK_CONTROLLER, build_controller,
                                     camera_render_backend, check_run_task, controller_spec, default_controller,
                                     load_models, model_run, physics_options, render_backend_option,
                                     resolve_render_backend, run_controller, task_option)
-from sb3_memret.tasks.drawer.cabinet import LAYERS
-from sb3_memret.tasks.drawer.objects import OBJECT_SETS
 from sb3_memret.seeds import HELD_OUT_SEED
 from sb3_memret.memory.retention import RETENTION_RULES
 
@@ -31,8 +29,9 @@ from sb3_memret.memory.retention import RETENTION_RULES
 @click.option("--seed", type=click.IntRange(min=0), default=HELD_OUT_SEED, show_default=True,
               help="Seed of the evaluation episodes (training never uses it).")
 @click.option("--stochastic", is_flag=True, help="Sample retrievals instead of acting greedily.")
-@click.option("--objects", type=click.Choice(sorted(OBJECT_SETS)), default=None,
-              help="Object set the episodes hide (heldout: objects no training episode had)  [default: the run's]")
+@click.option("--objects", default=None,
+              help="A task with object sets (the drawer's train, heldout, ...): the set the episodes hide (heldout: "
+                   "objects no training episode had)  [default: the run's]")
 @click.option("--retention", type=click.Choice(list(RETENTION_RULES)), default=None,
               help="What evicts: the learned critic or a fixed rule (fifo, lru, prior)  [default: the run's]")
 @click.option("--json", "as_json", is_flag=True, help="Print the report as JSON on stdout.")
@@ -48,19 +47,24 @@ def evaluate(ctx: click.Context, model_path: Path, task: str | None, condition: 
     from sb3_memret.envs.vec_env import make_recall_vec_env
     from sb3_memret.training import eval_env_kwargs
 
-    from sb3_memret.tasks import make_task
+    from sb3_memret.tasks import make_task, task_in
 
     model, = load_models([model_path], "MODEL_PATH")
     kwargs = eval_env_kwargs(model, model_path, condition, controller, render_backend)
-    if task is not None and task != kwargs.get("task", DEFAULT_TASK):
-        raise click.BadParameter(f"{str(model_path)!r} was trained on task {kwargs.get('task', DEFAULT_TASK)!r}, "
-                                 f"not {task!r}", param_hint="--task")
-    controller = controller or run_controller(model_run(model_path), kwargs.get("task", DEFAULT_TASK))
-    kwargs["controller"] = build_controller(ctx, None, controller, kwargs.get("task"))
+    run_spec = task_in(kwargs)  # as the run names it: a registered name or package.module:Class
+    run_task = make_task(run_spec)
+    if task is not None and task != run_spec:
+        raise click.BadParameter(f"{str(model_path)!r} was trained on task {run_spec!r}, not {task!r}",
+                                 param_hint="--task")
+    controller = controller or run_controller(model_run(model_path), run_spec)
+    kwargs["controller"] = build_controller(ctx, None, controller, run_spec)
     kwargs["render_backend"] = render_backend or resolve_render_backend(
-        ctx, None, "cpu" if kwargs["controller"].spec.needs_images
-        else make_task(kwargs.get("task", DEFAULT_TASK)).default_render_backend)
+        ctx, None, "cpu" if kwargs["controller"].spec.needs_images else run_task.default_render_backend)
     if objects is not None:
+        try:
+            run_task.with_options(objects=objects)
+        except ValueError as err:
+            raise click.BadParameter(str(err), param_hint="--objects") from None
         kwargs["objects"] = objects
     if retention is not None:
         kwargs["retention"] = retention
@@ -80,7 +84,7 @@ def evaluate(ctx: click.Context, model_path: Path, task: str | None, condition: 
                f"retention: {kwargs.get('retention', 'learned')}   episodes: {report.episodes}")
     click.echo(f"{label} retrieval accuracy: {report.greedy_accuracy:.1%} over {report.decisions} decisions "
                f"(sampled fraction {report.sampled_fraction:.1%}, entropy {report.entropy:.2f})")
-    click.echo(f"| {'layer' if kwargs.get('task', DEFAULT_TASK) == DEFAULT_TASK else 'group'} | episodes | success |")
+    click.echo(f"| {run_task.group_name} | episodes | success |")
     click.echo("|---|---|---|")
     for key in list(report.episodes_per_group) + ["overall"]:
         count = report.episodes if key == "overall" else report.episodes_per_group[key]
@@ -92,21 +96,23 @@ def evaluate(ctx: click.Context, model_path: Path, task: str | None, condition: 
 
 
 @click.command()
-@click.argument("ablation", type=click.Choice(["replan", "prompt", "memcount", "wording"]))
+@click.argument("ablation")
 @task_option()
 @click.option("--controller", default=None, callback=controller_spec,
               help="Frozen controller to characterise." + TASK_CONTROLLER)
 @click.option("--episodes", type=click.IntRange(min=1), default=17, show_default=True, help="Episodes per cell.")
 @click.option("--seed", type=click.IntRange(min=0), default=HELD_OUT_SEED, show_default=True,
-              help="First placement seed; every cell plays the same placements.")
+              help="First episode seed; every cell plays the same seeds.")
 @click.option("--n-envs", type=click.IntRange(min=1), default=os.cpu_count() or 1, show_default=True,
               help="Envs played in parallel (all served by one controller).")
-@click.option("--layer", type=click.IntRange(min=min(LAYERS), max=max(LAYERS)), default=2, show_default=True,
-              help="prompt: the cube's drawer layer.")
-@click.option("--intervals", default=",".join(map(str, (5, 8, 10, 12, 16, 20, 24, 28, 32))), show_default=True,
-              help="replan: comma-separated replan intervals.")
+@click.option("--group", default=None,
+              help="The group a table's episodes play where it plays one (the drawer's prompt table: the cube's "
+                   "layer)  [default: the task's]")
+@click.option("--intervals", default=None,
+              help="A table that varies the replan interval: comma-separated intervals  [default: the task's]")
 @click.option("--replan-every", type=click.IntRange(min=1), default=None,
-              help="prompt, memcount: control steps executed per action chunk  [default: the drawer's, 8]")
+              help="The other tables: control steps executed per action chunk  [default: the task's "
+                   "(Task.replan_every)]")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), default=None,
               help="Also write <ablation>.md, .csv and .json into this folder.")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout instead of the table.")
@@ -114,46 +120,50 @@ def evaluate(ctx: click.Context, model_path: Path, task: str | None, condition: 
 @render_backend_option
 @physics_options
 @click.pass_context
-def ablate(ctx: click.Context, ablation: str, task: str, controller: str, episodes: int, seed: int, n_envs: int, layer: int,
-           intervals: str, replan_every: int | None, out: Path | None, as_json: bool, progress: bool,
-           render_backend: str, backend: str, ray_address: str | None) -> None:
-    """Characterise how a frozen controller consumes memory: ABLATION is replan (success per layer
-    per replan interval, oracle memory), prompt (object word x layer number) or memcount (zero, one
-    or two memories) or wording (the oracle memory reworded as no training prompt was; these
-    cells alone waive the prompt contract). These are the drawer's ablations (its layers and wordings);
-    another task's prompt conditions are `rollout --task T --condition oracle|none|wrong --replan-every N`."""
-    if task != DEFAULT_TASK:
-        raise click.BadParameter(f"the ablations vary the drawer's layers and wordings; for task {task!r} compare "
-                                 "prompt conditions and replan intervals with `sb3-memret rollout --task "
-                                 f"{task} --condition oracle|none|wrong --replan-every N`", param_hint="--task")
-    from sb3_memret.analysis.ablations import (memcount_ablation, prompt_ablation, replan_ablation, run_ablation,
-                                      wording_ablation)
+def ablate(ctx: click.Context, ablation: str, task: str, controller: str, episodes: int, seed: int, n_envs: int,
+           group: str | None, intervals: str | None, replan_every: int | None, out: Path | None, as_json: bool,
+           progress: bool, render_backend: str, backend: str, ray_address: str | None) -> None:
+    """Characterise how a frozen controller consumes memory: ABLATION is one of the tables the task defines
+    (Task.ablations). The drawer's are the seed paper's: replan (success per layer per replan interval, oracle
+    memory), prompt (object word x layer number), memcount (zero, one or two memories) and wording (the oracle
+    memory reworded as no training prompt was; these cells alone waive the prompt contract). A task without
+    tables compares prompt conditions and replan intervals with `rollout --task T --condition oracle|none|wrong
+    --replan-every N`."""
+    from sb3_memret.analysis.ablations import AblationOptions, run_ablation
     from sb3_memret.tasks import make_task
 
+    the_task = make_task(task)
+    tables = the_task.ablations()
+    if ablation not in tables:
+        accepted = f"one of {sorted(tables)}" if tables else (
+            f"none: task {task!r} defines no ablation tables; compare prompt conditions and replan intervals with "
+            f"`sb3-memret rollout --task {task} --condition oracle|none|wrong --replan-every N`")
+        raise click.BadParameter(f"unknown ablation {ablation!r} for task {task!r}; expected {accepted}",
+                                 param_hint="ABLATION")
     chunk_len = ctx.meta["controller"].spec.chunk_len
-    replan_every = replan_every or make_task(task).replan_every
     render_backend = camera_render_backend(ctx, render_backend, ctx.meta["controller"])
-    if ablation == "replan":
+    steps = None
+    if intervals is not None:
         try:
-            steps = [int(i) for i in intervals.split(",")]
+            steps = tuple(int(i) for i in intervals.split(","))
         except ValueError:
             raise click.BadParameter(f"{intervals!r} is not a comma-separated list of integers",
                                      param_hint="--intervals") from None
-        if not steps or min(steps) < 1 or max(steps) > chunk_len:
-            raise click.BadParameter(f"intervals {steps} must lie in [1, {chunk_len}] (the controller's chunk length)",
-                                     param_hint="--intervals")
-        spec = replan_ablation(steps)
-    else:
-        if replan_every > chunk_len:
-            raise click.BadParameter(f"{replan_every} exceeds the controller's chunk length {chunk_len}",
-                                     param_hint="--replan-every")
-        specs = {"prompt": lambda: prompt_ablation(layer, replan_every), "memcount": lambda: memcount_ablation(replan_every),
-                 "wording": lambda: wording_ablation(replan_every)}
-        spec = specs[ablation]()
+    if replan_every is not None and replan_every > chunk_len:
+        raise click.BadParameter(f"{replan_every} exceeds the controller's chunk length {chunk_len}",
+                                 param_hint="--replan-every")
+    try:
+        spec = tables[ablation](AblationOptions(steps, group, replan_every))
+    except ValueError as err:
+        raise click.BadParameter(str(err), param_hint="--group" if group is not None else "--intervals" if intervals is not None else "ABLATION") from None
+    used = [cell.replan_every or the_task.replan_every for cell in spec.cells]
+    if min(used) < 1 or max(used) > chunk_len:
+        raise click.BadParameter(f"intervals {sorted(set(used))} must lie in [1, {chunk_len}] (the controller's chunk "
+                                 "length)", param_hint="--intervals")
     total = len(spec.cells) * episodes
     with click.progressbar(length=total, label=f"{ablation} ablation ({len(spec.cells)} cells)", file=sys.stderr,
                            hidden=not progress) as bar:
-        result = run_ablation(spec, controller, episodes, seed, n_envs, render_backend,
+        result = run_ablation(spec, the_task, controller, episodes, seed, n_envs, render_backend,
                               on_episode=lambda *_: bar.update(1), backend=backend, ray_address=ray_address,
                               built=ctx.meta["controller"])
     if out is not None:
@@ -199,11 +209,12 @@ def trace(models: tuple[Path, ...], task: str | None, seed: int, sample_seed: in
     ('*' = sampled, 'C' = the true memory). MODELS are model files or run folders (a run
     folder traces its untrained and final policies: before and after training)."""
     from sb3_memret.analysis.trace import model_label, trace_models
+    from sb3_memret.tasks import task_in
     from sb3_memret.training import eval_env_kwargs
 
     paths = _trace_targets(models)
     loaded = list(zip(paths, load_models(paths, "MODELS")))
-    run_task = eval_env_kwargs(loaded[0][1], paths[0], "recall", controller).get("task", DEFAULT_TASK)
+    run_task = task_in(eval_env_kwargs(loaded[0][1], paths[0], "recall", controller))
     controller = controller or run_controller(model_run(paths[0]), run_task)
     render_backend = check_run_task(click.get_current_context(), task, run_task, paths[0], controller, render_backend)
     env_kwargs = eval_env_kwargs(loaded[0][1], paths[0], "recall", controller, render_backend)
@@ -251,10 +262,11 @@ def report(run: Path, task: str | None, controller: str, baseline_episodes: int 
     """Write RUN/report.md: what was learned, the learning curves, the evaluation tables, the
     baselines, the before/after trace, any saved ablations and the configuration."""
     from sb3_memret.analysis.report import ReportOptions, write_report
+    from sb3_memret.tasks import task_in
     from sb3_memret.training import load_run_config
 
     if (run / "config.yml").exists():
-        run_task = load_run_config(run).env_kwargs.get("task", DEFAULT_TASK)
+        run_task = task_in(load_run_config(run).env_kwargs)
         controller = controller or run_controller(run, run_task)
         render_backend = check_run_task(click.get_current_context(), task, run_task, run, controller, render_backend)
     controller = controller or default_controller(task)

@@ -13,11 +13,22 @@ TASK_CONTROLLER = "  [default: the task's: its shipped camera-reading 'learned' 
 RUN_CONTROLLER = "  [default: the run's]"
 
 
+def task_or_default(task: str | None) -> str:
+    """``task``, or the commands' default task when none is named."""
+    return task or DEFAULT_TASK
+
+
+def run_folder(experiment: str, task: str, seed: int) -> Path:
+    """Where ``train`` writes a run by default: runs/EXPERIMENT-seedS for the default task, else
+    runs/EXPERIMENT-TASK-seedS."""
+    return Path("runs") / (f"{experiment}-seed{seed}" if task == DEFAULT_TASK else f"{experiment}-{task}-seed{seed}")
+
+
 def default_controller(task: str | None) -> str:
     """The controller a command runs on ``task`` when none is named (``Task.default_controller``)."""
     from sb3_memret.tasks import make_task
 
-    return make_task(task or DEFAULT_TASK).default_controller
+    return make_task(task_or_default(task)).default_controller
 
 
 def run_controller(folder: Path, task: str, default: str | None = None) -> str:
@@ -40,7 +51,7 @@ def build_controller(ctx: click.Context, param: click.Parameter | None, value: s
     names the task's default controller."""
     from sb3_memret.controller_specs import make_controller
 
-    task = task or ctx.params.get("task") or DEFAULT_TASK
+    task = task_or_default(task or ctx.params.get("task"))
     try:
         return make_controller(value or default_controller(task), task)
     except (ValueError, OSError, ImportError, RuntimeError) as err:  # bad spec, server down, missing extra or weights
@@ -56,7 +67,7 @@ def resolve_render_backend(ctx: click.Context, param: click.Parameter, value: st
             return None  # the run's task decides (train --resume, eval): resolved by the command
         from sb3_memret.tasks import make_task
 
-        value = make_task(task or DEFAULT_TASK).default_render_backend
+        value = make_task(task_or_default(task)).default_render_backend
     if value == "cpu":
         from sb3_memret.rendering import RendererNotFoundError, use_cpu_renderer
 

@@ -7,9 +7,8 @@ import sys
 
 import click
 
-from sb3_memret.cli.options import (DEFAULT_TASK, TASK_CONTROLLER, build_controller, camera_render_backend,
-                                    render_backend_option, task_option)
-from sb3_memret.tasks.drawer.cabinet import LAYERS
+from sb3_memret.cli.options import (TASK_CONTROLLER, build_controller, camera_render_backend, render_backend_option,
+                                    task_option)
 
 
 @click.command()
@@ -24,9 +23,11 @@ from sb3_memret.tasks.drawer.cabinet import LAYERS
                    "something else, none is the bare instruction, written carries every fact the task's writer has "
                    "written so far in the episode (no retriever, no decoys: it checks the writer end to end).")
 @click.option("--episodes", type=click.IntRange(min=1), default=10, show_default=True,
-              help="Episodes per layer (the drawer), else episodes in all.")
-@click.option("--layer", type=click.IntRange(min=min(LAYERS), max=max(LAYERS)), default=None,
-              help="The drawer only: this layer (1 = top); default all three.")
+              help="Episodes per group for a task whose episodes a command chooses by group (the drawer's layers), "
+                   "else episodes in all.")
+@click.option("--group", default=None,
+              help="Only this group, for a task whose episodes a command chooses by group (Task.chosen_groups: the "
+                   "drawer's layers 1-3, 1 = top)  [default: every group]")
 @click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
               help="First episode seed (a task with protocol seeds, as MIKASA's, plays those instead, unless "
                    "--seeds dev).")
@@ -38,33 +39,25 @@ from sb3_memret.tasks.drawer.cabinet import LAYERS
                    "(Task.replan_every): 8 on the drawer, 4 on MIKASA's tasks]")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
 @render_backend_option
-def rollout(task: str, controller, condition: str, episodes: int, layer: int | None, seed: int, seed_set: str,
+def rollout(task: str, controller, condition: str, episodes: int, group: str | None, seed: int, seed_set: str,
             replan_every: int | None, as_json: bool, render_backend: str) -> None:
     """Run a frozen controller on a task under a prompt condition and print its success per group (the
     drawer's layer, the cue's colour)."""
-    from sb3_memret.rollout import evaluate_condition, evaluate_task_condition, summarize
+    from sb3_memret.rollout import evaluate_task_condition, summarize
     from sb3_memret.tasks import make_task
 
-    replan_every = replan_every or make_task(task).replan_every
-
+    the_task = make_task(task)
     render_backend = camera_render_backend(click.get_current_context(), render_backend, controller)
-    if task != DEFAULT_TASK and layer is not None:
-        raise click.BadParameter(f"--layer chooses a drawer; task {task!r} has none", param_hint="--layer")
-    layers = (layer,) if layer else LAYERS
-    total = episodes * len(layers) if task == DEFAULT_TASK else episodes
-    with click.progressbar(length=total, label=f"{condition} rollouts", file=sys.stderr) as bar:
-        try:
-            if task == DEFAULT_TASK and condition == "written":  # the same placements as the fixed prompts'
-                results = [result for one in layers for result in evaluate_task_condition(
-                    controller, condition, task, episodes, seed, replan_every, on_episode=lambda _: bar.update(1),
-                    render_backend=render_backend, reset_options={"target_layer": one})]
-            elif task == DEFAULT_TASK:
-                results = evaluate_condition(controller, condition, episodes, layers, seed, replan_every,
-                                             on_episode=lambda _: bar.update(1), render_backend=render_backend)
-            else:
-                results = evaluate_task_condition(controller, condition, task, episodes, seed, replan_every,
-                                                  on_episode=lambda _: bar.update(1), render_backend=render_backend,
-                                                  protocol_seeds=seed_set == "protocol")
+    try:
+        groups = [the_task.group_reset_options(group)] if group is not None else \
+            [the_task.group_reset_options(one) for one in the_task.chosen_groups()] or [None]
+    except ValueError as err:
+        raise click.BadParameter(str(err), param_hint="--group") from None
+    with click.progressbar(length=episodes * len(groups), label=f"{condition} rollouts", file=sys.stderr) as bar:
+        try:  # a chosen group's episodes: the same seeds as every other group's
+            results = [result for options in groups for result in evaluate_task_condition(
+                controller, condition, the_task, episodes, seed, replan_every, on_episode=lambda _: bar.update(1),
+                render_backend=render_backend, reset_options=options, protocol_seeds=seed_set == "protocol")]
         except ValueError as err:
             raise click.UsageError(str(err)) from err
     summary = summarize(results)
@@ -73,9 +66,8 @@ def rollout(task: str, controller, condition: str, episodes: int, layer: int | N
                                "seeds": [r.seed for r in results], "success": summary["success"],
                                "median_steps_to_success": summary["median_steps_to_success"]}))
         return
-    group = "layer" if task == DEFAULT_TASK else "group"
     click.echo(f"task: {task}   condition: {condition}   episodes: {len(results)}")
-    click.echo(f"| {group} | episodes | success | median steps to success |")
+    click.echo(f"| {the_task.group_name} | episodes | success | median steps to success |")
     click.echo("|---|---|---|---|")
     for key, rate in summary["success"].items():
         steps = summary["median_steps_to_success"][key]

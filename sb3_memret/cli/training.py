@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from sb3_memret.cli.options import (DEFAULT_TASK, TASK_CONTROLLER, build_controller, default_controller,
+from sb3_memret.cli.options import (TASK_CONTROLLER, build_controller, default_controller, run_folder, task_or_default,
                                     physics_options, render_backend_option, resolve_render_backend, run_controller,
                                     task_option)
 from sb3_memret.seeds import HELD_OUT_SEED
@@ -63,7 +63,7 @@ def train(ctx: click.Context, experiment: str, task: str | None, tasks: str | No
     """Train the retriever and retention networks with PPO on EXPERIMENT (recall: what the task's controller
     must know, the drawer's layer or a cue's colour, reaches it only through a retrieved memory)."""
     from sb3_memret.config import load_task_config
-    from sb3_memret.tasks import make_task
+    from sb3_memret.tasks import make_task, task_in
     from sb3_memret.training import RunOptions, load_run_config, start_retriever, train as run_training
     from sb3_memret.workers import exit_status
 
@@ -88,10 +88,10 @@ def train(ctx: click.Context, experiment: str, task: str | None, tasks: str | No
             raise click.UsageError(str(err)) from err
         _report_run(experiment, result, exit_status)
         return
-    name = task or DEFAULT_TASK
-    out = out or Path("runs") / (f"{experiment}-seed{seed}" if name == DEFAULT_TASK else f"{experiment}-{name}-seed{seed}")
+    name = task_or_default(task)
+    out = out or run_folder(experiment, name, seed)
     if resume and (out / "config.yml").exists():
-        saved = load_run_config(out).env_kwargs.get("task", DEFAULT_TASK)
+        saved = task_in(load_run_config(out).env_kwargs)
         if task is not None and task != saved:
             raise click.BadParameter(f"the run in {str(out)!r} is of task {saved!r}, not {task!r}", param_hint="--task")
         name = saved

@@ -13,7 +13,7 @@ from sb3_memret.memory.retention import check_retention
 from sb3_memret.memory.schema import check_age_unit
 from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.physics import BACKENDS
-from sb3_memret.tasks import DEFAULT_TASK, Task, make_task
+from sb3_memret.tasks import Task, make_task, task_in
 from sb3_memret.tasks.base import check_render_backend
 
 
@@ -135,7 +135,8 @@ def split_env_kwargs(env_kwargs: Mapping[str, Any]) -> tuple[Task, dict[str, Any
     memory = MemoryConfig(seeding=seeding, **{k: kwargs.pop(k) for k in list(kwargs) if k in memory_keys - {"seeding"}})
     decisions = DecisionConfig(**{k: kwargs.pop(k) for k in list(kwargs) if k in decision_keys})
     physics = PhysicsConfig(**{k: kwargs.pop(k) for k in list(kwargs) if k in physics_keys})
-    task = make_task(kwargs.pop("task", DEFAULT_TASK))
+    task = make_task(task_in(kwargs))
+    kwargs.pop("task", None)
     rest = {k: kwargs.pop(k) for k in ("controller", "encoder") if k in kwargs}
     task = task.with_options(**kwargs)  # what is left is the task's own, or refused by it
     return task, rest, memory, decisions, physics

@@ -12,7 +12,6 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from gymnasium import spaces
 
-from sb3_memret.tasks.drawer.cabinet import LAYERS
 from sb3_memret.envs.configs import MemoryConfig, check_mode
 from sb3_memret.memory.bank import MemoryBank
 from sb3_memret.memory.encoder import EMBEDDING_DIM, MiniLMEncoder
@@ -21,8 +20,6 @@ from sb3_memret.memory.writer import EventCompiler
 from sb3_memret.prompts import PromptTemplate, build_prompt
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import EnvFrame, Episode
-from sb3_memret.tasks.drawer.seeding import hearsay_memories
-from sb3_memret.tasks.drawer.writer import ViewPredicateExtractor
 
 # keep-scores of a bank's entries given their ages (the retention critic, or a fixed rule)
 KeepScorer = Callable[[Sequence[MemoryEntry], np.ndarray], np.ndarray]
@@ -57,16 +54,16 @@ class EpisodeMemory:
     and follows the chosen facts in every prompt (as the rollout's fixed conditions state it), so the retriever
     chooses among the cue's facts and the decoys alone, and one K serves tasks with and without progress.
 
-    ``source="observed"``: no fact comes from the placement. The bank starts with decoys only,
-    the observation phase's views (each drawer opened once, ``EnvFrame.look_in``) write where each
-    object was seen, and during the episode an object's location is written only while a camera
-    sees it (``ViewPredicateExtractor``).
+    ``source="observed"``: no fact comes from the placement. The bank starts with decoys only, the
+    observation phase (``Task.look_in``: the drawer opens each drawer once) writes where each object was
+    seen, and during the episode the task's observed writer writes only what a camera sees.
 
     ``config.long_term_capacity > 0`` (observed only; a household's episodes): a long-term store that
     survives episode resets sits before the per-episode bank in the slots the retriever sees.
-    Where objects were seen in drawers goes there, with the task household's hearsay facts about other
-    things each episode; instead of the observation phase the robot looks into the household's glimpsed
-    drawers, drawn at random, so what it knows of the others it saw in earlier episodes.
+    What the task calls lasting (``Task.lasting``: where objects were seen in drawers) goes there, with the
+    household's hearsay about other things each episode (``Task.hearsay``); instead of the whole observation
+    phase the robot gets the household's glimpses (``Task.look_in``), so what it knows of the rest it saw in
+    earlier episodes.
     Times run on across episodes. ``age_unit``: a memory's age is the control steps since it was
     written (``"steps"``) or the episodes, a household's tasks (``"tasks"``): objects move only between
     tasks, so a fact's age in tasks is what says how likely it is to be stale. Measured before the glimpse, so they count what retention kept:
@@ -76,16 +73,13 @@ class EpisodeMemory:
     """
 
     def __init__(self, config: MemoryConfig, mode: str, encoder: MiniLMEncoder, keep_scorer: KeepScorer,
-                 template: PromptTemplate, task: Task | str = "drawer"):
+                 template: PromptTemplate, task: Task | str):
         self.mode = check_mode(mode)
         self.task = make_task(task)
         self.source, self.seeding, self.age_unit = config.source, config.seeding, config.age_unit
         self.encoder, self.keep_scorer, self.template = encoder, keep_scorer, template
         self.bank = MemoryBank(config.capacity)
         self.long_term = MemoryBank(config.long_term_capacity) if config.long_term_capacity else None
-        lives = self.task.household if self.long_term is not None else None  # a household's (the drawer's)
-        self.hearsay = lives.hearsay_per_episode if lives else 0
-        self.glimpses = lives.glimpses_per_episode if lives else 0
         self.episode = 0  # episodes started so far (a household's tasks)
         self.writer = self.task.writer(self.source)
         self.compiler = EventCompiler(encoder, self.writer.relations, self.task.wordings)
@@ -119,13 +113,13 @@ class EpisodeMemory:
         if self.long_term is not None:
             if moved:
                 self.seen_since_move.clear()
-            seeds += hearsay_memories(self.hearsay, rng, self.now, self.seeding)
+            seeds += self.task.hearsay(rng, self.now, self.seeding)
         self._write(self._encoded([replace(e, timestamp=self.now) for e in seeds]))
         if self.long_term is not None:
-            slot = self.long_term.find((MemoryType.OBJECT_LOCATION, self.target, "is_in"))  # one fact per key
-            kept = self.long_term.entries[slot] if slot is not None else None
-            self.target_fact_kept = kept is not None and self.is_true(kept)
-            self.stale_fact_kept = kept is not None and not self.target_fact_kept
+            slots = [self.long_term.find(key) for key, _ in self.truth.true_facts]  # one fact per key
+            kept = [self.long_term.entries[slot] for slot in slots if slot is not None]
+            self.target_fact_kept = len(kept) == len(slots) and all(self.is_true(entry) for entry in kept)
+            self.stale_fact_kept = any(not self.is_true(entry) for entry in kept)
             self.needed_fact_gone = self.target in self.seen_since_move and not self.target_fact_kept
         self.compiler.reset()
         if self.source == "observed":
@@ -133,18 +127,8 @@ class EpisodeMemory:
         self._read(frame)
 
     def _look_in(self, frame: EnvFrame, rng: np.random.Generator) -> None:
-        """The observation phase: write what is seen in every drawer, or in a household's ``glimpses``
-        drawers drawn at random."""
-        if self.long_term is None:
-            layers = list(LAYERS)
-        elif self.glimpses:
-            layers = sorted(int(layer) for layer in rng.choice(LAYERS, size=self.glimpses, replace=False))
-        else:
-            return
-        if frame.look_in is None:
-            raise RuntimeError("the observed-memory variant needs the reset frame's look_in views")
-        views = frame.look_in[[layer - 1 for layer in layers]]
-        self._write(self.compiler.update(ViewPredicateExtractor.look_in(views, frame.state.object_names[0], layers),
+        """The observation phase: write what the task's ``look_in`` says the robot saw."""
+        self._write(self.compiler.update(self.task.look_in(frame, rng, household=self.long_term is not None),
                                          self.now))
 
     def slot_entries(self) -> list[MemoryEntry | None]:
@@ -213,9 +197,9 @@ class EpisodeMemory:
         return [e.with_embedding(v) for e, v in zip(entries, vectors)]
 
     def _store_for(self, entry: MemoryEntry) -> MemoryBank:
-        """Where an object was seen in a drawer (and hearsay) is long-term; the rest lasts an episode."""
-        lasting = entry.type == MemoryType.OBJECT_LOCATION and entry.value.startswith("drawer layer")
-        return self.long_term if self.long_term is not None and lasting else self.bank
+        """What the task calls lasting (the drawer: where an object was seen in a drawer, and hearsay) goes to the
+        long-term store; the rest lasts an episode."""
+        return self.long_term if self.long_term is not None and self.task.lasting(entry) else self.bank
 
     def ages(self, entries: Sequence[MemoryEntry]) -> np.ndarray:
         """The entries' ages in ``age_unit``: control steps, or episodes since each was written."""

@@ -44,7 +44,7 @@ from sb3_memret.physics.backends import PhysicsBackend, ResetRequest
 from sb3_memret.policy.networks import RetentionScorer
 from sb3_memret.rewards import absorbing_success_value, shaped_reward
 from sb3_memret.rollout import task_env_kwargs
-from sb3_memret.tasks import DEFAULT_TASK, Task, make_task
+from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import EnvFrame
 from sb3_memret.workers import torch_threads
 
@@ -81,11 +81,11 @@ class RecallVecEnv(VecEnv):
     hidden, the instruction naming the target, so the retriever must read it) and its households.
     ``controller_calls`` counts ``controller.act`` calls: one per replan round (R per decision round).
 
-    ``memory.source="observed"``: the objects' facts come only from what the robot saw, in an observation phase
-    that opens each drawer once before the episode (``EpisodeMemory``). ``memory.long_term_capacity > 0``: each
-    env is a household (``sb3_memret.tasks.drawer.household``) whose objects stay in their drawers across
-    episodes and are sometimes rearranged; a long-term store of that many slots, before the per-episode slots,
-    keeps what the robot saw across episodes. ``decisions.tasks_per_episode``: tasks (each a reset of the
+    ``memory.source="observed"``: the facts come only from what the robot saw, in an observation phase before the
+    episode (``Task.look_in``; the drawer opens each drawer once). ``memory.long_term_capacity > 0``: each env is
+    a household (``Task.new_household``: the drawer's objects stay in their drawers across episodes and are
+    sometimes rearranged); a long-term store of that many slots, before the per-episode slots, keeps what the
+    robot saw across episodes. ``decisions.tasks_per_episode``: tasks (each a reset of the
     physics, ``info["task_done"]``) per learning episode, so that what memory keeps for a later task is
     credited to the decisions that kept it; a learning episode ends as a time-limit truncation.
 
@@ -97,7 +97,7 @@ class RecallVecEnv(VecEnv):
     steps or in tasks; the policy must read the same unit (its ``age_unit``).
     """
 
-    def __init__(self, num_envs: int = 1, task: str | Task = DEFAULT_TASK, controller: str | FrozenController = "scripted",
+    def __init__(self, num_envs: int, task: str | Task, controller: str | FrozenController = "scripted",
                  memory: MemoryConfig = MemoryConfig(), decisions: DecisionConfig = DecisionConfig(),
                  physics: PhysicsConfig = PhysicsConfig(), encoder: MiniLMEncoder | None = None):
         self.task = make_task(task)
@@ -128,7 +128,7 @@ class RecallVecEnv(VecEnv):
                          spaces.MultiDiscrete([self.slots] * self.k))
         self.households = [self.task.new_household() for _ in range(num_envs)] if memory.long_term_capacity else None
         self.physics: PhysicsBackend = make_physics(physics.backend, num_envs, task_kwargs, self.max_control_steps,
-                                                    physics.ray_address, self.task)
+                                                    physics.ray_address, task=self.task)
         try:
             self.controller.check_env(self.physics.env_info)
         except ValueError:

@@ -13,7 +13,7 @@ from sb3_memret.tasks import Task
 
 
 def make_physics(backend: str, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int,
-                 ray_address: str | None = None, task: Task | str = "drawer") -> PhysicsBackend:
+                 ray_address: str | None = None, *, task: Task | str) -> PhysicsBackend:
     """The physics backend ``backend`` names (one of ``BACKENDS``): ``auto`` is in-process for one env and
     worker processes for several (Ray when a ``ray_address`` is given); ``gpu`` one batched GPU simulation;
     ``ray`` Ray actors at ``ray_address`` (None: ``$RAY_ADDRESS`` or a local Ray instance)."""

@@ -21,6 +21,7 @@ from multiprocessing.connection import Connection, wait
 from multiprocessing.process import BaseProcess
 from typing import Any, Mapping, Sequence
 
+import gymnasium as gym
 import numpy as np
 
 from sb3_memret.controllers.base import env_robot
@@ -62,9 +63,23 @@ class TaskRunner:
     """One env of a task that resets and plays chunks: what every CPU physics worker runs. It keeps
     the episode's success once (a task whose episodes go on after success, as MIKASA's do, counts it)."""
 
-    def __init__(self, task_kwargs: Mapping[str, Any], max_control_steps: int, task: Task | str = "drawer"):
-        self.task = make_task(task)
+    def __init__(self, task_kwargs: Mapping[str, Any], max_control_steps: int, task: Task | str):
+        self._attach(make_task(task), None)
         self.env = self.task.make_env(max_episode_steps=max_control_steps, **task_kwargs)
+        self._watch()
+
+    @classmethod
+    def around(cls, env: gym.Env, task: Task | str) -> "TaskRunner":
+        """A runner of ``env``, an env of ``task`` made elsewhere (a test's shared env): closing it closes ``env``."""
+        runner = cls.__new__(cls)
+        runner._attach(make_task(task), env)
+        runner._watch()
+        return runner
+
+    def _attach(self, task: Task, env: gym.Env | None) -> None:
+        self.task, self.env = task, env
+
+    def _watch(self) -> None:
         self.succeeded = False
         self.steps = 0  # control steps since the reset
         # the steps from a reset the writer perceives (``Task.perception_window``; None: all of them)
@@ -128,7 +143,7 @@ class PhysicsBackend(ABC):
 class InProcessPhysics(PhysicsBackend):
     """Task envs in this process, one after another: no start-up cost, no parallelism."""
 
-    def __init__(self, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int, task: Task | str = "drawer"):
+    def __init__(self, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int, task: Task | str):
         self.num_envs = num_envs
         self.runners = [TaskRunner(task_kwargs, max_control_steps, task) for _ in range(num_envs)]
         self.env_info = self.runners[0].info()
@@ -172,7 +187,7 @@ class ProcessPhysics(PhysicsBackend):
 
     shares_cores = True
 
-    def __init__(self, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int, task: Task | str = "drawer"):
+    def __init__(self, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int, task: Task | str):
         self.num_envs = num_envs
         context = multiprocessing.get_context(START_METHOD)
         self.conns: list[Connection] = []
@@ -262,7 +277,7 @@ class BatchedSimPhysics(PhysicsBackend):
     grouped by identical options.
     """
 
-    def __init__(self, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int, task: Task | str = "drawer"):
+    def __init__(self, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int, task: Task | str):
         """``task_kwargs`` may name ``sim_backend`` ("gpu" by default; "cpu" holds one env: a dry run)."""
         self.num_envs = num_envs
         self.task = make_task(task)

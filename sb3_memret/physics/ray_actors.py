@@ -34,7 +34,7 @@ REPLAY_ATOL = 1e-5  # how close (m, rad) a replayed episode must land to the sta
 class PhysicsActor:
     """One task env in a Ray actor process (wrapped by ``ray.remote`` when a ``RayPhysics`` starts)."""
 
-    def __init__(self, task_kwargs: dict[str, Any], max_control_steps: int, task: Task | str = "drawer"):
+    def __init__(self, task_kwargs: dict[str, Any], max_control_steps: int, task: Task | str):
         import os
 
         import torch
@@ -83,7 +83,7 @@ class RayPhysics(PhysicsBackend):
     none is running; ``ray.init`` also reads ``RAY_ADDRESS``)."""
 
     def __init__(self, num_envs: int, task_kwargs: Mapping[str, Any], max_control_steps: int,
-                 address: str | None = None, max_restarts: int = MAX_RESTARTS, task: Task | str = "drawer"):
+                 address: str | None = None, max_restarts: int = MAX_RESTARTS, *, task: Task | str):
         import ray
 
         if not ray.is_initialized():

@@ -51,7 +51,8 @@ from sb3_memret.tasks.drawer.objects import object_set
 from sb3_memret.tasks.drawer.drawer_cube import DEFAULT_ROBOT
 from sb3_memret.prompts import INSTRUCTION_TEMPLATE, PromptTemplate, build_prompt, instruction_text
 from sb3_memret.tasks.drawer.prompts import location_text
-from sb3_memret.rollout import DEFAULT_REPLAN_EVERY, RENDER_BACKENDS, make_task_env
+from sb3_memret.tasks.base import RENDER_BACKENDS
+from sb3_memret.tasks.drawer import DrawerTask
 
 FPS = 20  # pd_ee_delta_pose control frequency of DrawerCubeTakeOut-v1
 EPISODES_FILE = "sb3_memret_episodes.jsonl"  # one line per saved episode: how it was played
@@ -147,7 +148,7 @@ def plan_episodes(n: int, seed: int = 0, noise: float = 0.0, noisy_fraction: flo
 
 
 def record_episode(env, expert: ScriptedDrawerController, episode: DemoEpisode,
-                   learner: FrozenController | None = None, replan_every: int = DEFAULT_REPLAN_EVERY,
+                   learner: FrozenController | None = None, replan_every: int = DrawerTask.replan_every,
                    idle_stop: int = 16, with_images: bool = False, frames: str = "every",
                    image_size: int = IMAGE_SHAPE[0]) -> EpisodeFrames:
     """Play one episode, the expert labelling every step; the learner acts instead when given. ``frames``
@@ -194,7 +195,7 @@ class _Recorder:
         self.with_images = render_backend != "none"
         self.frames, self.image_size = frames, image_size
         limit = {} if max_steps is None else {"max_episode_steps": max_steps}
-        self.env = make_task_env(obs_mode="rgb" if self.with_images else "state_dict", render_backend=render_backend,
+        self.env = DrawerTask().make_env(obs_mode="rgb" if self.with_images else "state_dict", render_backend=render_backend,
                                  objects=objects, n_objects=n_objects, robot_uids=DEFAULT_ROBOT, **limit)
         self.expert = ScriptedDrawerController()
         self.expert.check_env(self.env)
@@ -266,7 +267,7 @@ def record_demos(
     render_backend: str = "none",
     learner: str | None = None,
     n_workers: int = 1,
-    replan_every: int = DEFAULT_REPLAN_EVERY,
+    replan_every: int = DrawerTask.replan_every,
     max_steps: int | None = None,
     on_episode: Callable[[EpisodeFrames], None] | None = None,
     objects: str | Sequence[str] = "cube",

@@ -11,7 +11,7 @@ listing names is cheap.
 from __future__ import annotations
 
 import importlib
-from typing import Callable
+from typing import Any, Callable, Mapping
 
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates, Task, Writer
 
@@ -80,6 +80,12 @@ def check_task_name(name: str) -> str:
     raise ValueError(f"unknown task {name!r}; expected one of {task_names()}")
 
 
+def task_in(env_kwargs: Mapping[str, Any]) -> str | Task:
+    """The one task a run's ``env_kwargs`` name: their ``task``, else the default task (a run saved before its
+    settings named a task played the drawer); a learner across tasks names its ``tasks`` instead."""
+    return env_kwargs.get("task", DEFAULT_TASK)
+
+
 def _lazy(module: str, attr: str, *args: str) -> Callable[[], Task]:
     """A factory that imports ``module`` only when the task is made."""
     return lambda: getattr(importlib.import_module(module), attr)(*args)
@@ -128,4 +134,4 @@ register_task("GatherAndRecall1-VLA-v0",  # needs the lamp bulb mesh
               lambda: importlib.import_module("sb3_memret.tasks.mikasa.lamp_asset").ensure_lamp_asset())
 
 __all__ = ["DEFAULT_TASK", "EnvFrame", "Episode", "Predicates", "Task", "Writer", "check_task_name",
-           "make_task", "register_task", "task_names"]
+           "make_task", "register_task", "task_in", "task_names"]

@@ -22,7 +22,7 @@ from __future__ import annotations
 
 from abc import ABC, abstractmethod
 from dataclasses import dataclass, field
-from typing import TYPE_CHECKING, Any, ClassVar, Mapping, Protocol
+from typing import TYPE_CHECKING, Any, Callable, ClassVar, Mapping, Protocol
 
 import gymnasium as gym
 import numpy as np
@@ -33,7 +33,15 @@ from sb3_memret.obs_trees import select_obs, to_numpy
 from sb3_memret.prompts import ParsedPrompt
 
 if TYPE_CHECKING:
+    from sb3_memret.analysis.ablations import AblationBuilder
     from sb3_memret.memory.seeding import SeedingConfig
+
+
+class Household(Protocol):
+    """One env's world across a household's episodes: where things are, kept or rearranged between episodes."""
+
+    def next_episode(self, rng: np.random.Generator) -> tuple[dict[str, Any], str, bool]:
+        """The next episode's placement, its target, and whether the household was rearranged."""
 
 RENDER_BACKENDS = ("none", "cpu", "gpu")
 
@@ -130,6 +138,8 @@ class Task(ABC):
     #: (MIKASA's Rotate names a new angle every episode there): ``frames`` reads it from the reset's info, and
     #: MIKASA's harness, which keeps the reset's info from its policy, is asked for that key (``benchmark.agent``)
     instruction_in_info: ClassVar[bool] = False
+    #: what the groups success is reported by are called in a table (``Episode.group``; the drawer's: its layers)
+    group_name: ClassVar[str] = "group"
     #: the task's own wording of some facts, (type, value) -> template (the drawer: an object out of its drawers)
     wordings: ClassVar[Mapping[tuple[MemoryType, str], str]] = {}
 
@@ -179,6 +189,27 @@ class Task(ABC):
         """The bank at t = 0, in a random order: decoys as ``seeding`` says, and with ``facts`` the facts
         the task hands over at the start (the drawer's seeded memory; a task that must observe them
         writes them from its frames instead)."""
+
+    # ------------------------------------------------------------ a household's episodes (long-term memory)
+    def new_household(self) -> "Household":
+        """One env's household: what stays in place from one episode to the next (``features`` "household")."""
+        raise NotImplementedError(f"task {self.name!r} has no households (Task.new_household)")
+
+    def hearsay(self, rng: np.random.Generator, now: int, seeding: "SeedingConfig") -> list[MemoryEntry]:
+        """Facts about other things a household's long-term store hears each episode, at time ``now`` (decoys it
+        must learn to let go of); none by default."""
+        return []
+
+    def look_in(self, frame: EnvFrame, rng: np.random.Generator, household: bool) -> Predicates:
+        """The observation phase of the ``observed`` variant (``features`` "observed"): predicates of what the robot
+        saw at the reset (``EnvFrame.look_in``), everywhere it looks, or with ``household`` only where this episode's
+        glimpses fall."""
+        raise NotImplementedError(f"task {self.name!r} has no observation phase (Task.look_in)")
+
+    def lasting(self, entry: MemoryEntry) -> bool:
+        """Whether ``entry`` belongs in a household's long-term store, which survives episode resets (the drawer:
+        where an object was seen in a drawer); the rest lasts an episode."""
+        return False
 
     # ------------------------------------------------------------ prompts
     @property
@@ -257,6 +288,25 @@ class Task(ABC):
         learned = "learned" in shipped_names(self.name) and self.name not in LEARNED_NOT_DEFAULT
         return "learned" if learned else "scripted"
 
+    def chosen_groups(self) -> tuple[str, ...]:
+        """The groups a command may choose its episodes by (``group_reset_options``; the drawer: its layers), in
+        order; none for a task whose env draws every episode's group itself (a cue's colour)."""
+        return ()
+
+    def group_reset_options(self, group: str) -> dict[str, Any]:
+        """The reset options that play an episode of ``group``, one of ``chosen_groups``; else a ValueError naming
+        them."""
+        groups = self.chosen_groups()
+        if group not in groups:
+            accepted = f"one of {list(groups)}" if groups else "none: its env draws every episode's group itself"
+            raise ValueError(f"task {self.name!r} has no {self.group_name} {group!r} to choose; expected {accepted}")
+        raise NotImplementedError(f"task {type(self).__name__} names groups but no reset options for them")
+
+    def ablations(self) -> Mapping[str, "AblationBuilder"]:
+        """The controller ablation tables this task defines, by name (``sb3-memret ablate``; the drawer: the seed
+        paper's replan, prompt, memcount and wording tables); none by default."""
+        return {}
+
     def evaluation_seeds(self, n_episodes: int) -> list[int] | None:
         """The env seeds of the task's benchmark protocol for ``n_episodes`` held-out episodes, or None
         (held-out episodes then draw their seeds from the evaluation seed)."""
@@ -267,6 +317,11 @@ class Task(ABC):
         checkpoints and variants), disjoint from ``evaluation_seeds``, which give the final figure only; None: the
         evaluation seed decides, as for ``evaluation_seeds``."""
         return None
+
+    def option_checks(self) -> Mapping[str, tuple[type | tuple[type, ...], Callable[[Any], bool], str]]:
+        """How a config checks each of ``options`` before the task is made: its type(s), a test of its value, and
+        what is accepted, in words (``sb3_memret.config``'s form)."""
+        return {}
 
     def with_options(self, **options: Any) -> "Task":
         """This task with its own ``options`` set (the drawer: its objects, its households); an option the task
@@ -291,4 +346,4 @@ def check_render_backend(render_backend: str) -> str:
     return render_backend
 
 
-__all__ = ["EnvFrame", "Episode", "Predicates", "RENDER_BACKENDS", "Task", "Writer", "check_render_backend"]
+__all__ = ["EnvFrame", "Episode", "Household", "Predicates", "RENDER_BACKENDS", "Task", "Writer", "check_render_backend"]

@@ -18,13 +18,13 @@ from sb3_memret.controllers.base import RENDER_HINT
 from sb3_memret.memory.schema import MemoryEntry, MemoryType
 from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.prompts import OUTSIDE, OUTSIDE_TEMPLATE, ParsedPrompt, PromptTemplate, instruction_text
-from sb3_memret.tasks.base import EnvFrame, Episode, Task, check_render_backend
+from sb3_memret.tasks.base import EnvFrame, Episode, Predicates, Task, check_render_backend
 from sb3_memret.tasks.drawer.cabinet import LAYERS
 from sb3_memret.tasks.drawer.household import Household, HouseholdConfig
-from sb3_memret.tasks.drawer.objects import object_set
+from sb3_memret.tasks.drawer.objects import OBJECT_SETS, object_set
 from sb3_memret.tasks.drawer.prompts import check_prompt_layer, location_text
-from sb3_memret.tasks.drawer.seeding import seed_memories
-from sb3_memret.tasks.drawer.writer import DrawerWriter
+from sb3_memret.tasks.drawer.seeding import hearsay_memories, seed_memories
+from sb3_memret.tasks.drawer.writer import DrawerWriter, ViewPredicateExtractor
 
 ENV_ID = "DrawerCubeTakeOut-v1"
 
@@ -37,6 +37,7 @@ class DrawerTask(Task):
     features = frozenset({"observed", "household", "observe_potential"})
     options = ("objects", "n_objects", "move_probability", "hearsay_per_episode", "glimpses_per_episode")
     max_control_steps = 400
+    group_name = "layer"
     wordings = {(MemoryType.OBJECT_LOCATION, OUTSIDE): OUTSIDE_TEMPLATE}  # "the cube is out of the drawers."
 
     def __init__(self, objects: str | Sequence[str] = "cube", n_objects: int = 1,
@@ -60,6 +61,17 @@ class DrawerTask(Task):
                  if k in options}
         return DrawerTask(options.get("objects", self.objects), options.get("n_objects", self.n_objects),
                           replace(self.household, **lives))
+
+    def option_checks(self) -> Mapping[str, tuple[type | tuple[type, ...], Any, str]]:
+        return {
+            "objects": (str, lambda v: v in OBJECT_SETS, f"one of the object sets {sorted(OBJECT_SETS)}"),
+            "n_objects": (int, lambda v: 1 <= v <= len(LAYERS), f"an integer in [1, {len(LAYERS)}] (one object per "
+                          "drawer)"),
+            "move_probability": ((int, float), lambda v: 0 <= v <= 1, "a number in [0, 1]"),
+            "hearsay_per_episode": (int, lambda v: v >= 0, "an integer >= 0"),
+            "glimpses_per_episode": (int, lambda v: 0 <= v <= len(LAYERS), f"an integer in [0, {len(LAYERS)}] "
+                                     "(drawers looked into)"),
+        }
 
     @property
     def config_key(self) -> str:
@@ -96,6 +108,26 @@ class DrawerTask(Task):
         return [EnvFrame(select_obs(obs, i), state.select(i), float(potential[i]), bool(success[i]), views=views[i],
                          look_in=None if look_in is None else look_in[i]) for i in range(len(potential))]
 
+    def hearsay(self, rng: np.random.Generator, now: int, seeding: SeedingConfig) -> list[MemoryEntry]:
+        return hearsay_memories(self.household.hearsay_per_episode, rng, now, seeding)
+
+    def look_in(self, frame: EnvFrame, rng: np.random.Generator, household: bool) -> Predicates:
+        """Every drawer opened once, or in a household ``glimpses_per_episode`` of them drawn at random."""
+        if not household:
+            layers = list(LAYERS)
+        elif self.household.glimpses_per_episode:
+            layers = sorted(int(layer) for layer in rng.choice(LAYERS, size=self.household.glimpses_per_episode,
+                                                                replace=False))
+        else:
+            return {}
+        if frame.look_in is None:
+            raise RuntimeError("the observed-memory variant needs the reset frame's look_in views")
+        return ViewPredicateExtractor.look_in(frame.look_in[[layer - 1 for layer in layers]],
+                                              frame.state.object_names[0], layers)
+
+    def lasting(self, entry: MemoryEntry) -> bool:
+        return entry.type == MemoryType.OBJECT_LOCATION and entry.value.startswith("drawer layer")
+
     def writer(self, source: str = "seeded") -> DrawerWriter:
         return DrawerWriter(source)
 
@@ -125,6 +157,19 @@ class DrawerTask(Task):
         from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
 
         return ScriptedDrawerController()
+
+    def chosen_groups(self) -> tuple[str, ...]:
+        return tuple(str(layer) for layer in LAYERS)
+
+    def group_reset_options(self, group: str) -> dict[str, Any]:
+        if str(group) not in self.chosen_groups():
+            return super().group_reset_options(str(group))
+        return {"target_layer": int(group)}
+
+    def ablations(self) -> Mapping[str, Any]:
+        from sb3_memret.tasks.drawer.ablations import ABLATIONS
+
+        return ABLATIONS
 
     def check_prompt(self, prompt: ParsedPrompt) -> None:
         check_prompt_layer(prompt)
