@@ -26,12 +26,12 @@ import torch
 
 from sb3_memret.tasks.drawer.cabinet import LAYERS
 from sb3_memret.envs.vec_env import make_recall_vec_env
-from sb3_memret.evaluation import evaluate_retrieval
-from sb3_memret.parallel_rollout import EpisodeJob, run_jobs
+from sb3_memret.evaluation.retrieval import evaluate_retrieval
+from sb3_memret.evaluation.parallel import EpisodeJob, run_jobs
 from sb3_memret.policy.policy import MemoryRetrievalPolicy
 from sb3_memret.policy.ppo import MemRetPPO
 from sb3_memret.tasks.drawer.prompts import condition_prompt
-from sb3_memret.rollout import EpisodeResult
+from sb3_memret.evaluation.rollout import EpisodeResult
 
 SEED = 1_000_000
 

@@ -33,11 +33,11 @@ import torch
 from sb3_memret.controllers import FrozenController
 from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers.learned import LearnedController, default_checkpoint
-from sb3_memret.obs_trees import stack_obs, to_numpy
+from sb3_memret.common.obs_trees import stack_obs, to_numpy
 from sb3_memret.envs.vec_env import RecallVecEnv, make_recall_vec_env
 from sb3_memret.tasks.drawer import DrawerTask
 from sb3_memret.tasks.drawer.prompts import condition_prompt
-from sb3_memret.rollout import task_env_kwargs
+from sb3_memret.evaluation.rollout import task_env_kwargs
 
 SEED = 1_000_000
 

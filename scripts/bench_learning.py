@@ -18,12 +18,12 @@ import shutil
 import time
 from pathlib import Path
 
-from sb3_memret.config import load_task_config
+from sb3_memret.training.config import load_task_config
 from sb3_memret.envs.vec_env import make_recall_vec_env
-from sb3_memret.evaluation import evaluate_retrieval
+from sb3_memret.evaluation.retrieval import evaluate_retrieval
 from sb3_memret.policy.ppo import MemRetPPO
-from sb3_memret.seeds import HELD_OUT_SEED
-from sb3_memret.training import RunOptions, eval_env_kwargs, format_history, train
+from sb3_memret.common.seeds import HELD_OUT_SEED
+from sb3_memret.training.run import RunOptions, eval_env_kwargs, format_history, train
 
 GREEDY_TARGET, GREEDY_ROUNDS, EPISODES_PER_ROUND = 0.95, 5, 64
 ENTROPY_TARGET, SUCCESS_RATIO, WALL_MINUTES = 0.3, 0.9, 15.0

@@ -13,10 +13,10 @@ import argparse
 import time
 
 from sb3_memret.controller_specs import make_controller
-from sb3_memret.obs_trees import stack_obs
+from sb3_memret.common.obs_trees import stack_obs
 from sb3_memret.physics.backends import TaskRunner
-from sb3_memret.prompts import build_prompt
-from sb3_memret.sensor_gate import SensorGate
+from sb3_memret.controllers.prompts import build_prompt
+from sb3_memret.physics.sensor_gate import SensorGate
 from sb3_memret.tasks import make_task
 
 

@@ -34,13 +34,13 @@ from stable_baselines3.common.vec_env import SubprocVecEnv, VecEnv
 
 from sb3_memret.controller_specs import make_controller
 from sb3_memret.envs import RECALL_ENV_ID
-from sb3_memret.obs_trees import stack_obs, to_numpy
+from sb3_memret.common.obs_trees import stack_obs, to_numpy
 from sb3_memret.envs.vec_env import recall_vec_env
-from sb3_memret.prompts import build_prompt
-from sb3_memret.rollout import task_env_kwargs
+from sb3_memret.controllers.prompts import build_prompt
+from sb3_memret.evaluation.rollout import task_env_kwargs
 from sb3_memret.tasks import DEFAULT_TASK, make_task
 from sb3_memret.tasks.base import RENDER_BACKENDS
-from sb3_memret.workers import init_worker_process
+from sb3_memret.common.workers import init_worker_process
 
 SEED = 1_000_000
 

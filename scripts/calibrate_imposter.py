@@ -33,7 +33,7 @@ def cue_frames(task, seeds):
     """(rgb, object index per pixel (-1: none)) of each seed's reset frame, from the raw env with segmentation."""
     import gymnasium as gym
 
-    from sb3_memret.rendering import use_cpu_renderer
+    from sb3_memret.common.rendering import use_cpu_renderer
 
     use_cpu_renderer()
     import mikasa_robo_suite.vla.memory_envs  # noqa: F401

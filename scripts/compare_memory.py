@@ -22,13 +22,13 @@ from typing import Any
 import yaml
 from stable_baselines3 import PPO
 
-from sb3_memret.evaluation import RetrievalReport, evaluate_retrieval
-from sb3_memret.seeds import HELD_OUT_SEED
+from sb3_memret.evaluation.retrieval import RetrievalReport, evaluate_retrieval
+from sb3_memret.common.seeds import HELD_OUT_SEED
 from sb3_memret.tasks.drawer.cabinet import LAYERS
 from sb3_memret.tasks.drawer.objects import OBJECT_SETS
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.memory.retention import RETENTION_RULES
-from sb3_memret.training import eval_env_kwargs
+from sb3_memret.training.run import eval_env_kwargs
 
 def evaluate(model_path: Path, args: argparse.Namespace, mode: str = "recall", **overrides: Any) -> RetrievalReport:
     model = PPO.load(model_path, device="cpu")

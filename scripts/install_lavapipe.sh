@@ -6,7 +6,7 @@
 #   bash scripts/install_lavapipe.sh [DIR]      (default .renderer; `make renderer` runs this)
 #
 # DIR/lvp_icd.json is then a Vulkan ICD manifest with an absolute library path, which
-# sb3_memret.rendering hands to SAPIEN for render_backend="cpu". Debian 12's own lavapipe
+# sb3_memret.common.rendering hands to SAPIEN for render_backend="cpu". Debian 12's own lavapipe
 # (Mesa 22.3) lacks VK_KHR_external_semaphore_fd, which SAPIEN needs; Mesa 25.0.7 has it.
 set -euo pipefail
 

@@ -48,7 +48,7 @@ def cli_json(args: list[str]) -> dict[str, Any]:
 def run_setting(run: Path) -> tuple[str, str, int]:
     """The task, controller and replan interval a recall run was trained with (its config.yml and
     summary.json), which the rollouts beside its evaluation use too."""
-    from sb3_memret.training import CONFIG_FILE, load_run_config
+    from sb3_memret.training.run import CONFIG_FILE, load_run_config
 
     summary_path = run / "summary.json"
     if not summary_path.is_file() or not (run / CONFIG_FILE).is_file():

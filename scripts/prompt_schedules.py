@@ -26,7 +26,7 @@ import numpy as np
 from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers.base import FrozenController
 from sb3_memret.memory.seeding import SeedingConfig
-from sb3_memret.rollout import EpisodeResult, FactSchedule, play_task_episodes
+from sb3_memret.evaluation.rollout import EpisodeResult, FactSchedule, play_task_episodes
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import EnvFrame, Episode
 

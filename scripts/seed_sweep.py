@@ -34,10 +34,10 @@ from sb3_memret.analysis.sweep import run_row, sweep_table
 
 def oracle_success(run: Path, episodes: int, n_envs: int) -> float:
     """Success of the oracle prompt on the run's held-out episodes, with the run's controller."""
-    from sb3_memret.evaluation import evaluate_retrieval
+    from sb3_memret.evaluation.retrieval import evaluate_retrieval
     from sb3_memret.envs.vec_env import make_recall_vec_env
     from sb3_memret.policy.ppo import load_model
-    from sb3_memret.training import eval_env_kwargs
+    from sb3_memret.training.run import eval_env_kwargs
 
     summary = json.loads((run / "summary.json").read_text())
     path = run / "final_model.zip"

@@ -9,7 +9,7 @@ from types import ModuleType
 import pytest
 
 from sb3_memret.physics.backends import TaskRunner
-from sb3_memret.rollout import EpisodeResult, LiteralPrompt, play_episode
+from sb3_memret.evaluation.rollout import EpisodeResult, LiteralPrompt, play_episode
 from sb3_memret.tasks.drawer import DrawerTask
 
 
@@ -37,7 +37,7 @@ def sb3_log_folder(tmp_path_factory):
 @pytest.fixture(scope="session", autouse=True)
 def project_cache(tmp_path_factory):
     """The project's cache (the light Panda's meshes, trunk features), made afresh for the session."""
-    from sb3_memret.cache import CACHE_ENV
+    from sb3_memret.common.cache import CACHE_ENV
 
     with pytest.MonkeyPatch.context() as patch:
         patch.setenv(CACHE_ENV, str(tmp_path_factory.mktemp("cache")))

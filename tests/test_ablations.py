@@ -10,12 +10,12 @@ import pytest
 
 from sb3_memret.analysis import ablations
 from sb3_memret.analysis.ablations import AblationOptions, AblationResult, AblationSpec, Cell, CellResult, wilson_interval
-from sb3_memret.parallel_rollout import EpisodeJob
+from sb3_memret.evaluation.parallel import EpisodeJob
 from sb3_memret.tasks.drawer import DrawerTask
 from sb3_memret.tasks.drawer import ablations as drawer_ablations
 from sb3_memret.tasks.drawer.ablations import memcount_ablation, prompt_ablation, replan_ablation
-from sb3_memret.prompts import parse_prompt
-from sb3_memret.rollout import EpisodeResult
+from sb3_memret.controllers.prompts import parse_prompt
+from sb3_memret.evaluation.rollout import EpisodeResult
 
 INSTRUCTION = "pick out the cube."
 LAYER_COLUMNS = ("layer 1", "layer 2", "layer 3")

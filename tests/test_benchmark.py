@@ -22,7 +22,7 @@ from sb3_memret.benchmark.manifest import episode_seeds, select_tasks  # noqa: E
 from sb3_memret.benchmark.report import render_report  # noqa: E402
 from sb3_memret.benchmark.runner import Plan, Protocol, RunFolder, done_units, results, run_benchmark  # noqa: E402
 from sb3_memret.cli import main  # noqa: E402
-from sb3_memret.sensor_gate import SensorGate  # noqa: E402
+from sb3_memret.physics.sensor_gate import SensorGate  # noqa: E402
 
 # MIKASA-Robo-VLA's benchmarking page: the short split's memory types
 SHORT_SPLIT_TYPES = {"Spatial": 14, "Object": 9, "Negative": 9, "Temporal": 3, "Tracking": 2, "Prospective": 1}
@@ -248,7 +248,7 @@ def test_recall_retrieves_from_the_writers_bank_in_the_harness(tmp_path):
 
     from sb3_memret.benchmark.learners import train_learners
     from sb3_memret.benchmark.runner import plan
-    from sb3_memret.config import parse_section
+    from sb3_memret.training.config import parse_section
 
     env_id = "RememberColor3-VLA-v0"
     (tmp_path / "learners" / env_id).mkdir(parents=True)

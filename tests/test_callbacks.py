@@ -11,7 +11,7 @@ from sb3_memret.callbacks import (PhaseTimingCallback, RetrievalEvalCallback, Ro
                                   checkpoint_path, latest_checkpoint)
 from sb3_memret.policy.policy import MemoryRetrievalPolicy
 from sb3_memret.policy.ppo import MemRetPPO
-from sb3_memret.run_logger import make_run_logger
+from sb3_memret.common.run_logger import make_run_logger
 from toy_bank import ToyBankEnv
 
 ROUND = 32
@@ -191,7 +191,7 @@ def test_per_group_success_leaves_the_stdout_table_only_when_sb3_would_cut_two_k
     """SB3's stdout table cuts keys to 36 characters and refuses a dump with two alike, which a run across the
     short split's 32 tasks met at its first round; per-task success then goes to the CSV alone."""
     from sb3_memret.callbacks import evaluation as evaluation_module
-    from sb3_memret.evaluation import RetrievalReport
+    from sb3_memret.evaluation.retrieval import RetrievalReport
 
     report = RetrievalReport(episodes=2, decisions=4, greedy_accuracy=1.0, sampled_fraction=1.0, entropy=0.1,
                              success={"overall": 0.5, groups[0]: 1.0, groups[1]: 0.0},

@@ -103,7 +103,7 @@ def test_ablate_default_intervals_are_the_tasks():
 
 def test_mistakes_are_one_line_without_a_traceback(tmp_path, monkeypatch):
     """What a new user trips over: a file that is not a model, a YAML typo, no CPU renderer."""
-    from sb3_memret.rendering import RENDERER_DIR_ENV
+    from sb3_memret.common.rendering import RENDERER_DIR_ENV
 
     notes = tmp_path / "notes.txt"
     notes.write_text("not a model")

@@ -3,7 +3,7 @@ from pathlib import Path
 import pytest
 import yaml
 
-from sb3_memret.config import load_config, parse_section
+from sb3_memret.training.config import load_config, parse_section
 
 ZOO = Path(__file__).resolve().parents[1] / "zoo_configs" / "memret_ppo.yml"
 ENV_ID = "sb3_memret/DrawerRecall-v0"

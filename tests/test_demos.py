@@ -8,7 +8,7 @@ import pytest
 
 from sb3_memret.controllers.observation import IMAGE_KEYS, STATE_NAMES
 from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
-from sb3_memret.prompts import INSTRUCTION, parse_prompt
+from sb3_memret.controllers.prompts import INSTRUCTION, parse_prompt
 from sb3_memret.tasks.drawer.prompts import condition_prompt
 from sb3_memret.stage1.demos import DemoEpisode, PromptMix, plan_episodes, read_episode_log, record_demos, record_episode
 

@@ -10,7 +10,7 @@ import sb3_memret.tasks.drawer.drawer_cube  # noqa: F401  (registers DrawerCubeT
 from sb3_memret.tasks.drawer.cabinet import LAYERS
 from sb3_memret.tasks.drawer.state import layer_containing
 from sb3_memret.tasks.drawer.objects import OBJECT_SETS
-from sb3_memret.rewards import PHI_MAX
+from sb3_memret.tasks.rewards import PHI_MAX
 from conftest import make_task_env
 
 

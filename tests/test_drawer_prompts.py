@@ -1,6 +1,6 @@
 import pytest
 
-from sb3_memret.prompts import INSTRUCTION, parse_prompt
+from sb3_memret.controllers.prompts import INSTRUCTION, parse_prompt
 from sb3_memret.tasks.drawer import DrawerTask
 from sb3_memret.tasks.drawer.prompts import check_prompt_layer, condition_prompt, location_text
 

@@ -7,7 +7,7 @@ import pytest
 import torch
 from stable_baselines3.common.vec_env import DummyVecEnv
 
-from sb3_memret.evaluation import evaluate_retrieval
+from sb3_memret.evaluation.retrieval import evaluate_retrieval
 from sb3_memret.policy.policy import MemoryRetrievalPolicy
 from sb3_memret.policy.ppo import MemRetPPO
 from toy_bank import CAP, ToyBankEnv
@@ -92,7 +92,7 @@ def test_the_models_retention_critic_is_pushed_before_evaluating():
 
 
 def test_a_report_round_trips_and_reads_runs_saved_with_layer_groups():
-    from sb3_memret.evaluation import RetrievalReport
+    from sb3_memret.evaluation.retrieval import RetrievalReport
 
     report = RetrievalReport(episodes=4, decisions=8, greedy_accuracy=0.5, sampled_fraction=0.4, entropy=1.0,
                              success={"overall": 0.5, "red": 1.0, "blue": 0.0}, episodes_per_group={"red": 2, "blue": 2})

@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from sb3_memret.cache import CACHE_ENV, cache_root
+from sb3_memret.common.cache import CACHE_ENV, cache_root
 from sb3_memret.stage1.feature_cache import FOLDER, cached_features, trunk_id
 
 

@@ -14,7 +14,7 @@ from sb3_memret.controllers.learned import LearnedPolicyConfig
 from sb3_memret.controllers.learned.modeling import pointer_ambiguity
 from sb3_memret.controllers.observation import PROPRIO_NAMES, STATE_NAMES
 from sb3_memret.physics.backends import TaskEnvInfo
-from sb3_memret.prompts import INSTRUCTION
+from sb3_memret.controllers.prompts import INSTRUCTION
 from sb3_memret.tasks.drawer.prompts import condition_prompt
 from sb3_memret.tasks.drawer.drawer_cube import DEFAULT_ROBOT
 from sb3_memret.tasks.drawer.robot import LIGHT_PANDA_UID
@@ -167,7 +167,7 @@ def test_a_frozen_trunks_features_are_cached_per_dataset_and_train_the_same_poli
     and, with the same seed, trains the very same weights as one that computes them afresh."""
     from safetensors.torch import load_file
 
-    from sb3_memret.cache import cache_root
+    from sb3_memret.common.cache import cache_root
     from sb3_memret.stage1.feature_cache import FOLDER
 
     config = LearnedPolicyConfig(hidden_dim=32, n_layers=1, text_dim=16, text_heads=2, image_encoder="efficientnet_lite0",

@@ -15,7 +15,7 @@ from sb3_memret.controllers.learned import LearnedController, LearnedPolicy, Lea
 from sb3_memret.controllers.learned.configuration import perceived_objects
 from sb3_memret.controllers.learned.modeling import ObjectPointer
 from sb3_memret.controllers.observation import IMAGE_KEYS, PROPRIO_NAMES, STATE_DIM, STATE_NAMES
-from sb3_memret.weights import WeightsNotLoadedError
+from sb3_memret.common.weights import WeightsNotLoadedError
 from sb3_memret.tasks import make_task
 from sb3_memret.tasks.drawer import DrawerTask
 from sb3_memret.tasks.drawer.objects import OBJECT_SETS
@@ -170,7 +170,7 @@ def test_the_shipped_camera_controller_acts_on_the_fact_in_its_prompt():
     """At MIKASA's first three evaluation seeds, from rgb and proprioception alone, the true fact leads the shipped
     camera controller on RememberColor3 (the one across nineteen tasks: 98% over MIKASA's 50 seeds) to success, a
     wrong fact never does."""
-    from sb3_memret.rollout import evaluate_task_condition
+    from sb3_memret.evaluation.rollout import evaluate_task_condition
 
     task = "RememberColor3-VLA-v0"
     controller = make_controller("learned", task)

@@ -10,7 +10,7 @@ import pytest
 import torch
 from torch import nn
 
-from sb3_memret.weights import LoadReport, WeightsNotLoadedError, check_loaded, compare_tensors
+from sb3_memret.common.weights import LoadReport, WeightsNotLoadedError, check_loaded, compare_tensors
 from tiny_pi05 import TINY_WIDTH, build_tiny_pi05, tiny_sizes
 
 

@@ -12,8 +12,8 @@ pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
 from sb3_memret.memory.schema import MemoryEntry, MemoryType  # noqa: E402
 from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
-from sb3_memret.prompts import build_prompt, parse_prompt  # noqa: E402
-from sb3_memret.rollout import evaluate_task_condition  # noqa: E402
+from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E402
+from sb3_memret.evaluation.rollout import evaluate_task_condition  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
 from sb3_memret.tasks.base import EnvFrame  # noqa: E402
 from sb3_memret.tasks.mikasa.blink_count import (  # noqa: E402

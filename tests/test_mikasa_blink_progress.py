@@ -10,7 +10,7 @@ pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
 from sb3_memret.controllers.base import as_numpy  # noqa: E402
 from sb3_memret.memory.schema import MemoryType, linearize  # noqa: E402
-from sb3_memret.prompts import build_prompt, parse_prompt  # noqa: E402
+from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E402
 from sb3_memret.tasks import EnvFrame, make_task  # noqa: E402
 from sb3_memret.tasks.mikasa.blink_count import (  # noqa: E402
     CAP_TOP_Z,
@@ -152,7 +152,7 @@ def test_the_stateless_expert_reads_its_way_from_where_the_hand_is_and_how_it_mo
 
 
 def test_every_fixed_condition_states_the_presses_mikasa_counted():
-    from sb3_memret.rollout import condition_schedule
+    from sb3_memret.evaluation.rollout import condition_schedule
 
     task, base = make_task(SPEC), BlinkCountTask("BlinkCountButtonPressMedium-VLA-v0", progress=False)
     start, later = ({"blinks": 3, "presses": n} for n in (0, 2))
@@ -225,7 +225,7 @@ def test_written_or_counted_progress_lets_the_stateless_expert_press_as_often_as
     press counter) too; with the cue's fact alone it never learns it pressed, presses a fourth time and fails."""
     from test_mikasa_seq_progress import CueFactsOnly
 
-    from sb3_memret.rollout import condition_schedule, play_task_episodes
+    from sb3_memret.evaluation.rollout import condition_schedule, play_task_episodes
 
     task = make_task(SPEC)
     for condition in ("written", "oracle"):

@@ -15,7 +15,7 @@ from click.testing import CliRunner  # noqa: E402
 from sb3_memret.cli import main  # noqa: E402
 from sb3_memret.memory.schema import MemoryEntry, MemoryType  # noqa: E402
 from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
-from sb3_memret.prompts import build_prompt, parse_prompt  # noqa: E402
+from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
 from sb3_memret.tasks.base import EnvFrame  # noqa: E402
 from sb3_memret.tasks.mikasa.find_imposter import (  # noqa: E402

@@ -12,8 +12,8 @@ pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 from sb3_memret.controllers.base import as_numpy  # noqa: E402
 from sb3_memret.memory.schema import MemoryType  # noqa: E402
 from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
-from sb3_memret.prompts import build_prompt, parse_prompt  # noqa: E402
-from sb3_memret.rollout import evaluate_task_condition  # noqa: E402
+from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E402
+from sb3_memret.evaluation.rollout import evaluate_task_condition  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
 from sb3_memret.tasks.mikasa.cue_task import DEV_SEED  # noqa: E402
 from sb3_memret.tasks.mikasa.gather_and_recall import (  # noqa: E402

@@ -8,7 +8,7 @@ from mikasa_support import MIKASA_MISSING, leaked_keys
 
 pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
-from sb3_memret.prompts import parse_prompt  # noqa: E402
+from sb3_memret.controllers.prompts import parse_prompt  # noqa: E402
 from sb3_memret.tasks.mikasa.expert import (  # noqa: E402
     INSTRUCTION,
     PROMPT_TEMPLATE,
@@ -22,7 +22,7 @@ FORBIDDEN = ("oracle", "task_cue", "goal_")
 
 
 def _make(env_id: str, obs_mode: str):
-    from sb3_memret.rendering import use_cpu_renderer
+    from sb3_memret.common.rendering import use_cpu_renderer
 
     use_cpu_renderer()
     import gymnasium as gym

@@ -11,7 +11,7 @@ pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
 from sb3_memret.controllers.base import as_numpy  # noqa: E402
 from sb3_memret.memory.schema import MemoryType  # noqa: E402
-from sb3_memret.prompts import build_prompt, parse_prompt  # noqa: E402
+from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E402
 from sb3_memret.tasks import EnvFrame, make_task  # noqa: E402
 from sb3_memret.tasks.mikasa.layout_perception import read_cube_layout, table_points  # noqa: E402
 from sb3_memret.tasks.mikasa.perception import COLOUR_NAMES  # noqa: E402
@@ -156,7 +156,7 @@ def test_written_or_simulated_progress_lets_the_stateless_expert_finish_and_cue_
     """Development seed 5000: with the facts the writer wrote (the cue and, as it goes, the touches and the press)
     the stateless expert succeeds, and with the oracle (the cue's facts and the progress MIKASA counted) too; with
     the cue's facts alone it never leaves the first cube."""
-    from sb3_memret.rollout import condition_schedule, play_task_episodes
+    from sb3_memret.evaluation.rollout import condition_schedule, play_task_episodes
 
     task = make_task(SPEC)
     monkeypatch.setattr(task, "max_control_steps", 88)

@@ -11,7 +11,7 @@ pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
 from sb3_memret.memory.schema import MemoryType  # noqa: E402
 from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
-from sb3_memret.prompts import parse_prompt  # noqa: E402
+from sb3_memret.controllers.prompts import parse_prompt  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
 from sb3_memret.tasks.base import EnvFrame  # noqa: E402
 from sb3_memret.tasks.mikasa.perception import cue_blob  # noqa: E402

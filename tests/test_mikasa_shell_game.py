@@ -21,7 +21,7 @@ pytest.importorskip("mikasa_robo_suite", reason=MIKASA_MISSING)
 from sb3_memret.cli import main  # noqa: E402
 from sb3_memret.memory.schema import MemoryEntry, MemoryType  # noqa: E402
 from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
-from sb3_memret.prompts import build_prompt, parse_prompt  # noqa: E402
+from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E402
 from sb3_memret.tasks import check_task_name, make_task  # noqa: E402
 from sb3_memret.tasks.base import EnvFrame  # noqa: E402
 from sb3_memret.tasks.mikasa.expert import COAST_GAIN, DRIVE_GAIN, POS_SCALE  # noqa: E402
@@ -87,7 +87,7 @@ def test_with_the_mug_in_place_the_tasks_are_made(asset_dir):
 def test_zoo_config_sections_parse_where_the_mug_is(asset_dir):
     from pathlib import Path
 
-    from sb3_memret.config import load_config
+    from sb3_memret.training.config import load_config
 
     (asset_dir / "models" / "025_mug").mkdir(parents=True)
     for name in MUG_FILES:

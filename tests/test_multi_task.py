@@ -17,14 +17,14 @@ import yaml
 from click.testing import CliRunner
 
 from sb3_memret.cli import main
-from sb3_memret.config import TrainConfig, parse_section, resolve_task_settings
+from sb3_memret.training.config import TrainConfig, parse_section, resolve_task_settings
 from sb3_memret.envs.multi_task import MultiTaskVecEnv, make_decision_vec_env, task_env_kwargs
 from sb3_memret.envs.vec_env import recall_vec_env
-from sb3_memret.evaluation import evaluate_retrieval
+from sb3_memret.evaluation.retrieval import evaluate_retrieval
 from sb3_memret.memory.schema import MemoryEntry, MemoryType
 from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.policy.ppo import MemRetPPO
-from sb3_memret.prompts import PromptTemplate
+from sb3_memret.controllers.prompts import PromptTemplate
 from sb3_memret.tasks import EnvFrame, Episode, register_task, task_names
 from test_tasks import COLOURS, FACT, DoorsExpert, DoorsTask
 

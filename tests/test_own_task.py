@@ -17,7 +17,7 @@ import yaml
 from click.testing import CliRunner
 
 from sb3_memret.cli import main
-from sb3_memret.config import load_task_config
+from sb3_memret.training.config import load_task_config
 from sb3_memret.tasks import make_task
 
 USER_MODULE = '''
@@ -135,7 +135,7 @@ def test_the_written_condition_reads_a_cue_shown_between_two_decisions():
     it, and ``WrittenFacts`` hands it to the second decision's prompt."""
     from test_tasks import COLOURS, DoorsExpert, LateLightTask
 
-    from sb3_memret.rollout import WrittenFacts, evaluate_task_condition, play_task_episodes
+    from sb3_memret.evaluation.rollout import WrittenFacts, evaluate_task_condition, play_task_episodes
 
     class Recorded(WrittenFacts):
         def facts(self, decision: int) -> list[str]:
@@ -154,7 +154,7 @@ def test_the_written_condition_reads_a_cue_shown_between_two_decisions():
 MY_CUE_MODULE = '''
 """My RememberColor: MIKASA's RememberColor3 with an instruction worded my way."""
 
-from sb3_memret.prompts import PromptTemplate
+from sb3_memret.controllers.prompts import PromptTemplate
 from sb3_memret.tasks.mikasa import COLOUR_NAMES, ControllerObservation, MikasaCueTask, read_cue_colour
 
 INSTRUCTION = "look at the cube, remember its colour, then touch the cube of that colour."
@@ -178,7 +178,7 @@ def test_a_cue_task_of_ones_own_is_built_from_the_public_mikasa_parts(user_folde
     """A RememberColor-like task written only with ``sb3_memret.tasks.mikasa``'s exports: its prompts follow its own
     wording, its expert obeys them, and as it is named by MIKASA's env id the shipped section of that id (for the
     registered task) is refused for it with the way out."""
-    from sb3_memret.prompts import build_prompt
+    from sb3_memret.controllers.prompts import build_prompt
     from sb3_memret.tasks import Episode
     from sb3_memret.tasks.mikasa import ScriptedTouchController
 

@@ -5,11 +5,11 @@ from collections import Counter
 import psutil
 import pytest
 
-from sb3_memret import parallel_rollout
-from sb3_memret.parallel_rollout import EpisodeJob, run_jobs
+from sb3_memret.evaluation import parallel as parallel_rollout
+from sb3_memret.evaluation.parallel import EpisodeJob, run_jobs
 from sb3_memret.tasks.drawer import DrawerTask
 from sb3_memret.tasks.drawer.prompts import condition_prompt
-from sb3_memret.workers import WorkerDiedError
+from sb3_memret.common.workers import WorkerDiedError
 
 DRAWER = DrawerTask()
 

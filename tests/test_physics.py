@@ -7,8 +7,8 @@ import pytest
 from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
 from sb3_memret.physics.backends import BatchedSimPhysics, InProcessPhysics, ResetRequest, TaskRunner
 from sb3_memret.tasks.base import EnvFrame
-from sb3_memret.obs_trees import select_obs, stack_obs
-from sb3_memret.rollout import task_env_kwargs
+from sb3_memret.common.obs_trees import select_obs, stack_obs
+from sb3_memret.evaluation.rollout import task_env_kwargs
 from sb3_memret.tasks import make_task
 
 KWARGS = task_env_kwargs(ScriptedDrawerController(), "none", make_task("drawer"))
@@ -80,7 +80,7 @@ def test_the_writer_perceives_its_window_only_and_the_cameras_render_only_what_i
     camera renders only for the next decision. The same episode with the window lifted: equal frames, and every
     percept after the window is None (no later frame shows the cue)."""
     pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason="needs mikasa-robo-suite")
-    from sb3_memret.sensor_gate import SensorGate
+    from sb3_memret.physics.sensor_gate import SensorGate
     from sb3_memret.tasks import make_task
 
     task = make_task("RememberColor3-VLA-v0")

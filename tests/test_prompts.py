@@ -1,6 +1,6 @@
 import pytest
 
-from sb3_memret.prompts import (HOLDING_TEMPLATE, INSTRUCTION, INSTRUCTION_TEMPLATE, LAYER_LOCATION_TEMPLATE,
+from sb3_memret.controllers.prompts import (HOLDING_TEMPLATE, INSTRUCTION, INSTRUCTION_TEMPLATE, LAYER_LOCATION_TEMPLATE,
                                 PromptTemplate, build_prompt, holding_text, instruction_text, parse_prompt)
 from sb3_memret.tasks.drawer.prompts import location_text
 

@@ -11,7 +11,7 @@ import ray
 
 from sb3_memret.physics.ray_actors import RayPhysics
 from sb3_memret.envs.vec_env import make_recall_vec_env
-from sb3_memret.parallel_rollout import EpisodeJob, run_jobs
+from sb3_memret.evaluation.parallel import EpisodeJob, run_jobs
 from sb3_memret.tasks.drawer.prompts import condition_prompt
 
 

@@ -13,7 +13,7 @@ from sb3_memret.envs.recall_memory import EpisodeMemory
 from sb3_memret.memory.schema import MemoryType
 from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.physics.backends import TaskRunner
-from sb3_memret.prompts import PromptTemplate
+from sb3_memret.controllers.prompts import PromptTemplate
 from sb3_memret.tasks.drawer import DrawerTask
 from sb3_memret.tasks.drawer.cabinet import LAYERS
 from sb3_memret.tasks.drawer.household import HouseholdConfig

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from sb3_memret.rendering import RENDERER_DIR_ENV, RendererNotFoundError, use_cpu_renderer
+from sb3_memret.common.rendering import RENDERER_DIR_ENV, RendererNotFoundError, use_cpu_renderer
 from sb3_memret.physics.chunks import execute_chunk
 
 CAMERAS = ("base_camera", "hand_camera")

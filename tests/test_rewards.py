@@ -1,7 +1,7 @@
 import numpy as np
 import pytest
 
-from sb3_memret.rewards import PHI_MAX, absorbing_success_value, shaped_reward, staged_potential
+from sb3_memret.tasks.rewards import PHI_MAX, absorbing_success_value, shaped_reward, staged_potential
 
 ORIGIN = np.zeros((1, 3))
 

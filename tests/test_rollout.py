@@ -6,7 +6,7 @@ import pytest
 from sb3_memret.controllers.base import ControllerSpec, FrozenController
 from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
 from sb3_memret.envs.recall import DrawerRecallEnv
-from sb3_memret.rollout import evaluate_task_condition, task_env_kwargs
+from sb3_memret.evaluation.rollout import evaluate_task_condition, task_env_kwargs
 from sb3_memret.tasks.drawer import DrawerTask
 
 DRAWER = DrawerTask()
@@ -52,7 +52,7 @@ def test_unknown_backend_is_named():
 
 
 def test_a_condition_gives_its_facts_at_every_decision_and_an_unknown_one_is_named():
-    from sb3_memret.rollout import ConditionFacts
+    from sb3_memret.evaluation.rollout import ConditionFacts
     from sb3_memret.tasks import make_task
     from sb3_memret.tasks.base import Episode
 
@@ -80,7 +80,7 @@ def test_the_drawers_written_condition_plays_the_fixed_prompts_placements():
     from click.testing import CliRunner
 
     from sb3_memret.cli import main
-    from sb3_memret.rollout import WrittenFacts, condition_schedule
+    from sb3_memret.evaluation.rollout import WrittenFacts, condition_schedule
     from sb3_memret.tasks import make_task
 
     assert isinstance(condition_schedule(make_task("drawer"), "written"), WrittenFacts)

@@ -1,7 +1,7 @@
 import pytest
 
 from sb3_memret.memory.schema import IMPORTANCE, TEMPLATES, MemoryEntry, MemoryType, linearize
-from sb3_memret.prompts import INSTRUCTION, PromptTemplate, build_prompt
+from sb3_memret.controllers.prompts import INSTRUCTION, PromptTemplate, build_prompt
 from sb3_memret.tasks.drawer import DrawerTask
 
 

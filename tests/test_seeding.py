@@ -5,7 +5,7 @@ from sb3_memret.memory.schema import MemoryType
 from sb3_memret.tasks.drawer.objects import CATALOGUE
 from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.tasks.drawer.seeding import is_true_memory, seed_memories
-from sb3_memret.prompts import (INSTRUCTION, INSTRUCTION_TEMPLATE, PromptTemplate, build_prompt, instruction_text, parse_prompt)
+from sb3_memret.controllers.prompts import (INSTRUCTION, INSTRUCTION_TEMPLATE, PromptTemplate, build_prompt, instruction_text, parse_prompt)
 
 
 @pytest.mark.parametrize("layer", [1, 2, 3])

@@ -30,7 +30,7 @@ from sb3_memret.tasks.drawer.prompts import condition_prompt  # noqa: E402
 from conftest import drawer_episode  # noqa: E402
 from sb3_memret.physics.chunks import execute_chunk
 from sb3_memret.stage1.serve import ControllerPolicy, serve, serve_until_stopped  # noqa: E402
-from sb3_memret.workers import StopRequested, stop_signals_interrupt  # noqa: E402
+from sb3_memret.common.workers import StopRequested, stop_signals_interrupt  # noqa: E402
 
 DECISIONS = 6  # enough for the scripted expert to leave its first phase
 EXIT_BOUND = 60.0  # s a served controller may take to exit after one stop signal: generous, it is no benchmark

@@ -21,8 +21,8 @@ from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.memory.schema import MemoryEntry, MemoryType
 from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.policy.ppo import MemRetPPO
-from sb3_memret.prompts import PromptTemplate
-from sb3_memret.rewards import absorbing_success_value
+from sb3_memret.controllers.prompts import PromptTemplate
+from sb3_memret.tasks.rewards import absorbing_success_value
 from sb3_memret.tasks import EnvFrame, Episode, Predicates, Task, make_task, register_task, task_names
 
 COLOURS = ("red", "green", "blue")
@@ -177,7 +177,7 @@ def test_the_memory_learner_trains_on_a_task_of_its_own(encoder):
               "location_decoys": 3, "capacity": 4}
     venv = make_recall_vec_env(1, kwargs, seed=0)
     model = MemRetPPO(env=venv, n_steps=64, batch_size=32, gae_lambda=0.7, learning_rate=3e-3, seed=0)
-    from sb3_memret.evaluation import evaluate_retrieval
+    from sb3_memret.evaluation.retrieval import evaluate_retrieval
 
     before = evaluate_retrieval(model, venv, 20, seed=1000)
     model.learn(1536)
@@ -240,7 +240,7 @@ def test_evaluation_plays_the_tasks_protocol_seeds_once_each(encoder):
     venv = make_recall_vec_env(2, {"task": SeededDoorsTask(), "controller": "scripted", "encoder": encoder,
                                    "replan_every": 4, "location_decoys": 3, "capacity": 4}, backend="inprocess")
     model = MemRetPPO(env=venv, n_steps=8, batch_size=8, seed=0)
-    from sb3_memret.evaluation import evaluate_retrieval
+    from sb3_memret.evaluation.retrieval import evaluate_retrieval
 
     played = []
     report = evaluate_retrieval(model, venv, 5, seed=3, on_episode=played.append)
@@ -380,7 +380,7 @@ def test_the_memory_learner_learns_to_retrieve_every_needed_fact(encoder):
     """K = 2 over 2 facts and 2 decoys: a uniform draw holds both 1 time in 6; PPO, at the paper's settings and
     with one Plackett-Luce draw per episode (the default), learns to hold both within 1024 decisions and keeps it
     for 1024 more (seeds 0-3; ``lab/2026-11-26-exploration-stability/exploration_stability.py``)."""
-    from sb3_memret.evaluation import evaluate_retrieval
+    from sb3_memret.evaluation.retrieval import evaluate_retrieval
 
     venv = pair_doors_env(encoder)
     model = MemRetPPO(env=venv, n_steps=64, batch_size=32, gae_lambda=0.7, seed=0)

@@ -11,8 +11,8 @@ from stable_baselines3 import PPO
 
 from sb3_memret.callbacks import RolloutRetrievalCallback, latest_checkpoint
 from sb3_memret.cli import main
-from sb3_memret.config import parse_section
-from sb3_memret.training import RunOptions, read_history, train
+from sb3_memret.training.config import parse_section
+from sb3_memret.training.run import RunOptions, read_history, train
 from tiny_run import TINY
 
 ZOO = Path(__file__).resolve().parents[1] / "zoo_configs"
@@ -248,12 +248,12 @@ def test_run_folder_mistakes_are_refused(run, tmp_path):
 def test_retrieval_is_learned_on_the_real_simulator():
     """The default config's ten rounds from random initialisation, on the scripted controller: the greedy
     retriever picks the true cube memory and the sampling policy has moved well away from chance."""
-    from sb3_memret.config import load_task_config
+    from sb3_memret.training.config import load_task_config
     from sb3_memret.envs.vec_env import make_recall_vec_env
-    from sb3_memret.evaluation import evaluate_retrieval
+    from sb3_memret.evaluation.retrieval import evaluate_retrieval
     from sb3_memret.policy.policy import MemoryRetrievalPolicy
     from sb3_memret.policy.ppo import MemRetPPO
-    from sb3_memret.training import env_kwargs_for
+    from sb3_memret.training.run import env_kwargs_for
 
     config = load_task_config("drawer")
     kwargs = env_kwargs_for(config, "scripted")

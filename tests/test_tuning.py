@@ -7,10 +7,10 @@ import optuna
 import pytest
 from click.testing import CliRunner
 
-from sb3_memret.evaluation import RetrievalReport
+from sb3_memret.evaluation.retrieval import RetrievalReport
 from sb3_memret.cli import main
-from sb3_memret.config import load_config, parse_section
-from sb3_memret.tuning import TrialReporter, apply_hyperparameters, sample_hyperparameters
+from sb3_memret.training.config import load_config, parse_section
+from sb3_memret.training.tuning import TrialReporter, apply_hyperparameters, sample_hyperparameters
 from tiny_run import TINY as TINY_RUN
 
 BASE = parse_section({"n_timesteps": 64, "n_envs": 2, "n_steps": 16, "policy_kwargs": {"hidden": 64},

@@ -14,7 +14,7 @@ from sb3_memret.physics.backends import InProcessPhysics, ProcessPhysics
 from sb3_memret.physics import make_physics
 from sb3_memret.envs.vec_env import make_recall_vec_env, recall_vec_env
 from sb3_memret.policy.networks import RetentionScorer
-from sb3_memret.workers import WorkerDiedError
+from sb3_memret.common.workers import WorkerDiedError
 
 SHORT = {"max_control_steps": 16}
 

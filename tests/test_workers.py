@@ -6,7 +6,7 @@ import signal
 import pytest
 import torch
 
-from sb3_memret.workers import StopRequested, stop_signals_deferred, stop_signals_interrupt, torch_threads
+from sb3_memret.common.workers import StopRequested, stop_signals_deferred, stop_signals_interrupt, torch_threads
 
 
 def test_a_stop_during_a_deferred_block_is_raised_when_it_ends():

@@ -6,7 +6,7 @@ import torch
 from mani_skill.utils.structs.pose import Pose
 
 from sb3_memret.tasks.base import EnvFrame
-from sb3_memret.obs_trees import to_numpy
+from sb3_memret.common.obs_trees import to_numpy
 from sb3_memret.memory.schema import MemoryType
 from sb3_memret.memory.writer import UNKNOWN, EventCompiler
 from sb3_memret.tasks.drawer import DrawerTask

@@ -74,7 +74,7 @@ def condition_facts(task, episode, condition: str) -> list[str]:
 def run_episode(task, env, controller, seed: int, condition: str, replan: int,
                 stats: CueStats) -> tuple[bool, int, float]:
     """One episode; returns (success once, control steps, seconds spent in env.step)."""
-    from sb3_memret.prompts import build_prompt
+    from sb3_memret.controllers.prompts import build_prompt
 
     obs, info = env.reset(seed=seed)
     frame = task.frames(env, obs, info, reset=True)[0]

@@ -17,7 +17,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[2] / "tests"))
 
 from test_tasks import pair_doors_env  # noqa: E402  (the toy task lives with the tests that define it)
 
-from sb3_memret.evaluation import evaluate_retrieval  # noqa: E402
+from sb3_memret.evaluation.retrieval import evaluate_retrieval  # noqa: E402
 from sb3_memret.memory.encoder import MiniLMEncoder  # noqa: E402
 from sb3_memret.policy.policy import EXPLORATION  # noqa: E402
 from sb3_memret.policy.ppo import MemRetPPO  # noqa: E402

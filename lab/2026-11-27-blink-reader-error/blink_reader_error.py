@@ -17,7 +17,7 @@ import collections
 
 import torch
 
-from sb3_memret.prompts import build_prompt
+from sb3_memret.controllers.prompts import build_prompt
 from sb3_memret.tasks.mikasa.blink_count import LONGEST_GAP, VARIANTS, BlinkCountTask
 from sb3_memret.tasks.mikasa.cue_task import DEV_SEED
 from sb3_memret.tasks.mikasa.press_expert import parse_count

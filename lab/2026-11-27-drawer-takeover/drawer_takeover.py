@@ -17,10 +17,10 @@ import argparse
 import numpy as np
 
 from sb3_memret.controller_specs import make_controller
-from sb3_memret.obs_trees import stack_obs
+from sb3_memret.common.obs_trees import stack_obs
 from sb3_memret.physics.backends import TaskRunner
-from sb3_memret.prompts import build_prompt
-from sb3_memret.rollout import task_env_kwargs
+from sb3_memret.controllers.prompts import build_prompt
+from sb3_memret.evaluation.rollout import task_env_kwargs
 from sb3_memret.tasks import make_task
 
 

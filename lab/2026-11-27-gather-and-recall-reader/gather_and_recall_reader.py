@@ -17,7 +17,7 @@ import time
 import torch
 
 from sb3_memret.controllers.base import as_numpy
-from sb3_memret.prompts import build_prompt
+from sb3_memret.controllers.prompts import build_prompt
 from sb3_memret.tasks.mikasa.gather_and_recall import FLASH_COLOURS, GatherAndRecallTask, read_flash
 
 

@@ -25,7 +25,7 @@ def main() -> None:
     parser.add_argument("--seed", type=int, default=5000, help="first development seed (not MIKASA's 4242424242 + i)")
     args = parser.parse_args()
 
-    from sb3_memret.rollout import evaluate_task_condition
+    from sb3_memret.evaluation.rollout import evaluate_task_condition
     from sb3_memret.tasks import make_task
     from sb3_memret.tasks.mikasa.find_imposter import WORDINGS
 

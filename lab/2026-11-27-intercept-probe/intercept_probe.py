@@ -19,7 +19,7 @@ import time
 import numpy as np
 import torch
 
-from sb3_memret.prompts import build_prompt
+from sb3_memret.controllers.prompts import build_prompt
 from sb3_memret.tasks import make_task
 from sb3_memret.tasks.mikasa.intercept import VARIANTS, InterceptTask, motion_fact, parse_value
 

@@ -48,7 +48,7 @@ def main() -> None:
                         help="instead: N episodes per task of the written condition, cameras on")
     args = parser.parse_args()
 
-    from sb3_memret.rollout import evaluate_task_condition
+    from sb3_memret.evaluation.rollout import evaluate_task_condition
     from sb3_memret.tasks import make_task
 
     for env_id in args.tasks:

@@ -18,9 +18,9 @@ from typing import Any, Callable, Mapping, Sequence
 import numpy as np
 
 from sb3_memret.controllers.base import FrozenController
-from sb3_memret.parallel_rollout import EpisodeJob, run_jobs
-from sb3_memret.rollout import EpisodeResult
-from sb3_memret.seeds import HELD_OUT_SEED
+from sb3_memret.evaluation.parallel import EpisodeJob, run_jobs
+from sb3_memret.evaluation.rollout import EpisodeResult
+from sb3_memret.common.seeds import HELD_OUT_SEED
 from sb3_memret.tasks import Task, make_task
 
 OVERALL = "overall"

@@ -16,8 +16,8 @@ from matplotlib.axes import Axes
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator, PercentFormatter
 
-from sb3_memret.run_logger import PROGRESS_CSV
-from sb3_memret.training import HISTORY_FILE, read_history
+from sb3_memret.common.run_logger import PROGRESS_CSV
+from sb3_memret.training.run import HISTORY_FILE, read_history
 
 PLOT_FILE = "learning_curves.png"
 

@@ -18,15 +18,15 @@ from typing import Any, Callable
 
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_memret.seeds import HELD_OUT_SEED
+from sb3_memret.common.seeds import HELD_OUT_SEED
 from sb3_memret.tasks import make_task, task_in
 from sb3_memret.envs.vec_env import make_recall_vec_env
-from sb3_memret.evaluation import RetrievalReport, evaluate_retrieval
+from sb3_memret.evaluation.retrieval import RetrievalReport, evaluate_retrieval
 from sb3_memret.analysis.plotting import PLOT_FILE, plot_learning_curves
 from sb3_memret.analysis.sweep import MASTERY, first_mastered
 from sb3_memret.policy.ppo import MemRetPPO, load_model
 from sb3_memret.analysis.trace import model_label, trace_models
-from sb3_memret.training import (CONFIG_FILE, INITIAL_MODEL, eval_env_kwargs, format_history, load_run_config,
+from sb3_memret.training.run import (CONFIG_FILE, INITIAL_MODEL, eval_env_kwargs, format_history, load_run_config,
                                  read_history, retrieval_chance)
 
 REPORT_FILE = "report.md"

@@ -11,7 +11,7 @@ import numpy as np
 from matplotlib.figure import Figure
 from matplotlib.ticker import MaxNLocator, PercentFormatter
 
-from sb3_memret.training import read_history
+from sb3_memret.training.run import read_history
 
 MASTERY = 0.95  # greedy accuracy that counts as "learned"
 

@@ -27,11 +27,11 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_memret.controllers.base import FrozenController
-from sb3_memret.prompts import build_prompt
+from sb3_memret.controllers.prompts import build_prompt
 from sb3_memret.tasks.base import EnvFrame, Episode, Task
 
 if TYPE_CHECKING:
-    from sb3_memret.rollout import FactSchedule
+    from sb3_memret.evaluation.rollout import FactSchedule
 
 CONDITIONS = ("none", "oracle", "wrong", "written", "recall")
 
@@ -51,7 +51,7 @@ class MemoryLearner:
     def __init__(self, path: Path, controller: str, task: str | None = None):
         from sb3_memret.envs.multi_task import task_env_kwargs
         from sb3_memret.policy.ppo import load_model
-        from sb3_memret.training import eval_env_kwargs
+        from sb3_memret.training.run import eval_env_kwargs
 
         self.path = Path(path)
         self.model = load_model(self.path)
@@ -85,7 +85,7 @@ class MemoryLearner:
 
 
 class RecalledFacts:
-    """The recall condition's facts (a ``sb3_memret.rollout.FactSchedule``): what ``learner`` retrieves at each
+    """The recall condition's facts (a ``sb3_memret.evaluation.rollout.FactSchedule``): what ``learner`` retrieves at each
     decision from a bank that the task's writer fills and its decoys seed (the learner's run settings), its retention
     critic evicting; then, on a task with progress as memory, what the robot has done so far."""
 
@@ -155,7 +155,7 @@ class MemoryAgent:
 
     def bind(self, env: gym.Env) -> None:
         """Act in ``env`` (a harness env of this agent's task) from now on."""
-        from sb3_memret.sensor_gate import SensorGate
+        from sb3_memret.physics.sensor_gate import SensorGate
 
         self.env, self._view = env, None
         self.controller.check_env(env)
@@ -186,7 +186,7 @@ class MemoryAgent:
         return self.writes and self.task.perceives_every_step and (self._window is None or step < self._window)
 
     def _start(self, frame: EnvFrame) -> None:
-        from sb3_memret.rollout import condition_schedule
+        from sb3_memret.evaluation.rollout import condition_schedule
 
         self.episode, self.prompts, self.decisions = self.task.episode(frame), [], 0
         self.controller.reset([self._seed])
@@ -198,7 +198,7 @@ class MemoryAgent:
     def forward(self, obs: Mapping[str, Any]) -> np.ndarray:
         """The next action (7,) for the harness's observation (its ``rgb`` and ``proprio`` only are read)."""
         from sb3_memret.benchmark.view import HarnessView
-        from sb3_memret.obs_trees import stack_obs
+        from sb3_memret.common.obs_trees import stack_obs
 
         if self._seed is None:
             raise RuntimeError("begin(seed) the episode before the harness calls forward()")

@@ -43,7 +43,7 @@ def install_shims(render_backend: str = "cpu") -> None:
     """Make MIKASA's harness importable and runnable here (idempotent); ``render_backend="cpu"`` also points
     SAPIEN at the project's software renderer."""
     if render_backend == "cpu":
-        from sb3_memret.rendering import use_cpu_renderer
+        from sb3_memret.common.rendering import use_cpu_renderer
 
         use_cpu_renderer()
     import mani_skill.envs  # noqa: F401  (before MIKASA's baseline module: it imports ManiSkill's envs halfway)

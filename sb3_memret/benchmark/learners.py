@@ -20,7 +20,7 @@ SHIPPED_LEARNER_COMMAND = "make learner-multitask"
 
 def shipped_learner() -> Path:
     """The shipped learner across the short split's tasks; a FileNotFoundError naming how to rebuild it if missing."""
-    from sb3_memret.training import CONFIG_FILE
+    from sb3_memret.training.run import CONFIG_FILE
 
     for name in (LEARNER_FILE, CONFIG_FILE):
         if not (SHIPPED_LEARNER.parent / name).is_file():
@@ -43,11 +43,11 @@ def train_learners(env_ids: list[str], out: Path, controller: str = "scripted", 
                    on_outcome: Callable[[LearnerOutcome], None] | None = None) -> list[LearnerOutcome]:
     """Train (or resume, or keep) the memory learner of each task in ``env_ids`` into ``out/<env id>``.
     Held-out evaluations during training play the task's development seeds, never the benchmark's."""
-    from sb3_memret.config import load_task_config
+    from sb3_memret.training.config import load_task_config
     from sb3_memret.controller_specs import make_controller
     from sb3_memret.tasks import check_task_name, make_task
     from sb3_memret.callbacks import latest_checkpoint
-    from sb3_memret.training import RunOptions, train
+    from sb3_memret.training.run import RunOptions, train
 
     load_config = load_config or load_task_config
     outcomes = []

@@ -183,7 +183,7 @@ def learner_path(learners: Path | None, env_id: str) -> Path | None:
 
 def learner_tasks(path: Path) -> list[str] | None:
     """The tasks of a learner across tasks (its run folder's config), or None for a one-task learner."""
-    from sb3_memret.training import CONFIG_FILE, load_run_config
+    from sb3_memret.training.run import CONFIG_FILE, load_run_config
 
     for folder in (path.parent, path.parent.parent):
         if (folder / CONFIG_FILE).is_file():
@@ -318,7 +318,7 @@ def _init_worker(protocol: Protocol, learners: Path | None) -> None:
     """A pool worker: Ctrl-C is the parent's (it stops the pool), SIGTERM ends it (the pool's terminate sends it)."""
     import signal
 
-    from sb3_memret.workers import init_worker_process
+    from sb3_memret.common.workers import init_worker_process
 
     global _WORKER
     init_worker_process(ignored=(signal.SIGINT,))
@@ -336,7 +336,7 @@ def play_units(units: list[Unit], protocol: Protocol, learners: Path | None, wor
         worker = _Worker(protocol, learners)
         yield from (worker.play(unit) for unit in units)
         return
-    from sb3_memret.workers import START_METHOD
+    from sb3_memret.common.workers import START_METHOD
 
     context = multiprocessing.get_context(START_METHOD)
     with context.Pool(workers, initializer=_init_worker, initargs=(protocol, learners)) as pool:

@@ -61,7 +61,7 @@ class HarnessView:
     """``observation(obs)``: the task's controller observation (numpy, batch of one) for a harness observation."""
 
     def __init__(self, task: Any, harness_env: gym.Env, obs: Mapping[str, Any]):
-        from sb3_memret.obs_trees import to_numpy
+        from sb3_memret.common.obs_trees import to_numpy
 
         self.env, self._to_numpy = harness_env, to_numpy
         wrapper = getattr(task, "observation_wrapper", None)

@@ -23,8 +23,8 @@ class MemretCli(click.Group):
     exit status and no traceback; SIGTERM (a scheduler's stop) is handled as Ctrl-C."""
 
     def main(self, *args, **kwargs):  # type: ignore[override]
-        from sb3_memret.errors import CudaNotFoundError, RendererNotFoundError, WeightsNotLoadedError
-        from sb3_memret.workers import StopRequested, WorkerDiedError, exit_status, stop_signals_interrupt
+        from sb3_memret.common.errors import CudaNotFoundError, RendererNotFoundError, WeightsNotLoadedError
+        from sb3_memret.common.workers import StopRequested, WorkerDiedError, exit_status, stop_signals_interrupt
 
         kwargs["standalone_mode"] = False  # errors come back here instead of click's usage block
         try:

@@ -13,7 +13,7 @@ from sb3_memret.cli.options import (RUN_CONTROLLER, TASK_CONTROLLER, build_contr
                                     camera_render_backend, check_run_task, controller_spec, default_controller,
                                     load_models, model_run, physics_options, render_backend_option,
                                     resolve_render_backend, run_controller, task_option)
-from sb3_memret.seeds import HELD_OUT_SEED
+from sb3_memret.common.seeds import HELD_OUT_SEED
 from sb3_memret.memory.retention import RETENTION_RULES
 
 
@@ -43,9 +43,9 @@ def evaluate(ctx: click.Context, model_path: Path, task: str | None, condition: 
              backend: str, ray_address: str | None) -> None:
     """Evaluate a trained model: success per group (the drawer's layer, the cue's colour) and retrieval
     accuracy, at the task's protocol seeds where it has them (MIKASA's 4242424242 + i)."""
-    from sb3_memret.evaluation import evaluate_retrieval
+    from sb3_memret.evaluation.retrieval import evaluate_retrieval
     from sb3_memret.envs.vec_env import make_recall_vec_env
-    from sb3_memret.training import eval_env_kwargs
+    from sb3_memret.training.run import eval_env_kwargs
 
     from sb3_memret.tasks import make_task, task_in
 
@@ -176,7 +176,7 @@ def ablate(ctx: click.Context, ablation: str, task: str, controller: str, episod
 
 def _trace_targets(paths: tuple[Path, ...]) -> list[Path]:
     """Model files to trace: a run folder stands for its initial and final models (before/after)."""
-    from sb3_memret.training import INITIAL_MODEL
+    from sb3_memret.training.run import INITIAL_MODEL
 
     targets = []
     for path in paths:
@@ -210,7 +210,7 @@ def trace(models: tuple[Path, ...], task: str | None, seed: int, sample_seed: in
     folder traces its untrained and final policies: before and after training)."""
     from sb3_memret.analysis.trace import model_label, trace_models
     from sb3_memret.tasks import task_in
-    from sb3_memret.training import eval_env_kwargs
+    from sb3_memret.training.run import eval_env_kwargs
 
     paths = _trace_targets(models)
     loaded = list(zip(paths, load_models(paths, "MODELS")))
@@ -236,7 +236,7 @@ def plot(run: Path, out: Path | None) -> None:
     """Plot the learning curves of a training run (the seed's Figure 5): held-out greedy accuracy, sampled
     fraction and success, the training draws that held the true memory, and policy entropy on a second axis."""
     from sb3_memret.analysis.plotting import plot_learning_curves
-    from sb3_memret.training import retrieval_chance
+    from sb3_memret.training.run import retrieval_chance
 
     try:
         path = plot_learning_curves(run, out, chance=retrieval_chance(run))
@@ -263,7 +263,7 @@ def report(run: Path, task: str | None, controller: str, baseline_episodes: int 
     baselines, the before/after trace, any saved ablations and the configuration."""
     from sb3_memret.analysis.report import ReportOptions, write_report
     from sb3_memret.tasks import task_in
-    from sb3_memret.training import load_run_config
+    from sb3_memret.training.run import load_run_config
 
     if (run / "config.yml").exists():
         run_task = task_in(load_run_config(run).env_kwargs)

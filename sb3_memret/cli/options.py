@@ -69,7 +69,7 @@ def resolve_render_backend(ctx: click.Context, param: click.Parameter, value: st
 
         value = make_task(task_or_default(task)).default_render_backend
     if value == "cpu":
-        from sb3_memret.rendering import RendererNotFoundError, use_cpu_renderer
+        from sb3_memret.common.rendering import RendererNotFoundError, use_cpu_renderer
 
         try:
             use_cpu_renderer()

@@ -43,7 +43,7 @@ def rollout(task: str, controller, condition: str, episodes: int, group: str | N
             replan_every: int | None, as_json: bool, render_backend: str) -> None:
     """Run a frozen controller on a task under a prompt condition and print its success per group (the
     drawer's layer, the cue's colour)."""
-    from sb3_memret.rollout import evaluate_task_condition, summarize
+    from sb3_memret.evaluation.rollout import evaluate_task_condition, summarize
     from sb3_memret.tasks import make_task
 
     the_task = make_task(task)

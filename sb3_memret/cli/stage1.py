@@ -10,7 +10,7 @@ import click
 from sb3_memret.cli.options import DEFAULT_TASK, ConvList, build_controller, render_backend_option, task_option
 from sb3_memret.tasks.drawer.cabinet import LAYERS
 from sb3_memret.tasks.drawer.objects import OBJECT_SETS
-from sb3_memret.seeds import DEMO_SEED
+from sb3_memret.common.seeds import DEMO_SEED
 
 
 @click.command()

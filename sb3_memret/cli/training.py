@@ -10,7 +10,7 @@ import click
 from sb3_memret.cli.options import (TASK_CONTROLLER, build_controller, default_controller, run_folder, task_or_default,
                                     physics_options, render_backend_option, resolve_render_backend, run_controller,
                                     task_option)
-from sb3_memret.seeds import HELD_OUT_SEED
+from sb3_memret.common.seeds import HELD_OUT_SEED
 
 EXPERIMENTS = ("recall",)
 EXPERIMENT_ACROSS = "recall-across"  # a learner across tasks' default run folder: runs/recall-across-<tasks>-seed<seed>
@@ -62,10 +62,10 @@ def train(ctx: click.Context, experiment: str, task: str | None, tasks: str | No
           with_report: bool, render_backend: str, backend: str, ray_address: str | None) -> None:
     """Train the retriever and retention networks with PPO on EXPERIMENT (recall: what the task's controller
     must know, the drawer's layer or a cue's colour, reaches it only through a retrieved memory)."""
-    from sb3_memret.config import load_task_config
+    from sb3_memret.training.config import load_task_config
     from sb3_memret.tasks import make_task, task_in
-    from sb3_memret.training import RunOptions, load_run_config, start_retriever, train as run_training
-    from sb3_memret.workers import exit_status
+    from sb3_memret.training.run import RunOptions, load_run_config, start_retriever, train as run_training
+    from sb3_memret.common.workers import exit_status
 
     if tasks is not None and task is not None:
         raise click.BadParameter("name one task (--task) or several (--tasks), not both", param_hint="--tasks")
@@ -147,9 +147,9 @@ def across_tasks_run(tasks: str | None, config_path: Path | None, controller: st
     the config's ``multitask`` section, each task's env settings of its own, a controller made per task."""
     import dataclasses
 
-    from sb3_memret.config import ZOO_CONFIGS, load_config, resolve_task_settings
+    from sb3_memret.training.config import ZOO_CONFIGS, load_config, resolve_task_settings
     from sb3_memret.tasks import make_task
-    from sb3_memret.training import load_run_config
+    from sb3_memret.training.run import load_run_config
 
     seed, resume = options.seed, options.resume
     names = parse_tasks(tasks) if tasks is not None else None
@@ -214,7 +214,7 @@ def parse_tasks(value: str) -> list[str]:
 def _report_run(experiment: str, result, exit_status) -> None:
     """The run's evaluation table and where its files are; an interrupted run says how to resume, and exits
     with the status of what stopped it."""
-    from sb3_memret.training import format_history
+    from sb3_memret.training.run import format_history
 
     click.echo(format_history(result.history))
     click.echo(f"\n{result.num_timesteps} decisions, {result.rounds} rounds in {result.wall_seconds / 60:.1f} min; "
@@ -274,9 +274,9 @@ def tune(ctx: click.Context, experiment: str, task: str, config_path: Path | Non
         import optuna  # noqa: F401
     except ImportError:
         raise click.UsageError("tune needs Optuna: pip install 'sb3-memret[tune]' (or optuna)") from None
-    from sb3_memret.config import load_task_config
-    from sb3_memret.tuning import BEST_CONFIG, TRIALS_FILE, TuneOptions, tune as run_tune
-    from sb3_memret.workers import exit_status
+    from sb3_memret.training.config import load_task_config
+    from sb3_memret.training.tuning import BEST_CONFIG, TRIALS_FILE, TuneOptions, tune as run_tune
+    from sb3_memret.common.workers import exit_status
 
     try:
         config = load_task_config(task, config_path)

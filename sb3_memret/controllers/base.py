@@ -8,7 +8,7 @@ from typing import Any, Mapping, Sequence
 
 import numpy as np
 
-from sb3_memret.prompts import ParsedPrompt, PromptTemplate, parse_prompt
+from sb3_memret.controllers.prompts import ParsedPrompt, PromptTemplate, parse_prompt
 
 Obs = Mapping[str, Any]
 

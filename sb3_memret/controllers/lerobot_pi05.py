@@ -27,8 +27,8 @@ import torch
 from sb3_memret.controllers.base import ControllerSpec, FrozenController, Obs, as_numpy
 from sb3_memret.controllers.observation import (ACTION_DIM, ACTION_KEY, IMAGE_KEYS, STATE_DIM, STATE_KEY, TASK_KEY,
                                                 camera_images, observation_state)
-from sb3_memret.weights import WeightsNotLoadedError, check_loaded
-from sb3_memret.prompts import ParsedPrompt, PromptTemplate
+from sb3_memret.common.weights import WeightsNotLoadedError, check_loaded
+from sb3_memret.controllers.prompts import ParsedPrompt, PromptTemplate
 
 LIBERO_STATE_DIM = 8
 WEIGHTS_FILE, ADAPTER_FILE = "model.safetensors", "adapter_model.safetensors"

@@ -37,7 +37,7 @@ except ImportError as err:
     ) from err
 
 from sb3_memret.controllers.base import RENDER_HINT, ControllerSpec, FrozenController, Obs, as_numpy
-from sb3_memret.prompts import ParsedPrompt, PromptTemplate
+from sb3_memret.controllers.prompts import ParsedPrompt, PromptTemplate
 
 PI05_LIBERO_ACTION_HORIZON = 10  # openpi's pi05_libero config: Pi0Config(pi05=True, action_horizon=10)
 IMAGE_SHAPE = (224, 224, 3)

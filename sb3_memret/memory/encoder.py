@@ -50,7 +50,7 @@ def _check_weights(model: "SentenceTransformer", path: Path) -> None:
     """Refuse an encoder whose transformer does not hold exactly the weights in ``model.safetensors``."""
     from safetensors.torch import load_file
 
-    from sb3_memret.weights import check_loaded
+    from sb3_memret.common.weights import check_loaded
 
     files = sorted(path.glob("*.safetensors"))
     if not files:

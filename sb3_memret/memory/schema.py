@@ -1,7 +1,7 @@
 """Typed memory entries and the per-type templates that turn them into prompt text.
 
 Texts are lowercase and end with a full stop, exactly as the controller's training prompts:
-a memory whose text drifts from these templates is refused by ``sb3_memret.prompts``.
+a memory whose text drifts from these templates is refused by ``sb3_memret.controllers.prompts``.
 """
 
 from __future__ import annotations

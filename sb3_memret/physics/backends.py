@@ -25,12 +25,12 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_memret.controllers.base import env_robot
-from sb3_memret.obs_trees import to_numpy
+from sb3_memret.common.obs_trees import to_numpy
 from sb3_memret.physics.chunks import execute_chunk
-from sb3_memret.sensor_gate import sensors_pause
+from sb3_memret.physics.sensor_gate import sensors_pause
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import EnvFrame
-from sb3_memret.workers import START_METHOD, WorkerDiedError, exit_description, init_worker_process
+from sb3_memret.common.workers import START_METHOD, WorkerDiedError, exit_description, init_worker_process
 
 BACKENDS = ("auto", "inprocess", "process", "gpu", "ray")
 CLOSE_TIMEOUT = 10.0  # seconds a worker gets to finish its chunk and exit
@@ -180,7 +180,7 @@ def _process_worker(conn: Connection, task_kwargs: dict[str, Any], max_control_s
 class ProcessPhysics(PhysicsBackend):
     """One spawned worker process per task env (the CPU simulator runs one env per process).
 
-    Workers ignore Ctrl-C and SIGTERM (``sb3_memret.workers``): the trainer handles them and
+    Workers ignore Ctrl-C and SIGTERM (``sb3_memret.common.workers``): the trainer handles them and
     closes its workers. A worker that dies is named with its pid and how it ended
     (``WorkerDiedError``).
     """
@@ -286,7 +286,7 @@ class BatchedSimPhysics(PhysicsBackend):
                              "does not yet do: use --backend process")
         task_kwargs = {"sim_backend": "gpu", **task_kwargs}
         if task_kwargs["sim_backend"] in ("gpu", "physx_cuda"):
-            from sb3_memret.devices import check_cuda
+            from sb3_memret.physics.devices import check_cuda
 
             check_cuda()
         self.env = self.task.make_env(max_episode_steps=max_control_steps, num_envs=num_envs, **task_kwargs)

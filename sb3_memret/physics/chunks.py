@@ -10,7 +10,7 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_memret.controllers.base import as_numpy
-from sb3_memret.sensor_gate import sensors_pause
+from sb3_memret.physics.sensor_gate import sensors_pause
 
 
 @dataclass

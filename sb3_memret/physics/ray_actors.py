@@ -23,7 +23,7 @@ import numpy as np
 from sb3_memret.tasks import Task
 from sb3_memret.tasks.base import EnvFrame
 from sb3_memret.physics.backends import PhysicsBackend, ResetRequest, TaskEnvInfo, TaskRunner
-from sb3_memret.workers import WorkerDiedError
+from sb3_memret.common.workers import WorkerDiedError
 
 logger = logging.getLogger(__name__)
 MAX_RESTARTS = 3  # restarts Ray grants each physics actor

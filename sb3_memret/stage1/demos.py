@@ -49,7 +49,7 @@ from sb3_memret.tasks.drawer.expert import Phase, ScriptedDrawerController
 from sb3_memret.tasks.drawer.cabinet import LAYERS
 from sb3_memret.tasks.drawer.objects import object_set
 from sb3_memret.tasks.drawer.drawer_cube import DEFAULT_ROBOT
-from sb3_memret.prompts import INSTRUCTION_TEMPLATE, PromptTemplate, build_prompt, instruction_text
+from sb3_memret.controllers.prompts import INSTRUCTION_TEMPLATE, PromptTemplate, build_prompt, instruction_text
 from sb3_memret.tasks.drawer.prompts import location_text
 from sb3_memret.tasks.base import RENDER_BACKENDS
 from sb3_memret.tasks.drawer import DrawerTask
@@ -217,7 +217,7 @@ def _init_recorder(render_backend: str, learner: str | None, replan_every: int, 
                    in_worker: bool = True) -> None:
     global _recorder
     if in_worker:
-        from sb3_memret.parallel_rollout import init_pool_worker
+        from sb3_memret.common.workers import init_pool_worker
 
         init_pool_worker()
     _recorder = _Recorder(render_backend, learner, replan_every, max_steps, objects, n_objects, frames, image_size)
@@ -309,7 +309,7 @@ def record_demos(
         if on_episode is not None:
             on_episode(recorded)
 
-    from sb3_memret.parallel_rollout import map_in_workers
+    from sb3_memret.common.workers import map_in_workers
 
     global _recorder
     try:

@@ -18,7 +18,7 @@ from typing import Callable, Sequence
 import numpy as np
 import torch
 
-from sb3_memret.cache import CACHE_ENV, cache_root, write_atomically
+from sb3_memret.common.cache import CACHE_ENV, cache_root, write_atomically
 
 FOLDER = "trunk-features"
 

@@ -35,12 +35,12 @@ import numpy as np
 import torch
 from torch.nn import functional as F
 
-from sb3_memret.cache import write_atomically
+from sb3_memret.common.cache import write_atomically
 from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig, perceived_objects
 from sb3_memret.controllers.learned.modeling import LearnedPolicy, chunk_loss, pointer_ambiguity
 from sb3_memret.controllers.learned.processing import PromptTokenizer, state_columns
 from sb3_memret.controllers.learned.vision import shift_augment
-from sb3_memret.prompts import INSTRUCTION_TEMPLATE, PromptTemplate, parse_prompt
+from sb3_memret.controllers.prompts import INSTRUCTION_TEMPLATE, PromptTemplate, parse_prompt
 from sb3_memret.stage1.datasets import (Demonstrations, hindsight_objects, load_demonstrations,
                                         load_task_demonstrations, validation_episodes)
 from sb3_memret.stage1.feature_cache import cached_features

@@ -22,7 +22,7 @@ import torch
 from sb3_memret.controllers.lerobot_pi05 import (WEIGHTS_FILE, check_features, load_checked_policy, load_pi05_config,
                                                  local_folder)
 from sb3_memret.controllers.observation import ACTION_KEY, IMAGE_KEYS
-from sb3_memret.prompts import parse_prompt
+from sb3_memret.controllers.prompts import parse_prompt
 
 CHECKPOINT_DIR, ADAPTER_DIR, LOG_FILE = "checkpoint", "adapter", "train_log.csv"
 

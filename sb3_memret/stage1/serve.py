@@ -39,7 +39,7 @@ from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers.base import FrozenController
 from sb3_memret.controllers.observation import IMAGE_SHAPE, STATE_PARTS
 from sb3_memret.controllers.openpi import CAMERAS, CLIENT_KEY, ENV_KEY, EPISODE_KEY, EXTRA_STATE, SEED_KEY
-from sb3_memret.workers import STOP_SIGNALS, StopRequested
+from sb3_memret.common.workers import STOP_SIGNALS, StopRequested
 
 STATE_KEY, PROMPT_KEY = "observation/state", "prompt"
 SIZES = {key: len(names) for _, key, names in STATE_PARTS}  # eef_state 8, drawer_opening 3, target_detection 8

@@ -29,9 +29,9 @@ from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers.base import FrozenController, as_numpy
 from sb3_memret.controllers.observation import ACTION_CHUNK_KEY, ACTION_KEY, CHUNK_PAD_KEY, TASK_KEY, chunk_features
 from sb3_memret.memory.schema import MemoryType
-from sb3_memret.prompts import build_prompt
-from sb3_memret.rollout import WrittenFacts
-from sb3_memret.sensor_gate import sensors_pause
+from sb3_memret.controllers.prompts import build_prompt
+from sb3_memret.evaluation.rollout import WrittenFacts
+from sb3_memret.physics.sensor_gate import sensors_pause
 from sb3_memret.stage1.demos import DemoDatasetWriter, PromptMix, check_frames, label_chunks
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import check_render_backend
@@ -169,7 +169,7 @@ def _init_recorder(task: Task | str, render_backend: str, replan_every: int, fra
                    learner: str | None = None, max_steps: int | None = None, in_worker: bool = True) -> None:
     global _recorder
     if in_worker:
-        from sb3_memret.parallel_rollout import init_pool_worker
+        from sb3_memret.common.workers import init_pool_worker
 
         init_pool_worker()
     _recorder = TaskRecorder(task, render_backend, replan_every, frames, learner, max_steps)
@@ -196,7 +196,7 @@ def record_task_demos(
     ``frames`` (``every`` or ``decisions``) says which control steps it keeps; ``learner`` (a controller spec)
     makes it a DAgger round, the learner acting and the expert labelling; ``max_steps`` ends each episode after
     that many control steps (None: the task's own limit)."""
-    from sb3_memret.parallel_rollout import map_in_workers
+    from sb3_memret.common.workers import map_in_workers
 
     the_task = make_task(task)
     if learner is not None and n_workers > 1:

@@ -29,8 +29,8 @@ import numpy as np
 
 from sb3_memret.memory.schema import Key, MemoryEntry, MemoryType
 from sb3_memret.memory.writer import Predicates
-from sb3_memret.obs_trees import select_obs, to_numpy
-from sb3_memret.prompts import ParsedPrompt
+from sb3_memret.common.obs_trees import select_obs, to_numpy
+from sb3_memret.controllers.prompts import ParsedPrompt
 
 if TYPE_CHECKING:
     from sb3_memret.analysis.ablations import AblationBuilder
@@ -132,7 +132,7 @@ class Task(ABC):
     #: the figure (for envs that run on after success, as MIKASA's SeqOfColors does for its 400 steps)
     ends_at_success: ClassVar[bool] = False
     #: for a task that ends at success: the env's reward at each step once it has succeeded (what the cut-off
-    #: steps would have paid, ``sb3_memret.rewards.absorbing_success_value``); required with ``ends_at_success``
+    #: steps would have paid, ``sb3_memret.tasks.rewards.absorbing_success_value``); required with ``ends_at_success``
     success_reward: ClassVar[float | None] = None
     #: whether each episode's instruction is the one its env states in the reset's ``info["language_instruction"]``
     #: (MIKASA's Rotate names a new angle every episode there): ``frames`` reads it from the reset's info, and
@@ -320,7 +320,7 @@ class Task(ABC):
 
     def option_checks(self) -> Mapping[str, tuple[type | tuple[type, ...], Callable[[Any], bool], str]]:
         """How a config checks each of ``options`` before the task is made: its type(s), a test of its value, and
-        what is accepted, in words (``sb3_memret.config``'s form)."""
+        what is accepted, in words (``sb3_memret.training.config``'s form)."""
         return {}
 
     def with_options(self, **options: Any) -> "Task":

@@ -10,7 +10,7 @@ from typing import Any
 from sb3_memret.controllers.learned.vision import (IMAGE_ENCODERS, KEYPOINTS, TRUNK_HEAD, TRUNK_STRIDE, check_trunk_head,
                                                    check_trunk_scale, check_trunk_stride)
 from sb3_memret.controllers.observation import ACTION_DIM, IMAGE_KEYS, STATE_NAMES
-from sb3_memret.prompts import PromptTemplate
+from sb3_memret.controllers.prompts import PromptTemplate
 
 CONFIG_FILE = "config.json"
 POINTER_FIELDS = ("x", "y", "z", "visible")  # the entries of one perceived object, ``<object>_<field>``

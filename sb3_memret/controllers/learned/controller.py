@@ -12,7 +12,7 @@ from sb3_memret.controllers.base import ControllerSpec, FrozenController, Obs
 from sb3_memret.controllers.learned.modeling import LearnedPolicy
 from sb3_memret.controllers.learned.processing import InputLayout, LearnedPolicyProcessor, PromptTokenizer
 from sb3_memret.controllers.shipped import default_checkpoint
-from sb3_memret.prompts import ParsedPrompt
+from sb3_memret.controllers.prompts import ParsedPrompt
 
 
 class LearnedController(FrozenController):

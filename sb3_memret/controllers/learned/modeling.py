@@ -24,7 +24,7 @@ from torch.nn import functional as F
 
 from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig, perceived_objects
 from sb3_memret.controllers.learned.vision import make_camera_encoder
-from sb3_memret.weights import WeightsNotLoadedError, check_loaded
+from sb3_memret.common.weights import WeightsNotLoadedError, check_loaded
 
 WEIGHTS_FILE = "model.safetensors"
 MIN_STATE_STD = 1e-2  # features that never vary in the demos (the cube's tilt) are not blown up

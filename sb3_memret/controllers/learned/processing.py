@@ -16,7 +16,7 @@ from sb3_memret.controllers.base import Obs
 from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig
 from sb3_memret.controllers.observation import STATE_KEY, resize_image_tensor
 from sb3_memret.memory.encoder import MiniLMEncoder
-from sb3_memret.prompts import ParsedPrompt
+from sb3_memret.controllers.prompts import ParsedPrompt
 
 
 class InputLayout(Protocol):

@@ -28,7 +28,7 @@ import torch
 from torch import nn
 from torch.nn import functional as F
 
-from sb3_memret.errors import WeightsNotLoadedError
+from sb3_memret.common.errors import WeightsNotLoadedError
 
 IMAGE_ENCODERS = ("cnn", "efficientnet_lite0")
 TRUNK_STRIDES = {8: (5, 40), 4: (3, 24)}  # a trunk's output stride: (EfficientNet-Lite0 blocks kept, channels)

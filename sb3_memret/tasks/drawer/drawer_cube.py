@@ -21,7 +21,7 @@ from sb3_memret.tasks.drawer.cabinet import LAYERS, CabinetLayout, build_cabinet
 from sb3_memret.tasks.drawer.objects import ObjectSpec, object_specs
 from sb3_memret.tasks.drawer.robot import LIGHT_PANDA_UID
 from sb3_memret.tasks.drawer.state import DrawerCubeState, layer_containing
-from sb3_memret.rewards import staged_potential
+from sb3_memret.tasks.rewards import staged_potential
 
 PARK_X = -1.0  # objects an episode does not use wait on the floor behind the robot, out of its reach
 GRASP_QUERY_RADIUS = 0.1  # m between TCP and target centre beyond which no grasp is possible
@@ -90,7 +90,7 @@ class DrawerCubeTakeOutEnv(BaseEnv):
     ):
         kwargs.setdefault("control_mode", "pd_ee_delta_pose")
         if kwargs.get("render_backend") in ("cpu", "sapien_cpu"):
-            from sb3_memret.rendering import use_cpu_renderer
+            from sb3_memret.common.rendering import use_cpu_renderer
 
             use_cpu_renderer()  # however the env is made (gymnasium, the toolkit, a worker); refuses naming `make renderer`
         self.layout = layout or CabinetLayout()

@@ -3,7 +3,7 @@
 
 from __future__ import annotations
 
-from sb3_memret.prompts import (LAYER_LOCATION_TEMPLATE, PromptTemplate, ParsedPrompt, build_prompt, check_fixed_condition,
+from sb3_memret.controllers.prompts import (LAYER_LOCATION_TEMPLATE, PromptTemplate, ParsedPrompt, build_prompt, check_fixed_condition,
                                 instruction_text)
 from sb3_memret.tasks.drawer.cabinet import LAYERS, check_layer
 

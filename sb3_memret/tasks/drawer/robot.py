@@ -23,7 +23,7 @@ import mani_skill
 from mani_skill.agents.registration import register_agent
 from mani_skill.agents.robots.panda.panda import Panda
 
-from sb3_memret.cache import CACHE_ENV, cache_root
+from sb3_memret.common.cache import CACHE_ENV, cache_root
 
 LIGHT_PANDA_UID = "panda_light"
 KEEP_FRACTION = 0.1  # of each visual mesh's triangles; below it a picture gets no cheaper (measured: 0.04 the same)

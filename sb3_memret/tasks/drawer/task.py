@@ -17,7 +17,7 @@ import numpy as np
 from sb3_memret.controllers.base import RENDER_HINT
 from sb3_memret.memory.schema import MemoryEntry, MemoryType
 from sb3_memret.memory.seeding import SeedingConfig
-from sb3_memret.prompts import OUTSIDE, OUTSIDE_TEMPLATE, ParsedPrompt, PromptTemplate, instruction_text
+from sb3_memret.controllers.prompts import OUTSIDE, OUTSIDE_TEMPLATE, ParsedPrompt, PromptTemplate, instruction_text
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates, Task, check_render_backend
 from sb3_memret.tasks.drawer.cabinet import LAYERS
 from sb3_memret.tasks.drawer.household import Household, HouseholdConfig
@@ -97,7 +97,7 @@ class DrawerTask(Task):
         return {"obs_mode": "rgb", "render_backend": render_backend}
 
     def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
-        from sb3_memret.obs_trees import select_obs, to_numpy
+        from sb3_memret.common.obs_trees import select_obs, to_numpy
 
         base = env.unwrapped
         state = base.privileged_state()

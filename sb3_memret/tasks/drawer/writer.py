@@ -10,7 +10,7 @@ import numpy as np
 from sb3_memret.tasks.drawer.cabinet import LAYERS, CabinetLayout
 from sb3_memret.tasks.drawer.state import DrawerCubeState, layer_containing
 from sb3_memret.memory.schema import NOTHING, MemoryType
-from sb3_memret.prompts import OUTSIDE
+from sb3_memret.controllers.prompts import OUTSIDE
 from sb3_memret.memory.writer import UNKNOWN, Predicates
 from sb3_memret.tasks.base import EnvFrame
 

@@ -65,7 +65,7 @@ from sb3_memret.controllers.base import Obs, as_numpy
 from sb3_memret.controllers.observation import STATE_KEY
 from sb3_memret.memory.schema import MemoryEntry, MemoryType
 from sb3_memret.memory.seeding import SeedingConfig
-from sb3_memret.prompts import PromptTemplate
+from sb3_memret.controllers.prompts import PromptTemplate
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates
 from sb3_memret.tasks.mikasa import demo_layout
 from sb3_memret.tasks.mikasa.cue_task import MikasaCueTask
@@ -272,7 +272,7 @@ class BlinkCountTask(MikasaCueTask):
                                 render_backend=render_backend, **kwargs)
 
     def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
-        from sb3_memret.obs_trees import select_obs, to_numpy
+        from sb3_memret.common.obs_trees import select_obs, to_numpy
 
         obs = to_numpy(obs)
         blinks = as_numpy(env.unwrapped.target_blinks).reshape(-1)  # privileged: for metrics only

@@ -27,7 +27,7 @@ from typing import Any, NamedTuple, Sequence
 import numpy as np
 
 from sb3_memret.controllers.base import Obs, as_numpy
-from sb3_memret.prompts import ParsedPrompt, PromptTemplate
+from sb3_memret.controllers.prompts import ParsedPrompt, PromptTemplate
 from sb3_memret.tasks.mikasa.expert import CONTROL_DT, ScriptedTouchController, TouchGains, named_word, tcp_velocity
 
 GRIP_OPEN, GRIP_CLOSED = 1.0, -1.0

@@ -18,7 +18,7 @@ import numpy as np
 from sb3_memret.controllers.base import as_numpy
 from sb3_memret.memory.schema import Key, MemoryEntry, MemoryType
 from sb3_memret.memory.seeding import SeedingConfig
-from sb3_memret.prompts import PromptTemplate
+from sb3_memret.controllers.prompts import PromptTemplate
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates, Task, check_render_backend
 from sb3_memret.tasks.mikasa import demo_layout
 from sb3_memret.tasks.mikasa.expert import ScriptedTouchController
@@ -137,7 +137,7 @@ class MikasaCueTask(Task):
     def make_env(self, *, max_episode_steps: int | None = None, num_envs: int = 1, obs_mode: str = "rgb",
                  render_backend: str = "cpu", **kwargs: Any) -> gym.Env:
         if render_backend in ("cpu", "sapien_cpu"):
-            from sb3_memret.rendering import use_cpu_renderer
+            from sb3_memret.common.rendering import use_cpu_renderer
 
             use_cpu_renderer()
         import mikasa_robo_suite.vla.memory_envs  # noqa: F401  (registers the *-VLA-v0 ids)
@@ -160,7 +160,7 @@ class MikasaCueTask(Task):
                 "robot_uids": "panda_wristcam" if needs_images else "panda"}
 
     def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
-        from sb3_memret.obs_trees import select_obs, to_numpy
+        from sb3_memret.common.obs_trees import select_obs, to_numpy
 
         obs = to_numpy(obs)
         truth = as_numpy(getattr(env.unwrapped, self.truth_attribute)).reshape(-1)  # privileged: for metrics only

@@ -35,7 +35,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from sb3_memret.controllers.base import ControllerSpec, FrozenController, Obs, as_numpy
-from sb3_memret.prompts import ParsedPrompt, PromptTemplate, build_prompt
+from sb3_memret.controllers.prompts import ParsedPrompt, PromptTemplate, build_prompt
 from sb3_memret.tasks.mikasa.perception import COLOUR_NAMES
 
 # MIKASA's LANGUAGE_INSTRUCTION in the prompt contract's form (lowercase; it parses as is).

@@ -46,7 +46,7 @@ import numpy as np
 from gymnasium import spaces
 
 from sb3_memret.controllers.base import Obs
-from sb3_memret.prompts import PromptTemplate
+from sb3_memret.controllers.prompts import PromptTemplate
 from sb3_memret.tasks.mikasa import demo_layout
 from sb3_memret.tasks.mikasa.cue_task import MikasaCueTask
 from sb3_memret.tasks.mikasa.gather_expert import GatherPressController

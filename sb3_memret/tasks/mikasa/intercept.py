@@ -58,7 +58,7 @@ from scipy import ndimage
 from sb3_memret.controllers.base import Obs, as_numpy
 from sb3_memret.memory.schema import MemoryEntry, MemoryType
 from sb3_memret.memory.seeding import SeedingConfig
-from sb3_memret.prompts import PromptTemplate
+from sb3_memret.controllers.prompts import PromptTemplate
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates
 from sb3_memret.tasks.mikasa import demo_layout
 from sb3_memret.tasks.mikasa.cue_task import MikasaCueTask
@@ -275,7 +275,7 @@ class InterceptTask(MikasaCueTask):
 
     # ------------------------------------------------------------ simulation
     def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
-        from sb3_memret.obs_trees import select_obs, to_numpy
+        from sb3_memret.common.obs_trees import select_obs, to_numpy
 
         obs = to_numpy(obs)
         launch = as_numpy(env.unwrapped.oracle_info).reshape(-1, 3)  # privileged: for metrics only

@@ -33,7 +33,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from sb3_memret.controllers.base import ControllerSpec, FrozenController, Obs, as_numpy
-from sb3_memret.prompts import ParsedPrompt, PromptTemplate
+from sb3_memret.controllers.prompts import ParsedPrompt, PromptTemplate
 from sb3_memret.tasks.mikasa.expert import (
     CONTROL_DT,
     COAST_GAIN,

@@ -39,7 +39,7 @@ from typing import Any, Sequence
 import numpy as np
 
 from sb3_memret.controllers.base import Obs, as_numpy
-from sb3_memret.prompts import ParsedPrompt, PromptTemplate
+from sb3_memret.controllers.prompts import ParsedPrompt, PromptTemplate
 from sb3_memret.tasks.mikasa.expert import CONTROL_DT, ScriptedTouchController, TouchGains, tcp_velocity
 from sb3_memret.tasks.mikasa.sequence_expert import BUTTON_TOP_ABOVE_BASE, Goal
 

@@ -37,7 +37,7 @@ from typing import ClassVar
 import numpy as np
 
 from sb3_memret.memory.schema import MemoryType
-from sb3_memret.prompts import PromptTemplate, build_prompt
+from sb3_memret.controllers.prompts import PromptTemplate, build_prompt
 from sb3_memret.tasks.mikasa.cue_task import MikasaCueTask, with_long
 from sb3_memret.tasks.mikasa.expert import ScriptedTouchController
 from sb3_memret.tasks.mikasa.shape_perception import SHAPE_NAMES, ShapeControllerObservation, read_cue_shape

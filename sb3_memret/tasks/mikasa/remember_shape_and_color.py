@@ -37,7 +37,7 @@ import gymnasium as gym
 import numpy as np
 
 from sb3_memret.memory.schema import MemoryType
-from sb3_memret.prompts import PromptTemplate, build_prompt
+from sb3_memret.controllers.prompts import PromptTemplate, build_prompt
 from sb3_memret.tasks.mikasa.cue_task import MikasaCueTask, with_long
 from sb3_memret.tasks.mikasa.perception import COLOUR_NAMES, DetectorObservation, read_cue_colour
 from sb3_memret.tasks.mikasa.shape_perception import read_cue_shape

@@ -32,7 +32,7 @@ alike about other things (``the key started at 57 degrees.``). The controller se
 instruction.
 
 **The instruction** is MIKASA's ``info["language_instruction"]`` of the episode's reset, lowercased into the prompt
-contract's form (``angle_deg`` holds a signed whole number: ``sb3_memret.prompts``); the task reads it there
+contract's form (``angle_deg`` holds a signed whole number: ``sb3_memret.controllers.prompts``); the task reads it there
 (``instruction_in_info``), never from ``task_cue``.
 
 **The expert** (``PegTurnController``, ``turn_expert``) pushes the peg round on Lenient (60 steps) and turns it in
@@ -50,7 +50,7 @@ from gymnasium import spaces
 from sb3_memret.controllers.base import Obs, as_numpy
 from sb3_memret.controllers.observation import STATE_KEY
 from sb3_memret.memory.schema import MemoryType
-from sb3_memret.prompts import PromptTemplate
+from sb3_memret.controllers.prompts import PromptTemplate
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates
 from sb3_memret.tasks.mikasa import demo_layout
 from sb3_memret.tasks.mikasa.cue_task import MikasaCueTask
@@ -174,7 +174,7 @@ class RotateTask(MikasaCueTask):
         self.template = PromptTemplate(instructions=(self.instruction_text,), fact_templates=(FACT_TEMPLATE,))
 
     def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
-        from sb3_memret.obs_trees import select_obs, to_numpy
+        from sb3_memret.common.obs_trees import select_obs, to_numpy
 
         obs = to_numpy(obs)
         base = env.unwrapped

@@ -61,7 +61,7 @@ from gymnasium import spaces
 
 from sb3_memret.controllers.base import Obs, as_numpy
 from sb3_memret.memory.schema import Key, MemoryType
-from sb3_memret.prompts import PromptTemplate, build_prompt
+from sb3_memret.controllers.prompts import PromptTemplate, build_prompt
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates
 from sb3_memret.tasks.mikasa import demo_layout
 from sb3_memret.tasks.mikasa.cue_task import MikasaCueTask
@@ -225,7 +225,7 @@ class SeqOfColorsTask(MikasaCueTask):
         return read_cue_colour(rgb, N_COLOURS)
 
     def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
-        from sb3_memret.obs_trees import select_obs, to_numpy
+        from sb3_memret.common.obs_trees import select_obs, to_numpy
 
         obs = to_numpy(obs)
         base = env.unwrapped  # privileged: for metrics only

@@ -92,7 +92,7 @@ from sb3_memret.controllers.base import Obs, as_numpy
 from sb3_memret.controllers.observation import STATE_KEY
 from sb3_memret.memory.schema import Key, MemoryEntry, MemoryType
 from sb3_memret.memory.seeding import SeedingConfig
-from sb3_memret.prompts import ParsedPrompt, PromptTemplate
+from sb3_memret.controllers.prompts import ParsedPrompt, PromptTemplate
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates
 from sb3_memret.tasks.mikasa import demo_layout
 from sb3_memret.tasks.mikasa.carry_expert import GRIP_CLOSED, REACH_X
@@ -611,7 +611,7 @@ class ShellGameTask(MikasaCueTask):
         return as_numpy(base.oracle_info).reshape(n_envs, 1).astype(int)  # MIKASA's final slot of the ball's cup
 
     def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
-        from sb3_memret.obs_trees import select_obs, to_numpy
+        from sb3_memret.common.obs_trees import select_obs, to_numpy
 
         obs = to_numpy(obs)
         success = as_numpy(info["success"]).reshape(-1)

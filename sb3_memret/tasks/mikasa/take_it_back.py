@@ -36,7 +36,7 @@ from gymnasium import spaces
 
 from sb3_memret.controllers.base import Obs, as_numpy
 from sb3_memret.memory.schema import MemoryType
-from sb3_memret.prompts import PromptTemplate
+from sb3_memret.controllers.prompts import PromptTemplate
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates
 from sb3_memret.tasks.mikasa import demo_layout
 from sb3_memret.tasks.mikasa.carry_expert import CarryBackController
@@ -139,7 +139,7 @@ class TakeItBackTask(MikasaCueTask):
         super().__init__(env_id, len(SIDES))
 
     def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
-        from sb3_memret.obs_trees import select_obs, to_numpy
+        from sb3_memret.common.obs_trees import select_obs, to_numpy
 
         obs = to_numpy(obs)
         base = env.unwrapped

@@ -43,7 +43,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation
 
 from sb3_memret.controllers.base import ControllerSpec, FrozenController, Obs, as_numpy
-from sb3_memret.prompts import ParsedPrompt, PromptTemplate
+from sb3_memret.controllers.prompts import ParsedPrompt, PromptTemplate
 from sb3_memret.tasks.mikasa.expert import (
     COAST_GAIN, CONTROL_DT, DRIVE_GAIN, POS_SCALE, R_DOWN, ROT_SCALE, TURN_GAIN, named_word, tcp_velocity,
 )

@@ -10,9 +10,9 @@ import numpy as np
 from sb3_memret.controllers.base import FrozenController
 from sb3_memret.memory.schema import Key, MemoryType
 from sb3_memret.memory.writer import EventCompiler
-from sb3_memret.obs_trees import stack_obs
+from sb3_memret.common.obs_trees import stack_obs
 from sb3_memret.physics.backends import TaskRunner
-from sb3_memret.prompts import CONDITIONS, PromptTemplate, build_prompt, check_fixed_condition
+from sb3_memret.controllers.prompts import CONDITIONS, PromptTemplate, build_prompt, check_fixed_condition
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import RENDER_BACKENDS, EnvFrame, Episode, check_render_backend
 

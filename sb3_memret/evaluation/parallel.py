@@ -1,35 +1,27 @@
-"""Controller episodes over many task envs and ONE controller, and a plain worker-process map.
+"""Controller episodes over many task envs and ONE controller.
 
 ``run_jobs`` plays episode jobs (a prompt, a seed and reset options, a replan interval) of one task in ``n_envs``
 envs placed by a physics backend (``sb3_memret.physics``: worker processes, a batched GPU
 simulation or Ray actors) while one controller in this process serves them all: one ``act``
 call per round for every env. Results come back in job order whatever order they finish in.
-``map_in_workers`` runs any work in spawned worker processes (the demonstrations use it).
 """
 
 from __future__ import annotations
 
-import multiprocessing
-import signal
 from collections import deque
-from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
-from concurrent.futures.process import BrokenProcessPool
 from dataclasses import dataclass, field
-from typing import Any, Callable, Mapping, Sequence, TypeVar
+from typing import Any, Callable, Mapping, Sequence
 
 from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers.base import FrozenController
 from sb3_memret.tasks.base import EnvFrame
 from sb3_memret.physics.backends import ResetRequest
 from sb3_memret.physics import make_physics
-from sb3_memret.obs_trees import stack_obs
-from sb3_memret.prompts import parse_prompt
-from sb3_memret.rollout import EpisodeResult, check_replan_every, task_env_kwargs
+from sb3_memret.common.obs_trees import stack_obs
+from sb3_memret.controllers.prompts import parse_prompt
+from sb3_memret.evaluation.rollout import EpisodeResult, check_replan_every, task_env_kwargs
 from sb3_memret.tasks import Task, make_task
-from sb3_memret.workers import START_METHOD, WorkerDiedError, init_worker_process, torch_threads
-
-J = TypeVar("J")
-R = TypeVar("R")
+from sb3_memret.common.workers import torch_threads
 
 
 @dataclass(frozen=True)
@@ -130,53 +122,4 @@ def run_jobs(
     return results  # type: ignore[return-value]
 
 
-def init_pool_worker() -> None:
-    """Set up a pool worker process: SIGINT ignored (the parent handles it), SIGTERM left fatal, since a
-    broken ProcessPoolExecutor ends its remaining workers with it."""
-    init_worker_process(ignored=(signal.SIGINT,))
-
-
-def map_in_workers(
-    initializer: Callable[..., None],
-    initargs: tuple,
-    work: Callable[[J], R],
-    jobs: Sequence[J],
-    n_workers: int = 1,
-    on_result: Callable[[J, R], None] | None = None,
-) -> list[R]:
-    """``[work(job) for job in jobs]`` after ``initializer(*initargs)``: in this process when ``n_workers``
-    is 1, else in that many spawned worker processes; results in job order, ``on_result`` as each arrives."""
-    if n_workers < 1:
-        raise ValueError(f"n_workers must be >= 1, got {n_workers}")
-    if not jobs:
-        return []
-    if n_workers == 1:
-        initializer(*initargs, in_worker=False)
-        results_here = []
-        for job in jobs:
-            results_here.append(work(job))
-            if on_result is not None:
-                on_result(job, results_here[-1])
-        return results_here
-    results: list[R | None] = [None] * len(jobs)
-    context = multiprocessing.get_context(START_METHOD)
-    with ProcessPoolExecutor(min(n_workers, len(jobs)), mp_context=context, initializer=initializer,
-                             initargs=initargs) as pool:
-        pending: dict[Future, int] = {pool.submit(work, job): i for i, job in enumerate(jobs)}
-        try:
-            while pending:
-                done, _ = wait(pending, return_when=FIRST_COMPLETED)
-                for future in done:
-                    i = pending.pop(future)
-                    results[i] = future.result()
-                    if on_result is not None:
-                        on_result(jobs[i], results[i])
-        except BrokenProcessPool as err:  # a worker was killed (out of memory, a signal)
-            raise WorkerDiedError(f"a worker process died while playing: {err}") from err
-        except BaseException:
-            pool.shutdown(wait=True, cancel_futures=True)
-            raise
-    return results  # type: ignore[return-value]
-
-
-__all__ = ["EpisodeJob", "init_pool_worker", "map_in_workers", "run_jobs"]
+__all__ = ["EpisodeJob", "run_jobs"]

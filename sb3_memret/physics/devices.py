@@ -6,7 +6,7 @@ check names what is missing and what to use instead, in one line.
 
 from __future__ import annotations
 
-from sb3_memret.errors import CudaNotFoundError
+from sb3_memret.common.errors import CudaNotFoundError
 
 
 def check_cuda(what: str = "the gpu physics backend (ManiSkill's GPU simulation)") -> None:

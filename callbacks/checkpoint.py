@@ -9,7 +9,7 @@ from pathlib import Path
 from stable_baselines3.common.base_class import BaseAlgorithm
 from stable_baselines3.common.callbacks import BaseCallback
 
-from sb3_memret.workers import stop_signals_deferred
+from sb3_memret.common.workers import stop_signals_deferred
 
 CHECKPOINT_PATTERN = re.compile(r"^memret_(\d+)_steps\.zip$")
 

@@ -30,18 +30,18 @@ from stable_baselines3.common.save_util import load_from_zip_file
 from sb3_memret.callbacks import (PhaseTimingCallback, RetrievalEvalCallback, RolloutRetrievalCallback,
                                   RoundCheckpointCallback, RunProgressCallback, latest_checkpoint)
 from sb3_memret.callbacks.checkpoint import checkpoints as list_checkpoints
-from sb3_memret.config import TrainConfig, parse_section
+from sb3_memret.training.config import TrainConfig, parse_section
 from sb3_memret.controllers import FrozenController
 from sb3_memret.controller_specs import make_controller
 from sb3_memret.envs.multi_task import make_decision_vec_env
-from sb3_memret.seeds import HELD_OUT_SEED
+from sb3_memret.common.seeds import HELD_OUT_SEED
 from sb3_memret.tasks import make_task, task_in
-from sb3_memret.evaluation import RetrievalReport
+from sb3_memret.evaluation.retrieval import RetrievalReport
 from sb3_memret.policy.networks import HIDDEN
 from sb3_memret.policy.policy import MemoryRetrievalPolicy, saved_retriever
 from sb3_memret.policy.ppo import MemRetPPO
-from sb3_memret.run_logger import make_run_logger
-from sb3_memret.workers import StopRequested, WorkerDiedError, stop_signals_deferred, stop_signals_interrupt
+from sb3_memret.common.run_logger import make_run_logger
+from sb3_memret.common.workers import StopRequested, WorkerDiedError, stop_signals_deferred, stop_signals_interrupt
 
 CONFIG_FILE = "config.yml"
 RUN_FILE = "run.json"

@@ -38,15 +38,15 @@ from sb3_memret.memory.bank import importance_scorer
 from sb3_memret.memory.encoder import MiniLMEncoder
 from sb3_memret.memory.retention import FIXED_RULES
 from sb3_memret.memory.schema import MemoryEntry
-from sb3_memret.obs_trees import stack_obs
+from sb3_memret.common.obs_trees import stack_obs
 from sb3_memret.physics import make_physics
 from sb3_memret.physics.backends import PhysicsBackend, ResetRequest
 from sb3_memret.policy.networks import RetentionScorer
-from sb3_memret.rewards import absorbing_success_value, shaped_reward
-from sb3_memret.rollout import task_env_kwargs
+from sb3_memret.tasks.rewards import absorbing_success_value, shaped_reward
+from sb3_memret.evaluation.rollout import task_env_kwargs
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import EnvFrame
-from sb3_memret.workers import torch_threads
+from sb3_memret.common.workers import torch_threads
 
 HELD_OUT_KINDS = ("evaluation", "development")  # a task's seeds for the final figure, and for choosing
 

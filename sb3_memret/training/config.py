@@ -14,7 +14,7 @@ from sb3_memret.memory.retention import RETENTION_RULES
 from sb3_memret.memory.schema import AGE_UNITS
 from sb3_memret.tasks import check_task_name, make_task, task_in
 
-ZOO_CONFIGS = Path(__file__).resolve().parents[1] / "zoo_configs"  # the shipped hyperparameters, one file per family
+ZOO_CONFIGS = Path(__file__).resolve().parents[2] / "zoo_configs"  # the shipped hyperparameters, one file per family
 
 Check = tuple[type | tuple[type, ...], Callable[[Any], bool], str]
 

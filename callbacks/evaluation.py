@@ -12,7 +12,7 @@ from stable_baselines3.common.callbacks import BaseCallback
 from stable_baselines3.common.logger import HumanOutputFormat
 from stable_baselines3.common.vec_env import VecEnv
 
-from sb3_memret.evaluation import RetrievalReport, evaluate_retrieval
+from sb3_memret.evaluation.retrieval import RetrievalReport, evaluate_retrieval
 from sb3_memret.callbacks.checkpoint import save_whole
 
 

@@ -13,7 +13,7 @@ from typing import Mapping
 
 import torch
 
-from sb3_memret.errors import WeightsNotLoadedError
+from sb3_memret.common.errors import WeightsNotLoadedError
 
 SHOWN = 8  # names listed per kind of difference in an error
 

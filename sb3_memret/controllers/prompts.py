@@ -27,7 +27,7 @@ OUTSIDE_TEMPLATE = "the {entity} is out of the drawers."
 HOLDING_TEMPLATE = TEMPLATES[MemoryType.HOLDING]
 HOLDING_NOTHING_TEXT = SPECIAL_TEXTS[(MemoryType.HOLDING, NOTHING)]
 # controller-evaluation prompts: the true facts, none, wrong ones (the same at every decision), or the facts the task's
-# writer wrote so far in the episode (``sb3_memret.rollout.WrittenFacts``: they change as the episode goes)
+# writer wrote so far in the episode (``sb3_memret.evaluation.rollout.WrittenFacts``: they change as the episode goes)
 FIXED_CONDITIONS: tuple[str, ...] = ("oracle", "none", "wrong")
 CONDITIONS: tuple[str, ...] = (*FIXED_CONDITIONS, "written")
 
@@ -124,7 +124,7 @@ def check_fixed_condition(condition: str) -> str:
     """``condition`` if it gives a fixed prompt (oracle, none, wrong); else a ValueError naming it and what is accepted."""
     if condition == "written":
         raise ValueError("condition 'written' has no fixed prompt: its facts are what the task's writer has written so "
-                         "far (sb3_memret.rollout.WrittenFacts, evaluate_task_condition); the fixed ones are "
+                         "far (sb3_memret.evaluation.rollout.WrittenFacts, evaluate_task_condition); the fixed ones are "
                          f"{list(FIXED_CONDITIONS)}")
     if condition not in FIXED_CONDITIONS:
         raise ValueError(f"unknown condition {condition!r}; expected one of {list(FIXED_CONDITIONS)}")

@@ -14,10 +14,10 @@ import ctypes
 import os
 from pathlib import Path
 
-from sb3_memret.errors import RendererNotFoundError
+from sb3_memret.common.errors import RendererNotFoundError
 
 RENDERER_DIR_ENV = "SB3_MEMRET_RENDERER_DIR"
-DEFAULT_RENDERER_DIR = Path(__file__).resolve().parents[1] / ".renderer"
+DEFAULT_RENDERER_DIR = Path(__file__).resolve().parents[2] / ".renderer"
 INSTALL_COMMAND = f"make renderer  (or: bash scripts/install_lavapipe.sh {DEFAULT_RENDERER_DIR})"
 # Loaded before the driver in this order, so its DT_NEEDED entries find them by soname.
 PRELOAD = ("libLLVM-15.so.1", "libdrm.so.2", "libdrm_amdgpu.so.1")

@@ -1,4 +1,5 @@
-"""Worker processes and stop signals: who handles Ctrl-C and SIGTERM, and what a dead worker says.
+"""Worker processes and stop signals: who handles Ctrl-C and SIGTERM, what a dead worker says, and a plain map of
+any work over spawned worker processes (``map_in_workers``: the demonstrations use it).
 
 Ctrl-C (SIGINT) and a scheduler's SIGTERM reach the whole process group. Only the parent acts
 on them: it saves a checkpoint and then closes its workers, which therefore ignore both.
@@ -6,11 +7,17 @@ on them: it saves a checkpoint and then closes its workers, which therefore igno
 
 from __future__ import annotations
 
+import multiprocessing
 import signal
 import threading
+from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
+from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
 from multiprocessing.process import BaseProcess
-from typing import Iterator
+from typing import Callable, Iterator, Sequence, TypeVar
+
+J = TypeVar("J")
+R = TypeVar("R")
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 # Workers are the parent's own children. Under "forkserver" they are the children of a server
@@ -124,6 +131,55 @@ def exit_description(process: BaseProcess) -> str:
     return f"exited with code {code}"
 
 
+def init_pool_worker() -> None:
+    """Set up a pool worker process: SIGINT ignored (the parent handles it), SIGTERM left fatal, since a
+    broken ProcessPoolExecutor ends its remaining workers with it."""
+    init_worker_process(ignored=(signal.SIGINT,))
+
+
+def map_in_workers(
+    initializer: Callable[..., None],
+    initargs: tuple,
+    work: Callable[[J], R],
+    jobs: Sequence[J],
+    n_workers: int = 1,
+    on_result: Callable[[J, R], None] | None = None,
+) -> list[R]:
+    """``[work(job) for job in jobs]`` after ``initializer(*initargs)``: in this process when ``n_workers``
+    is 1, else in that many spawned worker processes; results in job order, ``on_result`` as each arrives."""
+    if n_workers < 1:
+        raise ValueError(f"n_workers must be >= 1, got {n_workers}")
+    if not jobs:
+        return []
+    if n_workers == 1:
+        initializer(*initargs, in_worker=False)
+        results_here = []
+        for job in jobs:
+            results_here.append(work(job))
+            if on_result is not None:
+                on_result(job, results_here[-1])
+        return results_here
+    results: list[R | None] = [None] * len(jobs)
+    context = multiprocessing.get_context(START_METHOD)
+    with ProcessPoolExecutor(min(n_workers, len(jobs)), mp_context=context, initializer=initializer,
+                             initargs=initargs) as pool:
+        pending: dict[Future, int] = {pool.submit(work, job): i for i, job in enumerate(jobs)}
+        try:
+            while pending:
+                done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                for future in done:
+                    i = pending.pop(future)
+                    results[i] = future.result()
+                    if on_result is not None:
+                        on_result(jobs[i], results[i])
+        except BrokenProcessPool as err:  # a worker was killed (out of memory, a signal)
+            raise WorkerDiedError(f"a worker process died while playing: {err}") from err
+        except BaseException:
+            pool.shutdown(wait=True, cancel_futures=True)
+            raise
+    return results  # type: ignore[return-value]
+
+
 __all__ = ["START_METHOD", "STOP_SIGNALS", "StopRequested", "WorkerDiedError", "exit_description", "exit_status",
-           "init_worker_process",
-           "stop_signals_deferred", "stop_signals_interrupt", "torch_threads"]
+           "init_pool_worker", "init_worker_process", "map_in_workers", "stop_signals_deferred", "stop_signals_interrupt",
+           "torch_threads"]

@@ -18,11 +18,11 @@ from typing import Any, Callable
 
 import yaml
 
-from sb3_memret.evaluation import RetrievalReport
-from sb3_memret.config import TrainConfig, parse_section
+from sb3_memret.evaluation.retrieval import RetrievalReport
+from sb3_memret.training.config import TrainConfig, parse_section
 from sb3_memret.controllers import FrozenController
-from sb3_memret.seeds import HELD_OUT_SEED
-from sb3_memret.training import RunOptions, train
+from sb3_memret.common.seeds import HELD_OUT_SEED
+from sb3_memret.training.run import RunOptions, train
 
 STUDY_FILE = "study.db"
 BEST_CONFIG = "best_config.yml"

@@ -17,7 +17,7 @@ from sb3_memret.memory.bank import MemoryBank
 from sb3_memret.memory.encoder import EMBEDDING_DIM, MiniLMEncoder
 from sb3_memret.memory.schema import Key, MemoryEntry, MemoryType
 from sb3_memret.memory.writer import EventCompiler
-from sb3_memret.prompts import PromptTemplate, build_prompt
+from sb3_memret.controllers.prompts import PromptTemplate, build_prompt
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import EnvFrame, Episode
 
