@@ -64,7 +64,7 @@ def owner_of(blob: np.ndarray, owner: np.ndarray) -> int | None:
 
 def calibrate(episodes: int, seed: int) -> None:
     from sb3_memret.tasks import make_task
-    from sb3_memret.tasks.mikasa.imposter_perception import EXEMPLARS_DIR, ShapeExemplars, object_crop, objects_in_view
+    from sb3_memret.tasks.mikasa.find_imposter.perception import EXEMPLARS_DIR, ShapeExemplars, object_crop, objects_in_view
 
     EXEMPLARS_DIR.mkdir(parents=True, exist_ok=True)
     for env_id in SHAPE_TASKS:
@@ -85,7 +85,7 @@ def calibrate(episodes: int, seed: int) -> None:
 
 def evaluate(tasks: list[str], episodes: int, seed: int) -> None:
     from sb3_memret.tasks import make_task
-    from sb3_memret.tasks.mikasa.imposter_perception import assign_shown, task_exemplars
+    from sb3_memret.tasks.mikasa.find_imposter.perception import assign_shown, task_exemplars
 
     for env_id in tasks:
         task = make_task(env_id)

@@ -16,7 +16,7 @@ from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E
 from sb3_memret.evaluation.rollout import evaluate_task_condition  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
 from sb3_memret.tasks.base import EnvFrame  # noqa: E402
-from sb3_memret.tasks.mikasa.blink_count import (  # noqa: E402
+from sb3_memret.tasks.mikasa.blink_count.task import (  # noqa: E402
     CUE_FACT,
     INSTRUCTION,
     LONGEST_GAP,
@@ -25,9 +25,9 @@ from sb3_memret.tasks.mikasa.blink_count import (  # noqa: E402
     BlinkCountTask,
     BlinkWriter,
 )
-from sb3_memret.tasks.mikasa.cue_task import DEV_SEED  # noqa: E402
-from sb3_memret.tasks.mikasa.lamp_asset import LAMP_SHA256, SHIPPED_LAMP, install_lamp_asset  # noqa: E402
-from sb3_memret.tasks.mikasa.press_expert import count_value, parse_count, stated_count  # noqa: E402
+from sb3_memret.tasks.mikasa.core.cue_task import DEV_SEED  # noqa: E402
+from sb3_memret.tasks.mikasa.core.lamp_asset import LAMP_SHA256, SHIPPED_LAMP, install_lamp_asset  # noqa: E402
+from sb3_memret.tasks.mikasa.blink_count.expert import count_value, parse_count, stated_count  # noqa: E402
 
 EASY, MEDIUM = "BlinkCountButtonPressEasy-VLA-v0", "BlinkCountButtonPressMedium-VLA-v0"
 FORBIDDEN = ("oracle", "task_cue", "target_blinks", "press_count", "pending", "indicator", "submit", "lift", "ready")

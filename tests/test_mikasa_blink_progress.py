@@ -12,7 +12,7 @@ from sb3_memret.controllers.base import as_numpy  # noqa: E402
 from sb3_memret.memory.schema import MemoryType, linearize  # noqa: E402
 from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E402
 from sb3_memret.tasks import EnvFrame, make_task  # noqa: E402
-from sb3_memret.tasks.mikasa.blink_count import (  # noqa: E402
+from sb3_memret.tasks.mikasa.blink_count.task import (  # noqa: E402
     CAP_TOP_Z,
     CUE_FACT,
     INSTRUCTION,
@@ -23,7 +23,7 @@ from sb3_memret.tasks.mikasa.blink_count import (  # noqa: E402
     PressPercept,
     read_red_cap,
 )
-from sb3_memret.tasks.mikasa.press_expert import ButtonPressController, count_value, stated_presses  # noqa: E402
+from sb3_memret.tasks.mikasa.blink_count.expert import ButtonPressController, count_value, stated_presses  # noqa: E402
 
 SPEC = "BlinkCountButtonPressMedium-VLA-v0"  # progress as memory: the registered task
 DEV_SEED = 5000  # development seeds: the protocol's stay unseen
@@ -127,7 +127,7 @@ def _obs(height: float, qvel_z: float, green: bool = True) -> dict:
 
 
 def test_the_stateless_expert_reads_its_way_from_where_the_hand_is_and_how_it_moves():
-    from sb3_memret.tasks.mikasa.expert import tcp_velocity
+    from sb3_memret.tasks.mikasa.core.touch_expert import tcp_velocity
 
     task = make_task(SPEC)
     expert = task.expert()

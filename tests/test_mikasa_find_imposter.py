@@ -18,14 +18,14 @@ from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
 from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
 from sb3_memret.tasks.base import EnvFrame  # noqa: E402
-from sb3_memret.tasks.mikasa.find_imposter import (  # noqa: E402
+from sb3_memret.tasks.mikasa.find_imposter.task import (  # noqa: E402
     FindImposterColorTask,
     FindImposterShapeAndColorTask,
     FindImposterShapeTask,
     plural,
     set_phrase,
 )
-from sb3_memret.tasks.mikasa.imposter_perception import (  # noqa: E402
+from sb3_memret.tasks.mikasa.find_imposter.perception import (  # noqa: E402
     CROP_HALF,
     SeenObject,
     ShapeExemplars,

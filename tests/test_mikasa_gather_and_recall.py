@@ -15,8 +15,8 @@ from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
 from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E402
 from sb3_memret.evaluation.rollout import evaluate_task_condition  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
-from sb3_memret.tasks.mikasa.cue_task import DEV_SEED  # noqa: E402
-from sb3_memret.tasks.mikasa.gather_and_recall import (  # noqa: E402
+from sb3_memret.tasks.mikasa.core.cue_task import DEV_SEED  # noqa: E402
+from sb3_memret.tasks.mikasa.gather_and_recall.task import (  # noqa: E402
     FLASH_COLOURS,
     INSTRUCTION,
     PROMPT_TEMPLATE,

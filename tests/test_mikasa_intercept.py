@@ -16,8 +16,8 @@ from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
 from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
 from sb3_memret.tasks.base import EnvFrame  # noqa: E402
-from sb3_memret.tasks.mikasa.cue_task import DEV_SEED  # noqa: E402
-from sb3_memret.tasks.mikasa.intercept import (  # noqa: E402
+from sb3_memret.tasks.mikasa.core.cue_task import DEV_SEED  # noqa: E402
+from sb3_memret.tasks.mikasa.intercept.task import (  # noqa: E402
     GRAB_INSTRUCTION,
     INTERCEPT_INSTRUCTION,
     MIN_SIGHTINGS,
@@ -29,7 +29,7 @@ from sb3_memret.tasks.mikasa.intercept import (  # noqa: E402
     motion_fact,
     parse_value,
 )
-from sb3_memret.tasks.mikasa.intercept_expert import Motion, stated_motion  # noqa: E402
+from sb3_memret.tasks.mikasa.intercept.expert import Motion, stated_motion  # noqa: E402
 
 GRAB, PUSH = "InterceptGrabSlow-VLA-v0", "InterceptMedium-VLA-v0"
 FORBIDDEN = ("oracle", "ball_pose", "ball_linear_vel", "ball_angular_vel", "tcp_to_ball", "relative_velocity",

@@ -11,7 +11,7 @@ pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
 from sb3_memret.controllers.prompts import build_prompt  # noqa: E402
 from sb3_memret.tasks import make_task, task_names  # noqa: E402
-from sb3_memret.tasks.mikasa.cue_task import MikasaCueTask, is_long  # noqa: E402
+from sb3_memret.tasks.mikasa.core.cue_task import MikasaCueTask, is_long  # noqa: E402
 
 LONG = [name for name in task_names() if is_long(name)]
 

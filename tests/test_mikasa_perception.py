@@ -9,13 +9,13 @@ from mikasa_support import MIKASA_MISSING, leaked_keys
 pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
 from sb3_memret.controllers.prompts import parse_prompt  # noqa: E402
-from sb3_memret.tasks.mikasa.expert import (  # noqa: E402
+from sb3_memret.tasks.mikasa.core.touch_expert import (  # noqa: E402
     INSTRUCTION,
     PROMPT_TEMPLATE,
     ScriptedTouchController,
     colour_prompt,
 )
-from sb3_memret.tasks.mikasa.perception import COLOUR_NAMES, read_cue_colour  # noqa: E402
+from sb3_memret.tasks.mikasa.core.perception import COLOUR_NAMES, read_cue_colour  # noqa: E402
 
 SEEDS = (4242424242, 4242424243, 4242424244)
 FORBIDDEN = ("oracle", "task_cue", "goal_")
@@ -28,7 +28,7 @@ def _make(env_id: str, obs_mode: str):
     import gymnasium as gym
     from mikasa_robo_suite.vla.utils.wrappers import CurriculumPhaseNoopActionWrapper
 
-    from sb3_memret.tasks.mikasa.perception import ControllerObservation
+    from sb3_memret.tasks.mikasa.core.perception import ControllerObservation
 
     env = gym.make(env_id, num_envs=1, obs_mode=obs_mode, control_mode="pd_ee_delta_pose", render_backend="cpu",
                    sim_backend="cpu", reward_mode="normalized_dense")

@@ -14,8 +14,8 @@ from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
 from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
 from sb3_memret.tasks.base import EnvFrame  # noqa: E402
-from sb3_memret.tasks.mikasa.cue_task import DEV_SEED  # noqa: E402
-from sb3_memret.tasks.mikasa.rotate import (  # noqa: E402
+from sb3_memret.tasks.mikasa.core.cue_task import DEV_SEED  # noqa: E402
+from sb3_memret.tasks.mikasa.rotate.task import (  # noqa: E402
     LENIENT_INSTRUCTION,
     STRICT_INSTRUCTION,
     RotateTask,
@@ -23,7 +23,7 @@ from sb3_memret.tasks.mikasa.rotate import (  # noqa: E402
     peg_on_table,
     peg_yaw,
 )
-from sb3_memret.tasks.mikasa.turn_expert import remaining_turn  # noqa: E402
+from sb3_memret.tasks.mikasa.rotate.expert import remaining_turn  # noqa: E402
 
 LENIENT, STRICT = "RotateLenientPosNeg-VLA-v0", "RotateStrictPos-VLA-v0"
 FORBIDDEN = ("oracle", "task_cue", "peg_pose", "target")

@@ -14,9 +14,9 @@ from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
 from sb3_memret.controllers.prompts import parse_prompt  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
 from sb3_memret.tasks.base import EnvFrame  # noqa: E402
-from sb3_memret.tasks.mikasa.perception import COLOUR_NAMES, read_cue_colour  # noqa: E402
-from sb3_memret.tasks.mikasa.remember_color import EVAL_SEED  # noqa: E402
-from sb3_memret.tasks.mikasa.seq_of_colors import (  # noqa: E402
+from sb3_memret.tasks.mikasa.core.perception import COLOUR_NAMES, read_cue_colour  # noqa: E402
+from sb3_memret.tasks.mikasa.remember.color import EVAL_SEED  # noqa: E402
+from sb3_memret.tasks.mikasa.seq_of_colors.task import (  # noqa: E402
     INSTRUCTION,
     PROMPT_TEMPLATE,
     SeqOfColorsTask,
@@ -25,10 +25,10 @@ from sb3_memret.tasks.mikasa.seq_of_colors import (  # noqa: E402
     sequence_expert,
     sequence_prompt,
 )
-from sb3_memret.tasks.mikasa.sequence_expert import ordered_colours  # noqa: E402
+from sb3_memret.tasks.mikasa.core.sequence_expert import ordered_colours  # noqa: E402
 
 TASK = "SeqOfColors3-VLA-v0"
-SPEC = "sb3_memret.tasks.mikasa.seq_of_colors:SeqOfColorsTask"
+SPEC = "sb3_memret.tasks.mikasa.seq_of_colors.task:SeqOfColorsTask"
 # MIKASA's first evaluation seeds: maroon, yellow, blue shown 1 step each; lime, yellow, maroon shown 5 steps each
 SEEDS = {EVAL_SEED: (("maroon", "yellow", "blue"), 1), EVAL_SEED + 1: (("lime", "yellow", "maroon"), 5)}
 FORBIDDEN = ("oracle", "task_cue", "in_seq", "next_target", "touched", "obj_to_goal")

@@ -13,9 +13,9 @@ from sb3_memret.controllers.base import as_numpy  # noqa: E402
 from sb3_memret.memory.schema import MemoryType  # noqa: E402
 from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E402
 from sb3_memret.tasks import EnvFrame, make_task  # noqa: E402
-from sb3_memret.tasks.mikasa.layout_perception import read_cube_layout, table_points  # noqa: E402
-from sb3_memret.tasks.mikasa.perception import COLOUR_NAMES  # noqa: E402
-from sb3_memret.tasks.mikasa.seq_of_colors import (  # noqa: E402
+from sb3_memret.tasks.mikasa.core.layout_perception import read_cube_layout, table_points  # noqa: E402
+from sb3_memret.tasks.mikasa.core.perception import COLOUR_NAMES  # noqa: E402
+from sb3_memret.tasks.mikasa.seq_of_colors.task import (  # noqa: E402
     EPISODE_STEPS,
     INSTRUCTION,
     PROGRESS_PROMPT_TEMPLATE,
@@ -24,7 +24,7 @@ from sb3_memret.tasks.mikasa.seq_of_colors import (  # noqa: E402
     sequence_expert,
     sequence_facts,
 )
-from sb3_memret.tasks.mikasa.sequence_expert import prompt_progress  # noqa: E402
+from sb3_memret.tasks.mikasa.core.sequence_expert import prompt_progress  # noqa: E402
 
 SPEC = "SeqOfColors3-VLA-v0"  # progress as memory: the registered task
 DEV_SEED = 5000  # cyan, maroon, olive (a development seed: the protocol's stay unseen)
@@ -113,8 +113,8 @@ def test_progress_facts_are_worded_for_the_prompt_and_read_back_by_the_stateless
     assert not expert.stateful and expert.progress_from == "prompt"
     with pytest.raises(ValueError, match="unknown progress_from 'memory'"):
         sequence_expert(progress_from="memory")
-    from sb3_memret.tasks.mikasa.seq_of_colors import PROMPT_TEMPLATE
-    from sb3_memret.tasks.mikasa.sequence_expert import SequenceTouchController
+    from sb3_memret.tasks.mikasa.seq_of_colors.task import PROMPT_TEMPLATE
+    from sb3_memret.tasks.mikasa.core.sequence_expert import SequenceTouchController
 
     with pytest.raises(ValueError, match="needs the progress facts"):
         SequenceTouchController(PROMPT_TEMPLATE, progress_from="prompt")

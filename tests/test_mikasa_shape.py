@@ -14,9 +14,9 @@ from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
 from sb3_memret.controllers.prompts import parse_prompt  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
 from sb3_memret.tasks.base import EnvFrame  # noqa: E402
-from sb3_memret.tasks.mikasa.perception import cue_blob  # noqa: E402
-from sb3_memret.tasks.mikasa.remember_color import EVAL_SEED  # noqa: E402
-from sb3_memret.tasks.mikasa.remember_shape import (  # noqa: E402
+from sb3_memret.tasks.mikasa.core.perception import cue_blob  # noqa: E402
+from sb3_memret.tasks.mikasa.remember.color import EVAL_SEED  # noqa: E402
+from sb3_memret.tasks.mikasa.remember.shape import (  # noqa: E402
     CUE_KEY,
     INSTRUCTION,
     PROMPT_TEMPLATE,
@@ -24,7 +24,7 @@ from sb3_memret.tasks.mikasa.remember_shape import (  # noqa: E402
     shape_expert,
     shape_prompt,
 )
-from sb3_memret.tasks.mikasa.shape_perception import (  # noqa: E402
+from sb3_memret.tasks.mikasa.core.shape_perception import (  # noqa: E402
     MIN_MATCH,
     SHAPE_NAMES,
     SILHOUETTES,
@@ -259,7 +259,7 @@ def test_the_cue_fact_is_written_from_the_camera_and_retrieved(encoder):
     appears once the cue was seen, names the episode's shape, and the expert succeeds through it."""
     from sb3_memret.envs.vec_env import make_recall_vec_env
 
-    spec = "sb3_memret.tasks.mikasa.remember_shape:RememberShapeTask"
+    spec = "sb3_memret.tasks.mikasa.remember.shape:RememberShapeTask"
     venv = make_recall_vec_env(1, {"task": spec, "controller": "scripted", "encoder": encoder, "replan_every": 4,
                                    "capacity": 6, "location_decoys": 5, "render_backend": "cpu"}, seed=0)
     try:

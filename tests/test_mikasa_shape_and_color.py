@@ -13,7 +13,7 @@ from sb3_memret.memory.schema import MemoryType  # noqa: E402
 from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
 from sb3_memret.controllers.prompts import parse_prompt  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
-from sb3_memret.tasks.mikasa.remember_shape_and_color import (  # noqa: E402
+from sb3_memret.tasks.mikasa.remember.shape_and_color import (  # noqa: E402
     CUE_KEY,
     INSTRUCTION,
     OBJECTS,

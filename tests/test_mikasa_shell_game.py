@@ -24,7 +24,7 @@ from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
 from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E402
 from sb3_memret.tasks import check_task_name, make_task  # noqa: E402
 from sb3_memret.tasks.base import EnvFrame  # noqa: E402
-from sb3_memret.tasks.mikasa.expert import COAST_GAIN, DRIVE_GAIN, POS_SCALE  # noqa: E402
+from sb3_memret.tasks.mikasa.core.touch_expert import COAST_GAIN, DRIVE_GAIN, POS_SCALE  # noqa: E402
 from sb3_memret.tasks.mikasa.shell_game import (  # noqa: E402
     LAMP_COLOURS,
     MUG_FILES,

@@ -14,8 +14,8 @@ from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
 from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
 from sb3_memret.tasks.base import EnvFrame  # noqa: E402
-from sb3_memret.tasks.mikasa.cue_task import EVAL_SEED  # noqa: E402
-from sb3_memret.tasks.mikasa.take_it_back import (  # noqa: E402
+from sb3_memret.tasks.mikasa.core.cue_task import EVAL_SEED  # noqa: E402
+from sb3_memret.tasks.mikasa.take_it_back.task import (  # noqa: E402
     INSTRUCTION,
     PROMPT_TEMPLATE,
     SIDE_CENTRES,

@@ -12,7 +12,7 @@ from click.testing import CliRunner
 from sb3_memret.cli import main
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.tasks import make_task
-from sb3_memret.tasks.mikasa.remember_color import EVAL_SEED, RememberColorTask
+from sb3_memret.tasks.mikasa.remember.color import EVAL_SEED, RememberColorTask
 
 TASK = "RememberColor3-VLA-v0"
 
@@ -98,7 +98,7 @@ def test_demos_of_a_mikasa_task_are_a_lerobot_dataset_whose_prompts_carry_the_fa
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
 
     from sb3_memret.stage1.demos import read_episode_log
-    from sb3_memret.tasks.mikasa.demo_layout import state_names
+    from sb3_memret.tasks.mikasa.core.demo_layout import state_names
 
     out = every_step_demos
     log = read_episode_log(out)
@@ -225,8 +225,8 @@ def test_max_steps_ends_a_recorded_episode_early_and_a_bad_one_is_refused():
 
 def test_a_dagger_round_on_a_mikasa_task_follows_the_learner_with_the_experts_labels():
     from sb3_memret.stage1.task_demos import TaskDemoEpisode, TaskRecorder
-    from sb3_memret.tasks.mikasa.demo_layout import state_names
-    from sb3_memret.tasks.mikasa.expert import ScriptedTouchController
+    from sb3_memret.tasks.mikasa.core.demo_layout import state_names
+    from sb3_memret.tasks.mikasa.core.touch_expert import ScriptedTouchController
 
     task = make_task(TASK)
 

@@ -17,7 +17,7 @@ from sb3_memret.controller_specs import make_controller
 from sb3_memret.stage1.datasets import load_task_demonstrations
 from sb3_memret.stage1.finetune import masked_mse, masked_stats, read_log
 from sb3_memret.tasks import make_task
-from sb3_memret.tasks.mikasa.demo_layout import proprio_names
+from sb3_memret.tasks.mikasa.core.demo_layout import proprio_names
 
 COLOUR, SHAPE = "RememberColor3-VLA-v0", "RememberShape3-VLA-v0"
 REPO = Path(__file__).resolve().parents[1]

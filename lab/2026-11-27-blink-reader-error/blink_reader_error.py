@@ -18,9 +18,9 @@ import collections
 import torch
 
 from sb3_memret.controllers.prompts import build_prompt
-from sb3_memret.tasks.mikasa.blink_count import LONGEST_GAP, VARIANTS, BlinkCountTask
-from sb3_memret.tasks.mikasa.cue_task import DEV_SEED
-from sb3_memret.tasks.mikasa.press_expert import parse_count
+from sb3_memret.tasks.mikasa.blink_count.task import LONGEST_GAP, VARIANTS, BlinkCountTask
+from sb3_memret.tasks.mikasa.core.cue_task import DEV_SEED
+from sb3_memret.tasks.mikasa.blink_count.expert import parse_count
 
 
 def read_count(task: BlinkCountTask, env, seed: int) -> tuple[int, int | None, int | None, int]:

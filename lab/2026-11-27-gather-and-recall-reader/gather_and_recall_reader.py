@@ -18,7 +18,7 @@ import torch
 
 from sb3_memret.controllers.base import as_numpy
 from sb3_memret.controllers.prompts import build_prompt
-from sb3_memret.tasks.mikasa.gather_and_recall import FLASH_COLOURS, GatherAndRecallTask, read_flash
+from sb3_memret.tasks.mikasa.gather_and_recall.task import FLASH_COLOURS, GatherAndRecallTask, read_flash
 
 
 def play(task: GatherAndRecallTask, env, seed: int, replan: int) -> dict:

@@ -27,7 +27,7 @@ def main() -> None:
 
     from sb3_memret.evaluation.rollout import evaluate_task_condition
     from sb3_memret.tasks import make_task
-    from sb3_memret.tasks.mikasa.find_imposter import WORDINGS
+    from sb3_memret.tasks.mikasa.find_imposter.task import WORDINGS
 
     for env_id in args.tasks:
         for wording in WORDINGS:

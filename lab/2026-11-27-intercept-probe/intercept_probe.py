@@ -21,7 +21,7 @@ import torch
 
 from sb3_memret.controllers.prompts import build_prompt
 from sb3_memret.tasks import make_task
-from sb3_memret.tasks.mikasa.intercept import VARIANTS, InterceptTask, motion_fact, parse_value
+from sb3_memret.tasks.mikasa.intercept.task import VARIANTS, InterceptTask, motion_fact, parse_value
 
 CONDITIONS = ("written", "oracle", "none", "wrong")
 

@@ -15,8 +15,8 @@ import argparse
 
 import numpy as np
 
-from sb3_memret.tasks.mikasa.cue_task import DEV_SEED
-from sb3_memret.tasks.mikasa.rotate import ROTATE_TASKS, RotateTask
+from sb3_memret.tasks.mikasa.core.cue_task import DEV_SEED
+from sb3_memret.tasks.mikasa.rotate.task import ROTATE_TASKS, RotateTask
 
 
 def main() -> None:

@@ -93,45 +93,45 @@ def _lazy(module: str, attr: str, *args: str) -> Callable[[], Task]:
 
 register_task(DEFAULT_TASK, _lazy("sb3_memret.tasks.drawer", "DrawerTask"))
 for _env_id in ("RememberColor3-VLA-v0", "RememberColor5-VLA-v0", "RememberColor9-VLA-v0"):
-    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.remember_color", "RememberColorTask", _env_id))
+    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.remember.color", "RememberColorTask", _env_id))
 register_task("RememberShape3-VLA-v0",
-              _lazy("sb3_memret.tasks.mikasa.remember_shape", "RememberShapeTask", "RememberShape3-VLA-v0"))
+              _lazy("sb3_memret.tasks.mikasa.remember.shape", "RememberShapeTask", "RememberShape3-VLA-v0"))
 register_task("SeqOfColors3-VLA-v0",
-              _lazy("sb3_memret.tasks.mikasa.seq_of_colors", "SeqOfColorsTask", "SeqOfColors3-VLA-v0"))
-register_task("TakeItBack-VLA-v0", _lazy("sb3_memret.tasks.mikasa.take_it_back", "TakeItBackTask", "TakeItBack-VLA-v0"))
+              _lazy("sb3_memret.tasks.mikasa.seq_of_colors.task", "SeqOfColorsTask", "SeqOfColors3-VLA-v0"))
+register_task("TakeItBack-VLA-v0", _lazy("sb3_memret.tasks.mikasa.take_it_back.task", "TakeItBackTask", "TakeItBack-VLA-v0"))
 for _env_id in ("RememberShape5-VLA-v0", "RememberShape9-VLA-v0"):
-    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.remember_shape", "RememberShapeTask", _env_id))
+    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.remember.shape", "RememberShapeTask", _env_id))
 for _env_id in ("RememberShapeAndColor3x2-VLA-v0", "RememberShapeAndColor3x3-VLA-v0", "RememberShapeAndColor5x3-VLA-v0"):
-    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.remember_shape_and_color", "RememberShapeAndColorTask",
+    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.remember.shape_and_color", "RememberShapeAndColorTask",
                                  _env_id))
 for _class, _sizes in (("FindImposterColorTask", ("3", "5", "9")), ("FindImposterShapeTask", ("3", "5", "9")),
                        ("FindImposterShapeAndColorTask", ("3x2", "3x3", "5x3"))):
     for _size in _sizes:
         _env_id = f"{_class.removesuffix('Task')}{_size}-VLA-v0"
-        register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.find_imposter", _class, _env_id))
-for _module, _class, _sizes in (("remember_color", "RememberColorTask", ("3", "5", "9")),
-                                ("remember_shape", "RememberShapeTask", ("3", "5", "9")),
-                                ("remember_shape_and_color", "RememberShapeAndColorTask", ("3x2", "3x3", "5x3"))):
+        register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.find_imposter.task", _class, _env_id))
+for _module, _class, _sizes in (("color", "RememberColorTask", ("3", "5", "9")),
+                                ("shape", "RememberShapeTask", ("3", "5", "9")),
+                                ("shape_and_color", "RememberShapeAndColorTask", ("3x2", "3x3", "5x3"))):
     for _size in _sizes:  # MIKASA's 600-step variants of the cue tasks
         _env_id = f"{_class.removesuffix('Task')}{_size}-Long-VLA-v0"
-        register_task(_env_id, _lazy(f"sb3_memret.tasks.mikasa.{_module}", _class, _env_id))
+        register_task(_env_id, _lazy(f"sb3_memret.tasks.mikasa.remember.{_module}", _class, _env_id))
 
 for _env_id in ("ShellGameTouch-VLA-v0", "ShellGamePush-VLA-v0", "ShellGameColorLampTouch-VLA-v0",
                 "ShellGameShuffleTouch-VLA-v0", "ShellGameShuffleColorLampTouch-VLA-v0"):  # they need the YCB mug
-    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.shell_game", "shell_game_task", _env_id),
-                  lambda: importlib.import_module("sb3_memret.tasks.mikasa.shell_game").ycb_mug_missing())
+    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.shell_game.task", "shell_game_task", _env_id),
+                  lambda: importlib.import_module("sb3_memret.tasks.mikasa.shell_game.assets").ycb_mug_missing())
 for _env_id in ("InterceptSlow-VLA-v0", "InterceptMedium-VLA-v0", "InterceptFast-VLA-v0", "InterceptGrabSlow-VLA-v0",
                 "InterceptGrabMedium-VLA-v0", "InterceptGrabFast-VLA-v0"):
-    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.intercept", "InterceptTask", _env_id))
+    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.intercept.task", "InterceptTask", _env_id))
 for _env_id in ("RotateLenientPos-VLA-v0", "RotateLenientPosNeg-VLA-v0", "RotateStrictPos-VLA-v0",
                 "RotateStrictPosNeg-VLA-v0"):
-    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.rotate", "RotateTask", _env_id))
+    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.rotate.task", "RotateTask", _env_id))
 for _env_id in ("BlinkCountButtonPressEasy-VLA-v0", "BlinkCountButtonPressMedium-VLA-v0"):  # they build MIKASA's lamp
-    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.blink_count", "BlinkCountTask", _env_id),
-                  lambda: importlib.import_module("sb3_memret.tasks.mikasa.lamp_asset").ensure_lamp_asset())
+    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.blink_count.task", "BlinkCountTask", _env_id),
+                  lambda: importlib.import_module("sb3_memret.tasks.mikasa.core.lamp_asset").ensure_lamp_asset())
 register_task("GatherAndRecall1-VLA-v0",  # needs the lamp bulb mesh
-              _lazy("sb3_memret.tasks.mikasa.gather_and_recall", "GatherAndRecallTask", "GatherAndRecall1-VLA-v0"),
-              lambda: importlib.import_module("sb3_memret.tasks.mikasa.lamp_asset").ensure_lamp_asset())
+              _lazy("sb3_memret.tasks.mikasa.gather_and_recall.task", "GatherAndRecallTask", "GatherAndRecall1-VLA-v0"),
+              lambda: importlib.import_module("sb3_memret.tasks.mikasa.core.lamp_asset").ensure_lamp_asset())
 
 __all__ = ["DEFAULT_TASK", "EnvFrame", "Episode", "Predicates", "Task", "Writer", "check_task_name",
            "make_task", "register_task", "task_in", "task_names"]

@@ -12,6 +12,12 @@ your own reuses:
 - experts: ``ScriptedTouchController`` (touches the object its prompt's word names; ``TouchGains`` its motion).
 
 The names import on first use: the package itself imports nothing heavy.
+
+Layout: ``core/`` holds what the families share (the cue-task base, the pixel readers, the touch, carry and sequence
+experts, MIKASA's lamp, the demonstration layout); each family has a folder of its own (``remember/``,
+``find_imposter/``, ``shell_game/``, ``intercept/``, ``rotate/``, ``blink_count/``, ``seq_of_colors/``,
+``take_it_back/``, ``gather_and_recall/``) with its task, and its expert and readers where it has its own;
+``assets/`` holds the files the wheel ships.
 """
 
 from __future__ import annotations
@@ -20,12 +26,12 @@ import importlib
 from typing import Any
 
 _EXPORTS = {
-    "CueWriter": "cue_task", "EVAL_SEED": "cue_task", "MikasaCueTask": "cue_task",
-    "COLOUR_NAMES": "perception", "ControllerObservation": "perception", "DetectorObservation": "perception",
-    "read_cue_colour": "perception",
-    "SHAPE_NAMES": "shape_perception", "ShapeControllerObservation": "shape_perception",
-    "read_cue_shape": "shape_perception",
-    "ScriptedTouchController": "expert", "TouchGains": "expert",
+    "CueWriter": "core.cue_task", "EVAL_SEED": "core.cue_task", "MikasaCueTask": "core.cue_task",
+    "COLOUR_NAMES": "core.perception", "ControllerObservation": "core.perception",
+    "DetectorObservation": "core.perception", "read_cue_colour": "core.perception",
+    "SHAPE_NAMES": "core.shape_perception", "ShapeControllerObservation": "core.shape_perception",
+    "read_cue_shape": "core.shape_perception",
+    "ScriptedTouchController": "core.touch_expert", "TouchGains": "core.touch_expert",
 }
 
 
