@@ -57,7 +57,7 @@ SHIPPED := sb3_memret/controllers/checkpoints/drawer-learned
 controller: install
 	rm -rf $(STAGE1)
 	$(VENV)/bin/sb3-memret demos --episodes 240 --out $(STAGE1)/demos
-	$(VENV)/bin/sb3-memret finetune $(STAGE1)/demos --out $(STAGE1)/policy
+	$(VENV)/bin/sb3-memret finetune $(STAGE1)/demos --config $(SHIPPED)/recipe.yml --out $(STAGE1)/policy
 	mkdir -p $(SHIPPED)
 	cp $(STAGE1)/policy/config.json $(STAGE1)/policy/model.safetensors $(STAGE1)/policy/train_log.csv $(SHIPPED)/
 
@@ -67,7 +67,8 @@ SHIPPED_OBJECTS := sb3_memret/controllers/checkpoints/drawer-objects-learned
 controller-objects: install
 	rm -rf $(STAGE1)-objects
 	$(VENV)/bin/sb3-memret demos --episodes 240 --objects train --n-objects 3 --out $(STAGE1)-objects/demos
-	$(VENV)/bin/sb3-memret finetune $(STAGE1)-objects/demos --out $(STAGE1)-objects/policy
+	$(VENV)/bin/sb3-memret finetune $(STAGE1)-objects/demos --config $(SHIPPED_OBJECTS)/recipe.yml \
+		--out $(STAGE1)-objects/policy
 	mkdir -p $(SHIPPED_OBJECTS)
 	cp $(STAGE1)-objects/policy/config.json $(STAGE1)-objects/policy/model.safetensors \
 		$(STAGE1)-objects/policy/train_log.csv $(SHIPPED_OBJECTS)/
@@ -82,38 +83,43 @@ SHIPPED_CAMERA := sb3_memret/controllers/checkpoints/drawer-camera
 controller-camera: install renderer
 	rm -rf $(STAGE1)-camera
 	$(VENV)/bin/sb3-memret demos --episodes 480 --render-backend cpu --image-size 128 --out $(STAGE1)-camera/demos
-	$(VENV)/bin/sb3-memret finetune $(STAGE1)-camera/demos --steps 4000 --seed 1 --out $(STAGE1)-camera/policy
+	$(VENV)/bin/sb3-memret finetune $(STAGE1)-camera/demos --config $(SHIPPED_CAMERA)/recipe.yml \
+		--out $(STAGE1)-camera/policy
 	mkdir -p $(SHIPPED_CAMERA)
 	cp $(STAGE1)-camera/policy/config.json $(STAGE1)-camera/policy/model.safetensors \
 		$(STAGE1)-camera/policy/train_log.csv $(SHIPPED_CAMERA)/
 
-# The camera-reading learned controller of a MIKASA task (`--task $(MIKASA_TASK) --controller learned`): $(MIKASA_EPISODES)
-# expert episodes with every control step kept (MIKASA renders its 128x128 cameras at every step anyway), then the same
-# policy on joints, hand pose and both cameras. MIKASA_DAGGER=N adds a DAgger round: N episodes (seeds after the
-# expert's) played by that policy and labelled by the expert, then the policy trained again on both datasets.
+# The camera-reading learned controller of a MIKASA task (`--task $(MIKASA_TASK) --controller learned-task`):
+# $(MIKASA_EPISODES) expert episodes with every control step kept (MIKASA renders its 128x128 cameras at every step
+# anyway), then the policy on joints, hand pose and both cameras by the task's recipe (its shipped checkpoint's
+# recipe.yml, else zoo_configs/finetune_learned.yml). MIKASA_DAGGER=N adds a DAgger round: N episodes (seeds after the
+# expert's) played by a first policy (MIKASA_STEPS steps, default the recipe's) and labelled by the expert, then the
+# recipe's policy on both datasets. MIKASA_SET='--set KEY=VALUE ...' changes the recipe for both finetunes.
 MIKASA_TASK ?= RememberColor3-VLA-v0
-MIKASA_STEPS ?= 2500
 MIKASA_EPISODES ?= 400
 MIKASA_DAGGER ?= 0
-MIKASA_DAGGER_STEPS ?= $(MIKASA_STEPS)
-# extra finetune options, e.g. MIKASA_FINETUNE='--image-dim 128 --keypoints 64' for RememberColor5/9's 5 and 9 cubes
-MIKASA_FINETUNE ?=
+MIKASA_STEPS ?=
+MIKASA_SET ?=
+MIKASA_SHIPPED = sb3_memret/controllers/checkpoints/$(MIKASA_TASK)-camera
+MIKASA_RECIPE ?= $(firstword $(wildcard $(MIKASA_SHIPPED)/recipe.yml) zoo_configs/finetune_learned.yml)
 MIKASA_RUN = $(STAGE1)-$(MIKASA_TASK)
 controller-mikasa: install renderer
 	rm -rf $(MIKASA_RUN)
 	$(VENV)/bin/sb3-memret demos --task $(MIKASA_TASK) --episodes $(MIKASA_EPISODES) --frames every --out $(MIKASA_RUN)/demos
-	$(VENV)/bin/sb3-memret finetune $(MIKASA_RUN)/demos --task $(MIKASA_TASK) --steps $(MIKASA_STEPS) $(MIKASA_FINETUNE) \
+	$(VENV)/bin/sb3-memret finetune $(MIKASA_RUN)/demos --task $(MIKASA_TASK) --config $(MIKASA_RECIPE) $(MIKASA_SET) \
+		$(if $(filter-out 0,$(MIKASA_DAGGER)),$(if $(MIKASA_STEPS),--set training.steps=$(MIKASA_STEPS))) \
 		--out $(MIKASA_RUN)/policy
 	if [ $(MIKASA_DAGGER) -gt 0 ]; then \
 		$(VENV)/bin/sb3-memret demos --task $(MIKASA_TASK) --episodes $(MIKASA_DAGGER) --frames every \
 			--seed $$((100000 + $(MIKASA_EPISODES))) --learner learned:$(MIKASA_RUN)/policy --out $(MIKASA_RUN)/dagger && \
 		mv $(MIKASA_RUN)/policy $(MIKASA_RUN)/policy-expert && \
 		$(VENV)/bin/sb3-memret finetune $(MIKASA_RUN)/demos $(MIKASA_RUN)/dagger --task $(MIKASA_TASK) \
-			--steps $(MIKASA_DAGGER_STEPS) $(MIKASA_FINETUNE) --out $(MIKASA_RUN)/policy; \
+			--config $(MIKASA_RECIPE) $(MIKASA_SET) --out $(MIKASA_RUN)/policy; \
 	fi
-	mkdir -p sb3_memret/controllers/checkpoints/$(MIKASA_TASK)-camera
-	cp $(MIKASA_RUN)/policy/config.json $(MIKASA_RUN)/policy/model.safetensors \
-		$(MIKASA_RUN)/policy/train_log.csv sb3_memret/controllers/checkpoints/$(MIKASA_TASK)-camera/
+	mkdir -p $(MIKASA_SHIPPED)
+	cp $(MIKASA_RUN)/policy/config.json $(MIKASA_RUN)/policy/model.safetensors $(MIKASA_RUN)/policy/train_log.csv \
+		$(MIKASA_SHIPPED)/
+	[ $(MIKASA_RECIPE) -ef $(MIKASA_SHIPPED)/recipe.yml ] || cp $(MIKASA_RECIPE) $(MIKASA_SHIPPED)/recipe.yml
 
 # The one camera controller across twenty MIKASA tasks (`--controller learned` on each; finetune --tasks): every
 # short-split task whose success is touching the object a fact names, and SeqOfColors3, whose prompt also says which
@@ -135,12 +141,11 @@ MULTITASK_TASKS = $(MULTITASK_TOUCH_TASKS)$(if $(MULTITASK_PROGRESS_TASKS),$(com
 MULTITASK_EPISODES ?= 200
 MULTITASK_ONPOLICY ?= 100
 MULTITASK_STEPS ?= 5000
-MULTITASK_FINETUNE ?= --image-dim 128 --keypoints 64 --pointer --pointer-hindsight 0.1
+MULTITASK_RECIPE ?= sb3_memret/controllers/checkpoints/mikasa-multitask-camera/recipe.yml
 MULTITASK_DAGGER ?= 150
 MULTITASK_EXTRA ?= 200
 MULTITASK_PROGRESS ?= 200
 MULTITASK_PROGRESS_STEPS ?= 160
-MULTITASK_FINAL_STEPS ?= 12000
 MULTITASK_RUN = $(STAGE1)-multitask
 SHIPPED_MULTITASK := sb3_memret/controllers/checkpoints/mikasa-multitask-camera
 touch_tasks = $(subst $(comma), ,$(MULTITASK_TOUCH_TASKS))
@@ -154,7 +159,7 @@ controller-multitask: install renderer
 	for policy in $(MULTITASK_RUN)/policy-first $(MULTITASK_RUN)/policy; do \
 		[ -f $$policy/training_state.pt ] || rm -rf $$policy; done  # an unfinished finetune resumes
 	scripts/finetune_task_demos.sh $(MULTITASK_RUN)/demos $(MULTITASK_RUN)/policy-first $(MULTITASK_TOUCH_TASKS) \
-		--steps $(MULTITASK_STEPS) $(MULTITASK_FINETUNE)
+		--config $(MULTITASK_RECIPE) --set training.steps=$(MULTITASK_STEPS)
 	LEARNER=learned:$(MULTITASK_RUN)/policy-first SEED=$$((100000 + $(MULTITASK_EPISODES) + $(MULTITASK_ONPOLICY))) \
 		scripts/record_task_demos.sh $(MULTITASK_RUN)/dagger $(MULTITASK_DAGGER) $(touch_tasks)
 	SEED=$$((100000 + $(MULTITASK_EPISODES) + $(MULTITASK_ONPOLICY) + $(MULTITASK_DAGGER))) scripts/record_task_demos.sh \
@@ -162,7 +167,7 @@ controller-multitask: install renderer
 	$(if $(MULTITASK_PROGRESS_TASKS),MAX_STEPS=$(MULTITASK_PROGRESS_STEPS) scripts/record_task_demos.sh \
 		$(MULTITASK_RUN)/progress $(MULTITASK_PROGRESS) $(subst $(comma), ,$(MULTITASK_PROGRESS_TASKS)))
 	scripts/finetune_task_demos.sh '$(MULTITASK_RUN)/demos?,$(MULTITASK_RUN)/dagger?,$(MULTITASK_RUN)/extra?,$(MULTITASK_RUN)/progress?' \
-		$(MULTITASK_RUN)/policy $(MULTITASK_TASKS) --steps $(MULTITASK_FINAL_STEPS) $(MULTITASK_FINETUNE)
+		$(MULTITASK_RUN)/policy $(MULTITASK_TASKS) --config $(MULTITASK_RECIPE)
 	if $(PY) -c "import sys; from sb3_memret.controllers.shipped import MULTITASK_TASKS as t; \
 			sys.exit(set(t) != set('$(MULTITASK_TASKS)'.split(',')))"; then \
 		mkdir -p $(SHIPPED_MULTITASK) && cp $(MULTITASK_RUN)/policy/config.json \

@@ -7,7 +7,7 @@
 # crashed: OUT/training_state.pt) goes on where it stopped (finetune --resume; refused if the data or options differ).
 # Usage: scripts/finetune_task_demos.sh DEMOS[,DEMOS...] OUT TASK[,TASK...] [finetune options...]
 #   e.g. scripts/finetune_task_demos.sh runs/multitask runs/multitask/policy \
-#          RememberColor3-VLA-v0,RememberShape3-VLA-v0 --steps 4000
+#          RememberColor3-VLA-v0,RememberShape3-VLA-v0 --set training.steps=4000
 #        scripts/finetune_task_demos.sh 'runs/multitask,runs/more-shapes?' runs/multitask/policy \
 #          RememberColor3-VLA-v0,RememberShape3-VLA-v0
 set -euo pipefail

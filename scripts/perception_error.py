@@ -28,7 +28,7 @@ import torch
 from sb3_memret.controllers.learned import LearnedPolicy
 from sb3_memret.controllers.learned.configuration import perceived_objects
 from sb3_memret.controllers.learned.modeling import pointer_ambiguity
-from sb3_memret.controllers.learned.processing import PromptTokenizer, state_columns
+from sb3_memret.controllers.learned.processing import LearnedPolicyProcessor, PromptTokenizer, state_columns
 from sb3_memret.stage1.datasets import load_demonstrations, load_task_demonstrations, validation_episodes
 from sb3_memret.stage1.finetune import FinetuneSettings, camera_inputs
 
@@ -74,15 +74,16 @@ def main() -> None:
     if not len(held):
         raise SystemExit(f"no {args.split} episodes (--validation-fraction {args.validation_fraction})")
     idx = np.sort(np.random.default_rng(0).choice(held, size=min(args.frames, len(held)), replace=False))
-    features = camera_inputs(policy, {k: v[idx] for k, v in demos.images.items()}, policy.config.image_features,
-                             cache=False)
     tokenizer = PromptTokenizer()
+    processor = LearnedPolicyProcessor(policy.config, tokenizer=tokenizer)  # the inputs as training and acting build them
+    features = camera_inputs(policy, processor, {k: v[idx] for k, v in demos.images.items()},
+                             policy.config.image_features, cache=False)
+    cameras = [processor.camera(f) if policy.trunk is None else f.float() for f in features]
     with torch.no_grad():  # heads conditioned on the prompt (image_film) read each frame's own prompt
         prompts = policy.encode_prompts(*tokenizer(demos.tasks))[torch.from_numpy(demos.task_ids[idx])]
     columns = state_columns(demos.state_names, names, "the datasets' state")
-    states = torch.from_numpy(demos.states[idx][:, state_columns(demos.state_names, policy.config.state_names,
-                                                                 "the datasets' state")])
-    estimates = policy.estimate_perceived([f.float() for f in features], prompts, states)
+    states = processor.state(demos.states[idx], processor.state_columns(demos.state_names, "the datasets' state"))
+    estimates = policy.estimate_perceived(cameras, prompts, states)
     labels = torch.from_numpy(demos.states[idx][:, columns])
     error = estimates - labels
     normalised_error = error / policy.perceived_std

@@ -9,7 +9,8 @@ from collections import Counter
 import pytest
 
 from sb3_memret.analysis import ablations
-from sb3_memret.analysis.ablations import AblationOptions, AblationResult, AblationSpec, Cell, CellResult, wilson_interval
+from sb3_memret.analysis.ablations import AblationResult, CellResult, wilson_interval
+from sb3_memret.tasks.ablations import AblationOptions, AblationSpec, Cell
 from sb3_memret.evaluation.parallel import EpisodeJob
 from sb3_memret.tasks.drawer import DrawerTask
 from sb3_memret.tasks.drawer import ablations as drawer_ablations

@@ -92,7 +92,7 @@ def test_run_commands_refuse_folders_that_are_not_runs(tmp_path):
 
 
 def test_ablate_default_intervals_are_the_tasks():
-    from sb3_memret.analysis.ablations import AblationOptions
+    from sb3_memret.tasks.ablations import AblationOptions
     from sb3_memret.tasks.drawer import DrawerTask
     from sb3_memret.tasks.drawer.ablations import REPLAN_INTERVALS
 

@@ -20,9 +20,15 @@ from sb3_memret.tasks.drawer.drawer_cube import DEFAULT_ROBOT
 from sb3_memret.tasks.drawer.robot import LIGHT_PANDA_UID
 from sb3_memret.stage1.demos import DemoEpisode, record_demos
 from sb3_memret.stage1.datasets import Demonstrations, hindsight_objects, load_demonstrations, validation_episodes
-from sb3_memret.stage1.finetune import FinetuneSettings, finetune, read_log
+from sb3_memret.stage1.finetune import FinetuneSettings, read_log
+from sb3_memret.stage1.finetune import finetune as finetune_any_task
 
 SMALL = LearnedPolicyConfig(hidden_dim=64, n_layers=2, text_dim=32, text_heads=2, chunk_len=8)
+
+
+def finetune(datasets, out, *args, **kwargs):
+    """``finetune`` on the drawer's datasets."""
+    return finetune_any_task(datasets, out, *args, task="drawer", **kwargs)
 
 
 @pytest.fixture(scope="module")
@@ -95,8 +101,8 @@ def test_demos_finetune_rollout_through_the_cli(tmp_path):
     assert result.exit_code == 0, result.output
     (episode,) = map(json.loads, (tmp_path / "short" / "sb3_memret_episodes.jsonl").open())
     assert episode["steps"] == 30 and not episode["success"]  # the expert needs more than 30 steps
-    result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "c"), "--steps", "20",
-                                  "--no-progress"])
+    result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "c"), "--set",
+                                  "training.steps=20", "--no-progress"])
     assert result.exit_code == 0 and f"--controller learned:{tmp_path / 'c'}" in result.output, result.output
     result = runner.invoke(main, ["rollout", "--controller", f"learned:{tmp_path / 'c'}", "--episodes", "1",
                                   "--group", "2", "--json"])
@@ -104,25 +110,26 @@ def test_demos_finetune_rollout_through_the_cli(tmp_path):
     result = runner.invoke(main, ["demos", "--out", str(tmp_path / "d")])
     assert result.exit_code == 2 and "already exists" in result.output
     result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "p"), "--policy", "pi05"])
-    assert result.exit_code == 2 and "--policy pi05 needs --pretrained" in result.output
-    for head, message in (("64", "expected CHANNELSxKERNEL convs"), ("60x3", "channels a multiple of 8")):
-        result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "h"), "--image-head",
-                                      head])
-        assert result.exit_code == 2 and message in result.output and not (tmp_path / "h").exists(), result.output
-    result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "h"), "--image-encoder",
-                                  "cnn", "--image-head", "64x3"])
-    assert result.exit_code == 2 and "--image-encoder cnn has convs of its own" in result.output, result.output
-    result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "h"), "--image-encoder",
-                                  "cnn", "--trunk-stride", "4"])
-    assert result.exit_code == 2 and "--image-encoder cnn has strides of its own" in result.output, result.output
+    assert result.exit_code == 2 and "policy pi05 needs its pretrained PI05 checkpoint folder" in result.output
+    refusals = {
+        ("model.image_head=64",): "model.image_head=64 is invalid; expected a list of [channels, kernel] convs",
+        ("model.image_head=[[60, 3]]",): "channels a multiple of 8",
+        ("model.image_encoder=cnn", "model.image_head=[[64, 3]]"): "model.image_head shape a frozen trunk's camera heads",
+        ("model.image_encoder=cnn", "model.trunk_stride=4"): "model.trunk_stride shape a frozen trunk's camera heads",
+        ("model.image_encoder=cnn", "model.trunk_scale=2"): "model.trunk_scale shape a frozen trunk's camera heads",
+        ("model.trunk_stride=2",): "trunk_stride 2: expected one of [4, 8]",
+        ("model.widht=3",): "unknown key model.widht; the model's keys are",
+        ("training.steps=many",): "training.steps='many' is invalid; expected int",
+        ("training.pointer_hindsight=0.1",): "trains the pointer: set model.pointer: true",
+        ("steps=20",): "unknown key(s) ['steps']",
+        ("training.steps",): "'training.steps' is not KEY=VALUE",
+    }
+    for sets, message in refusals.items():
+        args = [arg for key in sets for arg in ("--set", key)]
+        result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "h"), *args])
+        assert result.exit_code == 2 and message in result.output and not (tmp_path / "h").exists(), (sets, result.output)
     result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "c"), "--resume"])
     assert result.exit_code == 2 and "nothing to resume" in result.output, result.output
-    result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "h"), "--image-encoder",
-                                  "cnn", "--trunk-scale", "2"])
-    assert result.exit_code == 2 and "--trunk-scale 2 shape a frozen trunk" in result.output, result.output
-    result = runner.invoke(main, ["finetune", str(tmp_path / "d"), "--out", str(tmp_path / "h"), "--trunk-stride",
-                                  "2"])
-    assert result.exit_code == 2 and "'2' is not one of '8', '4'" in result.output, result.output
 
 
 @pytest.fixture(scope="module")
@@ -130,6 +137,38 @@ def camera_demos(tmp_path_factory):
     root = tmp_path_factory.mktemp("finetune") / "camera-demos"
     episodes = [DemoEpisode(43, 1, condition_prompt("oracle", 1)), DemoEpisode(44, 2, condition_prompt("oracle", 2))]
     return record_demos(root, episodes, render_backend="cpu", max_steps=40, frames="decisions", image_size=32)
+
+
+def test_training_reads_a_frame_as_the_controller_reads_the_observation_it_was_recorded_from(camera_demos, tmp_path):
+    """One processor for both sides: the inputs a finetune builds from a recorded frame (state entries by name, camera
+    images scaled, prompt features) equal those the controller builds from the observation the frame was recorded
+    from, so a policy acts on what it learned from."""
+    from dataclasses import replace
+
+    from sb3_memret.controllers.learned import LearnedPolicy
+    from sb3_memret.controllers.learned.processing import LearnedPolicyProcessor, PromptTokenizer
+    from sb3_memret.stage1.finetune import DemoTensors, default_config, policy_config
+    from sb3_memret.tasks.drawer import DrawerTask
+
+    task = DrawerTask()
+    demos = load_demonstrations([camera_demos], task)
+    config, reads = policy_config(replace(default_config([task]), image_encoder="cnn", image_dim=8, chunk_len=8),
+                                  [task], demos, "proprio", True, 1.0)
+    model, tokenizer = LearnedPolicy(config), PromptTokenizer()
+    data = DemoTensors.build(model, demos, reads, tokenizer(demos.tasks), np.random.default_rng(0),
+                             FinetuneSettings(validation_fraction=0.0), [task], tmp_path, cache_features=False)
+    trained = data.batch(np.array([0]), augment=False)  # the first frame: episode seed 43's reset, cube in layer 1
+    env = task.make_env(obs_mode="rgb", render_backend="cpu", robot_uids=DEFAULT_ROBOT)
+    obs, _ = env.reset(seed=43, options={"target_layer": 1, "target": "cube"})
+    acting = LearnedPolicyProcessor(model.config, task, tokenizer)(obs, [condition_prompt("oracle", 1)])
+    env.close()
+    assert config.image_features and torch.equal(trained.state, acting["state"])
+    assert len(trained.cameras) == len(acting["images"]) == 2
+    for learned_from, acted_on in zip(trained.cameras, acting["images"]):
+        assert learned_from.shape == acted_on.shape == (1, 3, 32, 32) and torch.equal(learned_from, acted_on)
+    mask = acting["token_mask"][0]
+    assert torch.equal(trained.token_mask[trained.prompt_of[0]][: len(mask)], mask)
+    assert torch.equal(trained.tokens[trained.prompt_of[0]][: len(mask)][mask], acting["tokens"][0][mask])
 
 
 def test_a_camera_policy_learns_from_decision_frames_and_sees_only_the_hand(camera_demos, demos, tmp_path, rgb_task_env):

@@ -294,20 +294,21 @@ def test_a_trunk_cut_at_stride_4_round_trips_and_fails_loudly_read_as_the_defaul
 
 
 def test_images_are_resized_on_the_controllers_device_as_the_demonstrations_were():
-    """``image_tensor`` resizes uint8 frames where the policy runs, to exactly the values the stored
+    """The processor resizes uint8 frames where the policy runs, to exactly the values the stored
     demonstration frames (``resize_images``, uint8) give; a frame already at size passes unchanged."""
-    from sb3_memret.controllers.learned.processing import image_tensor
+    from sb3_memret.controllers.learned.processing import LearnedPolicyProcessor, channels_first
     from sb3_memret.controllers.observation import resize_images
 
     frames = np.random.default_rng(0).integers(0, 256, size=(3, 224, 224, 3), dtype=np.uint8)
     stored = torch.from_numpy(resize_images(frames, 128)).permute(0, 3, 1, 2).float() / 255.0
-    acted = image_tensor(frames, 128, "cpu")
+    processor = LearnedPolicyProcessor(LearnedPolicyConfig(**SMALL, image_size=128), tokenizer=object())
+    acted = processor.camera(channels_first(frames))
     assert acted.shape == (3, 3, 128, 128) and acted.dtype == torch.float32
     assert torch.equal(acted, stored)
-    same = image_tensor(frames, 224)
-    assert torch.equal(same * 255.0, torch.from_numpy(frames).permute(0, 3, 1, 2).float())
+    same = LearnedPolicyProcessor(LearnedPolicyConfig(**SMALL, image_size=224), tokenizer=object())
+    assert torch.equal(same.camera(channels_first(frames)) * 255.0, torch.from_numpy(frames).permute(0, 3, 1, 2).float())
     with pytest.raises(ValueError, match="uint8"):
-        image_tensor(frames.astype(np.float32), 128)
+        channels_first(frames.astype(np.float32))
 
 
 CUBES = ("red", "blue", "lime")

@@ -118,14 +118,14 @@ def test_demos_of_a_mikasa_task_are_a_lerobot_dataset_whose_prompts_carry_the_fa
 
 
 def test_a_pointer_camera_policy_finetunes_on_mikasa_demos_and_logs_its_ambiguity(every_step_demos, tmp_path):
-    """``finetune --pointer`` on a MIKASA task: the pointer groups the perceived cubes, its ambiguity is logged
+    """``finetune --set model.pointer=true`` on a MIKASA task: the pointer groups the perceived cubes, its ambiguity is logged
     (log 3 at most for three cubes), and the checkpoint loads as a controller with its pointer."""
     from sb3_memret.controller_specs import make_controller
     from sb3_memret.stage1.finetune import read_log
 
     out = tmp_path / "policy"
-    result = CliRunner().invoke(main, ["finetune", str(every_step_demos), "--task", TASK, "--steps", "4",
-                                       "--batch-size", "8", "--pointer", "--no-progress",
+    result = CliRunner().invoke(main, ["finetune", str(every_step_demos), "--task", TASK, "--set", "training.steps=4",
+                                       "--set", "training.batch_size=8", "--set", "model.pointer=true", "--no-progress",
                                        "--out", str(out)])
     assert result.exit_code == 0, result.output
     ambiguity = [float(row["pointer_ambiguity"]) for row in read_log(out)]
@@ -135,9 +135,9 @@ def test_a_pointer_camera_policy_finetunes_on_mikasa_demos_and_logs_its_ambiguit
 
 
 def test_pointer_hindsight_points_each_prompt_at_the_cube_its_hand_ended_at(every_step_demos, tmp_path):
-    """``finetune --pointer --pointer-hindsight``: each prompt's target is the cube the expert's hand ended nearest
+    """``finetune`` with the pointer and its hindsight loss: each prompt's target is the cube the expert's hand ended nearest
     (the matching prompt's: the cue's colour), written to pointer_targets.json, and the pointer learns to point
-    there; without --pointer the option is refused."""
+    there; without the pointer the option is refused."""
     import json
 
     from sb3_memret.controllers.learned import LearnedPolicy
@@ -145,8 +145,8 @@ def test_pointer_hindsight_points_each_prompt_at_the_cube_its_hand_ended_at(ever
     from sb3_memret.stage1.demos import read_episode_log
 
     out = tmp_path / "policy"
-    result = CliRunner().invoke(main, ["finetune", str(every_step_demos), "--task", TASK, "--steps", "30",
-                                       "--batch-size", "8", "--lr", "0.01", "--pointer", "--pointer-hindsight", "1",
+    result = CliRunner().invoke(main, ["finetune", str(every_step_demos), "--task", TASK, "--set", "training.steps=30",
+                                       "--set", "training.batch_size=8", "--set", "training.learning_rate=0.01", "--set", "model.pointer=true", "--set", "training.pointer_hindsight=1",
                                        "--no-progress", "--out", str(out)])
     assert result.exit_code == 0, result.output
     targets = json.loads((out / "pointer_targets.json").read_text())
@@ -157,9 +157,9 @@ def test_pointer_hindsight_points_each_prompt_at_the_cube_its_hand_ended_at(ever
     prompts = list(targets)
     weights = policy.pointer.weights(policy.encode_prompts(*PromptTokenizer()(prompts)))
     assert [objects[i] for i in weights.argmax(dim=1).tolist()] == [targets[p] for p in prompts]
-    refused = CliRunner().invoke(main, ["finetune", str(every_step_demos), "--task", TASK, "--pointer-hindsight", "1",
+    refused = CliRunner().invoke(main, ["finetune", str(every_step_demos), "--task", TASK, "--set", "training.pointer_hindsight=1",
                                         "--out", str(tmp_path / "refused")])
-    assert refused.exit_code == 2 and "add --pointer" in refused.output
+    assert refused.exit_code == 2 and "set model.pointer: true" in refused.output
 
 
 def test_demos_refuse_drawer_options_on_a_mikasa_task(tmp_path):

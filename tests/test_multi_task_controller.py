@@ -15,13 +15,15 @@ from click.testing import CliRunner
 from sb3_memret.cli import main
 from sb3_memret.controller_specs import make_controller
 from sb3_memret.stage1.datasets import load_task_demonstrations
-from sb3_memret.stage1.finetune import masked_mse, masked_stats, read_log
+from sb3_memret.controllers.learned.modeling import masked_mse
+from sb3_memret.stage1.finetune import masked_stats, read_log
 from sb3_memret.tasks import make_task
 from sb3_memret.tasks.mikasa.core.demo_layout import proprio_names
 
 COLOUR, SHAPE = "RememberColor3-VLA-v0", "RememberShape3-VLA-v0"
 REPO = Path(__file__).resolve().parents[1]
-SMALL = ["--image-encoder", "cnn", "--image-dim", "8", "--keypoints", "4", "--batch-size", "8", "--no-progress"]
+SMALL = ["--set", "model.image_encoder=cnn", "--set", "model.image_dim=8", "--set", "model.keypoints=4", "--set",
+         "training.batch_size=8", "--no-progress"]
 
 
 @pytest.fixture(scope="module")
@@ -65,7 +67,7 @@ def test_masked_statistics_and_loss_read_only_the_marked_entries():
 def test_one_camera_controller_is_trained_on_both_tasks_and_serves_each(datasets, tmp_path):
     out = tmp_path / "ckpt"
     result = CliRunner().invoke(main, ["finetune", str(datasets[COLOUR]), str(datasets[SHAPE]), "--tasks",
-                                       f"{COLOUR},{SHAPE}", "--out", str(out), "--steps", "40", *SMALL])
+                                       f"{COLOUR},{SHAPE}", "--out", str(out), "--set", "training.steps=40", *SMALL])
     assert result.exit_code == 0, result.output
     losses = [float(row["train_loss"]) for row in read_log(out)]
     assert np.isfinite(losses).all() and losses[-1] < losses[0]
@@ -95,7 +97,7 @@ def test_datasets_and_their_tasks_must_pair(datasets, tmp_path, tasks, message):
 
 def test_a_full_state_policy_over_tasks_whose_layouts_differ_is_refused(datasets, tmp_path):
     result = CliRunner().invoke(main, ["finetune", str(datasets[COLOUR]), str(datasets[SHAPE]), "--tasks",
-                                       f"{COLOUR},{SHAPE}", "--state", "full", "--out", str(tmp_path / "x"), *SMALL])
+                                       f"{COLOUR},{SHAPE}", "--set", "state=full", "--out", str(tmp_path / "x"), *SMALL])
     assert result.exit_code == 2 and "train it with state='proprio'" in result.output
 
 
@@ -116,7 +118,7 @@ def _finetune_script(*args):
 def test_the_finetune_script_trains_one_policy_on_the_chunks_of_every_root(datasets, tmp_path):
     expert = _chunks(tmp_path / "demos", datasets, (COLOUR, SHAPE))
     dagger = _chunks(tmp_path / "dagger", datasets, (COLOUR, SHAPE))
-    result = _finetune_script(f"{expert},{dagger}", tmp_path / "policy", f"{COLOUR},{SHAPE}", "--steps", "3", *SMALL)
+    result = _finetune_script(f"{expert},{dagger}", tmp_path / "policy", f"{COLOUR},{SHAPE}", "--set", "training.steps=3", *SMALL)
     assert result.returncode == 0, result.stdout + result.stderr
     assert "finetuning on 4 chunks of 2 task(s)" in result.stdout
     config = make_controller(f"learned:{tmp_path / 'policy'}", SHAPE).policy.config
@@ -134,7 +136,7 @@ def test_the_finetune_script_refuses_a_root_that_lacks_a_task(datasets, tmp_path
 def test_an_optional_root_adds_the_chunks_of_the_tasks_it_has(datasets, tmp_path):
     expert = _chunks(tmp_path / "demos", datasets, (COLOUR, SHAPE))
     more = _chunks(tmp_path / "more", datasets, (SHAPE,))  # more episodes of one task only
-    result = _finetune_script(f"{expert},{more}?", tmp_path / "policy", f"{COLOUR},{SHAPE}", "--steps", "2", *SMALL)
+    result = _finetune_script(f"{expert},{more}?", tmp_path / "policy", f"{COLOUR},{SHAPE}", "--set", "training.steps=2", *SMALL)
     assert result.returncode == 0, result.stdout + result.stderr
     assert "finetuning on 3 chunks of 2 task(s)" in result.stdout
     nothing = tmp_path / "nothing"
@@ -150,7 +152,7 @@ def test_the_finetune_script_resumes_an_unfinished_finetune(datasets, tmp_path):
     out = tmp_path / "policy"
     out.mkdir()
     (out / "training_state.pt").write_bytes(b"not a state")
-    result = _finetune_script(expert, out, f"{COLOUR},{SHAPE}", "--steps", "2", *SMALL)
+    result = _finetune_script(expert, out, f"{COLOUR},{SHAPE}", "--set", "training.steps=2", *SMALL)
     assert "resuming the unfinished finetune" in result.stdout
     assert result.returncode == 2 and "cannot be read as a finetune's state" in result.stderr, result.stderr
 
@@ -163,7 +165,7 @@ def test_a_pointer_across_tasks_points_with_the_fields_every_object_has(datasets
     assert result.exit_code == 0, result.output
     out = tmp_path / "ckpt"
     result = CliRunner().invoke(main, ["finetune", str(datasets[COLOUR]), str(demos), "--tasks", f"{COLOUR},{back}",
-                                       "--pointer", "--pointer-hindsight", "0.1", "--out", str(out), "--steps", "5",
+                                       "--set", "model.pointer=true", "--set", "training.pointer_hindsight=0.1", "--out", str(out), "--set", "training.steps=5",
                                        *SMALL])
     assert result.exit_code == 0, result.output
     config = make_controller(f"learned:{out}", back).policy.config
@@ -180,7 +182,7 @@ def test_a_perception_head_that_reads_the_hand_across_tasks_and_its_error_per_ta
 
     out = tmp_path / "ckpt"
     result = CliRunner().invoke(main, ["finetune", str(datasets[COLOUR]), str(datasets[SHAPE]), "--tasks",
-                                       f"{COLOUR},{SHAPE}", "--perception-state", "--out", str(out), "--steps", "5",
+                                       f"{COLOUR},{SHAPE}", "--set", "model.perception_state=true", "--out", str(out), "--set", "training.steps=5",
                                        *SMALL])
     assert result.exit_code == 0, result.output
     policy = make_controller(f"learned:{out}", SHAPE).policy

@@ -2,8 +2,9 @@
 
 A cell is a prompt, the task's reset options (which episode it plays: the drawer's cube layer) and a replan interval,
 played for the same ``episodes`` held-out seeds (``seed .. seed+episodes-1``) as every other cell, so cells differ
-only in what they vary. A task names the tables it defines (``Task.ablations``: the drawer's replan, prompt, memcount
-and wording tables, ``sb3_memret.tasks.drawer.ablations``).
+only in what they vary. A task names the tables it defines (``Task.ablations``, their cells ``sb3_memret.tasks.ablations``:
+the drawer's replan, prompt, memcount and wording tables, ``sb3_memret.tasks.drawer.ablations``); here they are played
+and their results tabled.
 """
 
 from __future__ import annotations
@@ -13,7 +14,7 @@ import io
 import json
 import math
 from dataclasses import asdict, dataclass, field
-from typing import Any, Callable, Mapping, Sequence
+from typing import Any, Callable, Mapping
 
 import numpy as np
 
@@ -22,49 +23,7 @@ from sb3_memret.evaluation.parallel import EpisodeJob, run_jobs
 from sb3_memret.evaluation.rollout import EpisodeResult
 from sb3_memret.common.seeds import HELD_OUT_SEED
 from sb3_memret.tasks import Task, make_task
-
-OVERALL = "overall"
-
-
-@dataclass(frozen=True)
-class AblationOptions:
-    """What a command may set of a task's ablation tables: the replan intervals of a table that varies them, the
-    group its episodes play (the drawer: the cube's layer) and the replan interval of the others (None: the task's
-    defaults)."""
-
-    intervals: tuple[int, ...] | None = None
-    group: str | None = None
-    replan_every: int | None = None
-
-
-#: a task's ablation tables by name, each built from the options a command sets (``Task.ablations``)
-AblationBuilder = Callable[[AblationOptions], "AblationSpec"]
-
-
-@dataclass(frozen=True)
-class Cell:
-    """One table cell: the episodes' prompt, the task's reset options and the replan interval (None: the task's)."""
-
-    row: str
-    column: str
-    prompt: str
-    reset_options: Mapping[str, Any] = field(default_factory=dict)
-    replan_every: int | None = None
-    check_prompt: bool = True
-
-
-@dataclass(frozen=True)
-class AblationSpec:
-    """A table to fill: its rows, columns and cells (a missing (row, column) prints as '–')."""
-
-    name: str
-    title: str
-    row_header: str
-    rows: tuple[str, ...]
-    columns: tuple[str, ...]
-    cells: tuple[Cell, ...]
-    pooled_column: str | None = None  # a column pooling each row's episodes (the overall rate)
-
+from sb3_memret.tasks.ablations import AblationSpec, Cell
 
 @dataclass
 class CellResult:
@@ -201,4 +160,4 @@ def run_ablation(
     return AblationResult(spec, episodes, seed, controller, cells)
 
 
-__all__ = ["AblationBuilder", "AblationOptions", "AblationResult", "AblationSpec", "Cell", "CellResult", "OVERALL", "run_ablation", "wilson_interval"]
+__all__ = ["AblationResult", "CellResult", "run_ablation", "wilson_interval"]

@@ -129,7 +129,8 @@ def ablate(ctx: click.Context, ablation: str, task: str, controller: str, episod
     memory reworded as no training prompt was; these cells alone waive the prompt contract). A task without
     tables compares prompt conditions and replan intervals with `rollout --task T --condition oracle|none|wrong
     --replan-every N`."""
-    from sb3_memret.analysis.ablations import AblationOptions, run_ablation
+    from sb3_memret.analysis.ablations import run_ablation
+    from sb3_memret.tasks.ablations import AblationOptions
     from sb3_memret.tasks import make_task
 
     the_task = make_task(task)

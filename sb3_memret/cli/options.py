@@ -109,24 +109,6 @@ class TaskName(click.ParamType):
             self.fail(str(err), param, ctx)
 
 
-class ConvList(click.ParamType):
-    """``CHANNELSxKERNEL[,CHANNELSxKERNEL...]`` (e.g. ``64x3,64x1``) -> ((channels, kernel), ...)."""
-
-    name = "convs"
-
-    def convert(self, value, param, ctx):
-        if isinstance(value, tuple):
-            return value
-        convs = []
-        for part in str(value).split(","):
-            channels, _, kernel = part.strip().partition("x")
-            if not (channels.isdigit() and kernel.isdigit()):
-                self.fail(f"{value!r}: expected CHANNELSxKERNEL convs, comma-separated (e.g. 32x3 or 64x3,64x1)",
-                          param, ctx)
-            convs.append((int(channels), int(kernel)))
-        return tuple(convs)
-
-
 def task_option(default: str | None = DEFAULT_TASK):
     """``--task``: the memory task (parsed first, so the controller and render defaults follow it)."""
     def decorate(command):

@@ -7,7 +7,7 @@ from pathlib import Path
 
 import click
 
-from sb3_memret.cli.options import DEFAULT_TASK, ConvList, build_controller, render_backend_option, task_option
+from sb3_memret.cli.options import DEFAULT_TASK, build_controller, render_backend_option, task_option
 from sb3_memret.tasks.drawer.cabinet import LAYERS
 from sb3_memret.tasks.drawer.objects import OBJECT_SETS
 from sb3_memret.common.seeds import DEMO_SEED
@@ -137,163 +137,126 @@ def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, no
 @click.command()
 @click.argument("datasets", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True, help="Checkpoint folder.")
-@click.option("--policy", type=click.Choice(["learned", "pi05"]), default="learned", show_default=True,
-              help="learned: the project's small policy (CPU, minutes); pi05: LoRA on lerobot's PI05.")
-@click.option("--steps", type=click.IntRange(min=1), default=None,
-              help="Gradient steps  [default: 8000 learned, 2000 pi05]")
-@click.option("--batch-size", type=click.IntRange(min=1), default=None, help="[default: 256 learned, 8 pi05]")
-@click.option("--lr", "learning_rate", type=click.FloatRange(min=0.0, min_open=True), default=None,
-              help="[default: 1e-3 learned, 1e-4 pi05]")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True)
-@click.option("--pretrained", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
-              help="pi05: the pretrained PI05 checkpoint folder.")
-@click.option("--tokenizer", type=click.Path(exists=True, file_okay=False, path_type=Path), default=None,
-              help="pi05: a local PaliGemma tokenizer folder.")
-@click.option("--lora-rank", type=click.IntRange(min=1), default=16, show_default=True, help="pi05: LoRA rank.")
-@click.option("--device", default="cpu", show_default=True, help="pi05: torch device.")
+@click.option("--config", "config_path", type=click.Path(exists=True, dir_okay=False, path_type=Path), default=None,
+              help="The finetune's recipe: policy, inputs, network and optimisation (a shipped controller's is its "
+                   "checkpoint's recipe.yml)  [default: zoo_configs/finetune_learned.yml, or finetune_pi05.yml with "
+                   "--policy pi05]")
+@click.option("--policy", type=click.Choice(["learned", "pi05"]), default=None,
+              help="learned: the project's small policy (CPU, minutes); pi05: LoRA on lerobot's PI05  [default: the "
+                   "recipe's]")
+@click.option("--set", "overrides", multiple=True, metavar="KEY=VALUE",
+              help="Change one key of the recipe, dotted into its sections (e.g. training.steps=4000, "
+                   "model.pointer=true, pi05.pretrained=PATH); repeatable.")
 @task_option()
 @click.option("--tasks", "dataset_tasks", default=None, metavar="LIST",
               help="learned: each DATASET's task, a comma list in their order, for one policy over several tasks "
                    "(it reads proprioception and cameras; each task's perception loss covers its own entries).")
-@click.option("--state", type=click.Choice(["full", "proprio"]), default=None,
-              help="learned: the state entries read: the task's whole layout (with the simulator's object "
-                   "detection), or what a robot reads of itself (with cameras only)  [default: proprio when the "
-                   "datasets have cameras, else full]")
-@click.option("--image-encoder", type=click.Choice(["cnn", "efficientnet_lite0"]), default="efficientnet_lite0",
-              show_default=True, help="learned: a CNN trained from pixels, or ImageNet EfficientNet-Lite0 frozen "
-                                      "with trainable heads.")
-@click.option("--image-dim", type=click.IntRange(min=1), default=64, show_default=True,
-              help="learned: per camera, the size of the vector its head gives the action and perception heads.")
-@click.option("--keypoints", type=click.IntRange(min=1), default=32, show_default=True,
-              help="learned: per camera, the feature maps whose expected image coordinates its head reads (more for "
-                   "scenes with more objects to locate).")
-@click.option("--image-head", type=ConvList(), default="32x3", show_default=True,
-              help="learned, efficientnet_lite0: the convs each camera head runs on the trunk's maps before its "
-                   "keypoints, CHANNELSxKERNEL comma-separated (e.g. 64x3,64x1 to tell apart more objects alike).")
-@click.option("--trunk-stride", type=click.Choice(["8", "4"]), default="8", show_default=True,
-              help="learned, efficientnet_lite0: where the frozen trunk is cut: its maps are 1/stride of the picture's "
-                   "side (4: 32x32 maps at 128x128, shallower features, for objects a few pixels wide).")
-@click.option("--trunk-scale", type=click.Choice(["1", "2"]), default="1", show_default=True,
-              help="learned, efficientnet_lite0: the picture is enlarged this many times before the frozen trunk "
-                   "(2: 32x32 maps of the full trunk at 128x128, four times its cost).")
-@click.option("--image-colour/--no-image-colour", default=False, show_default=True,
-              help="learned, efficientnet_lite0: the camera heads also read the image's colour on the trunk's grid "
-                   "(for objects told apart by hue alone).")
-@click.option("--image-film/--no-image-film", default=False, show_default=True,
-              help="learned: the camera heads' keypoints are conditioned on the prompt (FiLM), to find the object it "
-                   "names among many alike.")
-@click.option("--pointer/--no-pointer", default=False, show_default=True,
-              help="learned: the action head also reads the perceived entries of the object the prompt points at "
-                   "(attention over the perceived objects, named <object>_x/_y/_z/_visible), for scenes of many alike.")
-@click.option("--perception-state/--no-perception-state", default=False, show_default=True,
-              help="learned: the perception head also reads the state (the hand's pose) through a hidden layer: "
-                   "where an object lies in the wrist camera's picture says where it is only with where the hand is.")
-@click.option("--pointer-hindsight", type=click.FloatRange(min=0.0), default=0.0, show_default=True,
-              help="learned, with --pointer: weight of a cross-entropy that points each training prompt at the object "
-                   "its demonstrations' hands end nearest (0: the pointer learns from the action loss alone).")
-@click.option("--cache-features/--no-cache-features", default=True, show_default=True,
-              help="learned, with a frozen trunk: keep each dataset's trunk features on disk ($SB3_MEMRET_CACHE, else "
-                   "~/.cache/sb3-memret) and read them back in later finetunes of the same frames.")
 @click.option("--resume", is_flag=True, default=False,
               help="learned: go on from the unfinished finetune in OUT (its state at the last logged step), on the "
-                   "same datasets and options.")
+                   "same datasets and recipe.")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
-def finetune(datasets: tuple[Path, ...], out: Path, policy: str, steps: int | None, batch_size: int | None,
-             learning_rate: float | None, seed: int, pretrained: Path | None, tokenizer: Path | None, lora_rank: int,
-             device: str, task: str, dataset_tasks: str | None, state: str | None, image_encoder: str,
-             image_dim: int, keypoints: int, image_head: tuple[tuple[int, int], ...], trunk_stride: str,
-             trunk_scale: str, image_colour: bool, image_film: bool, pointer: bool, perception_state: bool,
-             pointer_hindsight: float, cache_features: bool, resume: bool, progress: bool) -> None:
-    """Train a frozen controller from DATASETS (LeRobotDatasets written by `sb3-memret demos`).
+def finetune(datasets: tuple[Path, ...], out: Path, config_path: Path | None, policy: str | None,
+             overrides: tuple[str, ...], task: str, dataset_tasks: str | None, resume: bool, progress: bool) -> None:
+    """Train a frozen controller from DATASETS (LeRobotDatasets written by `sb3-memret demos`) by a recipe file.
 
     The learned policy reads the prompt as frozen MiniLM per-token features, the state (and the
     cameras when the datasets have them) and predicts a 32 x 7 action chunk; the checkpoint
     (config.json + model.safetensors) loads as --controller learned:OUT. pi05 writes OUT/checkpoint
     and OUT/adapter, which load as --controller 'lerobot:OUT/checkpoint?adapter=OUT/adapter'.
     """
+    from sb3_memret.stage1.finetune_config import load_recipe
+
+    try:
+        recipe = load_recipe(config_path, policy or "learned", overrides)
+    except (FileNotFoundError, ValueError) as err:
+        raise click.BadParameter(str(err), param_hint="--set" if overrides else "--config") from None
+    if policy is not None and policy != recipe.policy:
+        raise click.BadParameter(f"--policy {policy} but the recipe {str(config_path)!r} is policy {recipe.policy!r}",
+                                 param_hint="--policy")
+    if recipe.policy == "pi05":
+        _finetune_pi05(recipe, datasets, out, resume, progress)
+        return
+    _finetune_learned(recipe, datasets, out, task, dataset_tasks, resume, progress)
+
+
+def _finetune_pi05(recipe, datasets: tuple[Path, ...], out: Path, resume: bool, progress: bool) -> None:
+    """``finetune`` with a pi05 recipe: LoRA on lerobot's PI05, on one dataset."""
     from tqdm import tqdm
 
-    if policy == "pi05":
-        if resume:
-            raise click.BadParameter("--resume goes on from a learned policy's finetune; --policy pi05 starts afresh",
-                                     param_hint="--resume")
-        if pretrained is None:
-            raise click.BadParameter("--policy pi05 needs --pretrained PATH (a PI05 checkpoint folder)",
-                                     param_hint="--pretrained")
-        if len(datasets) != 1:
-            raise click.BadParameter(f"--policy pi05 trains on one dataset, got {len(datasets)}", param_hint="DATASETS")
-        from sb3_memret.stage1.finetune_pi05 import finetune_pi05
+    from sb3_memret.stage1.finetune_pi05 import finetune_pi05
 
-        steps = steps or 2000
-        with tqdm(total=steps, desc="finetune pi05 (LoRA)", disable=not progress) as bar:
-            finetune_pi05(datasets[0], pretrained, out, steps=steps, batch_size=batch_size or 8,
-                          learning_rate=learning_rate or 1e-4, lora_rank=lora_rank, device=device,
-                          tokenizer=tokenizer, seed=seed, on_step=lambda step, loss: bar.update(1))
-        tok = f"&tokenizer={tokenizer}" if tokenizer is not None else ""
-        click.echo(f"LoRA adapter written: --controller 'lerobot:{out}/checkpoint?adapter={out}/adapter{tok}'")
-        return
-    if pretrained is not None or tokenizer is not None:
-        raise click.BadParameter("--pretrained and --tokenizer apply to --policy pi05 only", param_hint="--policy")
+    if resume:
+        raise click.BadParameter("--resume goes on from a learned policy's finetune; policy pi05 starts afresh",
+                                 param_hint="--resume")
+    pi05, training = recipe.pi05, recipe.training
+    if pi05.pretrained is None:
+        raise click.BadParameter("policy pi05 needs its pretrained PI05 checkpoint folder: --set "
+                                 "pi05.pretrained=PATH", param_hint="--set")
+    if len(datasets) != 1:
+        raise click.BadParameter(f"policy pi05 trains on one dataset, got {len(datasets)}", param_hint="DATASETS")
+    with tqdm(total=training.steps, desc="finetune pi05 (LoRA)", disable=not progress) as bar:
+        finetune_pi05(datasets[0], pi05.pretrained, out, steps=training.steps, batch_size=training.batch_size,
+                      learning_rate=training.learning_rate, lora_rank=pi05.lora_rank, device=pi05.device,
+                      tokenizer=pi05.tokenizer, seed=training.seed, on_step=lambda step, loss: bar.update(1))
+    tok = f"&tokenizer={pi05.tokenizer}" if pi05.tokenizer is not None else ""
+    click.echo(f"LoRA adapter written: --controller 'lerobot:{out}/checkpoint?adapter={out}/adapter{tok}'")
+
+
+def _finetune_learned(recipe, datasets: tuple[Path, ...], out: Path, task: str, dataset_tasks: str | None,
+                      resume: bool, progress: bool) -> None:
+    """``finetune`` with a learned recipe: the project's policy on DATASETS of ``task``, or of each task
+    ``dataset_tasks`` names."""
+    from tqdm import tqdm
+
     from sb3_memret.controllers.learned import LearnedPolicyConfig
-    from sb3_memret.controllers.learned.vision import TRUNK_HEAD, TRUNK_STRIDE
     from sb3_memret.stage1.datasets import has_cameras
-    from sb3_memret.stage1.finetune import FinetuneSettings, tasks_template
     from sb3_memret.stage1.finetune import finetune as train_policy
+    from sb3_memret.stage1.finetune import tasks_template
     from sb3_memret.tasks import make_task
 
-    settings = FinetuneSettings(steps=steps or 8000, batch_size=batch_size or 256,
-                                learning_rate=learning_rate or 1e-3, seed=seed, pointer_hindsight=pointer_hindsight)
-    if pointer_hindsight > 0 and not pointer:
-        raise click.BadParameter(f"--pointer-hindsight {pointer_hindsight} trains the pointer: add --pointer",
-                                 param_hint="--pointer-hindsight")
-    by_task = paired_datasets(datasets, dataset_tasks, task) if dataset_tasks is not None else None
+    if recipe.pi05 != type(recipe.pi05)():
+        raise click.BadParameter("the pi05 section sets policy pi05's checkpoint; a learned recipe takes none",
+                                 param_hint="--config")
+    task_given = click.get_current_context().get_parameter_source("task") != click.core.ParameterSource.DEFAULT
+    by_task = paired_datasets(datasets, dataset_tasks, task if task_given else None) if dataset_tasks else None
     tasks = [make_task(name) for name in by_task] if by_task else [make_task(task)]
     template = tasks_template(tasks)
     chunk_lens = {t.name: t.expert().spec.chunk_len for t in tasks}
     if len(set(chunk_lens.values())) > 1:
         raise click.BadParameter(f"the tasks' experts act in chunks of different lengths {chunk_lens}; one policy "
                                  "predicts one chunk length", param_hint="--tasks")
-    if image_encoder == "cnn" and image_head != TRUNK_HEAD:
-        raise click.BadParameter(f"--image-head shapes a frozen trunk's camera heads; --image-encoder cnn has convs "
-                                 "of its own", param_hint="--image-head")
-    if image_encoder == "cnn" and (int(trunk_stride) != TRUNK_STRIDE or int(trunk_scale) != 1):
-        raise click.BadParameter(f"--trunk-stride {trunk_stride} and --trunk-scale {trunk_scale} shape a frozen "
-                                 "trunk; --image-encoder cnn has strides of its own", param_hint="--trunk-stride")
     try:
         config = LearnedPolicyConfig(instructions=template.instructions, fact_templates=template.fact_templates,
-                                     image_encoder=image_encoder, image_dim=image_dim, keypoints=keypoints,
-                                     image_head=image_head, trunk_stride=int(trunk_stride),
-                                     trunk_scale=int(trunk_scale), image_colour=image_colour, image_film=image_film,
-                                     pointer=pointer, perception_state=perception_state,
-                                     chunk_len=chunk_lens[tasks[0].name])
+                                     chunk_len=chunk_lens[tasks[0].name], **recipe.policy_options())
     except ValueError as err:
-        raise click.BadParameter(str(err)) from err
+        raise click.BadParameter(str(err), param_hint="--config") from None
     try:
-        state = state or ("proprio" if has_cameras(datasets) else "full")
+        state = recipe.state or ("proprio" if recipe.cameras and has_cameras(datasets) else "full")
     except (FileNotFoundError, ValueError) as err:
         raise click.UsageError(str(err)) from err
-    with tqdm(total=settings.steps, desc="finetune learned", disable=not progress) as bar:
+    with tqdm(total=recipe.training.steps, desc="finetune learned", disable=not progress) as bar:
         def on_step(step: int, loss: float) -> None:
             bar.update(step - bar.n)  # a resumed run starts past 0
             if step % 100 == 0:
                 bar.set_postfix(loss=f"{loss:.4f}")
 
         try:
-            train_policy(by_task or datasets, out, config, settings=settings, on_step=on_step,
-                         task=None if by_task else task, state=state, cache_features=cache_features,
-                         resume=resume)
+            train_policy(by_task or datasets, out, config, settings=recipe.training, on_step=on_step,
+                         task=None if by_task else task, state=state, cameras=recipe.cameras,
+                         cache_features=recipe.cache_features, resume=resume)
         except (FileNotFoundError, FileExistsError, ValueError) as err:
             raise click.UsageError(str(err)) from err
     click.echo(f"checkpoint written: --controller learned:{out}")
 
 
-def paired_datasets(datasets: tuple[Path, ...], dataset_tasks: str, task: str) -> dict[str, list[Path]]:
-    """``--tasks``: each task's datasets, in the order given, or a BadParameter naming what does not pair."""
+def paired_datasets(datasets: tuple[Path, ...], dataset_tasks: str, task: str | None) -> dict[str, list[Path]]:
+    """``--tasks``: each task's datasets, in the order given, or a BadParameter naming what does not pair (``task``:
+    a ``--task`` given beside it)."""
     names = [name.strip() for name in dataset_tasks.split(",")]
     if len(names) != len(datasets):
         raise click.BadParameter(f"{len(names)} tasks for {len(datasets)} datasets: name each DATASET's task, in order",
                                  param_hint="--tasks")
-    if task != DEFAULT_TASK:
+    if task is not None:
         raise click.BadParameter(f"--tasks names each dataset's task; --task {task} cannot be given with it",
                                  param_hint="--task")
     from sb3_memret.tasks import check_task_name

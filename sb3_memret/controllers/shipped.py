@@ -18,7 +18,8 @@ MULTITASK_TASKS = ("RememberColor3-VLA-v0", "RememberShape3-VLA-v0", "RememberCo
 # tasks whose shipped ``learned`` controller reads their prompts but does not yet do the task (SeqOfColors3: it does
 # not finish the sequence, lab/2026-11-29-seqofcolors3-s-own-camera-controller-a-first-try): a command runs their expert unless ``--controller learned`` asks
 LEARNED_NOT_DEFAULT = frozenset({"SeqOfColors3-VLA-v0"})
-# shipped checkpoints by (task, controller name): the folder, and the make command that rebuilds it. ``learned`` is
+# shipped checkpoints by (task, controller name): the folder (its recipe.yml: the finetune's recipe), and the make
+# command that rebuilds it from nothing (demonstrations, then the recipe's finetune). ``learned`` is
 # the camera-reading controller (cameras and what the robot reads of itself): on MULTITASK_TASKS one network across
 # all of them, the prompt telling them apart. ``learned-task`` is a MIKASA task's own camera controller, trained on
 # that task alone. ``learned-state`` is the drawer's policy on the simulator's state, whose cube detection is perfect
@@ -33,19 +34,16 @@ SHIPPED: dict[tuple[str, str], tuple[Path, str]] = {
                                                 "make controller-mikasa MIKASA_TASK=RememberColor3-VLA-v0"),
     ("RememberColor5-VLA-v0", "learned-task"): (CHECKPOINTS / "RememberColor5-VLA-v0-camera",
                                                 "make controller-mikasa MIKASA_TASK=RememberColor5-VLA-v0 "
-                                                "MIKASA_STEPS=2000 MIKASA_DAGGER=150 MIKASA_DAGGER_STEPS=3000 "
-                                                "MIKASA_FINETUNE='--image-dim 128 --keypoints 64'"),
+                                                "MIKASA_STEPS=2000 MIKASA_DAGGER=150"),
     ("RememberColor9-VLA-v0", "learned-task"): (CHECKPOINTS / "RememberColor9-VLA-v0-camera",
                                                 "make controller-mikasa MIKASA_TASK=RememberColor9-VLA-v0 "
-                                                "MIKASA_EPISODES=800 MIKASA_STEPS=3000 MIKASA_DAGGER=200 "
-                                                "MIKASA_DAGGER_STEPS=3000 MIKASA_FINETUNE='--image-dim 128 "
-                                                "--keypoints 64 --pointer --pointer-hindsight 0.1'"),
+                                                "MIKASA_EPISODES=800 MIKASA_STEPS=3000 MIKASA_DAGGER=200"),
     ("RememberShape3-VLA-v0", "learned-task"): (CHECKPOINTS / "RememberShape3-VLA-v0-camera",
                                                 "make controller-mikasa MIKASA_TASK=RememberShape3-VLA-v0 "
-                                                "MIKASA_STEPS=2000 MIKASA_DAGGER=150 MIKASA_DAGGER_STEPS=3000"),
+                                                "MIKASA_STEPS=2000 MIKASA_DAGGER=150"),
     ("TakeItBack-VLA-v0", "learned-task"): (CHECKPOINTS / "TakeItBack-VLA-v0-camera",
                                             "make controller-mikasa MIKASA_TASK=TakeItBack-VLA-v0 MIKASA_EPISODES=300 "
-                                            "MIKASA_DAGGER=116 MIKASA_DAGGER_STEPS=3000"),
+                                            "MIKASA_STEPS=2500 MIKASA_DAGGER=116"),
 }
 
 

@@ -33,18 +33,18 @@ from typing import Callable, Mapping, Sequence, TextIO
 
 import numpy as np
 import torch
-from torch.nn import functional as F
 
 from sb3_memret.common.cache import write_atomically
 from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig, perceived_objects
-from sb3_memret.controllers.learned.modeling import LearnedPolicy, chunk_loss, pointer_ambiguity
-from sb3_memret.controllers.learned.processing import PromptTokenizer, state_columns
+from sb3_memret.controllers.learned.modeling import LearnedPolicy, TrainingBatch, pointer_ambiguity
+from sb3_memret.controllers.learned.processing import (LearnedPolicyProcessor, PromptTokenizer, channels_first,
+                                                       state_columns)
 from sb3_memret.controllers.learned.vision import shift_augment
-from sb3_memret.controllers.prompts import INSTRUCTION_TEMPLATE, PromptTemplate, parse_prompt
+from sb3_memret.controllers.prompts import PromptTemplate, parse_prompt
 from sb3_memret.stage1.datasets import (Demonstrations, hindsight_objects, load_demonstrations,
                                         load_task_demonstrations, validation_episodes)
 from sb3_memret.stage1.feature_cache import cached_features
-from sb3_memret.tasks import DEFAULT_TASK, Task, make_task
+from sb3_memret.tasks import Task, make_task
 
 LOG_FILE = "train_log.csv"
 LOG_HEADER = ["step", "train_loss", "train_perception_mse", "val_loss", "val_perception_mse", "pointer_ambiguity",
@@ -98,17 +98,17 @@ def state_names_for(task: Task, state: str) -> tuple[str, ...]:
     return task.state_names() if state == "full" else task.proprio_names()
 
 
-def camera_inputs(model: LearnedPolicy, images: dict[str, np.ndarray], keys: Sequence[str],
-                  spans: Sequence[int] = (), cache: bool = True) -> list[torch.Tensor]:
-    """What the policy's camera heads read for every frame: a frozen trunk's features (computed once, in batches,
-    kept as float16; with ``cache``, per dataset of ``spans`` frames through ``cached_features``), or the uint8
-    images themselves (channels first) for encoders trained from pixels."""
+def camera_inputs(model: LearnedPolicy, processor: LearnedPolicyProcessor, images: dict[str, np.ndarray],
+                  keys: Sequence[str], spans: Sequence[int] = (), cache: bool = True) -> list[torch.Tensor]:
+    """What the policy's camera heads read for every frame: a frozen trunk's features of the processor's images
+    (computed once, in batches, kept as float16; with ``cache``, per dataset of ``spans`` frames through
+    ``cached_features``), or the uint8 images themselves (channels first) for encoders trained from pixels."""
     if model.trunk is None:
-        return [torch.from_numpy(images[key]).permute(0, 3, 1, 2) for key in keys]
+        return [channels_first(images[key]) for key in keys]
 
     def compute(frames: np.ndarray) -> torch.Tensor:
-        x = torch.from_numpy(frames).permute(0, 3, 1, 2)
-        return torch.cat([model.trunk(x[i: i + FEATURE_BATCH].float() / 255.0).half()
+        x = channels_first(frames)
+        return torch.cat([model.trunk(processor.camera(x[i: i + FEATURE_BATCH])).half()
                           for i in range(0, len(x), FEATURE_BATCH)]).contiguous()  # as the cache reads them back
 
     if not cache:
@@ -129,36 +129,80 @@ def finetune(
     cache_features: bool = True,
     resume: bool = False,
 ) -> Path:
-    """Train a LearnedPolicy on ``datasets`` of ``task`` (default the drawer), or on a mapping from each of several
-    tasks to its datasets (one multi-task policy), and save it to ``out`` (``save_pretrained``); returns ``out``.
-    ``state`` picks the state entries it reads (``full`` or ``proprio``); ``cameras=False`` leaves the datasets'
-    camera images out; ``cache_features`` keeps a frozen trunk's features of each dataset on disk for the next
-    finetune (``feature_cache``). The prompt contract is the config's fact templates for the drawer, the tasks' own
-    templates (together) for any other. At every logged step the run's state is kept in ``out/training_state.pt``;
-    ``resume`` goes on from it, to the same weights as a run never stopped, on the same data and settings only."""
+    """Train a LearnedPolicy on ``datasets`` of ``task``, or on a mapping from each of several tasks to its datasets
+    (one multi-task policy), and save it to ``out`` (``save_pretrained``); returns ``out``. ``state`` picks the state
+    entries it reads (``full`` or ``proprio``); ``cameras=False`` leaves the datasets' camera images out;
+    ``cache_features`` keeps a frozen trunk's features of each dataset on disk for the next finetune
+    (``feature_cache``). The prompt contract is the tasks' own templates (together), or ``config``'s. At every logged
+    step the run's state is kept in ``out/training_state.pt``; ``resume`` goes on from it, to the same weights as a
+    run never stopped, on the same data and settings only."""
     settings = settings or FinetuneSettings()
     out = Path(out)
-    state_path = out / STATE_FILE
-    if resume and not state_path.is_file():
+    check_unfinished(out, resume)
+    tasks, demos = _load(datasets, task)
+    config = config or default_config(tasks)
+    torch.manual_seed(settings.seed)
+    rng = np.random.default_rng(settings.seed)
+    config, reads = policy_config(config, tasks, demos, state, cameras, settings.perception_coef)
+    tokenizer = tokenizer or PromptTokenizer()
+    tokens = tokenizer(demos.tasks)
+    model = LearnedPolicy(config)
+    data = DemoTensors.build(model, demos, reads, tokens, rng, settings, tasks, out, cache_features)
+    _train(model, data, settings, out, rng, resume, on_step)
+    model.eval()
+    model.save_pretrained(out)
+    (out / STATE_FILE).unlink(missing_ok=True)
+    return out
+
+
+def check_unfinished(out: Path, resume: bool) -> None:
+    """``resume`` needs an unfinished finetune in ``out``; a fresh one refuses a folder that holds one."""
+    if resume and not (out / STATE_FILE).is_file():
         raise FileNotFoundError(f"nothing to resume: {out} holds no unfinished finetune ({STATE_FILE})")
-    if not resume and state_path.is_file():
+    if not resume and (out / STATE_FILE).is_file():
         raise FileExistsError(f"{out} holds an unfinished finetune ({STATE_FILE}): resume it (--resume) or delete "
                               "the folder")
+
+
+def _load(datasets: Sequence[str | Path] | Mapping[str | Task, Sequence[str | Path]],
+          task: str | Task | None) -> tuple[list[Task], Demonstrations]:
+    """The tasks and their demonstrations: one task's datasets (``task`` required), or a mapping from each task to
+    its datasets."""
     if isinstance(datasets, Mapping):
         if task is not None:
             raise ValueError(f"datasets given per task name their tasks; task {task!r} is not needed")
         demos, tasks = load_task_demonstrations(datasets)
-    else:
-        tasks = [make_task(task if task is not None else DEFAULT_TASK)]
-        demos = load_demonstrations(datasets, tasks[0])
-    if config is None:
-        template = tasks_template(tasks)
-        config = LearnedPolicyConfig(fact_templates=template.fact_templates, instructions=template.instructions)
-    torch.manual_seed(settings.seed)
-    rng = np.random.default_rng(settings.seed)
-    drawer = [t.name for t in tasks] == [DEFAULT_TASK]
-    instructions = (INSTRUCTION_TEMPLATE,) if drawer else config.instructions
-    config = replace(config, instructions=training_instructions(demos.tasks, instructions, config.fact_templates))
+        return tasks, demos
+    if task is None:
+        raise ValueError("datasets of one task need that task (task=...), or give a mapping from each task to its "
+                         "datasets")
+    tasks = [make_task(task)]
+    return tasks, load_demonstrations(datasets, tasks[0])
+
+
+def default_config(tasks: Sequence[Task]) -> LearnedPolicyConfig:
+    """A policy with the default options whose prompt contract is the tasks' own templates."""
+    template = tasks_template(tasks)
+    return LearnedPolicyConfig(fact_templates=template.fact_templates, instructions=template.instructions)
+
+
+@dataclass(frozen=True)
+class Reads:
+    """Where a policy's inputs lie in the demonstrations: the state columns it reads, the columns its perception
+    head estimates instead, and the camera features."""
+
+    columns: np.ndarray
+    unread: np.ndarray
+    cameras: tuple[str, ...]
+
+
+def policy_config(config: LearnedPolicyConfig, tasks: Sequence[Task], demos: Demonstrations, state: str,
+                  cameras: bool, perception_coef: float) -> tuple[LearnedPolicyConfig, Reads]:
+    """``config`` completed from the demonstrations (the instructions and prompts they hold, the state entries the
+    policy reads, the cameras, the perceived entries, the robot), and where those inputs lie in them; refused with a
+    ValueError naming what does not fit (a prompt outside the contract, tasks whose state entries differ)."""
+    config = replace(config, instructions=training_instructions(demos.tasks, config.instructions,
+                                                                config.fact_templates))
     for prompt in demos.tasks:
         parse_prompt(prompt, config.prompt_template)  # a dataset prompt outside the contract is refused
     names = state_names_for(tasks[0], state)
@@ -171,91 +215,105 @@ def finetune(
     if state == "proprio" and not keys:
         raise ValueError("a policy on proprioception alone cannot see where anything is: train it on datasets with "
                          "camera images (sb3-memret demos --render-backend cpu), or use state='full'")
-    image_size = demos.images[keys[0]].shape[1] if keys else config.image_size
     unread = np.setdiff1d(np.arange(len(demos.state_names)), columns)
-    if not keys or settings.perception_coef == 0:
+    if not keys or perception_coef == 0:
         unread = unread[:0]
-    perceived = tuple(demos.state_names[i] for i in unread)
     config = replace(config, task=tasks[0].name, tasks=tuple(t.name for t in tasks) if len(tasks) > 1 else (),
-                     state_names=names, state_dim=len(names), image_features=keys, perceived_names=perceived,
-                     image_size=image_size, training_prompts=tuple(sorted(demos.tasks)),
-                     robot=demos.robot if keys else None)
-    tokenizer = tokenizer or PromptTokenizer()
-    task_tokens, task_mask = tokenizer(demos.tasks)
+                     state_names=names, state_dim=len(names), image_features=keys,
+                     perceived_names=tuple(demos.state_names[i] for i in unread),
+                     image_size=demos.images[keys[0]].shape[1] if keys else config.image_size,
+                     training_prompts=tuple(sorted(demos.tasks)), robot=demos.robot if keys else None)
+    return config, Reads(columns, unread, keys)
 
-    model = LearnedPolicy(config)
-    config = model.config  # the trunk's checksum is filled in
-    picked, hidden = demos.states[:, columns], demos.states[:, unread]
-    labelled = np.ones(hidden.shape, dtype=bool) if demos.known is None else demos.known[:, unread]
-    model.set_state_stats(torch.from_numpy(picked.mean(0)), torch.from_numpy(picked.std(0)))
-    if perceived:
-        model.set_perceived_stats(*(torch.from_numpy(x) for x in masked_stats(hidden, labelled)))
-    targets, is_pad = demos.targets(config.chunk_len)
-    is_val = np.isin(demos.episodes, validation_episodes(demos.episodes, settings.validation_fraction, rng))
-    train_idx, val_idx = np.flatnonzero(~is_val), np.flatnonzero(is_val)
-    if len(train_idx) == 0:
-        raise ValueError("no training frames left after the validation split")
-    out.mkdir(parents=True, exist_ok=True)
-    pointed = pointer_targets(model, demos, ~is_val, tasks, out) if settings.pointer_hindsight > 0 else None
-    hinted = pointed >= 0 if pointed is not None else None  # the prompts with a hindsight target
 
-    states = torch.from_numpy(np.ascontiguousarray(picked))
-    targets_t, is_pad_t, task_ids = torch.from_numpy(targets), torch.from_numpy(is_pad), torch.from_numpy(demos.task_ids)
-    features = camera_inputs(model, demos.images, keys, demos.spans, cache_features)
-    from_pixels = model.trunk is None
-    shifts = torch.Generator().manual_seed(settings.seed)
-    labels = (torch.from_numpy(hidden) - model.perceived_mean) / model.perceived_std if perceived else None
-    label_mask = torch.from_numpy(labelled)
+@dataclass
+class DemoTensors:
+    """Every demonstration frame as the policy trains on it, split into training and validation episodes; ``batch``
+    hands ``LearnedPolicy.losses`` the frames it is given. Inputs go through the acting side's
+    ``LearnedPolicyProcessor`` (state columns by name, camera scaling), labels come from the datasets."""
 
-    def hindsight_loss(used: torch.Tensor, encoded: torch.Tensor) -> torch.Tensor:
-        """Cross-entropy of the pointer weights of the distinct prompts ``used`` (their ``encoded`` vectors) that have
-        a ``hindsight_objects`` target against it, each prompt once (0 without a target)."""
-        if pointed is None or not hinted[used].any():
-            return encoded.new_zeros(())
-        has = hinted[used]
-        pointing = model.pointer.weights(encoded[has])
-        return F.nll_loss(torch.log(pointing.clamp_min(1e-8)), pointed[used[has]])
+    processor: LearnedPolicyProcessor
+    states: torch.Tensor  # (N, state_dim)
+    cameras: list[torch.Tensor]  # per camera: a frozen trunk's float16 features, or the uint8 images (N, 3, S, S)
+    from_pixels: bool
+    tokens: torch.Tensor  # (P, T, token_dim): every training prompt
+    token_mask: torch.Tensor
+    prompt_ids: torch.Tensor  # (N,) each frame's prompt
+    targets: torch.Tensor
+    is_pad: torch.Tensor
+    perceived: torch.Tensor | None  # (N, K) normalised labels of the perceived entries
+    perceived_mask: torch.Tensor
+    pointed: torch.Tensor | None  # (P,) each prompt's hindsight object, -1 where none
+    train_idx: np.ndarray
+    val_idx: np.ndarray
+    spans: tuple[int, ...]  # the datasets' frame counts
+    image_shift: int
+    shifts: torch.Generator  # the random shifts of images from pixels
 
-    def losses_on(idx: np.ndarray) -> torch.Tensor:
-        """(action chunk L1, perception MSE, pointer hindsight) on frames ``idx``; the perception term is 0 without
-        perceived entries, the hindsight term without hindsight targets."""
+    @classmethod
+    def build(cls, model: LearnedPolicy, demos: Demonstrations, reads: Reads,
+              tokens: tuple[torch.Tensor, torch.Tensor], rng: np.random.Generator, settings: FinetuneSettings,
+              tasks: Sequence[Task], out: Path, cache_features: bool) -> "DemoTensors":
+        """The frames of ``demos`` for ``model`` (its state and perception statistics are set from them); the
+        validation episodes are drawn with ``rng``. With hindsight, ``out`` gets the prompts' pointer targets."""
+        config = model.config
+        processor = LearnedPolicyProcessor(config, tokenizer=object())  # prompts come tokenized
+        picked, hidden = demos.states[:, reads.columns], demos.states[:, reads.unread]
+        labelled = np.ones(hidden.shape, dtype=bool) if demos.known is None else demos.known[:, reads.unread]
+        model.set_state_stats(torch.from_numpy(picked.mean(0)), torch.from_numpy(picked.std(0)))
+        if config.perceived_names:
+            model.set_perceived_stats(*(torch.from_numpy(x) for x in masked_stats(hidden, labelled)))
+        targets, is_pad = demos.targets(config.chunk_len)
+        is_val = np.isin(demos.episodes, validation_episodes(demos.episodes, settings.validation_fraction, rng))
+        train_idx, val_idx = np.flatnonzero(~is_val), np.flatnonzero(is_val)
+        if len(train_idx) == 0:
+            raise ValueError("no training frames left after the validation split")
+        out.mkdir(parents=True, exist_ok=True)
+        pointed = pointer_targets(model, demos, ~is_val, tasks, out) if settings.pointer_hindsight > 0 else None
+        perceived = ((torch.from_numpy(hidden) - model.perceived_mean) / model.perceived_std
+                     if config.perceived_names else None)
+        return cls(processor, processor.state(demos.states, reads.columns),
+                   camera_inputs(model, processor, demos.images, reads.cameras, demos.spans, cache_features),
+                   model.trunk is None, *tokens, torch.from_numpy(demos.task_ids), torch.from_numpy(targets),
+                   torch.from_numpy(is_pad), perceived, torch.from_numpy(labelled), pointed, train_idx, val_idx,
+                   tuple(int(n) for n in demos.spans), settings.image_shift, torch.Generator().manual_seed(settings.seed))
+
+    def batch(self, idx: np.ndarray, augment: bool) -> TrainingBatch:
+        """Frames ``idx`` (images from pixels shifted at random with ``augment``), each distinct prompt once: a
+        progress task has hundreds of training prompts and a batch a fraction of them."""
         index = torch.from_numpy(idx)
-        cams = [f[index].float() / 255.0 if from_pixels else f[index] for f in features]
-        if from_pixels and model.training:
-            cams = [shift_augment(c, settings.image_shift, shifts) for c in cams]
-        used, encoded, which = batch_prompts(model, task_tokens, task_mask, task_ids[index])
-        prompt = encoded[which]
-        vision = model.encode_cameras(cams, prompt)
-        predicted = model.decode(states[index], prompt, vision)
-        acting = chunk_loss(predicted, targets_t[index], is_pad_t[index])
-        seen = (masked_mse(model.perceive(vision, states[index]), labels[index], label_mask[index]) if perceived
-                else acting.new_zeros(()))
-        return torch.stack([acting, seen, hindsight_loss(used, encoded)])
+        cams = [self.processor.camera(f[index]) if self.from_pixels else f[index] for f in self.cameras]
+        if self.from_pixels and augment:
+            cams = [shift_augment(c, self.image_shift, self.shifts) for c in cams]
+        used, which = torch.unique(self.prompt_ids[index], return_inverse=True)
+        return TrainingBatch(self.states[index], cams, self.tokens[used], self.token_mask[used], which,
+                             self.targets[index], self.is_pad[index],
+                             None if self.perceived is None else self.perceived[index], self.perceived_mask[index],
+                             None if self.pointed is None else self.pointed[used])
 
-    def ambiguity() -> str:
-        """The pointer's ``pointer_ambiguity`` over the training prompts, for the log ('' without a pointer)."""
-        if model.pointer is None:
-            return ""
-        with torch.no_grad():
-            weights = model.pointer.weights(model.encode_prompts(task_tokens, task_mask))
-        return f"{float(pointer_ambiguity(weights)):.4f}"
 
+def _train(model: LearnedPolicy, data: DemoTensors, settings: FinetuneSettings, out: Path, rng: np.random.Generator,
+           resume: bool, on_step: Callable[[int, float], None] | None) -> None:
+    """AdamW on the weighted sum of ``LearnedPolicy.losses`` over random training batches, the learning rate on a
+    cosine from ``settings.learning_rate`` to 0; every ``steps // 50`` steps a row of ``train_log.csv`` and the run's
+    state (``resume`` goes on from the last one)."""
     optimizer = torch.optim.AdamW(model.parameters(), lr=settings.learning_rate, weight_decay=settings.weight_decay)
     schedule = torch.optim.lr_scheduler.LambdaLR(
         optimizer, lambda step: 0.5 * (1 + math.cos(math.pi * min(step, settings.steps) / settings.steps)))
-
     weights = torch.tensor([1.0, settings.perception_coef, settings.pointer_hindsight])
+    losses_on = lambda idx: model.losses(data.batch(idx, augment=model.training))  # noqa: E731
+    perceived = data.perceived is not None
     log_every = max(1, settings.steps // 50)
-    run = _run_fingerprint(config, settings, demos.spans, len(train_idx))
-    done, elapsed = 0, 0.0
+    run = _run_fingerprint(model.config, settings, data.spans, len(data.train_idx))
+    state_path, done, elapsed = out / STATE_FILE, 0, 0.0
     if resume:
-        done, elapsed = _load_training_state(state_path, run, model, optimizer, schedule, rng, shifts)
+        done, elapsed = _load_training_state(state_path, run, model, optimizer, schedule, rng, data.shifts)
     started = time.monotonic() - elapsed
     with _open_log(out / LOG_FILE, done) as f:
         log = csv.writer(f)
         model.train()
         for step in range(done + 1, settings.steps + 1):
-            batch = rng.choice(train_idx, size=min(settings.batch_size, len(train_idx)), replace=False)
+            batch = rng.choice(data.train_idx, size=min(settings.batch_size, len(data.train_idx)), replace=False)
             losses = losses_on(batch)
             loss = (weights * losses).sum()
             optimizer.zero_grad(set_to_none=True)
@@ -265,18 +323,23 @@ def finetune(
             if on_step is not None:
                 on_step(step, loss.item())
             if step % log_every == 0 or step == settings.steps:
-                val = _validation_losses(model, losses_on, val_idx, settings.batch_size * 8)
+                val = _validation_losses(model, losses_on, data.val_idx, settings.batch_size * 8)
                 held = ["", ""] if val is None else [f"{val[0]:.5f}", f"{val[1]:.5f}" if perceived else ""]
                 log.writerow([step, f"{losses[0].item():.5f}", f"{losses[1].item():.5f}" if perceived else "", *held,
-                              ambiguity(), f"{time.monotonic() - started:.1f}"])
+                              _ambiguity(model, data), f"{time.monotonic() - started:.1f}"])
                 f.flush()
                 if step < settings.steps:
                     _save_training_state(state_path, run, step, time.monotonic() - started, model, optimizer,
-                                         schedule, rng, shifts)
-    model.eval()
-    model.save_pretrained(out)
-    state_path.unlink(missing_ok=True)
-    return out
+                                         schedule, rng, data.shifts)
+
+
+def _ambiguity(model: LearnedPolicy, data: DemoTensors) -> str:
+    """The pointer's ``pointer_ambiguity`` over the training prompts, for the log ('' without a pointer)."""
+    if model.pointer is None:
+        return ""
+    with torch.no_grad():
+        weights = model.pointer.weights(model.encode_prompts(data.tokens, data.token_mask))
+    return f"{float(pointer_ambiguity(weights)):.4f}"
 
 
 def _open_log(path: Path, done: int) -> TextIO:
@@ -333,15 +396,6 @@ def _load_training_state(path: Path, run: str, model: LearnedPolicy, optimizer: 
     return int(state["step"]), float(state["elapsed"])
 
 
-def batch_prompts(model: LearnedPolicy, tokens: torch.Tensor, mask: torch.Tensor,
-                  ids: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
-    """The distinct prompts among ``ids`` (indices into ``tokens``), their (P, text_dim) ``encode_prompts`` vectors,
-    and each id's row among them (``encoded[which]`` is the batch's): each prompt encoded once, for the action and
-    hindsight terms alike, since a progress task has hundreds of training prompts and a batch a fraction of them."""
-    used, which = torch.unique(ids, return_inverse=True)
-    return used, model.encode_prompts(tokens[used], mask[used]), which
-
-
 def pointer_targets(model: LearnedPolicy, demos: Demonstrations, training: np.ndarray, tasks: Sequence[Task],
                     out: Path) -> torch.Tensor:
     """``hindsight_objects`` of the ``training`` frames' episodes for the pointer's objects as a tensor, written to
@@ -366,10 +420,11 @@ def pointer_targets(model: LearnedPolicy, demos: Demonstrations, training: np.nd
 
 
 def tasks_template(tasks: Sequence[Task]) -> PromptTemplate:
-    """The prompt contract of a policy trained on ``tasks``: every instruction and fact template of theirs, once."""
-    templates = [task.prompt_template for task in tasks]
-    return PromptTemplate(tuple(dict.fromkeys(i for t in templates for i in t.instructions)),
-                          tuple(dict.fromkeys(f for t in templates for f in t.fact_templates)))
+    """The prompt contract a policy trained on ``tasks`` may take: every instruction template of their
+    demonstrations (``Task.instruction_templates``) and every fact template of theirs, once; the finetune keeps the
+    instructions its datasets hold (``training_instructions``)."""
+    return PromptTemplate(tuple(dict.fromkeys(i for task in tasks for i in task.instruction_templates)),
+                          tuple(dict.fromkeys(f for task in tasks for f in task.prompt_template.fact_templates)))
 
 
 def masked_stats(values: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -378,12 +433,6 @@ def masked_stats(values: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.n
     mean = np.where(mask, values, 0).sum(0) / count
     std = np.sqrt(np.where(mask, (values - mean) ** 2, 0).sum(0) / count)
     return mean.astype(np.float32), std.astype(np.float32)
-
-
-def masked_mse(predicted: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
-    """The mean squared error over the entries ``mask`` marks (a frame's task's own perceived entries)."""
-    weight = mask.to(predicted.dtype)
-    return ((predicted - target) ** 2 * weight).sum() / weight.sum().clamp_min(1.0)
 
 
 @torch.no_grad()
@@ -404,5 +453,6 @@ def read_log(out: str | Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
-__all__ = ["FinetuneSettings", "STATE_CHOICES", "STATE_FILE", "batch_prompts", "finetune", "masked_mse", "masked_stats",
-           "pointer_targets", "read_log", "state_names_for", "tasks_template"]
+__all__ = ["DemoTensors", "FinetuneSettings", "Reads", "STATE_CHOICES", "STATE_FILE", "check_unfinished",
+           "default_config", "finetune", "masked_stats", "pointer_targets", "policy_config", "read_log",
+           "state_names_for", "tasks_template"]

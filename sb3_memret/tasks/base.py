@@ -33,7 +33,7 @@ from sb3_memret.common.obs_trees import select_obs, to_numpy
 from sb3_memret.controllers.prompts import ParsedPrompt
 
 if TYPE_CHECKING:
-    from sb3_memret.analysis.ablations import AblationBuilder
+    from sb3_memret.tasks.ablations import AblationBuilder
     from sb3_memret.memory.seeding import SeedingConfig
 
 
@@ -216,6 +216,13 @@ class Task(ABC):
     @abstractmethod
     def prompt_template(self) -> Any:
         """The ``PromptTemplate`` of the controllers this task's prompts are checked against."""
+
+    @property
+    def instruction_templates(self) -> tuple[str, ...]:
+        """The instructions a controller trained on this task's demonstrations may take, with fields where its
+        demonstrations vary them (the drawer's ``pick out the {entity}.``: any object word); the finetune keeps the
+        ones its datasets hold. By default the prompt template's."""
+        return tuple(self.prompt_template.instructions)
 
     @abstractmethod
     def instruction(self, episode: Episode) -> str:

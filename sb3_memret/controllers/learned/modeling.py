@@ -15,6 +15,7 @@ with ``image_film`` the camera heads read the prompt too. An MLP maps the concat
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 from pathlib import Path
 
 import torch
@@ -214,6 +215,27 @@ class LearnedPolicy(nn.Module):
         """(B, state_dim) states, (B, text_dim) ``encode_prompts`` vectors, per camera ``camera_features``."""
         return self.decode(state, prompt, self.encode_cameras(camera_features, prompt))
 
+    def losses(self, batch: "TrainingBatch") -> torch.Tensor:
+        """The three training terms on ``batch``: the action chunk's L1 error (``chunk_loss``), the perception head's
+        MSE on the labelled perceived entries (0 without them) and the pointer's hindsight cross-entropy (0 without
+        hindsight targets); the finetune weighs and sums them."""
+        encoded = self.encode_prompts(batch.tokens, batch.token_mask)
+        prompt = encoded[batch.prompt_of]
+        vision = self.encode_cameras(batch.cameras, prompt)
+        acting = chunk_loss(self.decode(batch.state, prompt, vision), batch.targets, batch.is_pad)
+        seen = (masked_mse(self.perceive(vision, batch.state), batch.perceived, batch.perceived_mask)
+                if batch.perceived is not None else acting.new_zeros(()))
+        return torch.stack([acting, seen, self.hindsight_loss(encoded, batch.pointed)])
+
+    def hindsight_loss(self, encoded: torch.Tensor, pointed: torch.Tensor | None) -> torch.Tensor:
+        """Cross-entropy of the pointer weights of the (P, text_dim) ``encoded`` prompts against ``pointed``, each
+        prompt's hindsight object (-1: none), over the prompts that have one (0 when none has)."""
+        if pointed is None or not (pointed >= 0).any():
+            return encoded.new_zeros(())
+        has = pointed >= 0
+        pointing = self.pointer.weights(encoded[has])
+        return F.nll_loss(torch.log(pointing.clamp_min(1e-8)), pointed[has])
+
     def save_pretrained(self, folder: str | Path) -> Path:
         """Write ``config.json`` and ``model.safetensors`` into ``folder``."""
         folder = Path(folder)
@@ -244,6 +266,28 @@ class LearnedPolicy(nn.Module):
             raise WeightsNotLoadedError(f"checkpoint {folder} does not fit its config: {err}") from err
         check_loaded(model.trainable_state(), saved, f"learned controller checkpoint {folder}")
         return model.to(device).eval()
+
+
+@dataclass
+class TrainingBatch:
+    """Demonstration frames as the policy trains on them: B frames and the P distinct prompts they were acted on."""
+
+    state: torch.Tensor  # (B, state_dim) the state entries the policy reads, in the state's units
+    cameras: list[torch.Tensor]  # per camera, what ``camera_features`` gives (a frozen trunk's maps, or images)
+    tokens: torch.Tensor  # (P, T, token_dim) the distinct prompts' token features
+    token_mask: torch.Tensor  # (P, T)
+    prompt_of: torch.Tensor  # (B,) each frame's prompt among the P
+    targets: torch.Tensor  # (B, chunk_len, action_dim) the expert's labels
+    is_pad: torch.Tensor  # (B, chunk_len) the chunk steps past the episode's end
+    perceived: torch.Tensor | None = None  # (B, K) the perceived entries' normalised labels (None: no perception)
+    perceived_mask: torch.Tensor | None = None  # (B, K) which of them the frame's task labels
+    pointed: torch.Tensor | None = None  # (P,) each prompt's hindsight object (-1: none; None: no hindsight)
+
+
+def masked_mse(predicted: torch.Tensor, target: torch.Tensor, mask: torch.Tensor) -> torch.Tensor:
+    """The mean squared error over the entries ``mask`` marks (a frame's task's own perceived entries)."""
+    weight = mask.to(predicted.dtype)
+    return ((predicted - target) ** 2 * weight).sum() / weight.sum().clamp_min(1.0)
 
 
 def chunk_loss(predicted: torch.Tensor, target: torch.Tensor, is_pad: torch.Tensor) -> torch.Tensor:

@@ -48,16 +48,6 @@ class PromptTokenizer:
         return torch.from_numpy(tokens), torch.from_numpy(mask)
 
 
-def image_tensor(images: np.ndarray, size: int, device: str | torch.device = "cpu") -> torch.Tensor:
-    """(B, H, W, 3) uint8 -> (B, 3, size, size) float in [0, 1] on ``device``, resized there as the
-    demonstrations were (the uint8 frames travel, a quarter of the float bytes)."""
-    images = np.asarray(images)
-    if images.ndim != 4 or images.shape[-1] != 3 or images.dtype != np.uint8:
-        raise ValueError(f"camera images must be (B, H, W, 3) uint8, got {images.dtype}{images.shape}")
-    x = torch.from_numpy(np.ascontiguousarray(images)).to(device).permute(0, 3, 1, 2)
-    return resize_image_tensor(x, size) / 255.0
-
-
 def state_columns(available: Sequence[str], wanted: Sequence[str], where: str) -> np.ndarray:
     """Indices of ``wanted`` names in ``available``, or a ValueError naming the missing ones."""
     missing = [name for name in wanted if name not in available]
@@ -67,21 +57,48 @@ def state_columns(available: Sequence[str], wanted: Sequence[str], where: str) -
 
 
 class LearnedPolicyProcessor:
-    """Builds the policy's inputs, on ``device``, from a batched task observation and the prompts."""
+    """Builds the policy's inputs, on ``device``: at acting from a batched observation of ``task`` and the prompts
+    (``__call__``), at training from demonstration frames (``state``, ``camera``, ``tokenizer``): the same state
+    picking, image scaling and prompt features on both sides, so what a policy learned from is what it acts on."""
 
-    def __init__(self, config: LearnedPolicyConfig, task: InputLayout, tokenizer: PromptTokenizer | None = None,
-                 device: str | torch.device = "cpu"):
-        if task.name not in config.served_tasks:
+    def __init__(self, config: LearnedPolicyConfig, task: InputLayout | None = None,
+                 tokenizer: PromptTokenizer | None = None, device: str | torch.device = "cpu"):
+        if task is not None and task.name not in config.served_tasks:
             served = " or ".join(repr(name) for name in config.served_tasks)
             raise ValueError(f"the learned controller was trained on task {served}, not {task.name!r}")
         self.config, self.task = config, task
-        self.columns = state_columns(task.state_names(), config.state_names, f"task {task.name!r}'s observation layout")
         self.tokenizer = tokenizer or PromptTokenizer()
         self.device = torch.device(device)
+        self.columns = None if task is None else self.state_columns(task.state_names(),
+                                                                    f"task {task.name!r}'s observation layout")
+
+    def state_columns(self, names: Sequence[str], where: str) -> np.ndarray:
+        """Where the entries the policy reads (``config.state_names``) lie in a state laid out as ``names``."""
+        return state_columns(names, self.config.state_names, where)
+
+    def state(self, states: np.ndarray, columns: np.ndarray) -> torch.Tensor:
+        """(N, S) states of some layout -> (N, state_dim) float32 of the entries the policy reads (``columns``)."""
+        return torch.from_numpy(np.ascontiguousarray(states[:, columns]).astype(np.float32, copy=False)).to(self.device)
+
+    def camera(self, images: torch.Tensor) -> torch.Tensor:
+        """(B, 3, H, W) uint8 images -> (B, 3, image_size, image_size) float in [0, 1], resized as the
+        demonstrations were stored."""
+        return resize_image_tensor(images.to(self.device), self.config.image_size) / 255.0
 
     def __call__(self, obs: Obs, prompts: Sequence[str]) -> dict[str, torch.Tensor | list[torch.Tensor]]:
+        if self.task is None:
+            raise ValueError("a processor without a task builds training inputs only; give it the task to act on")
         inputs = self.task.controller_inputs(obs, len(prompts), bool(self.config.image_features))
-        state = torch.from_numpy(inputs[STATE_KEY][:, self.columns].astype(np.float32)).to(self.device)
+        state = self.state(inputs[STATE_KEY], self.columns)
         tokens, mask = self.tokenizer(prompts)
-        images = [image_tensor(inputs[key], self.config.image_size, self.device) for key in self.config.image_features]
+        images = [self.camera(channels_first(inputs[key])) for key in self.config.image_features]
         return {"state": state, "tokens": tokens.to(self.device), "token_mask": mask.to(self.device), "images": images}
+
+
+def channels_first(images: np.ndarray) -> torch.Tensor:
+    """(B, H, W, 3) uint8 camera images -> a (B, 3, H, W) uint8 tensor (the uint8 frames travel, a quarter of the
+    float bytes), or a ValueError naming what came instead."""
+    images = np.asarray(images)
+    if images.ndim != 4 or images.shape[-1] != 3 or images.dtype != np.uint8:
+        raise ValueError(f"camera images must be (B, H, W, 3) uint8, got {images.dtype}{images.shape}")
+    return torch.from_numpy(np.ascontiguousarray(images)).permute(0, 3, 1, 2)

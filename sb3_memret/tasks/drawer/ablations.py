@@ -13,7 +13,7 @@ from __future__ import annotations
 
 from typing import Sequence
 
-from sb3_memret.analysis.ablations import OVERALL, AblationBuilder, AblationSpec, Cell
+from sb3_memret.tasks.ablations import OVERALL, AblationBuilder, AblationSpec, Cell
 from sb3_memret.controllers.prompts import HOLDING_NOTHING_TEXT, INSTRUCTION, build_prompt
 from sb3_memret.tasks.drawer.cabinet import LAYERS, check_layer
 from sb3_memret.tasks.drawer.prompts import location_text

@@ -17,7 +17,8 @@ import numpy as np
 from sb3_memret.controllers.base import RENDER_HINT
 from sb3_memret.memory.schema import MemoryEntry, MemoryType
 from sb3_memret.memory.seeding import SeedingConfig
-from sb3_memret.controllers.prompts import OUTSIDE, OUTSIDE_TEMPLATE, ParsedPrompt, PromptTemplate, instruction_text
+from sb3_memret.controllers.prompts import (INSTRUCTION_TEMPLATE, OUTSIDE, OUTSIDE_TEMPLATE, ParsedPrompt,
+                                            PromptTemplate, instruction_text)
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates, Task, check_render_backend
 from sb3_memret.tasks.drawer.cabinet import LAYERS
 from sb3_memret.tasks.drawer.household import Household, HouseholdConfig
@@ -143,6 +144,10 @@ class DrawerTask(Task):
     @property
     def prompt_template(self) -> PromptTemplate:
         return PromptTemplate()
+
+    @property
+    def instruction_templates(self) -> tuple[str, ...]:
+        return (INSTRUCTION_TEMPLATE,)
 
     def instruction(self, episode: Episode) -> str:
         return instruction_text(episode.target)
