@@ -83,7 +83,7 @@ def play(task: Task, controller: FrozenController, schedules: Sequence[str], epi
         facts = ScheduledFacts(task, schedule, switch, seeding, rng)
 
         def record(result: EpisodeResult) -> None:
-            records.append(dict(schedule=schedule, seed=int(result.seed), group=str(result.layer),
+            records.append(dict(schedule=schedule, seed=int(result.seed), group=str(result.group),
                                 decoy=facts.bank[0], true=list(facts.used), success=bool(result.success)))
 
         play_task_episodes(controller, task, seeds, facts, replan_every, on_episode=record)

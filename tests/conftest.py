@@ -9,7 +9,7 @@ from types import ModuleType
 import pytest
 
 from sb3_memret.physics.backends import TaskRunner
-from sb3_memret.evaluation.rollout import EpisodeResult, LiteralPrompt, play_episode
+from sb3_memret.evaluation.rollout import EpisodeResult, play_episode
 from sb3_memret.tasks.drawer import DrawerTask
 
 
@@ -22,7 +22,7 @@ def drawer_episode(env, controller, prompt: str, seed: int, layer: int, replan_e
                    check_prompt: bool = True) -> EpisodeResult:
     """One drawer episode in ``env`` with the cube in ``layer`` and ``prompt`` at every decision (the task's one
     episode runner, ``rollout.play_episode``)."""
-    return play_episode(TaskRunner.around(env, DrawerTask()), controller, seed, LiteralPrompt(prompt), replan_every,
+    return play_episode(TaskRunner.around(env, DrawerTask()), controller, seed, prompt, replan_every,
                         {"target_layer": layer}, check_prompt)
 
 

@@ -10,6 +10,7 @@ from mikasa_support import MIKASA_MISSING, PROTOCOL_SEEDS, leaked_keys
 pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
 from sb3_memret.memory.schema import MemoryType  # noqa: E402
+from sb3_memret.physics.sensor_gate import sensors_pause  # noqa: E402
 from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
 from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
@@ -157,15 +158,18 @@ def test_task_contract(rgb_env, task):
 
 
 def _run(env, expert, seed: int, side: str | None) -> bool:
+    """One episode, the cameras paused after the reset: the writer reads the reset frame alone, the expert the
+    detector."""
     obs, info = env.reset(seed=seed)
     prompt = _prompt(side)
     expert.reset([seed])
     success, chunk = False, None
-    for step in range(60):
-        if step % 4 == 0:
-            chunk = expert.act(obs, [prompt])[0]
-        obs, _, _, _, info = env.step(torch.from_numpy(chunk[step % 4][None]).float())
-        success |= bool(info["success"][0])
+    with sensors_pause(env)():
+        for step in range(60):
+            if step % 4 == 0:
+                chunk = expert.act(obs, [prompt])[0]
+            obs, _, _, _, info = env.step(torch.from_numpy(chunk[step % 4][None]).float())
+            success |= bool(info["success"][0])
     return success
 
 

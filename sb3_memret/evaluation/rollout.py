@@ -12,7 +12,7 @@ from sb3_memret.memory.schema import Key, MemoryType
 from sb3_memret.memory.writer import EventCompiler
 from sb3_memret.common.obs_trees import stack_obs
 from sb3_memret.physics.backends import TaskRunner
-from sb3_memret.controllers.prompts import CONDITIONS, PromptTemplate, build_prompt, check_fixed_condition
+from sb3_memret.controllers.prompts import CONDITIONS, build_prompt, check_fixed_condition
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import RENDER_BACKENDS, EnvFrame, Episode, check_render_backend
 
@@ -56,27 +56,6 @@ class FactSchedule(Protocol):
 
     def observe(self, frame: EnvFrame) -> None:
         """The frame an executed chunk left (its per-step percepts included), before the next decision."""
-
-    def prompt(self, instruction: str, template: PromptTemplate, decision: int) -> str:
-        """The prompt of ``decision``: the instruction and this decision's facts, checked against ``template``."""
-        return build_prompt(instruction, self.facts(decision), template)
-
-
-@dataclass
-class LiteralPrompt(FactSchedule):
-    """One prompt text at every decision, as given (with ``check_prompt=False``, wording a controller was never
-    trained on: the ablations' untrained wordings)."""
-
-    text: str
-
-    def start(self, frame: EnvFrame, episode: Episode) -> None:
-        pass
-
-    def facts(self, decision: int) -> Sequence[str]:
-        return []
-
-    def prompt(self, instruction: str, template: PromptTemplate, decision: int) -> str:
-        return self.text
 
 
 @dataclass
@@ -153,26 +132,32 @@ def play_episode(
     runner: TaskRunner,
     controller: FrozenController,
     seed: int,
-    schedule: FactSchedule,
+    schedule: FactSchedule | str,
     replan_every: int | None = None,
     reset_options: Mapping[str, Any] | None = None,
     check_prompt: bool = True,
 ) -> EpisodeResult:
     """One episode of ``runner``'s task from ``seed`` (its env reset with ``reset_options``, e.g. the drawer's
     ``target_layer``): the controller replans every ``replan_every`` control steps (None: the task's) with the
-    prompt ``schedule`` gives that decision, and ``schedule`` observes every frame. Success is the task's (once per
-    episode). ``check_prompt=False`` waives the prompt contract (``FrozenController.act``)."""
+    instruction and the facts ``schedule`` gives that decision, and ``schedule`` observes every frame; a ``str``
+    schedule is one prompt text for every decision, as given (with ``check_prompt=False``, wording the controller was
+    never trained on: the ablations'). Success is the task's (once per episode). ``check_prompt=False`` waives the
+    prompt contract (``FrozenController.act``)."""
     task = runner.task
     replan_every = check_replan_every(replan_every, task, controller)
     frame = runner.reset(seed, reset_options or {})
     episode = task.episode(frame)
-    schedule.start(frame, episode)
+    literal = schedule if isinstance(schedule, str) else None
+    if literal is None:
+        schedule.start(frame, episode)
     controller.reset([seed])
     decision, steps, success_steps = 0, 0, 0 if frame.success else None
     while not (frame.terminated or frame.truncated):
-        prompt = schedule.prompt(task.instruction(episode), controller.spec.prompt_template, decision)
+        prompt = literal if literal is not None else build_prompt(task.instruction(episode), schedule.facts(decision),
+                                                                  controller.spec.prompt_template)
         frame = runner.execute(controller.act(stack_obs([frame.obs]), [prompt], check_prompt)[0][:replan_every])
-        schedule.observe(frame)
+        if literal is None:
+            schedule.observe(frame)
         decision, steps = decision + 1, steps + frame.steps
         if frame.success and success_steps is None:
             success_steps = steps  # at the end of the chunk it succeeded in
@@ -245,6 +230,6 @@ def summarize(results: Iterable[EpisodeResult]) -> dict:
     return summary
 
 
-__all__ = ["ConditionFacts", "EpisodeResult", "FactSchedule", "LiteralPrompt", "RENDER_BACKENDS", "WrittenFacts",
+__all__ = ["ConditionFacts", "EpisodeResult", "FactSchedule", "RENDER_BACKENDS", "WrittenFacts",
            "check_replan_every", "condition_schedule", "evaluate_task_condition", "play_episode", "play_task_episodes",
            "summarize", "task_env_kwargs"]
