@@ -18,15 +18,15 @@ import torch
 
 from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig
 from sb3_memret.controllers.learned.modeling import LearnedPolicy
-from sb3_memret.stage1.finetune import batch_prompts
 
 
 def step_seconds(model: LearnedPolicy, tokens: torch.Tensor, mask: torch.Tensor, tid: torch.Tensor,
                  batch_only: bool, hindsight: bool) -> float:
     """Seconds of one forward and backward pass of the batch's prompt vectors (and of the hindsight term's)."""
     started = time.perf_counter()
-    if batch_only:  # finetune's way: the batch's distinct prompts, once for both terms
-        _, encoded, which = batch_prompts(model, tokens, mask, tid)
+    if batch_only:  # finetune's way (DemoTensors.batch): the batch's distinct prompts, once for both terms
+        used, which = torch.unique(tid, return_inverse=True)
+        encoded = model.encode_prompts(tokens[used], mask[used])
         loss = encoded[which].square().mean() + (encoded.square().mean() if hindsight else 0.0)
     else:  # every prompt, and every prompt again for the hindsight term
         loss = model.encode_prompts(tokens, mask)[tid].square().mean()

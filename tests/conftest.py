@@ -3,6 +3,7 @@ both cameras rendered by the CPU renderer per session, and SB3's default log fol
 pytest's temporary directory rather than the system's."""
 
 import importlib.util
+import sys
 from pathlib import Path
 from types import ModuleType
 
@@ -88,5 +89,6 @@ def _load_script(name: str) -> ModuleType:
     path = Path(__file__).resolve().parents[1] / "scripts" / f"{name}.py"
     spec = importlib.util.spec_from_file_location(name, path)
     module = importlib.util.module_from_spec(spec)
+    sys.modules[name] = module  # a script's dataclasses find their module by name
     spec.loader.exec_module(module)
     return module

@@ -57,12 +57,12 @@ def test_the_validation_split_is_whole_episodes_rebuilt_from_the_seed():
 
 
 def test_datasets_are_read_with_their_prompts(demos):
-    data = load_demonstrations([demos, demos])
+    data = load_demonstrations([demos, demos], "drawer")
     assert data.states.shape == (288, 19) and data.actions.shape == (288, 7)
     assert sorted(data.tasks) == sorted({condition_prompt("oracle", 1), condition_prompt("oracle", 3), INSTRUCTION})
     assert len(np.unique(data.episodes)) == 6  # the second copy's episodes are new episodes
     with pytest.raises(FileNotFoundError, match="not a LeRobotDataset"):
-        load_demonstrations([demos.parent])
+        load_demonstrations([demos.parent], "drawer")
 
 
 def test_policy_learns_the_experts_labels(demos, tmp_path):
@@ -71,8 +71,8 @@ def test_policy_learns_the_experts_labels(demos, tmp_path):
     losses = [float(row["train_loss"]) for row in read_log(out)]
     assert losses[-1] < 0.5 * losses[0], losses
     controller = make_controller(f"learned:{out}")
-    assert controller.policy.config.training_prompts == tuple(sorted(load_demonstrations([demos]).tasks))
-    data = load_demonstrations([demos])
+    assert controller.policy.config.training_prompts == tuple(sorted(load_demonstrations([demos], "drawer").tasks))
+    data = load_demonstrations([demos], "drawer")
     first = np.flatnonzero(np.r_[True, np.diff(data.episodes) != 0])
     controller.reset(list(range(len(first))))
     obs = {"agent": {"eef_state": data.states[first, :8]},
@@ -198,7 +198,7 @@ def test_a_camera_policy_learns_from_decision_frames_and_sees_only_the_hand(came
     with pytest.raises(ValueError, match="cannot see where anything is"):
         finetune([demos], tmp_path / "blind", SMALL, FinetuneSettings(steps=1), state="proprio")
     with pytest.raises(ValueError, match="recorded with the same render backend"):
-        load_demonstrations([camera_demos, demos])
+        load_demonstrations([camera_demos, demos], "drawer")
 
 
 def test_a_frozen_trunks_features_are_cached_per_dataset_and_train_the_same_policy(camera_demos, tmp_path):

@@ -3,8 +3,8 @@
 A cell is a prompt, the task's reset options (which episode it plays: the drawer's cube layer) and a replan interval,
 played for the same ``episodes`` held-out seeds (``seed .. seed+episodes-1``) as every other cell, so cells differ
 only in what they vary. A task names the tables it defines (``Task.ablations``, their cells ``sb3_memret.tasks.ablations``:
-the drawer's replan, prompt, memcount and wording tables, ``sb3_memret.tasks.drawer.ablations``); here they are played
-and their results tabled.
+the drawer's are the seed paper's replan, prompt, memcount and wording tables, kept with the drawer); here they are
+played and their results tabled.
 """
 
 from __future__ import annotations

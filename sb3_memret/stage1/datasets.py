@@ -16,7 +16,7 @@ import numpy as np
 
 from sb3_memret.controllers.learned.processing import state_columns
 from sb3_memret.controllers.observation import ACTION_CHUNK_KEY, ACTION_DIM, ACTION_KEY, CHUNK_PAD_KEY, IMAGE_KEYS, STATE_KEY
-from sb3_memret.tasks import DEFAULT_TASK, Task, make_task
+from sb3_memret.tasks import Task, make_task
 
 @dataclass
 class Demonstrations:
@@ -64,7 +64,7 @@ class Demonstrations:
         return np.minimum(raw, ends[:, None]), raw > ends[:, None]
 
 
-def load_demonstrations(roots: Sequence[str | Path], task: str | Task = DEFAULT_TASK) -> Demonstrations:
+def load_demonstrations(roots: Sequence[str | Path], task: str | Task) -> Demonstrations:
     """Read LeRobotDatasets written by ``sb3-memret demos`` for ``task`` (lerobot's reader), checking their
     features against the task's layout."""
     from lerobot.datasets.lerobot_dataset import LeRobotDataset
