@@ -25,7 +25,7 @@ import yaml
 
 from sb3_memret.controllers.learned.vision import TRUNK_HEAD, TRUNK_STRIDE
 from sb3_memret.stage1.finetune import STATE_CHOICES, FinetuneSettings
-from sb3_memret.training.config import ZOO_CONFIGS
+from sb3_memret.training.config import ZOO_CONFIGS, read_yaml
 
 POLICIES = ("learned", "pi05")
 DEFAULT_CONFIGS = {policy: ZOO_CONFIGS / f"finetune_{policy}.yml" for policy in POLICIES}
@@ -110,13 +110,7 @@ def load_recipe(path: str | Path | None = None, policy: str = "learned", overrid
         if policy not in POLICIES:
             raise ValueError(f"policy {policy!r} is unknown; expected one of {list(POLICIES)}")
         path = DEFAULT_CONFIGS[policy]
-    path = Path(path)
-    if not path.is_file():
-        raise FileNotFoundError(f"no finetune recipe at {str(path)!r}")
-    try:
-        data = yaml.safe_load(path.read_text()) or {}
-    except yaml.YAMLError as err:
-        raise ValueError(f"{path} is not valid YAML: {str(err).splitlines()[0]}") from None
+    data = read_yaml(path, "finetune recipe")
     if not isinstance(data, dict):
         raise ValueError(f"{path}: a finetune recipe is a mapping of keys, got {type(data).__name__}")
     for override in overrides:

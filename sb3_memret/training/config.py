@@ -188,18 +188,24 @@ class TrainConfig:
         return {**kwargs, "policy_kwargs": policy_kwargs}
 
 
-def load_config(path: str | Path, env_id: str) -> TrainConfig:
-    """Read ``path`` and return the validated section for ``env_id``."""
+def read_yaml(path: str | Path, what: str = "config file") -> Any:
+    """The YAML document in ``path``; a FileNotFoundError naming the ``what`` that is missing, or a ValueError giving
+    the line and column where the YAML goes wrong."""
     path = Path(path)
     if not path.is_file():
-        raise FileNotFoundError(f"no config file at {str(path)!r}")
+        raise FileNotFoundError(f"no {what} at {str(path)!r}")
     try:
-        data = yaml.safe_load(path.read_text()) or {}
+        return yaml.safe_load(path.read_text()) or {}
     except yaml.YAMLError as err:
         mark = getattr(err, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         problem = getattr(err, "problem", None) or str(err).splitlines()[0]
         raise ValueError(f"{path} is not valid YAML{where}: {problem}") from None
+
+
+def load_config(path: str | Path, env_id: str) -> TrainConfig:
+    """Read ``path`` and return the validated section for ``env_id``."""
+    data = read_yaml(path)
     if not isinstance(data, dict) or env_id not in data:
         known = list(data) if isinstance(data, dict) else []
         raise MissingSectionError(f"{path}: no section for env id {env_id!r}; the file has {known}")

@@ -22,8 +22,7 @@ experts, MIKASA's lamp, the demonstration layout); each family has a folder of i
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from sb3_memret.common.lazy import lazy_exports
 
 _EXPORTS = {
     "CueWriter": "core.cue_task", "EVAL_SEED": "core.cue_task", "MikasaCueTask": "core.cue_task",
@@ -33,17 +32,6 @@ _EXPORTS = {
     "read_cue_shape": "core.shape_perception",
     "ScriptedTouchController": "core.touch_expert", "TouchGains": "core.touch_expert",
 }
-
-
-def __getattr__(name: str) -> Any:
-    """``name`` from the module that defines it (PEP 562), imported on first use."""
-    if name not in _EXPORTS:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
-
-
-def __dir__() -> list[str]:
-    return sorted([*globals(), *_EXPORTS])
-
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())
 
 __all__ = sorted(_EXPORTS)

@@ -9,8 +9,7 @@ The names import on first use, from the module that defines them.
 
 from __future__ import annotations
 
-import importlib
-from typing import Any
+from sb3_memret.common.lazy import lazy_exports
 
 _EXPORTS = {
     "CameraFrame": "tracking", "CupGains": "experts", "CupObservation": "views", "CupPushController": "experts",
@@ -20,17 +19,6 @@ _EXPORTS = {
     "follow": "tracking", "least_moves": "tracking", "left_to_right": "views", "maniskill_asset_dir": "assets",
     "shell_game_task": "task", "swap_turn": "tracking", "table_point": "tracking", "ycb_mug_missing": "assets",
 }
-
-
-def __getattr__(name: str) -> Any:
-    """``name`` from the module that defines it (PEP 562), imported on first use."""
-    if name not in _EXPORTS:
-        raise AttributeError(f"module {__name__!r} has no attribute {name!r}")
-    return getattr(importlib.import_module(f"{__name__}.{_EXPORTS[name]}"), name)
-
-
-def __dir__() -> list[str]:
-    return sorted([*globals(), *_EXPORTS])
-
+__getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())
 
 __all__ = sorted(_EXPORTS)
