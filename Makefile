@@ -35,8 +35,10 @@ train: install renderer
 	$(VENV)/bin/sb3-memret train recall --report
 
 # the documentation's stack too: the suite builds the guide (tests/test_docs.py) rather than skip it
+# the suite in TEST_WORKERS processes (pytest-xdist): 2 fills a 2-core CPU; 0 runs it in this process
+TEST_WORKERS ?= 2
 test: install renderer $(VENV)/.docs-installed
-	$(PY) -m pytest $(PYTEST_ARGS)
+	$(PY) -m pytest -n $(TEST_WORKERS) $(PYTEST_ARGS)
 
 # The documentation site (docs/: Sphinx and MyST): the guides, the API reference from the docstrings, the results
 # pages generated from benchmarks/**/results.json. Warnings are errors. Open docs/_build/html/index.html.

@@ -14,10 +14,11 @@ from sb3_memret.common.lazy import lazy_exports
 _EXPORTS = {
     "CameraFrame": "tracking", "CupGains": "experts", "CupObservation": "views", "CupPushController": "experts",
     "CupTouchController": "experts", "CupWriter": "writer", "FACT_TEMPLATE": "variants", "LAMP_COLOURS": "variants",
-    "LampCupObservation": "views", "SIDES": "variants", "ShellGameColorLampTask": "task", "ShellGameTask": "task",
-    "VARIANTS": "variants", "ball_mask": "tracking", "ball_on_table": "tracking", "cups_on_table": "tracking",
-    "follow": "tracking", "least_moves": "tracking", "left_to_right": "views", "maniskill_asset_dir": "assets",
-    "shell_game_task": "task", "swap_turn": "tracking", "table_point": "tracking", "ycb_mug_missing": "assets",
+    "LampCupObservation": "views", "MUG_FILES": "assets", "SIDES": "variants", "ShellGameColorLampTask": "task",
+    "ShellGameTask": "task", "VARIANTS": "variants", "YCB_DIR": "assets", "ball_mask": "tracking",
+    "ball_on_table": "tracking", "cups_on_table": "tracking", "follow": "tracking", "least_moves": "tracking",
+    "left_to_right": "views", "maniskill_asset_dir": "assets", "shell_game_task": "task", "swap_turn": "tracking",
+    "table_point": "tracking", "ycb_mug_missing": "assets",
 }
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())
 
