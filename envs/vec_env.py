@@ -109,15 +109,13 @@ class RecallVecEnv(VecEnv):
         if not decisions.k <= memory.slots:
             raise ValueError(f"k must be in [1, slots={memory.slots}], got {decisions.k}")
         self.mode, self.slots, self.k = decisions.mode, memory.slots, decisions.k
-        replan_every = decisions.replan_every or self.task.replan_every  # None: the task's clock
-        self.replan_every, self.gamma, self.success_bonus = replan_every, decisions.gamma, decisions.success_bonus
+        self.gamma, self.success_bonus = decisions.gamma, decisions.success_bonus
         if self.task.ends_at_success and self.task.success_reward is None:
             raise ValueError(f"task {self.task.name!r} ends its episodes at success but sets no success_reward: "
                              "the reward its env pays at each step after success is needed to value the cut-off steps")
         self.max_control_steps = decisions.max_control_steps or self.task.max_control_steps
         self.controller = make_controller(controller, self.task) if isinstance(controller, str) else controller
-        if not 1 <= replan_every <= self.controller.spec.chunk_len:
-            raise ValueError(f"replan_every must be in [1, {self.controller.spec.chunk_len}], got {replan_every}")
+        self.replan_every = self.task.replan_interval(decisions.replan_every, self.controller.spec.chunk_len)
         self.replans_per_decision, self.retrieve_on_write = decisions.replans_per_decision, decisions.retrieve_on_write
         task_kwargs = {**task_env_kwargs(self.controller, physics.render_backend, self.task), **physics.task_kwargs}
         self.encoder = encoder or MiniLMEncoder()

@@ -92,3 +92,13 @@ def test_the_drawers_written_condition_plays_the_fixed_prompts_placements():
     assert result.exit_code == 0, result.output
     summary = json.loads(result.output.strip().splitlines()[-1])
     assert summary["seeds"] == [5] and summary["success"] == {"3": 1.0, "overall": 1.0}
+
+
+def test_the_replan_interval_is_resolved_in_one_place():
+    """None is the task's own interval; anything outside [1, the chunk length] is refused, naming whose chunk."""
+    assert DRAWER.replan_interval(None, 32) == DRAWER.replan_every == 8
+    assert DRAWER.replan_interval(12, 32) == 12
+    with pytest.raises(ValueError, match=r"replan_every must be in \[1, 4\] \(the learner's chunk length\), got 8"):
+        DRAWER.replan_interval(None, 4, "the learner's")
+    with pytest.raises(ValueError, match=r"got 0"):
+        DRAWER.replan_interval(0, 32)

@@ -119,12 +119,10 @@ class MemoryAgent:
 
     chunk_size = 1
 
-    def __init__(self, task: Task, controller: FrozenController, condition: str, replan_every: int,
+    def __init__(self, task: Task, controller: FrozenController, condition: str, replan_every: int | None,
                  learner: MemoryLearner | None = None, encoder: Any = None, render_every_step: bool = False):
         check_conditions([condition])
-        if not 1 <= replan_every <= controller.spec.chunk_len:
-            raise ValueError(f"replan_every must be in [1, {controller.spec.chunk_len}] (the controller's chunk), "
-                             f"got {replan_every}")
+        replan_every = task.replan_interval(replan_every, controller.spec.chunk_len)
         if condition == "recall" and learner is None:
             raise ValueError("the recall condition needs a trained memory learner")
         self.task, self.controller, self.condition = task, controller, condition

@@ -235,7 +235,7 @@ def plan(protocol: Protocol, conditions: Iterable[str], split: str | None = None
                                           "reads": "cameras and proprioception" if controller.spec.needs_images else
                                           "proprioception and a simulated object detector (objects in sight)"}
         result.task_digests[row.env_id] = task_digest(task)
-        result.replan_every[row.env_id] = protocol.replan_every or task.replan_every
+        result.replan_every[row.env_id] = task.replan_interval(protocol.replan_every, controller.spec.chunk_len)
         path = learner_path(learners, row.env_id)
         trained_on = learner_tasks(path) if path is not None and path.is_file() else None
         if "recall" in result.conditions and (path is None or not path.is_file()):
@@ -280,7 +280,7 @@ class _Worker:
             learner = MemoryLearner(learner_path(self.learners, env_id), self.protocol.controller, env_id) \
                 if condition == "recall" else None
             agent = MemoryAgent(task, make_controller(self.protocol.controller, task), condition,
-                                self.protocol.replan_every or task.replan_every, learner, self.encoder)
+                                self.protocol.replan_every, learner, self.encoder)
             agent.bind(self.env)
             self.agents[condition] = agent
         return self.agents[condition]

@@ -19,7 +19,7 @@ from sb3_memret.physics.backends import ResetRequest
 from sb3_memret.physics import make_physics
 from sb3_memret.common.obs_trees import stack_obs
 from sb3_memret.controllers.prompts import parse_prompt
-from sb3_memret.evaluation.rollout import EpisodeResult, check_replan_every, task_env_kwargs
+from sb3_memret.evaluation.rollout import EpisodeResult, task_env_kwargs
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.common.workers import torch_threads
 
@@ -65,7 +65,7 @@ def run_jobs(
         return []
     task = make_task(task)
     controller = make_controller(controller, task) if isinstance(controller, str) else controller
-    executed_steps = [check_replan_every(job.replan_every, task, controller) for job in jobs]
+    executed_steps = [task.replan_interval(job.replan_every, controller.spec.chunk_len) for job in jobs]
     for job in jobs:
         if job.check_prompt:
             parse_prompt(job.prompt, controller.spec.prompt_template)

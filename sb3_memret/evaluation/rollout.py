@@ -35,15 +35,6 @@ def task_env_kwargs(controller: FrozenController, render_backend: str, task: Tas
         raise ValueError(f"{type(controller).__name__} {err}") from None
 
 
-def check_replan_every(replan_every: int | None, task: Task, controller: FrozenController) -> int:
-    """The control steps executed from each chunk: ``replan_every``, or the task's own (``Task.replan_every``) when
-    None; refused unless in [1, the controller's chunk length]. Every command and runner resolves it here."""
-    replan_every = task.replan_every if replan_every is None else replan_every
-    if not 1 <= replan_every <= controller.spec.chunk_len:
-        raise ValueError(f"replan_every must be in [1, {controller.spec.chunk_len}] (the chunk length), got {replan_every}")
-    return replan_every
-
-
 class FactSchedule(Protocol):
     """The facts an episode's prompt carries at each of its decisions (``play_task_episodes``). A schedule that
     subclasses it inherits ``observe``'s no-op; one that matches it only structurally defines ``observe`` too."""
@@ -144,7 +135,7 @@ def play_episode(
     never trained on: the ablations'). Success is the task's (once per episode). ``check_prompt=False`` waives the
     prompt contract (``FrozenController.act``)."""
     task = runner.task
-    replan_every = check_replan_every(replan_every, task, controller)
+    replan_every = task.replan_interval(replan_every, controller.spec.chunk_len)
     frame = runner.reset(seed, reset_options or {})
     episode = task.episode(frame)
     literal = schedule if isinstance(schedule, str) else None
@@ -175,7 +166,7 @@ def play_task_episodes(
     reset_options: Mapping[str, Any] | None = None,
 ) -> list[EpisodeResult]:
     """One episode of ``task`` per seed (``play_episode``), in one env of the task made for ``controller``."""
-    replan_every = check_replan_every(replan_every, task, controller)
+    replan_every = task.replan_interval(replan_every, controller.spec.chunk_len)
     runner = TaskRunner(task_env_kwargs(controller, render_backend or task.default_render_backend, task),
                         task.max_control_steps, task)
     results = []
@@ -231,5 +222,5 @@ def summarize(results: Iterable[EpisodeResult]) -> dict:
 
 
 __all__ = ["ConditionFacts", "EpisodeResult", "FactSchedule", "RENDER_BACKENDS", "WrittenFacts",
-           "check_replan_every", "condition_schedule", "evaluate_task_condition", "play_episode", "play_task_episodes",
+           "condition_schedule", "evaluate_task_condition", "play_episode", "play_task_episodes",
            "summarize", "task_env_kwargs"]

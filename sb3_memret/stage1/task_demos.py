@@ -87,21 +87,17 @@ class TaskRecorder:
         self.task = make_task(task)
         if max_steps is not None and max_steps < 1:
             raise ValueError(f"max_steps must be >= 1 (or None: the task's own limit), got {max_steps}")
-        replan_every = replan_every or self.task.replan_every  # None: the task's clock
         self.decisions_only = check_frames(frames) == "decisions"
         self.with_images = check_render_backend(render_backend) != "none"
         self.expert = self.task.expert()
-        if not 1 <= replan_every <= self.expert.spec.chunk_len:
-            raise ValueError(f"replan_every must be in [1, {self.expert.spec.chunk_len}], got {replan_every}")
+        replan_every = self.task.replan_interval(replan_every, self.expert.spec.chunk_len, "the expert's")
         self.task.demo_features(self.with_images)  # a task without a layout refuses before any env is made
         self.env = self.task.make_env(**self.task.env_kwargs(self.with_images, render_backend),
                                       max_episode_steps=max_steps)
         self.expert.check_env(self.env)
         self.learner = make_controller(learner, self.task) if isinstance(learner, str) else learner
         if self.learner is not None:
-            if not 1 <= replan_every <= self.learner.spec.chunk_len:
-                raise ValueError(f"replan_every must be in [1, {self.learner.spec.chunk_len}] (the learner's chunk "
-                                 f"length), got {replan_every}")
+            self.task.replan_interval(replan_every, self.learner.spec.chunk_len, "the learner's")
             self.learner.check_env(self.env)
         self.replan_every = replan_every
         writes_progress = any(mtype == MemoryType.TASK_PROGRESS for mtype, _ in self.task.writer().relations.values())

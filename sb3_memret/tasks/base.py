@@ -281,6 +281,15 @@ class Task(ABC):
         frames = [self.demo_frame(select_obs(obs, i), with_images) for i in range(n_envs)]
         return {key: np.stack([frame[key] for frame in frames]) for key in frames[0]}
 
+    def replan_interval(self, replan_every: int | None, chunk_len: int, whose: str = "the") -> int:
+        """The control steps executed from each action chunk: ``replan_every``, or this task's own
+        (``replan_every``) when None; refused unless in [1, ``chunk_len``], the chunk length of ``whose`` controller.
+        Every command, runner and env resolves it here."""
+        replan_every = self.replan_every if replan_every is None else replan_every
+        if not 1 <= replan_every <= chunk_len:
+            raise ValueError(f"replan_every must be in [1, {chunk_len}] ({whose} chunk length), got {replan_every}")
+        return replan_every
+
     def check_prompt(self, prompt: ParsedPrompt) -> None:
         """Refuse, naming it, a parsed prompt whose values this task has no place for (the drawer: a layer its
         cabinet lacks), before a controller acts on it; the default accepts every prompt the template parses."""
