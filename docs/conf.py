@@ -32,18 +32,20 @@ generate_tasks.main(DOCS / "task_list.md")
 
 
 def drop_stale_api_pages(folder: Path) -> list[Path]:
-    """Delete the API pages (``docs/_autosummary/*.rst``, git-ignored) of modules that no longer exist.
+    """Delete the API pages (``docs/_autosummary/*.rst``, git-ignored) of modules that no longer exist, and of every
+    package.
 
     autosummary writes a page for every module it finds and rewrites the ones it knows, but never deletes the page of
     a module that was moved or removed; Sphinx would then fail on that page (its module does not import, and no
-    toctree names it). A page whose module is still there is kept, so an unchanged page is not read again."""
+    toctree names it), or on the page of its package, which still lists it. A module's page whose module is still
+    there is kept, so an unchanged page is not read again; a package's page is written afresh."""
     dropped = []
     for page in sorted(folder.glob("sb3_memret*.rst")):
         try:
-            exists = importlib.util.find_spec(page.stem) is not None
+            spec = importlib.util.find_spec(page.stem)
         except ImportError:  # a parent package that is gone
-            exists = False
-        if not exists:
+            spec = None
+        if spec is None or spec.submodule_search_locations is not None:
             page.unlink()
             dropped.append(page)
     return dropped
