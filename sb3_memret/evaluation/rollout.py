@@ -134,8 +134,14 @@ def play_episode(
     schedule is one prompt text for every decision, as given (with ``check_prompt=False``, wording the controller was
     never trained on: the ablations'). Success is the task's (once per episode). ``check_prompt=False`` waives the
     prompt contract (``FrozenController.act``)."""
+    replan_every = runner.task.replan_interval(replan_every, controller.spec.chunk_len)
+    return _play(runner, controller, seed, schedule, replan_every, reset_options, check_prompt)
+
+
+def _play(runner: TaskRunner, controller: FrozenController, seed: int, schedule: FactSchedule | str,
+          replan_every: int, reset_options: Mapping[str, Any] | None, check_prompt: bool) -> EpisodeResult:
+    """``play_episode`` with ``replan_every`` already resolved."""
     task = runner.task
-    replan_every = task.replan_interval(replan_every, controller.spec.chunk_len)
     frame = runner.reset(seed, reset_options or {})
     episode = task.episode(frame)
     literal = schedule if isinstance(schedule, str) else None
@@ -173,7 +179,7 @@ def play_task_episodes(
     try:
         controller.check_env(runner.info())
         for episode_seed in seeds:
-            results.append(play_episode(runner, controller, episode_seed, schedule, replan_every, reset_options))
+            results.append(_play(runner, controller, episode_seed, schedule, replan_every, reset_options, True))
             if on_episode is not None:
                 on_episode(results[-1])
     finally:
