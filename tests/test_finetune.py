@@ -155,7 +155,8 @@ def test_training_reads_a_frame_as_the_controller_reads_the_observation_it_was_r
     config, reads = policy_config(replace(default_config([task]), image_encoder="cnn", image_dim=8, chunk_len=8),
                                   [task], demos, "proprio", True, 1.0)
     model, tokenizer = LearnedPolicy(config), PromptTokenizer()
-    data = DemoTensors.build(model, demos, reads, tokenizer(demos.tasks), np.random.default_rng(0),
+    data = DemoTensors.build(model, LearnedPolicyProcessor(model.config, tokenizer=tokenizer), demos, reads,
+                             tokenizer(demos.tasks), np.random.default_rng(0),
                              FinetuneSettings(validation_fraction=0.0), [task], tmp_path, cache_features=False)
     trained = data.batch(np.array([0]), augment=False)  # the first frame: episode seed 43's reset, cube in layer 1
     env = task.make_env(obs_mode="rgb", render_backend="cpu", robot_uids=DEFAULT_ROBOT)

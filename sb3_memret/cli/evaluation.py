@@ -156,11 +156,15 @@ def ablate(ctx: click.Context, ablation: str, task: str, controller: str, episod
     try:
         spec = tables[ablation](AblationOptions(steps, group, replan_every))
     except ValueError as err:
-        raise click.BadParameter(str(err), param_hint="--group" if group is not None else "--intervals" if intervals is not None else "ABLATION") from None
-    used = [cell.replan_every or the_task.replan_every for cell in spec.cells]
-    if min(used) < 1 or max(used) > chunk_len:
-        raise click.BadParameter(f"intervals {sorted(set(used))} must lie in [1, {chunk_len}] (the controller's chunk "
-                                 "length)", param_hint="--intervals")
+        hint = "--group" if group is not None else "--intervals" if intervals is not None else "ABLATION"
+        raise click.BadParameter(str(err), param_hint=hint) from None
+    try:
+        for cell in spec.cells:
+            the_task.replan_interval(cell.replan_every, chunk_len)
+    except ValueError:
+        used = sorted({cell.replan_every for cell in spec.cells if cell.replan_every is not None})
+        raise click.BadParameter(f"intervals {used} must lie in [1, {chunk_len}] (the controller's chunk length)",
+                                 param_hint="--intervals") from None
     total = len(spec.cells) * episodes
     with click.progressbar(length=total, label=f"{ablation} ablation ({len(spec.cells)} cells)", file=sys.stderr,
                            hidden=not progress) as bar:

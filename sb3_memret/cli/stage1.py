@@ -214,9 +214,6 @@ def _finetune_learned(recipe, datasets: tuple[Path, ...], out: Path, task: str, 
     from sb3_memret.stage1.finetune import tasks_template
     from sb3_memret.tasks import make_task
 
-    if recipe.pi05 != type(recipe.pi05)():
-        raise click.BadParameter("the pi05 section sets policy pi05's checkpoint; a learned recipe takes none",
-                                 param_hint="--config")
     task_given = click.get_current_context().get_parameter_source("task") != click.core.ParameterSource.DEFAULT
     by_task = paired_datasets(datasets, dataset_tasks, task if task_given else None) if dataset_tasks else None
     tasks = [make_task(name) for name in by_task] if by_task else [make_task(task)]

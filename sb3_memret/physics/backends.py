@@ -64,22 +64,18 @@ class TaskRunner:
     the episode's success once (a task whose episodes go on after success, as MIKASA's do, counts it)."""
 
     def __init__(self, task_kwargs: Mapping[str, Any], max_control_steps: int, task: Task | str):
-        self._attach(make_task(task), None)
-        self.env = self.task.make_env(max_episode_steps=max_control_steps, **task_kwargs)
-        self._watch()
+        task = make_task(task)
+        self._start(task, task.make_env(max_episode_steps=max_control_steps, **task_kwargs))
 
     @classmethod
     def around(cls, env: gym.Env, task: Task | str) -> "TaskRunner":
         """A runner of ``env``, an env of ``task`` made elsewhere (a test's shared env): closing it closes ``env``."""
         runner = cls.__new__(cls)
-        runner._attach(make_task(task), env)
-        runner._watch()
+        runner._start(make_task(task), env)
         return runner
 
-    def _attach(self, task: Task, env: gym.Env | None) -> None:
+    def _start(self, task: Task, env: gym.Env) -> None:
         self.task, self.env = task, env
-
-    def _watch(self) -> None:
         self.succeeded = False
         self.steps = 0  # control steps since the reset
         # the steps from a reset the writer perceives (``Task.perception_window``; None: all of them)

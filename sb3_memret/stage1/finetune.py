@@ -147,7 +147,8 @@ def finetune(
     tokenizer = tokenizer or PromptTokenizer()
     tokens = tokenizer(demos.tasks)
     model = LearnedPolicy(config)
-    data = DemoTensors.build(model, demos, reads, tokens, rng, settings, tasks, out, cache_features)
+    processor = LearnedPolicyProcessor(model.config, tokenizer=tokenizer)
+    data = DemoTensors.build(model, processor, demos, reads, tokens, rng, settings, tasks, out, cache_features)
     _train(model, data, settings, out, rng, resume, on_step)
     model.eval()
     model.save_pretrained(out)
@@ -251,13 +252,13 @@ class DemoTensors:
     shifts: torch.Generator  # the random shifts of images from pixels
 
     @classmethod
-    def build(cls, model: LearnedPolicy, demos: Demonstrations, reads: Reads,
+    def build(cls, model: LearnedPolicy, processor: LearnedPolicyProcessor, demos: Demonstrations, reads: Reads,
               tokens: tuple[torch.Tensor, torch.Tensor], rng: np.random.Generator, settings: FinetuneSettings,
               tasks: Sequence[Task], out: Path, cache_features: bool) -> "DemoTensors":
-        """The frames of ``demos`` for ``model`` (its state and perception statistics are set from them); the
-        validation episodes are drawn with ``rng``. With hindsight, ``out`` gets the prompts' pointer targets."""
+        """The frames of ``demos`` for ``model`` through its ``processor`` (the model's state and perception
+        statistics are set from them; ``tokens``: the training prompts' features); the validation episodes are drawn
+        with ``rng``. With hindsight, ``out`` gets the prompts' pointer targets."""
         config = model.config
-        processor = LearnedPolicyProcessor(config, tokenizer=object())  # prompts come tokenized
         picked, hidden = demos.states[:, reads.columns], demos.states[:, reads.unread]
         labelled = np.ones(hidden.shape, dtype=bool) if demos.known is None else demos.known[:, reads.unread]
         model.set_state_stats(torch.from_numpy(picked.mean(0)), torch.from_numpy(picked.std(0)))

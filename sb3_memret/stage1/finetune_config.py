@@ -93,6 +93,8 @@ class FinetuneRecipe:
         if self.policy == "pi05" and (self.model or self.state is not None):
             raise ValueError("model and state set the learned policy's network and inputs; policy pi05 takes its "
                              "own (its pi05 section)")
+        if self.policy == "learned" and self.pi05 != Pi05Settings():
+            raise ValueError("the pi05 section sets policy pi05's checkpoint; a learned recipe takes none")
 
     def policy_options(self) -> dict[str, Any]:
         """The ``LearnedPolicyConfig`` options this recipe sets."""
