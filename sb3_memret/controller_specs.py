@@ -45,7 +45,7 @@ LEARNED_OPTIONS: dict[str, Callable[[str], Any]] = {"device": str}
 LEROBOT_OPTIONS: dict[str, Callable[[str], Any]] = {"adapter": str, "tokenizer": str, "device": str}
 
 
-def make_controller(spec: str, task: str | Task = "drawer") -> FrozenController:
+def make_controller(spec: str, task: str | Task) -> FrozenController:
     """Build the controller a CLI ``--controller`` value names for ``task`` (a name or a ``Task``), or raise
     a ValueError listing the forms. ``scripted`` is the task's expert, the ``SHIPPED_NAMES`` its shipped learned
     controllers."""
@@ -70,12 +70,13 @@ def make_controller(spec: str, task: str | Task = "drawer") -> FrozenController:
 
         chunk_len = options.pop("chunk_len", None)
         limits = ServerLimits(**{("infer_timeout" if k == "timeout" else k): v for k, v in options.items()})
-        return OpenPIController(host, port, chunk_len=chunk_len, limits=limits)
+        return OpenPIController(host, port, chunk_len=chunk_len, limits=limits,
+                                task_template=make_task(task).prompt_template)
     if spec.startswith("lerobot:"):
         path, options = parse_lerobot_spec(spec)
         from sb3_memret.controllers.lerobot_pi05 import LeRobotPi05Controller
 
-        return LeRobotPi05Controller(path, **options)
+        return LeRobotPi05Controller(path, prompt_template=make_task(task).prompt_template, **options)
     raise ValueError(f"unknown controller {spec!r}; expected one of {list(CONTROLLER_SPECS)}")
 
 

@@ -78,7 +78,7 @@ def build_controller(name: str, device: str) -> FrozenController:
     """The controller ``name`` names; the drawer's shipped learned checkpoints run on ``device``."""
     if name in ("learned", "learned-state"):
         return LearnedController(default_checkpoint(name), DrawerTask(), device=device)
-    return make_controller(name)
+    return make_controller(name, DrawerTask())
 
 
 def batched_venv(n: int, controller: FrozenController, sim_backend: str, mode: str = "recall") -> RecallVecEnv:

@@ -16,6 +16,7 @@ from sb3_memret.tasks.drawer import DrawerTask
 from sb3_memret.tasks.drawer import ablations as drawer_ablations
 from sb3_memret.tasks.drawer.ablations import memcount_ablation, prompt_ablation, replan_ablation
 from sb3_memret.controllers.prompts import parse_prompt
+from sb3_memret.tasks.drawer.prompts import TEMPLATE, named_layer
 from sb3_memret.evaluation.rollout import EpisodeResult
 
 INSTRUCTION = "pick out the cube."
@@ -55,7 +56,7 @@ def test_replan_spec_is_oracle_per_layer_for_each_interval():
         for layer in (1, 2, 3):
             cell = cells[str(interval), f"layer {layer}"]
             assert (cell.reset_options, cell.replan_every, cell.prompt) == (at(layer), interval, oracle(layer))
-            assert parse_prompt(cell.prompt).layer == layer
+            assert named_layer(parse_prompt(cell.prompt, TEMPLATE)) == layer
 
 
 @pytest.mark.parametrize("layer, wrong", [(1, 2), (2, 3), (3, 1)])
@@ -78,7 +79,7 @@ def test_prompt_spec_crosses_object_word_with_layer(layer, wrong):
     assert bare.prompt == INSTRUCTION
     for cell in spec.cells:
         assert cell.reset_options == at(layer)  # the cube never moves; only the prompt does
-        parse_prompt(cell.prompt)
+        parse_prompt(cell.prompt, TEMPLATE)
 
 
 def test_memcount_spec_adds_memories_one_at_a_time():
@@ -92,8 +93,8 @@ def test_memcount_spec_adds_memories_one_at_a_time():
         assert cells[none_row, column].prompt == INSTRUCTION
         assert cells[one_row, column].prompt == oracle(layer)
         assert cells[two_row, column].prompt == oracle(layer) + " the robot is holding nothing."
-        facts = parse_prompt(cells[two_row, column].prompt).facts
-        assert len(facts) == 2 and facts[0].layer == layer
+        facts = parse_prompt(cells[two_row, column].prompt, TEMPLATE).facts
+        assert len(facts) == 2 and int(facts[0].value("layer")) == layer
         assert [c.reset_options for c in spec.cells if c.column == column] == [at(layer)] * 3
 
 
@@ -127,7 +128,7 @@ def test_run_ablation_plays_each_cell_on_the_same_seeds(monkeypatch):
         calls.append((controller, list(jobs), task.name, n_envs, render_backend))
         # succeed when the prompt names the cube's layer, on odd seeds only
         layer = [j.reset_options["target_layer"] for j in jobs]
-        return [EpisodeResult(str(layer), j.seed, parse_prompt(j.prompt).layer == layer and j.seed % 2 == 1, 10)
+        return [EpisodeResult(str(layer), j.seed, named_layer(parse_prompt(j.prompt, TEMPLATE)) == layer and j.seed % 2 == 1, 10)
                 for j, layer in zip(jobs, layer)]
 
     monkeypatch.setattr(ablations, "run_jobs", fake_run_jobs)
@@ -312,12 +313,12 @@ def test_wording_spec_rewords_only_the_oracle_fact_and_waives_the_contract():
     spec = drawer_ablations.wording_ablation()
     assert spec.rows[0] == "the cube is in drawer layer L." and len(spec.cells) == 3 * len(drawer_ablations.WORDINGS)
     trained = [c for c in spec.cells if c.row == spec.rows[0]]
-    assert [parse_prompt(c.prompt).layer for c in trained] == [1, 2, 3]
+    assert [named_layer(parse_prompt(c.prompt, TEMPLATE)) for c in trained] == [1, 2, 3]
     for cell in spec.cells:
         assert not cell.check_prompt and cell.prompt.startswith("pick out the cube. ")
         if cell.row != spec.rows[0]:
             with pytest.raises(ValueError, match="matches no trained template"):
-                parse_prompt(cell.prompt)
+                parse_prompt(cell.prompt, TEMPLATE)
     assert "the cube is in the second drawer." in {c.prompt.removeprefix("pick out the cube. ") for c in spec.cells}
 
 

@@ -5,13 +5,15 @@ import sys
 
 import pytest
 
+from sb3_memret.tasks.drawer import DrawerTask
+
 from sb3_memret.controller_specs import CONTROLLER_SPECS, make_controller, parse_lerobot_spec, parse_openpi_spec
 from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
 from sb3_memret.controllers.shipped import SHIPPED, shipped_names
 
 
 def test_scripted():
-    assert isinstance(make_controller("scripted"), ScriptedDrawerController)
+    assert isinstance(make_controller("scripted", "drawer"), ScriptedDrawerController)
 
 
 @pytest.mark.parametrize("spec, expected", [
@@ -39,7 +41,7 @@ def test_openpi_specs(spec, expected):
 ])
 def test_malformed_openpi_specs_are_refused_with_the_accepted_form(spec, message):
     with pytest.raises(ValueError, match=message) as err:
-        make_controller(spec)
+        make_controller(spec, "drawer")
     assert spec in str(err.value)
 
 
@@ -60,13 +62,13 @@ def test_lerobot_specs(spec, expected):
 ])
 def test_malformed_lerobot_specs_are_refused(spec, message):
     with pytest.raises(ValueError, match=message):
-        make_controller(spec)
+        make_controller(spec, "drawer")
 
 
 @pytest.mark.parametrize("spec", ["pi0", "openpi", "lerobot", "Scripted", " scripted"])
 def test_unknown_specs_list_every_accepted_form(spec):
     with pytest.raises(ValueError, match=r"unknown controller|malformed") as err:
-        make_controller(spec)
+        make_controller(spec, "drawer")
     if "unknown" in str(err.value):
         assert all(form in str(err.value) for form in CONTROLLER_SPECS)
 
@@ -77,8 +79,8 @@ def test_openpi_spec_builds_the_client_with_its_options(monkeypatch):
 
     built = {}
     monkeypatch.setattr(openpi, "OpenPIController", lambda host, port, **kw: built.update(host=host, port=port, **kw))
-    make_controller("openpi://gpu-box:8000?timeout=60&attempts=5&chunk_len=10")
-    assert built == {"host": "gpu-box", "port": 8000, "chunk_len": 10,
+    make_controller("openpi://gpu-box:8000?timeout=60&attempts=5&chunk_len=10", "drawer")
+    assert built == {"host": "gpu-box", "port": 8000, "chunk_len": 10, "task_template": DrawerTask().prompt_template,
                      "limits": openpi.ServerLimits(infer_timeout=60.0, attempts=5)}
 
 
@@ -88,7 +90,7 @@ def test_openpi_spec_of_a_server_that_is_down_fails_fast():
         s.bind(("127.0.0.1", 0))
         port = s.getsockname()[1]
     with pytest.raises(ConnectionError, match=rf"ws://127\.0\.0\.1:{port}: connect failed 1 times"):
-        make_controller(f"openpi://127.0.0.1:{port}?attempts=1")
+        make_controller(f"openpi://127.0.0.1:{port}?attempts=1", "drawer")
 
 
 def test_lerobot_spec_passes_its_options(monkeypatch):
@@ -96,20 +98,21 @@ def test_lerobot_spec_passes_its_options(monkeypatch):
 
     built = {}
     monkeypatch.setattr(lerobot_pi05, "LeRobotPi05Controller", lambda path, **kw: built.update(path=path, **kw))
-    make_controller("lerobot:/ckpt?adapter=/lora&tokenizer=/tok&device=cpu")
-    assert built == {"path": "/ckpt", "adapter": "/lora", "tokenizer": "/tok", "device": "cpu"}
+    make_controller("lerobot:/ckpt?adapter=/lora&tokenizer=/tok&device=cpu", "drawer")
+    assert built == {"path": "/ckpt", "adapter": "/lora", "tokenizer": "/tok", "device": "cpu",
+                     "prompt_template": DrawerTask().prompt_template}  # the prompts of the task it acts on
 
 
 def test_openpi_spec_without_openpi_client_says_how_to_install(monkeypatch):
     monkeypatch.setitem(sys.modules, "openpi_client", None)  # as if not installed
     monkeypatch.delitem(sys.modules, "sb3_memret.controllers.openpi", raising=False)
     with pytest.raises(ImportError, match=r"pip install --no-deps openpi-client==0\.1\.2.*sb3-memret\[openpi\]"):
-        make_controller("openpi://localhost:8000")
+        make_controller("openpi://localhost:8000", "drawer")
 
 
 def test_lerobot_spec_of_a_missing_folder_names_it(tmp_path):
     with pytest.raises(FileNotFoundError, match=rf"checkpoint folder {tmp_path / 'nope'} does not exist"):
-        make_controller(f"lerobot:{tmp_path / 'nope'}")
+        make_controller(f"lerobot:{tmp_path / 'nope'}", "drawer")
 
 
 def test_each_task_names_its_default_controller():

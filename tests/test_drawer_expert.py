@@ -106,7 +106,7 @@ def test_mismatched_action_convention_is_refused(controller):
 
 def test_unknown_controller_spec_is_refused():
     with pytest.raises(ValueError, match="unknown controller 'pi0'"):
-        make_controller("pi0")
+        make_controller("pi0", "drawer")
 
 
 def test_action_convention_matches_the_simulator(task_env):

@@ -97,6 +97,6 @@ def test_an_env_says_which_robot_it_renders_and_state_controllers_serve_any():
     env = make_task_env(obs_mode="state_dict", render_backend="none", robot_uids="panda")
     try:
         assert TaskEnvInfo.of(env).robot == "panda"
-        make_controller("learned-state").check_env(env)  # reads no camera: any robot's look will do
+        make_controller("learned-state", "drawer").check_env(env)  # reads no camera: any robot's look will do
     finally:
         env.close()

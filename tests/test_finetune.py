@@ -14,11 +14,11 @@ from sb3_memret.controllers.learned import LearnedPolicyConfig
 from sb3_memret.controllers.learned.modeling import pointer_ambiguity
 from sb3_memret.controllers.observation import PROPRIO_NAMES, STATE_NAMES
 from sb3_memret.physics.backends import TaskEnvInfo
-from sb3_memret.controllers.prompts import INSTRUCTION
-from sb3_memret.tasks.drawer.prompts import condition_prompt
+from sb3_memret.tasks.drawer.prompts import INSTRUCTION, condition_prompt
 from sb3_memret.tasks.drawer.drawer_cube import DEFAULT_ROBOT
 from sb3_memret.tasks.drawer.robot import LIGHT_PANDA_UID
-from sb3_memret.stage1.demos import DemoEpisode, record_demos
+from sb3_memret.stage1.demos import record_demos
+from sb3_memret.tasks.demos import DemoEpisode
 from sb3_memret.stage1.datasets import Demonstrations, hindsight_objects, load_demonstrations, validation_episodes
 from sb3_memret.stage1.finetune import FinetuneSettings, read_log
 from sb3_memret.stage1.finetune import finetune as finetune_any_task
@@ -31,12 +31,16 @@ def finetune(datasets, out, *args, **kwargs):
     return finetune_any_task(datasets, out, *args, task="drawer", **kwargs)
 
 
+def at(seed: int, layer: int, kind: str) -> DemoEpisode:
+    """A drawer demonstration with the cube in ``layer``, its prompt of ``kind`` worded by the task."""
+    return DemoEpisode(seed, kind, reset_options={"target_layer": layer})
+
+
 @pytest.fixture(scope="module")
 def demos(tmp_path_factory):
     root = tmp_path_factory.mktemp("finetune") / "demos"
-    episodes = [DemoEpisode(40, 1, condition_prompt("oracle", 1)), DemoEpisode(41, 3, condition_prompt("oracle", 3)),
-                DemoEpisode(42, 2, INSTRUCTION)]
-    return record_demos(root, episodes, max_steps=48)
+    episodes = [at(40, 1, "matching"), at(41, 3, "matching"), at(42, 2, "bare")]
+    return record_demos(root, "drawer", episodes, max_steps=48)
 
 
 def test_chunks_are_padded_at_each_episode_end():
@@ -70,7 +74,7 @@ def test_policy_learns_the_experts_labels(demos, tmp_path):
                                                                          validation_fraction=0.0))
     losses = [float(row["train_loss"]) for row in read_log(out)]
     assert losses[-1] < 0.5 * losses[0], losses
-    controller = make_controller(f"learned:{out}")
+    controller = make_controller(f"learned:{out}", "drawer")
     assert controller.policy.config.training_prompts == tuple(sorted(load_demonstrations([demos], "drawer").tasks))
     data = load_demonstrations([demos], "drawer")
     first = np.flatnonzero(np.r_[True, np.diff(data.episodes) != 0])
@@ -135,8 +139,8 @@ def test_demos_finetune_rollout_through_the_cli(tmp_path):
 @pytest.fixture(scope="module")
 def camera_demos(tmp_path_factory):
     root = tmp_path_factory.mktemp("finetune") / "camera-demos"
-    episodes = [DemoEpisode(43, 1, condition_prompt("oracle", 1)), DemoEpisode(44, 2, condition_prompt("oracle", 2))]
-    return record_demos(root, episodes, render_backend="cpu", max_steps=40, frames="decisions", image_size=32)
+    episodes = [at(43, 1, "matching"), at(44, 2, "matching")]
+    return record_demos(root, "drawer", episodes, render_backend="cpu", max_steps=40, frames="decisions", image_size=32)
 
 
 def test_training_reads_a_frame_as_the_controller_reads_the_observation_it_was_recorded_from(camera_demos, tmp_path):
@@ -179,7 +183,7 @@ def test_a_camera_policy_learns_from_decision_frames_and_sees_only_the_hand(came
                    state="proprio")
     losses = [float(row["train_loss"]) for row in read_log(out)]
     assert losses[-1] < 0.7 * losses[0], losses
-    controller = make_controller(f"learned:{out}")
+    controller = make_controller(f"learned:{out}", "drawer")
     config = controller.policy.config
     assert config.state_names == PROPRIO_NAMES and config.image_size == 32 and controller.spec.needs_images
     assert config.robot == controller.spec.robot == DEFAULT_ROBOT  # the robot its demonstrations' cameras showed
@@ -264,7 +268,7 @@ def test_a_colour_reading_policy_round_trips_and_acts(camera_demos, tmp_path, rg
     config = LearnedPolicyConfig(hidden_dim=32, n_layers=1, text_dim=16, text_heads=2, image_encoder="efficientnet_lite0",
                                  image_dim=8, keypoints=8, image_colour=True)
     out = finetune([camera_demos], tmp_path / "ckpt", config, FinetuneSettings(steps=3, batch_size=4), state="proprio")
-    controller = make_controller(f"learned:{out}")
+    controller = make_controller(f"learned:{out}", "drawer")
     assert controller.policy.config.image_colour and controller.policy.cameras[0].net[0].in_channels == 43
     obs, _ = rgb_task_env.reset(seed=43, options={"target_layer": 2})
     controller.reset([43])
@@ -276,7 +280,7 @@ def test_a_prompt_conditioned_camera_policy_round_trips_and_its_vision_follows_t
     config = LearnedPolicyConfig(hidden_dim=32, n_layers=1, text_dim=16, text_heads=2, image_encoder="cnn",
                                  image_dim=8, keypoints=8, image_film=True)
     out = finetune([camera_demos], tmp_path / "ckpt", config, FinetuneSettings(steps=3, batch_size=4), state="proprio")
-    controller = make_controller(f"learned:{out}")
+    controller = make_controller(f"learned:{out}", "drawer")
     policy = controller.policy
     assert policy.config.image_film and all(head.film is not None for head in policy.cameras)
     obs, _ = rgb_task_env.reset(seed=43, options={"target_layer": 2})
@@ -294,7 +298,7 @@ def test_a_prompt_conditioned_camera_policy_round_trips_and_its_vision_follows_t
 
 def test_a_policy_without_cameras_estimates_nothing(demos, tmp_path):
     out = finetune([demos], tmp_path / "ckpt", SMALL, FinetuneSettings(steps=2, batch_size=8))
-    assert make_controller(f"learned:{out}").policy.config.perceived_names == ()
+    assert make_controller(f"learned:{out}", "drawer").policy.config.perceived_names == ()
     rows = read_log(out)
     assert {row["val_perception_mse"] for row in rows} == {row["train_perception_mse"] for row in rows} == {""}
 

@@ -12,6 +12,7 @@ import pytest
 import torch
 
 from sb3_memret.controllers.observation import ACTION_KEY, STATE_KEY, dataset_features
+from sb3_memret.tasks.drawer.prompts import TEMPLATE
 from tiny_pi05 import TINY_CHUNK, build_tiny_pi05, tiny_sizes
 
 PROMPT = "pick out the cube. the cube is in drawer layer 2."
@@ -62,7 +63,8 @@ def finetuned(tiny_pi05, tmp_path_factory):
         mp.setattr(peft, "get_peft_model", spy)
         out = finetune_pi05(dataset, tiny_pi05 / "checkpoint", root / "out", steps=STEPS, batch_size=2,
                             learning_rate=1e-3, lora_rank=4, device="cpu", tokenizer=tiny_pi05 / "tokenizer",
-                            on_step=lambda step, loss: losses.append((step, loss)), num_workers=0)
+                            on_step=lambda step, loss: losses.append((step, loss)), num_workers=0,
+                            prompt_template=TEMPLATE)
     return dict(out=out, dataset=dataset, losses=losses, **wrapped)
 
 
@@ -101,7 +103,7 @@ def test_finetuned_pi05_loads_in_the_controller_and_acts_on_the_19d_state(finetu
     out = finetuned["out"]
     with tiny_sizes():  # strict checks of every weight and adapter tensor
         controller = LeRobotPi05Controller(out / "checkpoint", adapter=out / "adapter",
-                                           tokenizer=tiny_pi05 / "tokenizer")
+                                           tokenizer=tiny_pi05 / "tokenizer", prompt_template=TEMPLATE)
     stats = LeRobotDatasetMetadata("local/tiny", root=finetuned["dataset"]).stats
     normalizer = next(step for step in controller.preprocess.steps if type(step).__name__ == "NormalizerProcessorStep")
     for key in (STATE_KEY, ACTION_KEY):
@@ -134,5 +136,6 @@ def test_a_dataset_that_does_not_fit_is_refused(tiny_pi05, tmp_path, case):
                 "task": r"has a task outside the prompt contract"}[case]
     with pytest.raises(ValueError, match=rf"dataset {dataset} .*{expected}"):
         finetune_pi05(dataset, tiny_pi05 / "checkpoint", tmp_path / "out", steps=1, batch_size=1, learning_rate=1e-3,
-                      lora_rank=4, device="cpu", tokenizer=tiny_pi05 / "tokenizer", num_workers=0)
+                      lora_rank=4, device="cpu", tokenizer=tiny_pi05 / "tokenizer", num_workers=0,
+                      prompt_template=TEMPLATE)
     assert not (tmp_path / "out").exists()

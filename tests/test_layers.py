@@ -13,8 +13,6 @@ SOURCES = {"sb3_memret": ROOT / "sb3_memret", "sb3_memret.envs": ROOT / "envs", 
 DRAWER = re.compile(r"tasks\.drawer|DrawerTask|DEFAULT_TASK")
 # where the default task may be named: the task registry, and the one place that sets the commands' default
 NAMES_THE_DEFAULT = {"sb3_memret/tasks/__init__.py", "sb3_memret/cli/options.py"}
-# the drawer's own demonstration recorder and the command that picks it, until one recorder serves every task
-STILL_THE_DRAWERS = {"sb3_memret/stage1/demos.py", "sb3_memret/cli/stage1.py"}
 
 
 def modules() -> dict[str, Path]:
@@ -66,7 +64,7 @@ def test_no_generic_module_names_the_drawer():
     named = {}
     for name, path in modules().items():
         where = path.relative_to(ROOT).as_posix()
-        if where.startswith("sb3_memret/tasks/") or where in NAMES_THE_DEFAULT | STILL_THE_DRAWERS:
+        if where.startswith("sb3_memret/tasks/") or where in NAMES_THE_DEFAULT:
             continue
         lines = [i for i, line in enumerate(path.read_text().splitlines(), 1) if DRAWER.search(line)]
         if lines:

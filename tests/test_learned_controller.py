@@ -79,7 +79,7 @@ def test_bad_config_and_folder_are_refused(tmp_path):
     with pytest.raises(ValueError, match=r"unknown keys \['dropout'\]"):
         LearnedController(tmp_path, DrawerTask())
     with pytest.raises(ValueError, match="malformed learned controller"):
-        make_controller("learned:")
+        make_controller("learned:", "drawer")
 
 
 def test_drifted_prompt_is_refused(tmp_path):
@@ -111,7 +111,7 @@ def test_image_policy_reads_both_cameras(tmp_path):
 
 @pytest.fixture(scope="module")
 def shipped() -> LearnedController:
-    return make_controller("learned-state")
+    return make_controller("learned-state", "drawer")
 
 
 def test_shipped_state_checkpoint(shipped):
@@ -143,7 +143,7 @@ def test_shipped_policy_takes_the_cube_out_of_the_named_drawer(shipped, task_env
 def test_the_shipped_objects_policy_takes_any_named_object_out_of_its_drawer():
     """``learned-objects`` was trained with three objects of the training set in the drawers; it takes any
     object word in the instruction and here takes a held-out object out of the drawer its prompt names."""
-    controller = make_controller("learned-objects")
+    controller = make_controller("learned-objects", "drawer")
     assert controller.checkpoint == default_checkpoint("learned-objects")
     assert controller.spec.prompt_template.instructions == ("pick out the {entity}.",)
     assert {prompt.split(".")[0] for prompt in controller.policy.config.training_prompts} == {

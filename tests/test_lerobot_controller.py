@@ -10,6 +10,7 @@ import pytest
 import torch
 from torch import nn
 
+from sb3_memret.tasks.drawer.prompts import TEMPLATE
 from sb3_memret.common.weights import LoadReport, WeightsNotLoadedError, check_loaded, compare_tensors
 from tiny_pi05 import TINY_WIDTH, build_tiny_pi05, tiny_sizes
 
@@ -124,6 +125,7 @@ def load(tiny_pi05):
 
     def build(checkpoint: Path | None = None, **kwargs) -> LeRobotPi05Controller:
         kwargs.setdefault("tokenizer", tiny_pi05 / "tokenizer")
+        kwargs.setdefault("prompt_template", TEMPLATE)
         with tiny_sizes():
             return LeRobotPi05Controller(checkpoint or tiny_pi05 / "checkpoint", **kwargs)
 

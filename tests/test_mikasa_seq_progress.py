@@ -177,11 +177,12 @@ def test_written_or_simulated_progress_lets_the_stateless_expert_finish_and_cue_
 def test_demonstrations_carry_the_progress_written_so_far_in_each_decisions_prompt():
     """A recorded episode's prompts change as the writer writes what was done: the first has the cue facts alone,
     later ones add each touch in turn, so a controller finetuned on them learns to read its progress."""
-    from sb3_memret.stage1.task_demos import TaskDemoEpisode, TaskRecorder
+    from sb3_memret.stage1.demos import DemoRecorder
+    from sb3_memret.tasks.demos import DemoEpisode
 
-    recorder = TaskRecorder(make_task(SPEC), "cpu", frames="decisions")
+    recorder = DemoRecorder(make_task(SPEC), "cpu", frames="decisions")
     try:
-        recorded = recorder.record(TaskDemoEpisode(DEV_SEED, "matching"))
+        recorded = recorder.record(DemoEpisode(DEV_SEED, "matching"))
     finally:
         recorder.env.close()
     assert recorded.success and len(recorded.prompts) == len(recorded.frames) == len(recorded.frame_steps)

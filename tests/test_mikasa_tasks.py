@@ -162,9 +162,11 @@ def test_pointer_hindsight_points_each_prompt_at_the_cube_its_hand_ended_at(ever
     assert refused.exit_code == 2 and "set model.pointer: true" in refused.output
 
 
-def test_demos_refuse_drawer_options_on_a_mikasa_task(tmp_path):
+def test_demos_refuse_options_a_mikasa_task_does_not_take(tmp_path):
     result = CliRunner().invoke(main, ["demos", "--task", TASK, "--objects", "train", "--out", str(tmp_path / "x")])
-    assert result.exit_code == 2 and "--objects applies to the drawer's demonstrations only" in result.output
+    assert result.exit_code == 2 and "--objects" in result.output and "has no option ['objects']" in result.output
+    result = CliRunner().invoke(main, ["demos", "--task", TASK, "--image-size", "200", "--out", str(tmp_path / "x")])
+    assert result.exit_code == 2 and "image_size must be in [16, 128]" in result.output
 
 
 def test_mikasa_demos_with_cameras_keep_the_decision_frames_and_their_chunks(tmp_path):
@@ -186,15 +188,16 @@ def test_mikasa_demos_with_cameras_keep_the_decision_frames_and_their_chunks(tmp
 def test_decision_frames_are_recorded_alike_with_the_cameras_paused_between_decisions():
     """Keeping decision frames only, the recorder renders only the observations it keeps: the steps between pause
     the cameras, and every kept image, state and label is the same as with every step rendered."""
-    from sb3_memret.stage1.task_demos import TaskDemoEpisode, TaskRecorder
+    from sb3_memret.stage1.demos import DemoRecorder
+    from sb3_memret.tasks.demos import DemoEpisode
 
-    recorder = TaskRecorder(make_task(TASK), "cpu", frames="decisions")
+    recorder = DemoRecorder(make_task(TASK), "cpu", frames="decisions")
     renders = []
     try:
         gate = vars(recorder.env.unwrapped)["_sb3_memret_sensor_gate"]
         render = gate._render  # ManiSkill's own: counted
         gate._render = lambda *args: renders.append(1) or render(*args)
-        episode = TaskDemoEpisode(100_005, "matching")
+        episode = DemoEpisode(100_005, "matching")
         paused = recorder.record(episode)
         paused_renders, renders[:] = len(renders), []
         recorder.pause = None
@@ -211,20 +214,22 @@ def test_decision_frames_are_recorded_alike_with_the_cameras_paused_between_deci
 
 
 def test_max_steps_ends_a_recorded_episode_early_and_a_bad_one_is_refused():
-    from sb3_memret.stage1.task_demos import TaskDemoEpisode, TaskRecorder
+    from sb3_memret.stage1.demos import DemoRecorder
+    from sb3_memret.tasks.demos import DemoEpisode
 
     with pytest.raises(ValueError, match="max_steps must be >= 1"):
-        TaskRecorder(make_task(TASK), "cpu", max_steps=0)
-    recorder = TaskRecorder(make_task(TASK), "cpu", frames="decisions", max_steps=10)
+        DemoRecorder(make_task(TASK), "cpu", max_steps=0)
+    recorder = DemoRecorder(make_task(TASK), "cpu", frames="decisions", max_steps=10)
     try:
-        recorded = recorder.record(TaskDemoEpisode(100_005, "bare"))
+        recorded = recorder.record(DemoEpisode(100_005, "bare"))
     finally:
         recorder.env.close()
     assert len(recorded.actions) == 10 and list(recorded.frame_steps) == [0, 4, 8]  # MIKASA's own limit: 60
 
 
 def test_a_dagger_round_on_a_mikasa_task_follows_the_learner_with_the_experts_labels():
-    from sb3_memret.stage1.task_demos import TaskDemoEpisode, TaskRecorder
+    from sb3_memret.stage1.demos import DemoRecorder
+    from sb3_memret.tasks.demos import DemoEpisode
     from sb3_memret.tasks.mikasa.core.demo_layout import state_names
     from sb3_memret.tasks.mikasa.core.touch_expert import ScriptedTouchController
 
@@ -239,10 +244,10 @@ def test_a_dagger_round_on_a_mikasa_task_follows_the_learner_with_the_experts_la
     expert = task.expert()
     learner = Stubborn(vocabulary=expert.vocabulary, field=expert.field, prompt_template=expert.spec.prompt_template,
                        key=expert.key, default=expert.default)
-    recorder = TaskRecorder(task, "cpu", replan_every=4, learner=learner)
+    recorder = DemoRecorder(task, "cpu", replan_every=4, learner=learner)
     try:
-        seed = next(s for s in range(100_000, 100_020) if recorder.record(TaskDemoEpisode(s, "bare")).group != "red")
-        recorded = recorder.record(TaskDemoEpisode(seed, "matching"))
+        seed = next(s for s in range(100_000, 100_020) if recorder.record(DemoEpisode(s, "bare")).group != "red")
+        recorded = recorder.record(DemoEpisode(seed, "matching"))
     finally:
         recorder.env.close()
     assert recorded.learner_acted and not recorded.success and recorded.group != "red"

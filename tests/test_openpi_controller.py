@@ -21,7 +21,7 @@ from sb3_memret.controllers.openpi import (  # noqa: E402
     ServerLimits,
     pi05_libero_request,
 )
-from sb3_memret.tasks.drawer.prompts import condition_prompt  # noqa: E402
+from sb3_memret.tasks.drawer.prompts import TEMPLATE, condition_prompt  # noqa: E402
 
 FAST = ServerLimits(connect_timeout=1.0, infer_timeout=0.3, attempts=2, backoff=0.05)
 PI05_KEYS = {"observation/image", "observation/wrist_image", "observation/state", "prompt"}
@@ -94,6 +94,7 @@ def fake_obs(batch: int = 2) -> dict:
 
 
 def controller_for(server: LoopbackServer, **kwargs) -> OpenPIController:
+    kwargs.setdefault("task_template", TEMPLATE)
     controller = OpenPIController("127.0.0.1", server.port, limits=kwargs.pop("limits", FAST), **kwargs)
     controller.reset(range(2))
     return controller
@@ -151,7 +152,7 @@ def test_a_few_decisions_on_rendered_camera_images(serve, rgb_task_env):
     from sb3_memret.physics.chunks import execute_chunk
 
     server = serve(lambda request, n: {"actions": np.tile([0.5, 0.0, 0.0, 0.0, 0.0, 0.0, 1.0], (10, 1))})
-    controller = OpenPIController("127.0.0.1", server.port, limits=FAST)
+    controller = OpenPIController("127.0.0.1", server.port, limits=FAST, task_template=TEMPLATE)
     controller.check_env(rgb_task_env)
     obs, _ = rgb_task_env.reset(seed=5, options={"target_layer": 3})
     controller.reset([5])

@@ -1,64 +1,77 @@
+"""The prompt contract, on a template of its own: sentences checked byte for byte, fields parsed by their patterns,
+drift refused naming the offending text."""
+
 import pytest
 
-from sb3_memret.controllers.prompts import (HOLDING_TEMPLATE, INSTRUCTION, INSTRUCTION_TEMPLATE, LAYER_LOCATION_TEMPLATE,
-                                PromptTemplate, build_prompt, holding_text, instruction_text, parse_prompt)
-from sb3_memret.tasks.drawer.prompts import location_text
+from sb3_memret.controllers.prompts import NUMBER, SIGNED_NUMBER, PromptTemplate, build_prompt, parse_prompt
+
+INSTRUCTION = "open the {colour} door."
+KEY_FACT = "the key is behind door {door}."
+TURN_FACT = "the handle turns {angle} degrees."
+HELD = "the robot is holding nothing."
+DOORS = PromptTemplate((INSTRUCTION,), (KEY_FACT, TURN_FACT, HELD), (("door", NUMBER), ("angle", SIGNED_NUMBER)))
 
 
-def test_round_trip_of_instruction_and_memories():
-    prompt = build_prompt(INSTRUCTION, [location_text("cube", 2), holding_text("marker")])
-    assert prompt == "pick out the cube. the cube is in drawer layer 2. the robot is holding the marker."
-    parsed = parse_prompt(prompt)
-    assert parsed.instruction == INSTRUCTION
-    assert [f.template for f in parsed.facts] == [LAYER_LOCATION_TEMPLATE, HOLDING_TEMPLATE]
-    assert dict(parsed.facts[0].fields) == {"entity": "cube", "layer": "2"}
-    assert dict(parsed.facts[1].fields) == {"value": "marker"}
-    assert parsed.layer == 2
+def test_round_trip_of_instruction_and_facts():
+    prompt = build_prompt("open the red door.", ["the key is behind door 2.", HELD], DOORS)
+    assert prompt == "open the red door. the key is behind door 2. the robot is holding nothing."
+    parsed = parse_prompt(prompt, DOORS)
+    assert parsed.instruction == "open the red door." and dict(parsed.instruction_fields) == {"colour": "red"}
+    assert [f.template for f in parsed.facts] == [KEY_FACT, HELD]
+    assert dict(parsed.facts[0].fields) == {"door": "2"} and parsed.facts[1].fields == ()
+    assert parsed.field("door") == "2" and parsed.facts[0].value("door") == "2" and parsed.field("angle") is None
 
 
-def test_special_texts_are_part_of_the_contract():
-    prompt = build_prompt(INSTRUCTION, [holding_text("nothing"), "the cube is out of the drawers."])
-    assert prompt == "pick out the cube. the robot is holding nothing. the cube is out of the drawers."
-    assert parse_prompt(prompt).layer is None
+def test_each_field_holds_what_its_pattern_says():
+    assert parse_prompt("open the dark red door. the handle turns -90 degrees.", DOORS).field("angle") == "-90"
+    assert dict(parse_prompt("open the dark red door.", DOORS).instruction_fields) == {"colour": "dark red"}
+    with pytest.raises(ValueError, match="matches no trained template"):
+        parse_prompt("open the red door. the key is behind door -2.", DOORS)  # a door is unsigned
+    with pytest.raises(ValueError, match="matches no trained template"):
+        parse_prompt("open the red door. the key is behind door two.", DOORS)  # a number field takes no words
+    words = PromptTemplate((INSTRUCTION,), (KEY_FACT,))  # without patterns every field holds words
+    assert parse_prompt("open the red door. the key is behind door two.", words).field("door") == "two"
 
 
-def test_layer_follows_first_location_fact_whatever_the_object():
-    assert parse_prompt("pick out the cube. the key is in drawer layer 3.").layer == 3
-    assert parse_prompt("pick out the cube. the robot is holding the key.").layer is None
-    assert parse_prompt(INSTRUCTION).layer is None
+def test_the_first_fact_with_a_field_names_it():
+    parsed = parse_prompt("open the red door. the robot is holding nothing. the key is behind door 3. "
+                          "the key is behind door 1.", DOORS)
+    assert parsed.field("door") == "3"
 
 
 @pytest.mark.parametrize(
     "prompt",
     [
-        "pick out the cube. The cube is in drawer layer 2.",  # capitalised
-        "pick out the cube.  the cube is in drawer layer 2.",  # double space
-        "pick out the cube. the cube is in drawer layer 2",  # no full stop
-        "pick out the cube. the cube is in drawer 2.",  # wording drift
-        " pick out the cube.",  # leading space
-        "grab the cube.",  # unknown instruction
+        "open the red door. The key is behind door 2.",  # capitalised
+        "open the red door.  the key is behind door 2.",  # double space
+        "open the red door. the key is behind door 2",  # no full stop
+        "open the red door. the key is behind the door 2.",  # wording drift
+        " open the red door.",  # leading space
+        "push the red door.",  # unknown instruction
         "",
     ],
 )
 def test_drifted_prompts_are_refused_with_the_offending_text(prompt):
     with pytest.raises(ValueError) as err:
-        parse_prompt(prompt)
+        parse_prompt(prompt, DOORS)
     assert repr(prompt) in str(err.value) or repr(prompt.strip()) in str(err.value) or "malformed" in str(err.value)
 
 
-def test_template_restricts_accepted_facts():
-    only_locations = PromptTemplate(fact_templates=(LAYER_LOCATION_TEMPLATE,))
+def test_template_restricts_accepted_facts_and_instructions():
+    only_keys = PromptTemplate((INSTRUCTION,), (KEY_FACT,), DOORS.fields)
     with pytest.raises(ValueError, match="no trained template"):
-        parse_prompt("pick out the cube. the robot is holding the key.", only_locations)
+        parse_prompt("open the red door. the robot is holding nothing.", only_keys)
+    literal = PromptTemplate(("open the red door.",), (KEY_FACT,))
+    with pytest.raises(ValueError, match="starts with 'open the blue door.'"):
+        parse_prompt("open the blue door.", literal)
+    with pytest.raises(TypeError, match="prompt must be a str"):
+        parse_prompt(3, DOORS)
 
 
-def test_instruction_templates_take_any_object_word_and_name_the_target():
-    general = PromptTemplate((INSTRUCTION_TEMPLATE,))
-    parsed = parse_prompt("pick out the tin. the tin is in drawer layer 3.", general)
-    assert parsed.target == "tin" and parsed.layer == 3
-    assert parse_prompt("pick out the cube.").target == "cube"
-    with pytest.raises(ValueError, match="starts with 'pick out the tin.'"):
-        parse_prompt("pick out the tin.")  # the seed's contract: the cube alone
-    with pytest.raises(ValueError, match="starts with 'pick up the tin.'"):
-        parse_prompt("pick up the tin.", general)
-    assert instruction_text("soap") == "pick out the soap."
+def test_a_template_without_instructions_or_with_a_bad_pattern_is_refused():
+    with pytest.raises(ValueError, match="needs a tuple of instructions"):
+        PromptTemplate((), (KEY_FACT,))
+    with pytest.raises(ValueError, match="needs a tuple of instructions"):
+        PromptTemplate("open the red door.")
+    with pytest.raises(Exception, match="unterminated|missing"):
+        PromptTemplate((INSTRUCTION,), (KEY_FACT,), (("door", "[0-9"),))

@@ -1,7 +1,8 @@
 import pytest
 
 from sb3_memret.memory.schema import IMPORTANCE, TEMPLATES, MemoryEntry, MemoryType, linearize
-from sb3_memret.controllers.prompts import INSTRUCTION, PromptTemplate, build_prompt
+from sb3_memret.controllers.prompts import build_prompt
+from sb3_memret.tasks.drawer.prompts import INSTRUCTION, TEMPLATE
 from sb3_memret.tasks.drawer import DrawerTask
 
 
@@ -23,7 +24,7 @@ def test_texts_are_exactly_the_controller_prompts():
     out = MemoryEntry.create(MemoryType.OBJECT_LOCATION, "cube", "is_in", "outside", 0, wordings=DrawerTask.wordings)
     assert out.text == "the cube is out of the drawers."
     # everything the writer emits for this task passes the scripted controller's prompt contract
-    build_prompt(INSTRUCTION, [cube.text, holding.text, out.text], PromptTemplate())
+    build_prompt(INSTRUCTION, [cube.text, holding.text, out.text], TEMPLATE)
 
 
 def test_other_types_have_readable_templates():

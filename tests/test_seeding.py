@@ -5,7 +5,8 @@ from sb3_memret.memory.schema import MemoryType
 from sb3_memret.tasks.drawer.objects import CATALOGUE
 from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.tasks.drawer.seeding import is_true_memory, seed_memories
-from sb3_memret.controllers.prompts import (INSTRUCTION, INSTRUCTION_TEMPLATE, PromptTemplate, build_prompt, instruction_text, parse_prompt)
+from sb3_memret.controllers.prompts import build_prompt, parse_prompt
+from sb3_memret.tasks.drawer.prompts import ANY_OBJECT, INSTRUCTION, TEMPLATE, instruction_text, named_layer
 
 
 @pytest.mark.parametrize("layer", [1, 2, 3])
@@ -20,7 +21,7 @@ def test_one_true_memory_among_decoys_on_other_layers(layer):
         assert len(locations) == 5 and len(holdings) == 2
         assert len({e.entity for e in locations}) == 5 and "cube" not in {e.entity for e in locations}
         for e in entries:
-            fact_layer = parse_prompt(build_prompt(INSTRUCTION, [e.text])).layer
+            fact_layer = named_layer(parse_prompt(build_prompt(INSTRUCTION, [e.text], TEMPLATE), TEMPLATE))
             assert (fact_layer == layer) == (e is true[0])
 
 
@@ -53,7 +54,7 @@ def test_several_objects_each_placed_where_they_are_and_only_the_target_is_true(
         decoy, = set(facts) - set(placed)
         assert facts[decoy] != "drawer layer 2"  # a decoy never points at the target's drawer
         for e in entries:  # every memory is a sentence a controller trained on several objects accepts
-            build_prompt(instruction_text("tin"), [e.text], PromptTemplate((INSTRUCTION_TEMPLATE,)))
+            build_prompt(instruction_text("tin"), [e.text], ANY_OBJECT)
 
 
 def test_the_target_must_be_placed():

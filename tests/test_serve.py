@@ -59,7 +59,7 @@ def wait_healthy(port: int, timeout: float = 120.0, process: subprocess.Popen | 
 
 def serve_in_thread(controller: str) -> int:
     """openpi's WebsocketPolicyServer around ControllerPolicy(controller), in a daemon thread; its port."""
-    policy, port = ControllerPolicy(controller), free_port()
+    policy, port = ControllerPolicy(controller, "drawer"), free_port()
     server = WebsocketPolicyServer(policy, host="127.0.0.1", port=port, metadata=policy.metadata)
     threading.Thread(target=lambda: asyncio.run(server.run()), daemon=True).start()
     wait_healthy(port)
@@ -79,7 +79,7 @@ def state_request(obs: dict, prompt: str, i: int = 0) -> dict:
 
 
 def test_metadata_describes_the_served_controller(scripted_server):
-    controller = make_controller(f"openpi://127.0.0.1:{scripted_server}")
+    controller = make_controller(f"openpi://127.0.0.1:{scripted_server}", "drawer")
     assert controller.client.metadata["server"] == "sb3-memret"
     assert controller.client.metadata["controller"] == "scripted"
     assert controller.spec == ScriptedDrawerController().spec  # chunk 32, 7-D, pd_ee_delta_pose, no images, template
@@ -114,7 +114,7 @@ def test_each_env_slot_keeps_its_own_episode(scripted_server, task_env):
     switched = [condition_prompt("oracle", 1)] * 10 + [condition_prompt("oracle", 3)] * 2
     episodes = [record(task_env, switched, 1, 3, history_matters=True),
                 record(task_env, [condition_prompt("wrong", 2)] * len(switched), 2, 2)]
-    remote = make_controller(f"openpi://127.0.0.1:{scripted_server}")
+    remote = make_controller(f"openpi://127.0.0.1:{scripted_server}", "drawer")
     for _ in range(2):  # the second time round, reset must have dropped the first round's plans
         remote.reset([1, 2])
         for (obs_a, chunk_a, prompt_a), (obs_b, chunk_b, prompt_b) in zip(*episodes):
@@ -136,7 +136,7 @@ def test_a_slot_is_reset_with_its_seed_when_its_episode_changes(monkeypatch, tas
     seeds = []
     reset = ScriptedDrawerController.reset
     monkeypatch.setattr(ScriptedDrawerController, "reset", lambda self, s: (seeds.append(list(s)), reset(self, s))[1])
-    policy = ControllerPolicy("scripted")
+    policy = ControllerPolicy("scripted", "drawer")
     obs, _ = task_env.reset(seed=0)
     request = state_request(obs, condition_prompt("oracle", 1)) | {"sb3_memret/client": "c", "sb3_memret/env": 1}
     for episode, seed in ((0, 7), (0, 7), (1, 9)):
@@ -146,7 +146,7 @@ def test_a_slot_is_reset_with_its_seed_when_its_episode_changes(monkeypatch, tas
 
 def test_the_server_refuses_drift_and_missing_keys(scripted_server, task_env):
     """The client refuses a drifted prompt itself; the server also refuses it, and names a missing key."""
-    controller = make_controller(f"openpi://127.0.0.1:{scripted_server}")
+    controller = make_controller(f"openpi://127.0.0.1:{scripted_server}", "drawer")
     obs, _ = task_env.reset(seed=0)
     controller.reset([0])
     drifted = "pick out the cube. the cube is inside drawer layer 2."
@@ -167,7 +167,7 @@ def test_the_server_refuses_drift_and_missing_keys(scripted_server, task_env):
 
 def test_a_stateless_learned_controller_over_the_wire(task_env):
     port = serve_in_thread("learned-state")
-    remote, local = make_controller(f"openpi://127.0.0.1:{port}"), make_controller("learned-state")
+    remote, local = make_controller(f"openpi://127.0.0.1:{port}", "drawer"), make_controller("learned-state", "drawer")
     assert remote.spec == local.spec
     obs, _ = task_env.reset(seed=3, options={"target_layer": 1})
     batch = {k: {kk: np.repeat(np.asarray(vv), 2, axis=0) for kk, vv in v.items()} for k, v in obs.items()}
@@ -224,7 +224,7 @@ def test_a_sigterm_caught_inside_a_del_stops_the_server_after_the_inference_in_f
         thread.start()
         try:
             with pytest.raises(StopRequested):
-                serve(SigtermInInference("scripted"), "127.0.0.1", port, log=lines.append)
+                serve(SigtermInInference("scripted", "drawer"), "127.0.0.1", port, log=lines.append)
         finally:
             watchdog.cancel()
     thread.join(EXIT_BOUND)
@@ -251,7 +251,7 @@ def test_a_peer_that_never_closes_is_cut_after_the_grace_or_a_second_signal(seco
     """Closing waits for each peer's closing handshake; one that never answers is cut when the grace runs out (or
     at once on a second signal), and no server task is left pending."""
     port, lines, started = free_port(), [], threading.Event()
-    server = WebsocketPolicyServer(ControllerPolicy("scripted"), host="127.0.0.1", port=port)
+    server = WebsocketPolicyServer(ControllerPolicy("scripted", "drawer"), host="127.0.0.1", port=port)
     loop, signals = asyncio.new_event_loop(), asyncio.Queue()
 
     def log(line: str) -> None:
@@ -316,7 +316,7 @@ def stop_cli_server(process: subprocess.Popen, signum: int, bound: float = EXIT_
 def test_the_cli_serves_the_scripted_expert_for_a_whole_episode(task_env):
     process, port = start_cli_server("scripted")
     try:
-        remote = make_controller(f"openpi://127.0.0.1:{port}")
+        remote = make_controller(f"openpi://127.0.0.1:{port}", "drawer")
         prompt = condition_prompt("oracle", 2)
         served = drawer_episode(task_env, remote, prompt, seed=0, layer=2)
         in_process = drawer_episode(task_env, ScriptedDrawerController(), prompt, seed=0, layer=2)
@@ -333,7 +333,7 @@ def test_one_sigterm_right_after_a_learned_controllers_episode_stops_the_cli_ser
     """The reported case: the client plays its (short) episode, hangs up, and the SIGTERM follows at once."""
     process, port = start_cli_server("learned-state")
     try:
-        remote = make_controller(f"openpi://127.0.0.1:{port}")
+        remote = make_controller(f"openpi://127.0.0.1:{port}", "drawer")
         obs, _ = task_env.reset(seed=3, options={"target_layer": 1})
         remote.reset([3])
         for _ in range(DECISIONS):

@@ -7,9 +7,7 @@ from pathlib import Path
 
 import click
 
-from sb3_memret.cli.options import DEFAULT_TASK, build_controller, render_backend_option, task_option
-from sb3_memret.tasks.drawer.cabinet import LAYERS
-from sb3_memret.tasks.drawer.objects import OBJECT_SETS
+from sb3_memret.cli.options import build_controller, render_backend_option, task_option
 from sb3_memret.common.seeds import DEMO_SEED
 
 
@@ -19,7 +17,7 @@ from sb3_memret.common.seeds import DEMO_SEED
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="New folder for the LeRobotDataset.")
 @click.option("--seed", type=click.IntRange(min=0), default=DEMO_SEED, show_default=True,
-              help="First placement seed (episodes use seed..seed+episodes-1).")
+              help="First env seed (episodes use seed..seed+episodes-1).")
 @click.option("--noise", type=click.FloatRange(min=0.0), default=0.05, show_default=True,
               help="Std of the Gaussian noise added to the executed arm actions of noisy episodes (labels stay clean).")
 @click.option("--noisy-fraction", type=click.FloatRange(0.0, 1.0), default=0.5, show_default=True,
@@ -28,10 +26,12 @@ from sb3_memret.common.seeds import DEMO_SEED
               help="DAgger round: this controller (e.g. learned:PATH) acts while the expert labels every frame.")
 @click.option("--n-envs", type=click.IntRange(min=1), default=os.cpu_count() or 1, show_default=True,
               help="Worker processes.")
-@click.option("--objects", type=click.Choice(sorted(OBJECT_SETS)), default="cube", show_default=True,
-              help="Objects the drawers hide; the targets cycle over them and the prompts name them.")
-@click.option("--n-objects", type=click.IntRange(min=1, max=len(LAYERS)), default=1, show_default=True,
-              help="Objects per episode, one per drawer.")
+@click.option("--objects", default=None,
+              help="The task's objects, for a task that takes them (the drawer: a named set such as train; its "
+                   "targets cycle over them and the prompts name them)  [default: the task's]")
+@click.option("--n-objects", type=click.IntRange(min=1), default=None,
+              help="Objects per episode, for a task that takes them (the drawer: one per drawer)  [default: the "
+                   "task's]")
 @click.option("--replan-every", type=click.IntRange(min=1), default=None,
               help="Control steps executed from each expert chunk  [default: the task's (Task.replan_every): 8 on the "
                    "drawer, 4 on MIKASA's short episodes]")
@@ -42,83 +42,55 @@ from sb3_memret.common.seeds import DEMO_SEED
 @click.option("--max-steps", type=click.IntRange(min=1), default=None,
               help="Control steps an episode lasts at most (an expert whose prompt lacks a fact it needs may hold "
                    "still to the end: a shorter limit spares those frames)  [default: the task's own]")
-@click.option("--image-size", type=click.IntRange(min=16, max=224), default=None,
-              help="Store camera images resized to this square size  [default: 224 drawer, 128 MIKASA]")
+@click.option("--image-size", type=click.IntRange(min=16), default=None,
+              help="Store camera images resized to this square size, at most the size they render at  [default: as "
+                   "rendered: 224 on the drawer, 128 on MIKASA]")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
 @render_backend_option
 def demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fraction: float, learner: str | None,
-          n_envs: int, objects: str, n_objects: int, replan_every: int | None, frames: str | None,
+          n_envs: int, objects: str | None, n_objects: int | None, replan_every: int | None, frames: str | None,
           max_steps: int | None, image_size: int | None, progress: bool, render_backend: str) -> None:
     """Record the task's scripted expert as a LeRobotDataset (v3.0) for finetuning.
 
     \b
-    Per frame: observation.state (19: end-effector state, drawer openings, cube detection, which is
-    zero until the cube's drawer is open), action (the expert's 7-D end-effector delta pose), task
-    (the exact prompt), and with --render-backend cpu|gpu the two cameras as
-    observation.images.image / observation.images.wrist_image.
+    Per frame: the task's state (the drawer's 19: end-effector state, drawer openings, cube
+    detection, zero until the cube's drawer is open; MIKASA's: joints, hand pose, the object
+    detector), action (the expert's 7-D end-effector delta pose), task (the exact prompt), and with
+    --render-backend cpu|gpu the two cameras as observation.images.image / .wrist_image.
 
     \b
-    Prompts in the data: the bare instruction (the expert opens the top drawer) in 20% of episodes,
-    and "pick out the cube. the cube is in drawer layer L." naming the cube's layer (60%) or
-    another layer (20%: the expert opens it, finds it empty and holds still). Kept out, so they
-    stay held-out tests: two-memory prompts, other objects' and holding facts, and paraphrases.
-    Off the expert's path: --noisy-fraction of the episodes run with --noise on the arm (clean
-    labels), and --learner makes a DAgger round. Ctrl-C keeps every episode saved so far.
-    With --objects train --n-objects 3 three objects hide in the drawers and the prompts name the
-    target ("pick out the tin. the tin is in drawer layer L.").
-
-    \b
-    Other tasks (--task RememberColor3-VLA-v0 ...): the task's own frame layout (MIKASA: joints,
-    hand pose, the object detector, both 128x128 cameras), episodes at seeds seed.. with the bare
-    instruction (20%), the true fact ("... the cue cube was red.", 60%) or a wrong one (20%).
+    Prompts in the data: the bare instruction in 20% of episodes, the task's true fact in 60%
+    ("pick out the cube. the cube is in drawer layer L.", "... the cue cube was red.") and a fact
+    naming something else in 20% (the drawer's expert opens the named drawer, finds it empty and
+    holds still). The drawer's episodes cycle over its layers and, with --objects train
+    --n-objects 3, over its objects ("pick out the tin. the tin is in drawer layer L."). Kept out,
+    so they stay held-out tests: two-memory prompts, other objects' and holding facts, and
+    paraphrases. Off the expert's path: --noisy-fraction of the episodes run with --noise on the
+    arm (clean labels), and --learner makes a DAgger round. Ctrl-C keeps every episode saved so far.
     """
     from tqdm import tqdm
+
+    from sb3_memret.stage1.demos import record_demos
+    from sb3_memret.tasks import make_task
 
     if out.exists():
         raise click.BadParameter(f"{str(out)!r} already exists; demonstrations go to a new folder", param_hint="--out")
     frames = frames or ("every" if render_backend == "none" else "decisions")
-    if task != DEFAULT_TASK:
-        if image_size not in (None, 128):
-            raise click.BadParameter(f"MIKASA's cameras are 128x128; got {image_size}", param_hint="--image-size")
-        for name, used in (("--objects", objects != "cube"), ("--n-objects", n_objects != 1)):
-            if used:
-                raise click.BadParameter(f"{name} applies to the drawer's demonstrations only, not task {task!r}",
-                                         param_hint=name)
-        if learner is not None:
-            build_controller(click.get_current_context(), None, learner, task)
-        _task_demos(task, episodes, out, seed, noise, noisy_fraction, n_envs, replan_every, progress,
-                    render_backend, frames, learner, max_steps)
-        return
-    from sb3_memret.stage1.demos import plan_episodes, record_demos
-    from sb3_memret.tasks.drawer import DrawerTask
-
+    the_task = make_task(task)
+    for name, value in (("objects", objects), ("n_objects", n_objects)):
+        if value is not None:
+            try:
+                the_task = the_task.with_options(**{name: value})
+            except ValueError as err:
+                raise click.BadParameter(str(err), param_hint=f"--{name.replace('_', '-')}") from None
     if learner is not None:
-        build_controller(click.get_current_context(), None, learner)
-    planned = plan_episodes(episodes, seed, noise, noisy_fraction, objects=objects)
+        build_controller(click.get_current_context(), None, learner, task)
+    try:
+        planned = the_task.plan_demos(episodes, seed, noise, noisy_fraction)
+    except NotImplementedError as err:
+        raise click.UsageError(str(err)) from err
     wins = 0
-    with tqdm(total=episodes, desc="demonstrations", unit="episode", disable=not progress) as bar:
-        def on_episode(frames) -> None:
-            nonlocal wins
-            wins += frames.success
-            bar.update(1)
-            bar.set_postfix(success=f"{wins}/{bar.n}")
-
-        record_demos(out, planned, render_backend, learner, n_envs, replan_every=replan_every or DrawerTask.replan_every,
-                     on_episode=on_episode, objects=objects, n_objects=n_objects, frames=frames,
-                     image_size=image_size or 224, max_steps=max_steps)
-    click.echo(f"{episodes} episodes ({wins} successful) written to {out}")
-
-
-def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fraction: float, n_envs: int,
-                replan_every: int | None, progress: bool, render_backend: str, frames: str, learner: str | None,
-                max_steps: int | None) -> None:
-    """``demos`` for a task other than the drawer, through the Task interface."""
-    from tqdm import tqdm
-
-    from sb3_memret.stage1.task_demos import plan_task_episodes, record_task_demos
-
-    wins = 0
-    with tqdm(total=episodes, desc=f"{task} demonstrations", unit="episode", disable=not progress) as bar:
+    with tqdm(total=episodes, desc=f"{the_task.name} demonstrations", unit="episode", disable=not progress) as bar:
         def on_episode(recorded) -> None:
             nonlocal wins
             wins += recorded.success
@@ -126,9 +98,8 @@ def _task_demos(task: str, episodes: int, out: Path, seed: int, noise: float, no
             bar.set_postfix(success=f"{wins}/{bar.n}")
 
         try:
-            record_task_demos(out, task, plan_task_episodes(episodes, seed, noise, noisy_fraction), render_backend,
-                              n_envs, replan_every, on_episode=on_episode, frames=frames, learner=learner,
-                              max_steps=max_steps)
+            record_demos(out, the_task, planned, render_backend, n_envs, replan_every, on_episode=on_episode,
+                         frames=frames, learner=learner, max_steps=max_steps, image_size=image_size)
         except (NotImplementedError, ValueError) as err:
             raise click.UsageError(str(err)) from err
     click.echo(f"{episodes} episodes ({wins} successful) written to {out}")
@@ -174,16 +145,18 @@ def finetune(datasets: tuple[Path, ...], out: Path, config_path: Path | None, po
         raise click.BadParameter(f"--policy {policy} but the recipe {str(config_path)!r} is policy {recipe.policy!r}",
                                  param_hint="--policy")
     if recipe.policy == "pi05":
-        _finetune_pi05(recipe, datasets, out, resume, progress)
+        _finetune_pi05(recipe, datasets, out, task, resume, progress)
         return
     _finetune_learned(recipe, datasets, out, task, dataset_tasks, resume, progress)
 
 
-def _finetune_pi05(recipe, datasets: tuple[Path, ...], out: Path, resume: bool, progress: bool) -> None:
-    """``finetune`` with a pi05 recipe: LoRA on lerobot's PI05, on one dataset."""
+def _finetune_pi05(recipe, datasets: tuple[Path, ...], out: Path, task: str, resume: bool, progress: bool) -> None:
+    """``finetune`` with a pi05 recipe: LoRA on lerobot's PI05, on one dataset of ``task``."""
     from tqdm import tqdm
 
+    from sb3_memret.stage1.finetune import tasks_template
     from sb3_memret.stage1.finetune_pi05 import finetune_pi05
+    from sb3_memret.tasks import make_task
 
     if resume:
         raise click.BadParameter("--resume goes on from a learned policy's finetune; policy pi05 starts afresh",
@@ -197,7 +170,8 @@ def _finetune_pi05(recipe, datasets: tuple[Path, ...], out: Path, resume: bool, 
     with tqdm(total=training.steps, desc="finetune pi05 (LoRA)", disable=not progress) as bar:
         finetune_pi05(datasets[0], pi05.pretrained, out, steps=training.steps, batch_size=training.batch_size,
                       learning_rate=training.learning_rate, lora_rank=pi05.lora_rank, device=pi05.device,
-                      tokenizer=pi05.tokenizer, seed=training.seed, on_step=lambda step, loss: bar.update(1))
+                      tokenizer=pi05.tokenizer, seed=training.seed, on_step=lambda step, loss: bar.update(1),
+                      prompt_template=tasks_template([make_task(task)]))
     tok = f"&tokenizer={pi05.tokenizer}" if pi05.tokenizer is not None else ""
     click.echo(f"LoRA adapter written: --controller 'lerobot:{out}/checkpoint?adapter={out}/adapter{tok}'")
 
@@ -272,16 +246,17 @@ def paired_datasets(datasets: tuple[Path, ...], dataset_tasks: str, task: str | 
 
 @click.command()
 @click.argument("controller", metavar="CONTROLLER")
+@task_option()
 @click.option("--host", default="0.0.0.0", show_default=True)
 @click.option("--port", type=click.IntRange(1, 65535), default=8000, show_default=True)
-def serve(controller: str, host: str, port: int) -> None:
+def serve(controller: str, task: str, host: str, port: int) -> None:
     """Serve the frozen CONTROLLER (as --controller takes it) over openpi's websocket protocol, with
     openpi's own server: `--controller openpi://HOST:PORT` then runs it from any command. One Ctrl-C or
     SIGTERM stops it: open connections close once any inference in progress has replied."""
     from sb3_memret.stage1.serve import ControllerPolicy, serve as serve_policy
 
     try:
-        policy = ControllerPolicy(controller)
+        policy = ControllerPolicy(controller, task)
     except (ValueError, OSError, ImportError, RuntimeError) as err:
         raise click.BadParameter(str(err), param_hint="CONTROLLER") from err
     click.echo(f"serving {controller} on ws://{host}:{port} (openpi protocol; Ctrl-C stops)", err=True)

@@ -62,7 +62,8 @@ class LeRobotPi05Controller(FrozenController):
         tokenizer: str | Path | None = None,
         device: str = "cpu",
         cameras: Mapping[str, str] = IMAGE_KEYS,
-        prompt_template: PromptTemplate | None = None,
+        *,
+        prompt_template: PromptTemplate,
     ):
         self.checkpoint = local_folder(checkpoint, "checkpoint", WEIGHTS_FILE)
         from lerobot.policies.factory import make_pre_post_processors
@@ -95,7 +96,7 @@ class LeRobotPi05Controller(FrozenController):
             chunk_len=config.chunk_size,
             action_dim=config.output_features[ACTION_KEY].shape[0],
             needs_images=True,
-            prompt_template=prompt_template or PromptTemplate(),
+            prompt_template=prompt_template,
         )
         self._noise_shape = (config.chunk_size, config.max_action_dim)
         self._generators: list[torch.Generator] = []

@@ -138,7 +138,8 @@ class OpenPIController(FrozenController):
     ``chunk_len`` defaults to the ``action_horizon`` the server's metadata publishes, else to
     pi05_libero's 10; every reply must match it exactly. A server started by ``sb3-memret serve``
     also publishes whether its controller reads images, its action size and convention and its
-    prompt template, which this client then follows (prompts are still checked here).
+    prompt template, which this client then follows (prompts are still checked here); another server's controller
+    takes ``prompt_template``, else ``task_template`` (the prompts of the task it was finetuned on).
     """
 
     def __init__(
@@ -148,6 +149,7 @@ class OpenPIController(FrozenController):
         chunk_len: int | None = None,
         limits: ServerLimits | None = None,
         prompt_template: PromptTemplate | None = None,
+        task_template: PromptTemplate | None = None,
     ):
         if chunk_len is not None and chunk_len < 1:
             raise ValueError(f"chunk_len must be >= 1, got {chunk_len}")
@@ -156,13 +158,19 @@ class OpenPIController(FrozenController):
         served_horizon = int(served.get("action_horizon", PI05_LIBERO_ACTION_HORIZON))
         if prompt_template is None and "prompt_template" in served:
             template = served["prompt_template"]
-            prompt_template = PromptTemplate(tuple(template["instructions"]), tuple(template["fact_templates"]))
+            fields = template.get("fields", task_template.fields if task_template is not None else ())
+            prompt_template = PromptTemplate(tuple(template["instructions"]), tuple(template["fact_templates"]),
+                                             tuple(tuple(pair) for pair in fields))
+        prompt_template = prompt_template or task_template
+        if prompt_template is None:
+            raise ValueError(f"the server at {host}:{port} publishes no prompt template and none was given: pass "
+                             "prompt_template (or task_template, the prompts of the task a pi05 was finetuned on)")
         self.spec = ControllerSpec(
             action_convention=str(served.get("action_convention", "pd_ee_delta_pose")),
             chunk_len=chunk_len or served_horizon,
             action_dim=int(served.get("action_dim", 7)),
             needs_images=bool(served.get("needs_images", True)),
-            prompt_template=prompt_template or PromptTemplate(),
+            prompt_template=prompt_template,
         )
         self._client_id = uuid.uuid4().hex
         self._seeds: list[int] = []

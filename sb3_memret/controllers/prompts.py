@@ -17,37 +17,35 @@ import re
 from dataclasses import dataclass
 from typing import Sequence
 
-from sb3_memret.memory.schema import NOTHING, SPECIAL_TEXTS, TEMPLATES, MemoryType
-
-INSTRUCTION_TEMPLATE = "pick out the {entity}."
-INSTRUCTION = INSTRUCTION_TEMPLATE.format(entity="cube")  # the seed's task: the only object is a cube
-LAYER_LOCATION_TEMPLATE = TEMPLATES[MemoryType.OBJECT_LOCATION].replace("{value}", "drawer layer {layer}")
-OUTSIDE = "outside"  # the location value of an object in no drawer, worded by OUTSIDE_TEMPLATE
-OUTSIDE_TEMPLATE = "the {entity} is out of the drawers."
-HOLDING_TEMPLATE = TEMPLATES[MemoryType.HOLDING]
-HOLDING_NOTHING_TEXT = SPECIAL_TEXTS[(MemoryType.HOLDING, NOTHING)]
 # controller-evaluation prompts: the true facts, none, wrong ones (the same at every decision), or the facts the task's
 # writer wrote so far in the episode (``sb3_memret.evaluation.rollout.WrittenFacts``: they change as the episode goes)
 FIXED_CONDITIONS: tuple[str, ...] = ("oracle", "none", "wrong")
 CONDITIONS: tuple[str, ...] = (*FIXED_CONDITIONS, "written")
 
-# fields that hold a number (a drawer layer, a speed in cm/s, an angle in whole degrees: a rotation, signed, and a
-# start); every other field holds words
-_FIELD_PATTERNS = {"layer": r"[0-9]+", "speed": r"[0-9]+", "angle_deg": r"-?[0-9]+", "start_deg": r"[0-9]+"}
-_WORDS = r"[a-z]+(?: [a-z]+)*"
+NUMBER = r"[0-9]+"  # a field that holds a whole number (a drawer layer, a speed in cm/s)
+SIGNED_NUMBER = r"-?[0-9]+"  # a field that holds a signed whole number (a rotation in degrees)
+_WORDS = r"[a-z]+(?: [a-z]+)*"  # what every other field holds
 _SENTENCE_RE = re.compile(r"[^ .][^.]*\.")
 
 
 @dataclass(frozen=True)
 class PromptTemplate:
-    """The sentences a controller was trained on: its instructions and fact templates.
+    """The sentences a controller was trained on: its instructions and fact templates, and the fields among them
+    that hold something other than words (``fields``: name and pattern, e.g. ``("layer", NUMBER)``).
 
     Either may hold fields (``pick out the {entity}.``): a controller trained on several objects
     takes any object word there, while one trained on ``pick out the cube.`` alone takes nothing else.
     """
 
-    instructions: tuple[str, ...] = (INSTRUCTION,)
-    fact_templates: tuple[str, ...] = (LAYER_LOCATION_TEMPLATE, OUTSIDE_TEMPLATE, HOLDING_TEMPLATE, HOLDING_NOTHING_TEXT)
+    instructions: tuple[str, ...]
+    fact_templates: tuple[str, ...] = ()
+    fields: tuple[tuple[str, str], ...] = ()
+
+    def __post_init__(self) -> None:
+        if not self.instructions or isinstance(self.instructions, str):
+            raise ValueError(f"a prompt template needs a tuple of instructions, got {self.instructions!r}")
+        for name, pattern in self.fields:
+            re.compile(pattern)  # a bad pattern fails here, naming itself
 
     def describe(self) -> str:
         return "instructions " + " | ".join(map(repr, self.instructions)) + "; facts " + " | ".join(
@@ -62,9 +60,9 @@ class Fact:
     template: str
     fields: tuple[tuple[str, str], ...]
 
-    @property
-    def layer(self) -> int | None:
-        return next((int(v) for k, v in self.fields if k == "layer"), None)
+    def value(self, name: str) -> str | None:
+        """The value of field ``name``, or None when the template has no such field."""
+        return next((v for k, v in self.fields if k == name), None)
 
 
 @dataclass(frozen=True)
@@ -73,37 +71,20 @@ class ParsedPrompt:
     facts: tuple[Fact, ...] = ()
     instruction_fields: tuple[tuple[str, str], ...] = ()  # the instruction template's field values, in order
 
-    @property
-    def target(self) -> str | None:
-        """The object the instruction names (``pick out the {entity}.``), or None for another wording."""
-        m = _template_regex(INSTRUCTION_TEMPLATE).fullmatch(self.instruction)
-        return m["entity"] if m else None
-
-    @property
-    def layer(self) -> int | None:
-        """The drawer layer of the first fact that names one, or None."""
-        return next((f.layer for f in self.facts if f.layer is not None), None)
+    def field(self, name: str) -> str | None:
+        """The value of field ``name`` in the first fact that has one, or None."""
+        return next((value for fact in self.facts if (value := fact.value(name)) is not None), None)
 
 
-def instruction_text(target: str) -> str:
-    """The instruction that names ``target``: ``pick out the {target}.``"""
-    return build_prompt(INSTRUCTION_TEMPLATE.format(entity=target), [], PromptTemplate((INSTRUCTION_TEMPLATE,)))
-
-
-def holding_text(value: str) -> str:
-    return HOLDING_NOTHING_TEXT if value == NOTHING else HOLDING_TEMPLATE.format(value=value)
-
-
-def build_prompt(instruction: str, memories: Sequence[str], template: PromptTemplate | None = None) -> str:
+def build_prompt(instruction: str, memories: Sequence[str], template: PromptTemplate) -> str:
     """Join an instruction and memory texts into one prompt, checking every sentence."""
     prompt = " ".join([instruction, *memories])
     parse_prompt(prompt, template)
     return prompt
 
 
-def parse_prompt(prompt: str, template: PromptTemplate | None = None) -> ParsedPrompt:
+def parse_prompt(prompt: str, template: PromptTemplate) -> ParsedPrompt:
     """Split a prompt into its instruction and facts, or raise ValueError on any drift."""
-    template = template or PromptTemplate()
     if not isinstance(prompt, str):
         raise TypeError(f"prompt must be a str, got {type(prompt).__name__}")
     sentences = _SENTENCE_RE.findall(prompt)
@@ -113,7 +94,8 @@ def parse_prompt(prompt: str, template: PromptTemplate | None = None) -> ParsedP
             f"spaces, lowercase, with no leading or trailing whitespace; accepted {template.describe()}"
         )
     instruction, *rest = sentences
-    match = next((m for t in template.instructions if (m := _template_regex(t).fullmatch(instruction))), None)
+    match = next((m for t in template.instructions if (m := _template_regex(t, template.fields).fullmatch(instruction))),
+                 None)
     if match is None:
         raise ValueError(f"prompt {prompt!r} starts with {instruction!r}; expected one of {template.describe()}")
     return ParsedPrompt(instruction, tuple(_parse_fact(s, prompt, template) for s in rest),
@@ -132,11 +114,13 @@ def check_fixed_condition(condition: str) -> str:
 
 
 @functools.lru_cache(maxsize=None)
-def _template_regex(template: str) -> re.Pattern:
-    """A template like 'the {entity} is in drawer layer {layer}.' as an exact-match regex."""
+def _template_regex(template: str, fields: tuple[tuple[str, str], ...] = ()) -> re.Pattern:
+    """A template like 'the {entity} is in drawer layer {layer}.' as an exact-match regex, each field matching its
+    pattern in ``fields`` (words when it has none)."""
+    patterns = dict(fields)
     parts = re.split(r"\{(\w+)\}", template)
     pattern = "".join(
-        re.escape(part) if i % 2 == 0 else f"(?P<{part}>{_FIELD_PATTERNS.get(part, _WORDS)})"
+        re.escape(part) if i % 2 == 0 else f"(?P<{part}>{patterns.get(part, _WORDS)})"
         for i, part in enumerate(parts)
     )
     return re.compile(pattern)
@@ -144,6 +128,6 @@ def _template_regex(template: str) -> re.Pattern:
 
 def _parse_fact(sentence: str, prompt: str, template: PromptTemplate) -> Fact:
     for fact_template in template.fact_templates:
-        if m := _template_regex(fact_template).fullmatch(sentence):
+        if m := _template_regex(fact_template, template.fields).fullmatch(sentence):
             return Fact(fact_template, tuple(m.groupdict().items()))
     raise ValueError(f"memory {sentence!r} in prompt {prompt!r} matches no trained template; accepted {template.describe()}")

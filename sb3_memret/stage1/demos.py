@@ -1,33 +1,24 @@
-"""Expert demonstrations as a LeRobotDataset (v3.0), written with lerobot's own recording API.
+"""Expert demonstrations of any task as a LeRobotDataset (v3.0), written with lerobot's own recording API.
 
-Data design (decided up front; the held-out tests depend on what stays out):
+Which episodes are recorded is the task's plan (``Task.plan_demos``, ``sb3_memret.tasks.demos``): each episode's
+seed, its prompt kind (the bare instruction, the task's true facts such as ``the cue cube was red.``, or facts naming
+something else, which the expert follows as a controller trained on them would), its arm noise and the reset options
+that choose its group (the drawer's layers). Per frame: ``Task.demo_frame`` (the state a controller may see, and with
+a renderer the cameras under the keys π0.5-LIBERO finetuning reads, resized to ``image_size``), ``action`` (the
+expert's label for that step) and ``task`` (the exact prompt the frame was acted on). ``frames="every"`` keeps every
+control step (lerobot builds action chunks from consecutive frames, as π0.5's finetuning reads them);
+``frames="decisions"`` keeps only the steps a controller acts at, each with the expert's labels for its next
+``chunk_len`` steps as ``action_chunk`` (``action_chunk_is_pad`` past the episode's end), and renders the cameras
+only there: a camera frame costs ~55 ms here, a control step ~4 ms.
 
-- **Prompts in the data**: the bare instruction (``pick out the cube.``: the expert opens the top
-  drawer, as the seed's finetuned π0.5 does) and single-fact prompts
-  ``pick out the cube. the cube is in drawer layer L.`` for every layer L. The named layer is the
-  cube's layer in most episodes and another layer in the rest (the expert opens the named drawer,
-  finds it empty and holds still), so the policy learns to follow the prompt, not the cube.
-  With several objects (``objects``, ``n_objects``) the target cycles over the objects and the
-  prompts name it (``pick out the tin. the tin is in drawer layer L.``).
-- **Prompts kept out**: two-memory prompts, other objects' facts, holding facts and any paraphrase
-  of the fact sentence, so ``ablate memcount``, ``ablate prompt`` and ``ablate wording`` stay true
-  held-out tests.
-- **States off the expert's path**: a share of the episodes executes the expert's actions with
-  Gaussian noise on the arm (the labels stay the expert's clean actions), and DAgger rounds
-  (``learner=``) let a learned controller act while the expert, which can label any state,
-  shadows it and supplies every label.
-
-Per frame: ``observation.state`` (19: what a controller may see; see
-``sb3_memret.controllers.observation``), ``action`` (the expert's 7-D end-effector delta pose for
-that step), ``task`` (the exact prompt), and with a renderer the two cameras under the keys
-π0.5-LIBERO finetuning reads. ``frames="every"`` keeps every control step (lerobot builds action
-chunks from consecutive frames, as π0.5's finetuning reads them); ``frames="decisions"`` keeps only
-the steps a controller acts at (one per ``replan_every``), each with the expert's labels for the
-next ``chunk_len`` steps as ``action_chunk`` (``action_chunk_is_pad`` past the episode's end), and
-renders the cameras only there: a camera frame costs ~55 ms here, a control step ~4 ms. An episode
-ends at success, at the time limit, or once the expert has held still for ``idle_stop`` steps (an
-empty drawer). Episodes are written as they finish; an interrupted run finalises the dataset with
-every episode saved so far.
+States off the expert's path: a share of the episodes executes the expert's actions with Gaussian noise on the arm
+(the labels stay the expert's clean actions), and DAgger rounds (``learner=``) let a learned controller act while
+the expert, which can label any state, shadows it and supplies every label. A task whose writer writes progress
+(TASK_PROGRESS facts: ``the red cube was touched.``) has it run along: each decision's prompt carries, after the
+kind's facts, the progress written so far. An episode ends at the task's end, at success where the task ends there,
+or once the expert has given up for ``idle_stop`` steps (``Task.expert_gave_up``: the drawer's empty drawer).
+Episodes are written as they finish, with a line each in ``sb3_memret_episodes.jsonl`` saying how it was played; an
+interrupted run finalises the dataset with every episode saved so far.
 """
 
 from __future__ import annotations
@@ -41,22 +32,21 @@ from typing import Any, Callable, Iterable, Sequence
 import numpy as np
 
 from sb3_memret.controller_specs import make_controller
-from sb3_memret.controllers.base import FrozenController
-from sb3_memret.controllers.observation import (ACTION_CHUNK_KEY, ACTION_KEY, CHUNK_PAD_KEY, IMAGE_KEYS, IMAGE_SHAPE,
-                                                STATE_KEY, TASK_KEY, camera_images, dataset_features,
-                                                observation_state, resize_images)
-from sb3_memret.tasks.drawer.expert import Phase, ScriptedDrawerController
-from sb3_memret.tasks.drawer.cabinet import LAYERS
-from sb3_memret.tasks.drawer.objects import object_set
-from sb3_memret.tasks.drawer.drawer_cube import DEFAULT_ROBOT
-from sb3_memret.controllers.prompts import INSTRUCTION_TEMPLATE, PromptTemplate, build_prompt, instruction_text
-from sb3_memret.tasks.drawer.prompts import location_text
-from sb3_memret.tasks.base import RENDER_BACKENDS
-from sb3_memret.tasks.drawer import DrawerTask
+from sb3_memret.controllers.base import FrozenController, as_numpy
+from sb3_memret.controllers.observation import (ACTION_CHUNK_KEY, ACTION_KEY, CHUNK_PAD_KEY, TASK_KEY, chunk_features,
+                                                resize_images)
+from sb3_memret.controllers.prompts import build_prompt
+from sb3_memret.evaluation.rollout import WrittenFacts
+from sb3_memret.memory.schema import MemoryType
+from sb3_memret.physics.sensor_gate import sensors_pause
+from sb3_memret.tasks import Task, make_task
+from sb3_memret.tasks.base import check_render_backend
+from sb3_memret.tasks.demos import DemoEpisode
 
-FPS = 20  # pd_ee_delta_pose control frequency of DrawerCubeTakeOut-v1
+FPS = 20  # the pd_ee_delta_pose control frequency of the drawer's and MIKASA's envs
 EPISODES_FILE = "sb3_memret_episodes.jsonl"  # one line per saved episode: how it was played
 FRAME_CHOICES = ("every", "decisions")  # which control steps a dataset keeps
+IDLE_STOP = 16  # control steps an expert that gave up holds still before its recording ends
 
 
 def check_frames(frames: str) -> str:
@@ -65,162 +55,161 @@ def check_frames(frames: str) -> str:
     return frames
 
 
-@dataclass(frozen=True)
-class PromptMix:
-    """How episodes' prompts are drawn: bare, fact naming the cube's layer, fact naming another layer."""
-
-    bare: float = 0.2
-    matching: float = 0.6
-    mismatched: float = 0.2
-
-    def __post_init__(self) -> None:
-        weights = (self.bare, self.matching, self.mismatched)
-        if min(weights) < 0 or not np.isclose(sum(weights), 1.0):
-            raise ValueError(f"prompt mix {weights} must be non-negative and sum to 1")
-
-
-@dataclass(frozen=True)
-class DemoEpisode:
-    """One demonstration to record: placement seed, target layer, prompt, action noise on the arm, target."""
-
-    seed: int
-    target_layer: int
-    prompt: str
-    noise: float = 0.0
-    target: str = "cube"
-
-
-@dataclass
-class EpisodeFrames:
-    """A recorded episode: the expert's label at every control step, and the kept frames' states and
-    camera images (every step, or the decision steps alone: ``frame_steps``)."""
-
-    episode: DemoEpisode
-    states: np.ndarray  # (F, 19) at the kept frames
-    actions: np.ndarray  # (T, 7): the expert's label at every control step
-    images: dict[str, np.ndarray]  # feature -> (F, S, S, 3) uint8, empty without a renderer
-    success: bool
-    learner_acted: bool
-    frame_steps: np.ndarray | None = None  # (F,) the control step of each kept frame; None: every step
-
-    def __post_init__(self) -> None:
-        if self.frame_steps is None:
-            self.frame_steps = np.arange(len(self.actions))
-
-    def chunks(self, chunk_len: int) -> tuple[np.ndarray, np.ndarray]:
-        """Each kept frame's labels for its next ``chunk_len`` steps (F, chunk_len, 7) and the pad mask past the
-        episode's end (F, chunk_len)."""
-        return label_chunks(self.actions, self.frame_steps, chunk_len)
-
-
 def label_chunks(actions: np.ndarray, steps: np.ndarray, chunk_len: int) -> tuple[np.ndarray, np.ndarray]:
     """``actions[s : s + chunk_len]`` for each step ``s``, the last label repeated past the end, and its pad mask."""
     raw = np.asarray(steps)[:, None] + np.arange(chunk_len)[None, :]
     return actions[np.minimum(raw, len(actions) - 1)], raw > len(actions) - 1
 
 
-def plan_episodes(n: int, seed: int = 0, noise: float = 0.0, noisy_fraction: float = 0.5,
-                  mix: PromptMix | None = None, objects: str | Sequence[str] = "cube") -> list[DemoEpisode]:
-    """``n`` episodes with placement seeds ``seed..seed+n-1``, target layers cycling over the layers and
-    targets over ``objects`` (a named set or a list), prompts drawn by ``mix`` and ``noisy_fraction`` of
-    them with arm noise ``noise``."""
-    names = object_set(objects)
-    if n < 1:
-        raise ValueError(f"episodes must be >= 1, got {n}")
-    if noise < 0 or not 0 <= noisy_fraction <= 1:
-        raise ValueError(f"noise must be >= 0 and noisy_fraction in [0, 1], got {noise}, {noisy_fraction}")
-    mix = mix or PromptMix()
-    rng = np.random.default_rng(seed)
-    episodes = []
-    for k in range(n):
-        layer, target = LAYERS[k % len(LAYERS)], names[(k // len(LAYERS)) % len(names)]
-        kind = rng.choice(3, p=[mix.bare, mix.matching, mix.mismatched])
-        instruction = instruction_text(target)
-        if kind == 0:
-            prompt = instruction
-        else:
-            others = [other for other in LAYERS if other != layer]
-            named = layer if kind == 1 else int(rng.choice(others))
-            prompt = build_prompt(instruction, [location_text(target, named)], PromptTemplate((INSTRUCTION_TEMPLATE,)))
-        noisy = rng.random() < noisy_fraction
-        episodes.append(DemoEpisode(seed + k, layer, prompt, noise if noisy else 0.0, target))
-    return episodes
+def image_features(features: dict[str, dict[str, Any]]) -> list[str]:
+    """The camera features of a demonstration layout."""
+    return [key for key, spec in features.items() if spec["dtype"] == "image"]
 
 
-def record_episode(env, expert: ScriptedDrawerController, episode: DemoEpisode,
-                   learner: FrozenController | None = None, replan_every: int = DrawerTask.replan_every,
-                   idle_stop: int = 16, with_images: bool = False, frames: str = "every",
-                   image_size: int = IMAGE_SHAPE[0]) -> EpisodeFrames:
-    """Play one episode, the expert labelling every step; the learner acts instead when given. ``frames``
-    says which steps' observations are kept; camera images are resized to ``image_size``."""
-    decisions_only = check_frames(frames) == "decisions"
-    paused = getattr(env.unwrapped, "sensors_paused", None) if decisions_only and with_images else None
-    rng = np.random.default_rng(episode.seed)
-    obs, _ = env.reset(seed=episode.seed, options={"target_layer": episode.target_layer, "target": episode.target})
-    expert.reset([episode.seed])
-    if learner is not None:
-        learner.reset([episode.seed])
-    states, actions, kept, images = [], [], [], {key: [] for key in IMAGE_KEYS} if with_images else {}
-    idle, success, done = 0, False, False
-    while not done:
-        labels = expert.act(obs, [episode.prompt])[0][:replan_every]
-        executed = learner.act(obs, [episode.prompt])[0][:replan_every] if learner is not None else labels.copy()
-        for i, (label, action) in enumerate(zip(labels, executed)):
-            if i == 0 or not decisions_only:
-                kept.append(len(actions))
-                states.append(observation_state(obs)[0])
-                for key, frame in camera_images(obs).items() if with_images else ():
-                    images[key].append(resize_images(frame, image_size)[0])
-            actions.append(label)
-            if episode.noise:
-                action = action.copy()
-                action[:6] = np.clip(action[:6] + rng.normal(0.0, episode.noise, 6), -1.0, 1.0)
-            with paused() if paused is not None and i < len(labels) - 1 else nullcontext():
-                obs, _, terminated, truncated, info = env.step(action)
-            success = bool(info["success"])
-            idle = idle + 1 if expert.phases()[0] is Phase.IDLE else 0
-            if terminated or truncated or idle >= idle_stop:
-                done = True
-                break
-    return EpisodeFrames(episode, np.asarray(states, np.float32), np.asarray(actions, np.float32),
-                         {key: np.stack(frames) for key, frames in images.items()}, success, learner is not None,
-                         np.asarray(kept))
+def sized_features(task: Task, with_images: bool, image_size: int | None) -> dict[str, dict[str, Any]]:
+    """``task``'s demonstration layout with its cameras at ``image_size`` (None: as they render); refused above the
+    rendered size or below 16."""
+    features = task.demo_features(with_images)
+    for key in image_features(features) if image_size is not None else ():
+        native = features[key]["shape"][0]
+        if not 16 <= image_size <= native:
+            raise ValueError(f"image_size must be in [16, {native}] (task {task.name!r}'s cameras render {native}), "
+                             f"got {image_size}")
+        features[key] = {**features[key], "shape": (image_size, image_size, 3)}
+    return features
 
 
-class _Recorder:
-    """A task env, the expert and an optional learner, recording episodes one after another."""
+@dataclass
+class EpisodeFrames:
+    """A recorded episode: its frames in the task's layout, the expert's labels, and how it went."""
 
-    def __init__(self, render_backend: str, learner: str | None, replan_every: int, max_steps: int | None,
-                 objects: tuple[str, ...], n_objects: int, frames: str = "every", image_size: int = IMAGE_SHAPE[0]):
-        self.with_images = render_backend != "none"
-        self.frames, self.image_size = frames, image_size
-        limit = {} if max_steps is None else {"max_episode_steps": max_steps}
-        self.env = DrawerTask().make_env(obs_mode="rgb" if self.with_images else "state_dict", render_backend=render_backend,
-                                 objects=objects, n_objects=n_objects, robot_uids=DEFAULT_ROBOT, **limit)
-        self.expert = ScriptedDrawerController()
+    episode: DemoEpisode
+    prompt: str  # the first decision's
+    group: str
+    frames: list[dict[str, np.ndarray]]  # the kept frames (every step, or the decision steps)
+    prompts: list[str]  # the prompt each kept frame was acted on (one for all, without progress facts)
+    actions: np.ndarray  # (T, action_dim): the expert's label at every control step
+    success: bool
+    frame_steps: np.ndarray  # (F,) the control step of each kept frame
+    learner_acted: bool = False  # a DAgger episode: the learner acted, the expert only labelled
+
+    def chunks(self, chunk_len: int) -> tuple[np.ndarray, np.ndarray]:
+        """Each kept frame's labels for its next ``chunk_len`` steps (F, chunk_len, action_dim) and the pad mask past
+        the episode's end (F, chunk_len)."""
+        return label_chunks(self.actions, self.frame_steps, chunk_len)
+
+
+class DemoRecorder:
+    """A task env and the task's expert, recording episodes one after another; with a learner (a controller
+    spec or instance) the learner acts and the expert labels."""
+
+    def __init__(self, task: Task | str, render_backend: str, replan_every: int | None = None,
+                 frames: str = "every", learner: str | FrozenController | None = None, max_steps: int | None = None,
+                 image_size: int | None = None, idle_stop: int = IDLE_STOP):
+        self.task = make_task(task)
+        if max_steps is not None and max_steps < 1:
+            raise ValueError(f"max_steps must be >= 1 (or None: the task's own limit), got {max_steps}")
+        if idle_stop < 1:
+            raise ValueError(f"idle_stop must be >= 1, got {idle_stop}")
+        self.decisions_only = check_frames(frames) == "decisions"
+        self.with_images = check_render_backend(render_backend) != "none"
+        self.expert = self.task.expert()
+        replan_every = self.task.replan_interval(replan_every, self.expert.spec.chunk_len, "the expert's")
+        features = sized_features(self.task, self.with_images, image_size)  # a task without a layout refuses here
+        self.resized = {key: features[key]["shape"][0] for key in image_features(features)} if image_size else {}
+        self.env = self.task.make_env(**self.task.env_kwargs(self.with_images, render_backend),
+                                      max_episode_steps=max_steps)
         self.expert.check_env(self.env)
-        self.learner = make_controller(learner) if learner is not None else None
+        self.learner = make_controller(learner, self.task) if isinstance(learner, str) else learner
         if self.learner is not None:
+            self.task.replan_interval(replan_every, self.learner.spec.chunk_len, "the learner's")
             self.learner.check_env(self.env)
-        self.replan_every = replan_every
+        self.replan_every, self.idle_stop = replan_every, idle_stop
+        writes_progress = any(mtype == MemoryType.TASK_PROGRESS for mtype, _ in self.task.writer().relations.values())
+        self.progress = WrittenFacts(self.task) if writes_progress else None
+        # keeping decision frames only, a step inside a chunk leaves images nobody reads (unless the progress writer
+        # perceives every step): its cameras pause, and the outcome is the same (physics never reads the renderer)
+        unread = self.with_images and self.decisions_only and not (self.progress is not None
+                                                                   and self.task.perceives_every_step)
+        self.pause = sensors_pause(self.env) if unread else None
+
+    def frame(self, obs: Any) -> dict[str, np.ndarray]:
+        """One kept frame in the dataset's layout, its cameras resized."""
+        frame = self.task.demo_frame(obs, self.with_images)
+        for key, size in self.resized.items():
+            frame[key] = resize_images(frame[key][None], size)[0]
+        return frame
+
+    def facts(self, episode: DemoEpisode, truth: Any) -> list[str]:
+        """The facts ``episode``'s prompt carries: the plan's, or the task's for its prompt kind."""
+        if episode.facts is not None:
+            return list(episode.facts)
+        return {"bare": [], "matching": self.task.oracle_facts(truth),
+                "mismatched": self.task.wrong_facts(truth)}[episode.prompt_kind]
 
     def record(self, episode: DemoEpisode) -> EpisodeFrames:
-        return record_episode(self.env, self.expert, episode, self.learner, self.replan_every,
-                              with_images=self.with_images, frames=self.frames, image_size=self.image_size)
+        """Play one episode, the expert (or the learner) acting on each decision's prompt (the episode's facts, then
+        any progress written so far) and the expert labelling every frame."""
+        rng = np.random.default_rng(episode.seed)
+        obs, info = self.env.reset(seed=episode.seed, options=dict(episode.reset_options))
+        first = self.task.frames(self.env, obs, info, reset=True)[0]
+        truth = self.task.episode(first)
+        facts = self.facts(episode, truth)
+        if self.progress is not None:
+            first.percepts = [self.task.perceive(self.env, obs)] if self.task.perceives_every_step else []
+            self.progress.start(first, truth)
+        self.expert.reset([episode.seed])
+        if self.learner is not None:
+            self.learner.reset([episode.seed])
+        frames, prompts, kept, actions, success, done, idle = [], [], [], [], False, False, 0
+        while not done:
+            done_so_far = self.progress.facts_of_type(MemoryType.TASK_PROGRESS) if self.progress is not None else []
+            prompt = build_prompt(self.task.instruction(truth), [*facts, *done_so_far],
+                                  self.expert.spec.prompt_template)
+            labels = self.expert.act(obs, [prompt])[0][: self.replan_every]
+            executed = labels if self.learner is None else self.learner.act(obs, [prompt])[0][: self.replan_every]
+            percepts = []
+            for i, (label, action) in enumerate(zip(labels, executed)):
+                if i == 0 or not self.decisions_only:
+                    kept.append(len(actions))
+                    frames.append(self.frame(obs))
+                    prompts.append(prompt)
+                actions.append(label)
+                action = np.array(action, np.float32)
+                if episode.noise:
+                    action[:6] = np.clip(action[:6] + rng.normal(0.0, episode.noise, 6), -1.0, 1.0)
+                chunk_ends = i == len(labels) - 1  # its observation is the next decision's
+                with self.pause() if self.pause is not None and not chunk_ends else nullcontext():
+                    obs, _, terminated, truncated, info = self.env.step(action[None])
+                if self.progress is not None and self.task.perceives_every_step:
+                    percepts.append(self.task.perceive(self.env, obs))
+                success = success or bool(np.any(as_numpy(info["success"])))  # MIKASA counts success once
+                idle = idle + 1 if self.task.expert_gave_up(self.expert) else 0
+                done = bool(np.any(as_numpy(terminated)) or np.any(as_numpy(truncated))
+                            or (self.task.ends_at_success and success)  # as the decision env and the benchmark
+                            or idle >= self.idle_stop)
+                if done:
+                    break
+            if self.progress is not None and not done:  # the writer reads the chunk's frame, as the decision env's
+                frame = self.task.frames(self.env, obs, info)[0]
+                frame.steps, frame.percepts = i + 1, percepts
+                self.progress.observe(frame)
+        return EpisodeFrames(episode, prompts[0], truth.group, frames, prompts, np.asarray(actions, np.float32),
+                             success, np.asarray(kept), self.learner is not None)
 
 
-_recorder: _Recorder | None = None
+_recorder: DemoRecorder | None = None
 
 
-def _init_recorder(render_backend: str, learner: str | None, replan_every: int, max_steps: int | None,
-                   objects: tuple[str, ...], n_objects: int, frames: str = "every", image_size: int = IMAGE_SHAPE[0],
+def _init_recorder(task: Task | str, render_backend: str, replan_every: int | None, frames: str = "every",
+                   learner: str | None = None, max_steps: int | None = None, image_size: int | None = None,
                    in_worker: bool = True) -> None:
     global _recorder
     if in_worker:
         from sb3_memret.common.workers import init_pool_worker
 
         init_pool_worker()
-    _recorder = _Recorder(render_backend, learner, replan_every, max_steps, objects, n_objects, frames, image_size)
+    _recorder = DemoRecorder(task, render_backend, replan_every, frames, learner, max_steps, image_size)
 
 
 def _record(episode: DemoEpisode) -> EpisodeFrames:
@@ -263,58 +252,49 @@ class DemoDatasetWriter:
 
 def record_demos(
     out: str | Path,
+    task: Task | str,
     episodes: Sequence[DemoEpisode],
     render_backend: str = "none",
-    learner: str | None = None,
     n_workers: int = 1,
-    replan_every: int = DrawerTask.replan_every,
-    max_steps: int | None = None,
+    replan_every: int | None = None,
     on_episode: Callable[[EpisodeFrames], None] | None = None,
-    objects: str | Sequence[str] = "cube",
-    n_objects: int = 1,
     frames: str = "every",
-    image_size: int = IMAGE_SHAPE[0],
+    learner: str | None = None,
+    max_steps: int | None = None,
+    image_size: int | None = None,
 ) -> Path:
-    """Record ``episodes`` into a new LeRobotDataset at ``out`` and return its folder.
+    """Record ``episodes`` (``Task.plan_demos``) of ``task``'s expert into a new LeRobotDataset at ``out`` and return
+    its folder. ``frames`` (``every`` or ``decisions``) says which control steps it keeps and ``image_size`` the
+    square size its cameras are stored at (None: as rendered); ``learner`` (a controller spec) makes it a DAgger
+    round, the learner acting and the expert labelling; ``max_steps`` ends each episode after that many control steps
+    (None: the task's own limit); ``replan_every`` (None: the task's) the steps executed from each chunk."""
+    from sb3_memret.common.workers import map_in_workers
 
-    ``learner`` (a controller spec) makes this a DAgger round: the learner acts, the expert labels.
-    ``max_steps`` shortens the task's 400-step limit (quick checks). ``objects`` and ``n_objects``
-    set what the drawers hide; every episode's target must be one of ``objects``. ``frames``
-    (``every`` or ``decisions``) and ``image_size`` (cameras resized to it) shape the frames kept.
-    """
-    check_frames(frames)
-    if not 16 <= image_size <= IMAGE_SHAPE[0]:
-        raise ValueError(f"image_size must be in [16, {IMAGE_SHAPE[0]}] (the cameras render {IMAGE_SHAPE[0]}), "
-                         f"got {image_size}")
-    names = object_set(objects)
-    strangers = sorted({e.target for e in episodes} - set(names))
-    if strangers:
-        raise ValueError(f"episodes target {strangers}, which are not among the objects {list(names)}")
-
-    if render_backend not in RENDER_BACKENDS:
-        raise ValueError(f"unknown render backend {render_backend!r}; expected one of {list(RENDER_BACKENDS)}")
-    if learner is not None:
-        make_controller(learner)  # a bad spec fails here, before any worker starts
-    chunk_len = ScriptedDrawerController().spec.chunk_len if frames == "decisions" else None
-    writer = DemoDatasetWriter(out, dataset_features(render_backend != "none", image_size, chunk_len), DEFAULT_ROBOT)
+    the_task = make_task(task)
+    if learner is not None and n_workers > 1:
+        make_controller(learner, the_task)  # a bad spec fails here, before any worker starts (one worker: in-process)
+    with_images = check_render_backend(render_backend) != "none"
+    features = sized_features(the_task, with_images, image_size)
+    chunk_len = the_task.expert().spec.chunk_len if check_frames(frames) == "decisions" else None
+    robot = the_task.env_kwargs(with_images, render_backend).get("robot_uids")  # None: the env's own, unrecorded
+    writer = DemoDatasetWriter(out, {**features, **(chunk_features(chunk_len) if chunk_len else {})}, robot)
 
     def save(_: DemoEpisode, recorded: EpisodeFrames) -> None:
         chunks, pads = recorded.chunks(chunk_len) if chunk_len else (None, None)
-        rows = ({STATE_KEY: recorded.states[i], ACTION_KEY: recorded.actions[step], TASK_KEY: recorded.episode.prompt,
-                 **({ACTION_CHUNK_KEY: chunks[i], CHUNK_PAD_KEY: pads[i]} if chunk_len else {}),
-                 **{key: images[i] for key, images in recorded.images.items()}}
-                for i, step in enumerate(recorded.frame_steps))
-        writer.add_episode(rows, {**asdict(recorded.episode), "frames": len(recorded.frame_steps),
-                                  "steps": len(recorded.actions), "success": recorded.success, "learner": learner})
+        writer.add_episode(
+            ({**frame, ACTION_KEY: recorded.actions[step], TASK_KEY: recorded.prompts[i],
+              **({ACTION_CHUNK_KEY: chunks[i], CHUNK_PAD_KEY: pads[i]} if chunk_len else {})}
+             for i, (frame, step) in enumerate(zip(recorded.frames, recorded.frame_steps))),
+            {**asdict(recorded.episode), "task": the_task.name, "prompt": recorded.prompt, "group": recorded.group,
+             "frames": len(recorded.frames), "steps": len(recorded.actions), "success": recorded.success,
+             "learner": learner})
         if on_episode is not None:
             on_episode(recorded)
 
-    from sb3_memret.common.workers import map_in_workers
-
     global _recorder
     try:
-        map_in_workers(_init_recorder, (render_backend, learner, replan_every, max_steps, names, n_objects, frames,
-                                        image_size), _record, list(episodes), n_workers, save)
+        map_in_workers(_init_recorder, (task, render_backend, replan_every, frames, learner, max_steps, image_size),
+                       _record, list(episodes), n_workers, save)
     finally:
         writer.close()
         if _recorder is not None:
@@ -329,5 +309,5 @@ def read_episode_log(root: str | Path) -> list[dict]:
     return [json.loads(line) for line in path.read_text().splitlines()] if path.is_file() else []
 
 
-__all__ = ["DemoDatasetWriter", "DemoEpisode", "EpisodeFrames", "FPS", "FRAME_CHOICES", "PromptMix", "check_frames",
-           "label_chunks", "plan_episodes", "read_episode_log", "record_demos", "record_episode"]
+__all__ = ["DemoDatasetWriter", "DemoRecorder", "EPISODES_FILE", "EpisodeFrames", "FPS", "FRAME_CHOICES", "IDLE_STOP",
+           "check_frames", "image_features", "label_chunks", "read_episode_log", "record_demos", "sized_features"]

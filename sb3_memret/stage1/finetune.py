@@ -82,11 +82,11 @@ class FinetuneSettings:
             raise ValueError(f"validation_fraction must lie in [0, 1), got {self.validation_fraction}")
 
 
-def training_instructions(prompts: Sequence[str], instructions: Sequence[str],
-                          fact_templates: Sequence[str]) -> tuple[str, ...]:
+def training_instructions(prompts: Sequence[str], instructions: Sequence[str], fact_templates: Sequence[str],
+                          fields: tuple[tuple[str, str], ...] = ()) -> tuple[str, ...]:
     """The instructions a policy trained on ``prompts`` accepts: the one instruction they hold, or
     the templates ``instructions`` when they hold several (``pick out the {entity}.``: any object word)."""
-    template = PromptTemplate(tuple(instructions), tuple(fact_templates))
+    template = PromptTemplate(tuple(instructions), tuple(fact_templates), fields)
     held = sorted({parse_prompt(prompt, template).instruction for prompt in prompts})
     return tuple(instructions) if len(held) > 1 else tuple(held)
 
@@ -202,10 +202,11 @@ def policy_config(config: LearnedPolicyConfig, tasks: Sequence[Task], demos: Dem
     """``config`` completed from the demonstrations (the instructions and prompts they hold, the state entries the
     policy reads, the cameras, the perceived entries, the robot), and where those inputs lie in them; refused with a
     ValueError naming what does not fit (a prompt outside the contract, tasks whose state entries differ)."""
+    fields = tasks_template(tasks).fields
     config = replace(config, instructions=training_instructions(demos.tasks, config.instructions,
-                                                                config.fact_templates))
+                                                                config.fact_templates, fields))
     for prompt in demos.tasks:
-        parse_prompt(prompt, config.prompt_template)  # a dataset prompt outside the contract is refused
+        parse_prompt(prompt, config.prompt_template(fields))  # a dataset prompt outside the contract is refused
     names = state_names_for(tasks[0], state)
     for other in tasks[1:]:
         if state_names_for(other, state) != names:
@@ -425,7 +426,8 @@ def tasks_template(tasks: Sequence[Task]) -> PromptTemplate:
     demonstrations (``Task.instruction_templates``) and every fact template of theirs, once; the finetune keeps the
     instructions its datasets hold (``training_instructions``)."""
     return PromptTemplate(tuple(dict.fromkeys(i for task in tasks for i in task.instruction_templates)),
-                          tuple(dict.fromkeys(f for task in tasks for f in task.prompt_template.fact_templates)))
+                          tuple(dict.fromkeys(f for task in tasks for f in task.prompt_template.fact_templates)),
+                          tuple(dict.fromkeys(f for task in tasks for f in task.prompt_template.fields)))
 
 
 def masked_stats(values: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -22,7 +22,7 @@ import torch
 from sb3_memret.controllers.lerobot_pi05 import (WEIGHTS_FILE, check_features, load_checked_policy, load_pi05_config,
                                                  local_folder)
 from sb3_memret.controllers.observation import ACTION_KEY, IMAGE_KEYS
-from sb3_memret.controllers.prompts import parse_prompt
+from sb3_memret.controllers.prompts import PromptTemplate, parse_prompt
 
 CHECKPOINT_DIR, ADAPTER_DIR, LOG_FILE = "checkpoint", "adapter", "train_log.csv"
 
@@ -41,12 +41,14 @@ def finetune_pi05(
     seed: int = 0,
     on_step: Callable[[int, float], None] | None = None,
     num_workers: int = 4,
+    prompt_template: PromptTemplate,
 ) -> Path:
     """Train a rank-``lora_rank`` LoRA adapter for the PI05 checkpoint folder ``pretrained`` on the LeRobotDataset
     at ``dataset_root`` and write ``out``/checkpoint, ``out``/adapter and ``out``/train_log.csv; returns ``out``.
 
     ``tokenizer`` is a local tokenizer folder replacing the gated hub one the processors name; ``on_step``
-    is called with (step, loss) after every optimiser step. ``num_workers`` data-loader processes (lerobot-train's
+    is called with (step, loss) after every optimiser step; every prompt of the dataset must fit ``prompt_template``
+    (its task's, which the controller will check). ``num_workers`` data-loader processes (lerobot-train's
     default 4) read the samples: lerobot decodes every column of each action-chunk row, camera images included.
     """
     if steps < 1 or batch_size < 1 or lora_rank < 1 or num_workers < 0 or not learning_rate > 0:
@@ -78,7 +80,7 @@ def finetune_pi05(
     check_features(config, IMAGE_KEYS, f"dataset {dataset_root} (to finetune PI05 {pretrained})")
     for task in meta.tasks.index:
         try:
-            parse_prompt(task)
+            parse_prompt(task, prompt_template)
         except ValueError as err:
             raise ValueError(f"dataset {dataset_root} has a task outside the prompt contract, which the controller "
                              f"would refuse: {err}") from None

@@ -40,6 +40,7 @@ from sb3_memret.controllers.base import FrozenController
 from sb3_memret.controllers.observation import IMAGE_SHAPE, STATE_PARTS
 from sb3_memret.controllers.openpi import CAMERAS, CLIENT_KEY, ENV_KEY, EPISODE_KEY, EXTRA_STATE, SEED_KEY
 from sb3_memret.common.workers import STOP_SIGNALS, StopRequested
+from sb3_memret.tasks import Task
 
 STATE_KEY, PROMPT_KEY = "observation/state", "prompt"
 SIZES = {key: len(names) for _, key, names in STATE_PARTS}  # eef_state 8, drawer_opening 3, target_detection 8
@@ -62,11 +63,12 @@ class _RequestGroup(dict):
 
 
 class ControllerPolicy:
-    """An openpi policy (``infer(obs) -> {"actions": ...}``) backed by a controller spec such as ``learned``."""
+    """An openpi policy (``infer(obs) -> {"actions": ...}``) backed by a controller spec such as ``learned``, for
+    ``task`` (a name or a ``Task``: whose expert ``scripted`` is, whose prompts and observations it takes)."""
 
-    def __init__(self, controller: str):
+    def __init__(self, controller: str, task: str | Task):
         self.controller_spec = controller
-        self._template = make_controller(controller)  # a bad spec fails here, before serving
+        self._template = make_controller(controller, task)  # a bad spec fails here, before serving
         self.spec = self._template.spec
         self._slots: dict[tuple[str, int], tuple[FrozenController, Any]] = {}  # slot -> (controller, episode)
 
@@ -78,7 +80,8 @@ class ControllerPolicy:
                 "action_dim": self.spec.action_dim, "action_convention": self.spec.action_convention,
                 "needs_images": self.spec.needs_images,
                 "prompt_template": {"instructions": list(template.instructions),
-                                    "fact_templates": list(template.fact_templates)}}
+                                    "fact_templates": list(template.fact_templates),
+                                    "fields": [list(pair) for pair in template.fields]}}
 
     def infer(self, request: dict[str, Any]) -> dict[str, np.ndarray]:
         """One request -> ``{"actions": (chunk_len, action_dim)}`` from its slot's controller."""
@@ -130,9 +133,9 @@ def print_to_stderr(line: str) -> None:
     print(line, file=sys.stderr, flush=True)
 
 
-def serve(policy: ControllerPolicy | str, host: str = "0.0.0.0", port: int = 8000,
+def serve(policy: ControllerPolicy, host: str = "0.0.0.0", port: int = 8000,
           log: Callable[[str], None] = print_to_stderr) -> None:
-    """Serve a controller (a ``ControllerPolicy`` or a controller spec) on ws://host:port until SIGINT or SIGTERM,
+    """Serve a controller (a ``ControllerPolicy``) on ws://host:port until SIGINT or SIGTERM,
     then stop it (see ``serve_until_stopped``) and raise that signal's interrupt: KeyboardInterrupt for Ctrl-C,
     ``StopRequested`` for SIGTERM. Only the main thread receives signals, so only it may call this."""
     from openpi_server import WebsocketPolicyServer
@@ -140,7 +143,6 @@ def serve(policy: ControllerPolicy | str, host: str = "0.0.0.0", port: int = 800
     if threading.current_thread() is not threading.main_thread():
         raise RuntimeError("serve() stops on SIGINT and SIGTERM, which only the main thread receives; in another "
                            "thread run openpi_server.WebsocketPolicyServer(...).run() as a task and cancel it")
-    policy = ControllerPolicy(policy) if isinstance(policy, str) else policy
     server = WebsocketPolicyServer(policy, host=host, port=port, metadata=policy.metadata)
     loop = asyncio.new_event_loop()
     signals: asyncio.Queue[int] = asyncio.Queue()

@@ -34,6 +34,7 @@ from sb3_memret.controllers.prompts import ParsedPrompt
 
 if TYPE_CHECKING:
     from sb3_memret.tasks.ablations import AblationBuilder
+    from sb3_memret.tasks.demos import DemoEpisode, PromptMix
     from sb3_memret.memory.seeding import SeedingConfig
 
 
@@ -248,6 +249,21 @@ class Task(ABC):
         """The scripted expert, a ``FrozenController`` that obeys its prompt."""
 
     # ------------------------------------------------------------ demonstrations
+    def plan_demos(self, n: int, seed: int = 0, noise: float = 0.0, noisy_fraction: float = 0.5,
+                   mix: "PromptMix | None" = None) -> list["DemoEpisode"]:
+        """The ``n`` demonstrations ``sb3-memret demos`` records from env seed ``seed`` on: prompt kinds drawn by
+        ``mix``, ``noisy_fraction`` of them with arm noise ``noise`` (``sb3_memret.tasks.demos.plan_episodes``); a
+        task that chooses its episodes' groups (the drawer's layers) plans them itself."""
+        from sb3_memret.tasks.demos import plan_episodes
+
+        return plan_episodes(n, seed, noise, noisy_fraction, mix)
+
+    def expert_gave_up(self, expert: Any) -> bool:
+        """Whether the task's expert (``expert()``, batch 1) holds still for good, having found that its prompt leads
+        nowhere (the drawer's: the named drawer was empty); a recording ends after a few such steps. Never, by
+        default."""
+        return False
+
     def demo_features(self, with_images: bool) -> dict[str, dict[str, Any]]:
         """The LeRobotDataset feature spec of one demonstration frame: what a learned controller may see
         (``observation.state``, cameras with ``with_images``) and its ``action``."""

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import json
-from dataclasses import asdict, dataclass, field, fields
+from dataclasses import asdict, dataclass, fields
 from pathlib import Path
 from typing import Any
 
@@ -22,8 +22,8 @@ POLICY_TYPE = "sb3_memret_learned"
 class LearnedPolicyConfig:
     """Sizes of the network and the contract it was trained under.
 
-    ``prompt_template`` lists the instruction and fact templates of the training prompts (every
-    prompt is checked against it before the policy acts); ``training_prompts`` the exact prompts
+    ``instructions`` and ``fact_templates`` are the templates of the training prompts (every
+    prompt is checked against them before the policy acts, ``prompt_template``); ``training_prompts`` the exact prompts
     the demonstrations held, for the record. ``task`` is the task whose observation layout the policy
     reads; ``state_names`` the entries of that layout's state it takes (a camera-reading controller takes
     only what a robot reads of itself), by name, so a layout that moves them is refused, not misread.
@@ -61,8 +61,8 @@ class LearnedPolicyConfig:
     trunk_sha256: str = ""  # the frozen pretrained trunk's weights file, for encoders that have one
     action_convention: str = "pd_ee_delta_pose"
     robot: str | None = None  # the robot its training cameras showed (ManiSkill robot uid); None: not recorded
-    instructions: tuple[str, ...] = field(default_factory=lambda: PromptTemplate().instructions)
-    fact_templates: tuple[str, ...] = field(default_factory=lambda: PromptTemplate().fact_templates)
+    instructions: tuple[str, ...] = ()  # the finetune sets them from its tasks' and datasets' prompts
+    fact_templates: tuple[str, ...] = ()
     training_prompts: tuple[str, ...] = ()
     type: str = POLICY_TYPE
 
@@ -107,9 +107,12 @@ class LearnedPolicyConfig:
         """The tasks whose observations and prompts the controller was trained on."""
         return self.tasks or (self.task,)
 
-    @property
-    def prompt_template(self) -> PromptTemplate:
-        return PromptTemplate(self.instructions, self.fact_templates)
+    def prompt_template(self, fields: tuple[tuple[str, str], ...] = ()) -> PromptTemplate:
+        """The prompt contract it was trained under, its number fields as its task words them (``fields``)."""
+        if not self.instructions:
+            raise ValueError("the config names no instructions: a learned policy acts on the prompts its finetune "
+                             "recorded (instructions, fact_templates)")
+        return PromptTemplate(self.instructions, self.fact_templates, tuple(fields))
 
     def save(self, folder: Path) -> None:
         (folder / CONFIG_FILE).write_text(json.dumps(asdict(self), indent=2) + "\n")

@@ -35,7 +35,7 @@ class LearnedController(FrozenController):
             chunk_len=config.chunk_len,
             action_dim=config.action_dim,
             needs_images=bool(config.image_features),
-            prompt_template=config.prompt_template,
+            prompt_template=config.prompt_template(task.prompt_template.fields),
             robot=config.robot,
         )
         self._num_envs = 0

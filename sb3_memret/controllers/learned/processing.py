@@ -24,6 +24,7 @@ class InputLayout(Protocol):
     features, and the controller's inputs per env of a batched observation."""
 
     name: str
+    prompt_template: Any  # the task's PromptTemplate: its number fields are the controller's
 
     def state_names(self) -> Sequence[str]: ...
 

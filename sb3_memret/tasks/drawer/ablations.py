@@ -14,9 +14,9 @@ from __future__ import annotations
 from typing import Sequence
 
 from sb3_memret.tasks.ablations import OVERALL, AblationBuilder, AblationSpec, Cell
-from sb3_memret.controllers.prompts import HOLDING_NOTHING_TEXT, INSTRUCTION, build_prompt
+from sb3_memret.controllers.prompts import build_prompt
 from sb3_memret.tasks.drawer.cabinet import LAYERS, check_layer
-from sb3_memret.tasks.drawer.prompts import location_text
+from sb3_memret.tasks.drawer.prompts import HOLDING_NOTHING_TEXT, INSTRUCTION, TEMPLATE, location_text
 
 REPLAN_INTERVALS: tuple[int, ...] = (5, 8, 10, 12, 16, 20, 24, 28, 32)
 WRONG_OBJECT = "key"
@@ -36,7 +36,7 @@ def replan_ablation(intervals: Sequence[int] = REPLAN_INTERVALS) -> AblationSpec
     if not intervals or any(i < 1 for i in intervals):
         raise ValueError(f"replan intervals must be positive integers, got {list(intervals)}")
     rows = tuple(str(i) for i in intervals)
-    cells = tuple(Cell(str(i), _layer_column(layer), build_prompt(INSTRUCTION, [location_text("cube", layer)]),
+    cells = tuple(Cell(str(i), _layer_column(layer), build_prompt(INSTRUCTION, [location_text("cube", layer)], TEMPLATE),
                        _at(layer), i) for i in intervals for layer in LAYERS)
     return AblationSpec("replan", "Replan interval: success with the oracle memory", "replan steps", rows,
                         (*map(_layer_column, LAYERS), OVERALL), cells, pooled_column=OVERALL)
@@ -51,9 +51,9 @@ def prompt_ablation(layer: int = 2, replan_every: int | None = None) -> Ablation
     cells = []
     for row, entity in ((correct_word, "cube"), (wrong_word, WRONG_OBJECT)):
         for column, named in (("correct layer", layer), ("wrong layer", wrong_layer)):
-            cells.append(Cell(row, column, build_prompt(INSTRUCTION, [location_text(entity, named)]), _at(layer),
+            cells.append(Cell(row, column, build_prompt(INSTRUCTION, [location_text(entity, named)], TEMPLATE), _at(layer),
                               replan_every))
-    cells.append(Cell(none_row, "wrong layer", build_prompt(INSTRUCTION, []), _at(layer), replan_every))
+    cells.append(Cell(none_row, "wrong layer", build_prompt(INSTRUCTION, [], TEMPLATE), _at(layer), replan_every))
     return AblationSpec("prompt", f"Prompt ablation: cube in drawer layer {layer}", "prompt condition",
                         (correct_word, wrong_word, none_row), ("correct layer", "wrong layer"), tuple(cells))
 
@@ -63,7 +63,7 @@ def memcount_ablation(replan_every: int | None = None) -> AblationSpec:
     rows = {"no memory (bare prompt)": lambda layer: [],
             "one memory (oracle)": lambda layer: [location_text("cube", layer)],
             "two memories (oracle + true)": lambda layer: [location_text("cube", layer), HOLDING_NOTHING_TEXT]}
-    cells = tuple(Cell(row, _layer_column(layer), build_prompt(INSTRUCTION, memories(layer)), _at(layer), replan_every)
+    cells = tuple(Cell(row, _layer_column(layer), build_prompt(INSTRUCTION, memories(layer), TEMPLATE), _at(layer), replan_every)
                   for row, memories in rows.items() for layer in LAYERS)
     return AblationSpec("memcount", "Memory count: success per layer", "condition", tuple(rows),
                         (*map(_layer_column, LAYERS), OVERALL), cells, pooled_column=OVERALL)

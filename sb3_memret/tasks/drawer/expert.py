@@ -28,8 +28,8 @@ from scipy.spatial.transform import Rotation
 
 from sb3_memret.controllers.base import ControllerSpec, FrozenController, Obs, as_numpy
 from sb3_memret.tasks.drawer.cabinet import LAYERS, CabinetLayout
-from sb3_memret.tasks.drawer.prompts import check_prompt_layer
-from sb3_memret.controllers.prompts import INSTRUCTION_TEMPLATE, ParsedPrompt, PromptTemplate
+from sb3_memret.tasks.drawer.prompts import ANY_OBJECT, check_prompt_layer
+from sb3_memret.controllers.prompts import ParsedPrompt, PromptTemplate
 
 # ManiSkill 3.0.1 pd_ee_delta_pose: translation = action * 0.1 m in the base frame; rotation =
 # action * rot_lower (-0.1 rad) as a base-frame rotation, i.e. +1 turns by -0.1 rad.
@@ -141,7 +141,7 @@ class ScriptedDrawerController(FrozenController):
         self.spec = ControllerSpec(
             action_convention="pd_ee_delta_pose",
             chunk_len=chunk_len,
-            prompt_template=prompt_template or PromptTemplate((INSTRUCTION_TEMPLATE,)),
+            prompt_template=prompt_template or ANY_OBJECT,
         )
         self._plans: list[_Plan] = []
 

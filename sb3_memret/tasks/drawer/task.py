@@ -17,13 +17,14 @@ import numpy as np
 from sb3_memret.controllers.base import RENDER_HINT
 from sb3_memret.memory.schema import MemoryEntry, MemoryType
 from sb3_memret.memory.seeding import SeedingConfig
-from sb3_memret.controllers.prompts import (INSTRUCTION_TEMPLATE, OUTSIDE, OUTSIDE_TEMPLATE, ParsedPrompt,
-                                            PromptTemplate, instruction_text)
+from sb3_memret.controllers.prompts import ParsedPrompt, PromptTemplate
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates, Task, check_render_backend
+from sb3_memret.tasks.demos import DemoEpisode, PromptMix
 from sb3_memret.tasks.drawer.cabinet import LAYERS
 from sb3_memret.tasks.drawer.household import Household, HouseholdConfig
 from sb3_memret.tasks.drawer.objects import OBJECT_SETS, object_set
-from sb3_memret.tasks.drawer.prompts import check_prompt_layer, location_text
+from sb3_memret.tasks.drawer.prompts import (INSTRUCTION_TEMPLATE, OUTSIDE, OUTSIDE_TEMPLATE, TEMPLATE,
+                                           check_prompt_layer, instruction_text, location_text)
 from sb3_memret.tasks.drawer.seeding import hearsay_memories, seed_memories
 from sb3_memret.tasks.drawer.writer import DrawerWriter, ViewPredicateExtractor
 
@@ -89,13 +90,16 @@ class DrawerTask(Task):
         return gym.make(ENV_ID, obs_mode=obs_mode, render_backend=render_backend, num_envs=num_envs, **kwargs)
 
     def env_kwargs(self, needs_images: bool, render_backend: str) -> dict[str, Any]:
+        """The env's own robot (the light Panda) named, so a dataset records which robot its cameras show."""
+        from sb3_memret.tasks.drawer.drawer_cube import DEFAULT_ROBOT
+
         check_render_backend(render_backend)
         if not needs_images:
-            return {"obs_mode": "state_dict", "render_backend": render_backend}
+            return {"obs_mode": "state_dict", "render_backend": render_backend, "robot_uids": DEFAULT_ROBOT}
         if render_backend == "none":
             raise ValueError("needs camera images, so choose a render backend "
                              f"(--render-backend cpu or gpu): {RENDER_HINT}")
-        return {"obs_mode": "rgb", "render_backend": render_backend}
+        return {"obs_mode": "rgb", "render_backend": render_backend, "robot_uids": DEFAULT_ROBOT}
 
     def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
         from sb3_memret.common.obs_trees import select_obs, to_numpy
@@ -143,7 +147,7 @@ class DrawerTask(Task):
 
     @property
     def prompt_template(self) -> PromptTemplate:
-        return PromptTemplate()
+        return TEMPLATE
 
     @property
     def instruction_templates(self) -> tuple[str, ...]:
@@ -178,6 +182,20 @@ class DrawerTask(Task):
 
     def check_prompt(self, prompt: ParsedPrompt) -> None:
         check_prompt_layer(prompt)
+
+    def plan_demos(self, n: int, seed: int = 0, noise: float = 0.0, noisy_fraction: float = 0.5,
+                   mix: PromptMix | None = None) -> list[DemoEpisode]:
+        """Target layers cycled and targets over the objects, a mismatched fact naming another layer at random
+        (``sb3_memret.tasks.drawer.demos``)."""
+        from sb3_memret.tasks.drawer.demos import plan_drawer_episodes
+
+        return plan_drawer_episodes(self.objects, n, seed, noise, noisy_fraction, mix)
+
+    def expert_gave_up(self, expert: Any) -> bool:
+        """The expert opened the named drawer, found it empty and holds still."""
+        from sb3_memret.tasks.drawer.expert import Phase
+
+        return expert.phases()[0] is Phase.IDLE
 
     def demo_features(self, with_images: bool) -> dict[str, dict[str, Any]]:
         from sb3_memret.controllers.observation import dataset_features

@@ -10,9 +10,9 @@ import numpy as np
 from sb3_memret.tasks.drawer.cabinet import LAYERS, CabinetLayout
 from sb3_memret.tasks.drawer.state import DrawerCubeState, layer_containing
 from sb3_memret.memory.schema import NOTHING, MemoryType
-from sb3_memret.controllers.prompts import OUTSIDE
 from sb3_memret.memory.writer import UNKNOWN, Predicates
 from sb3_memret.tasks.base import EnvFrame
+from sb3_memret.tasks.drawer.prompts import OUTSIDE
 
 # the drawer's relations: relation -> (memory type, relation name in the entry)
 RELATIONS: dict[str, tuple[MemoryType, str]] = {

@@ -58,7 +58,7 @@ from scipy import ndimage
 from sb3_memret.controllers.base import Obs, as_numpy
 from sb3_memret.memory.schema import MemoryEntry, MemoryType
 from sb3_memret.memory.seeding import SeedingConfig
-from sb3_memret.controllers.prompts import PromptTemplate
+from sb3_memret.controllers.prompts import NUMBER, PromptTemplate
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates
 from sb3_memret.tasks.mikasa.core import demo_layout
 from sb3_memret.tasks.mikasa.core.cue_task import MikasaCueTask
@@ -73,6 +73,7 @@ FACT_TEMPLATE = "the {entity} rolls {direction} at {speed} cm/s."
 CUE_ENTITY = "ball"
 CUE_RELATION = "rolls"  # OTHER's template, "the {entity} {relation} {value}.", with the value "left at 37 cm/s"
 CUE_FACT = "the ball rolls {direction} at {speed} cm/s."
+FIELDS = (("speed", NUMBER),)  # a speed is a whole number of cm/s
 
 
 @dataclass(frozen=True)
@@ -265,7 +266,7 @@ class InterceptTask(MikasaCueTask):
         super().__init__(env_id, len(DIRECTIONS))
         self.variant = VARIANTS[env_id]
         self.instruction_text = self.variant.instruction
-        self.template = PromptTemplate(instructions=(self.instruction_text,), fact_templates=(FACT_TEMPLATE,))
+        self.template = PromptTemplate(instructions=(self.instruction_text,), fact_templates=(FACT_TEMPLATE,), fields=FIELDS)
 
     @property
     def default_speed(self) -> float:

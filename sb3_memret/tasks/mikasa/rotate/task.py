@@ -50,7 +50,7 @@ from gymnasium import spaces
 from sb3_memret.controllers.base import Obs, as_numpy
 from sb3_memret.controllers.observation import STATE_KEY
 from sb3_memret.memory.schema import MemoryType
-from sb3_memret.controllers.prompts import PromptTemplate
+from sb3_memret.controllers.prompts import NUMBER, SIGNED_NUMBER, PromptTemplate
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates
 from sb3_memret.tasks.mikasa.core import demo_layout
 from sb3_memret.tasks.mikasa.core.cue_task import MikasaCueTask
@@ -65,6 +65,7 @@ FACT_TEMPLATE = "the {entity} started at {start_deg} degrees."
 CUE_ENTITY = "peg"
 CUE_RELATION = "started_at"  # OTHER's template, "the {entity} {relation} {value}.", reads FACT_TEMPLATE
 CUE_FACT = "the peg started at {start_deg} degrees."
+FIELDS = (("angle_deg", SIGNED_NUMBER), ("start_deg", NUMBER))  # a signed rotation, and a start angle in [0, 360)
 ANGLES: tuple[str, ...] = tuple(f"{d} degrees" for d in range(180))  # a fact's values: the start, 0-179 degrees
 
 # env id -> (the instruction template, the control steps of an episode, how the expert turns the peg)
@@ -171,7 +172,7 @@ class RotateTask(MikasaCueTask):
             raise ValueError(f"unknown Rotate task {env_id!r}; expected one of {sorted(ROTATE_TASKS)}")
         super().__init__(env_id, len(ANGLES))
         self.instruction_text, self.max_control_steps, self.strategy = ROTATE_TASKS[env_id]
-        self.template = PromptTemplate(instructions=(self.instruction_text,), fact_templates=(FACT_TEMPLATE,))
+        self.template = PromptTemplate(instructions=(self.instruction_text,), fact_templates=(FACT_TEMPLATE,), fields=FIELDS)
 
     def frames(self, env: gym.Env, obs: Any, info: Mapping[str, Any], reset: bool = False) -> list[EnvFrame]:
         from sb3_memret.common.obs_trees import select_obs, to_numpy

@@ -1,11 +1,11 @@
-"""What a MIKASA task's camera demonstrations cost to record, three ways measured in the same run on the same seeds:
+"""What a task's camera demonstrations cost to record, three ways measured in the same run on the same seeds:
 every control step kept (``--frames every``), the decision steps only with the cameras paused between them (``demos``'
 default), and the decision steps only with every step rendered (the recorder before it paused the cameras). It
 prints CPU seconds per episode (this process's, so the figure holds on a busy machine) and each way's ratio to every
 step kept. Every episode's labels and outcome are checked equal across the ways: pausing the cameras changes
 none.
 
-    python scripts/bench_task_demos.py [--task RememberColor3-VLA-v0] [--episodes 5] [--seed 900000]
+    python scripts/bench_demos.py [--task RememberColor3-VLA-v0] [--episodes 5] [--seed 900000]
 
 No dataset is written: the cost of LeRobot's writer (PNG files, per-episode statistics) comes on top, and grows with
 the frames kept. The seeds are demonstration seeds, never the benchmark's.
@@ -16,12 +16,13 @@ from __future__ import annotations
 import argparse
 import time
 
-from sb3_memret.stage1.task_demos import TaskDemoEpisode, TaskRecorder
+from sb3_memret.stage1.demos import DemoRecorder
+from sb3_memret.tasks.demos import DemoEpisode
 
 
-def record(task: str, frames: str, episodes: list[TaskDemoEpisode], paused: bool) -> tuple[float, list]:
+def record(task: str, frames: str, episodes: list[DemoEpisode], paused: bool) -> tuple[float, list]:
     """CPU seconds per episode and the episodes recorded, with a fresh recorder (its start-up not counted)."""
-    recorder = TaskRecorder(task, "cpu", frames=frames)
+    recorder = DemoRecorder(task, "cpu", frames=frames)
     if not paused:
         recorder.pause = None
     try:
@@ -39,7 +40,7 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=5)
     parser.add_argument("--seed", type=int, default=900_000)
     args = parser.parse_args()
-    episodes = [TaskDemoEpisode(args.seed + i, "matching") for i in range(args.episodes)]
+    episodes = [DemoEpisode(args.seed + i, "matching") for i in range(args.episodes)]
     ways = [("every step kept", "every", True), ("decisions, cameras paused between", "decisions", True),
             ("decisions, every step rendered", "decisions", False)]
     results = {name: record(args.task, frames, episodes, paused) for name, frames, paused in ways}
