@@ -19,11 +19,12 @@ from sb3_memret.common.weights import WeightsNotLoadedError
 from sb3_memret.tasks import make_task
 from sb3_memret.tasks.drawer import DrawerTask
 from sb3_memret.tasks.drawer.objects import OBJECT_SETS
-from sb3_memret.tasks.drawer.prompts import condition_prompt
+from sb3_memret.tasks.drawer.prompts import TEMPLATE, condition_prompt
 from sb3_memret.physics.chunks import execute_chunk
 from conftest import drawer_episode, make_task_env
 
-SMALL = {"hidden_dim": 32, "n_layers": 2, "text_dim": 16, "text_heads": 2, "chunk_len": 8}
+SMALL = {"hidden_dim": 32, "n_layers": 2, "text_dim": 16, "text_heads": 2, "chunk_len": 8,
+         "instructions": TEMPLATE.instructions, "fact_templates": TEMPLATE.fact_templates}
 
 
 def saved_policy(folder, **overrides) -> LearnedPolicy:

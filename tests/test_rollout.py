@@ -3,6 +3,7 @@
 import numpy as np
 import pytest
 
+from sb3_memret.tasks.drawer.prompts import TEMPLATE
 from sb3_memret.controllers.base import ControllerSpec, FrozenController
 from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
 from sb3_memret.envs.recall import DrawerRecallEnv
@@ -15,7 +16,7 @@ DRAWER = DrawerTask()
 class CameraController(FrozenController):
     """Stands in for a pi0.5 controller: reads images, never gets to act in these tests."""
 
-    spec = ControllerSpec(action_convention="pd_ee_delta_pose", chunk_len=10, needs_images=True)
+    spec = ControllerSpec(action_convention="pd_ee_delta_pose", chunk_len=10, needs_images=True, prompt_template=TEMPLATE)
 
     def reset(self, seeds):
         pass
@@ -28,13 +29,14 @@ class CameraController(FrozenController):
 
 
 def test_state_controller_gets_state_and_any_backend():
-    assert task_env_kwargs(ScriptedDrawerController(), "none", DRAWER) == {"obs_mode": "state_dict",
-                                                                           "render_backend": "none"}
+    assert task_env_kwargs(ScriptedDrawerController(), "none", DRAWER) == {
+        "obs_mode": "state_dict", "render_backend": "none", "robot_uids": "panda_light"}
     assert task_env_kwargs(ScriptedDrawerController(), "cpu", DRAWER)["render_backend"] == "cpu"
 
 
 def test_image_controller_gets_rgb_with_a_backend():
-    assert task_env_kwargs(CameraController(), "gpu", DRAWER) == {"obs_mode": "rgb", "render_backend": "gpu"}
+    assert task_env_kwargs(CameraController(), "gpu", DRAWER) == {"obs_mode": "rgb", "render_backend": "gpu",
+                                                                  "robot_uids": "panda_light"}
 
 
 def test_image_controller_without_a_backend_is_refused_before_any_env_is_built():

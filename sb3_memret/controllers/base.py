@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 from abc import ABC, abstractmethod
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from typing import Any, Mapping, Sequence
 
 import numpy as np
@@ -34,9 +34,9 @@ class ControllerSpec:
 
     action_convention: str
     chunk_len: int
+    prompt_template: PromptTemplate
     action_dim: int = 7
     needs_images: bool = False
-    prompt_template: PromptTemplate = field(default_factory=PromptTemplate)
     robot: str | None = None  # a camera controller: the robot its training images showed (None: any)
 
 

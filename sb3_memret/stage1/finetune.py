@@ -202,7 +202,11 @@ def policy_config(config: LearnedPolicyConfig, tasks: Sequence[Task], demos: Dem
     """``config`` completed from the demonstrations (the instructions and prompts they hold, the state entries the
     policy reads, the cameras, the perceived entries, the robot), and where those inputs lie in them; refused with a
     ValueError naming what does not fit (a prompt outside the contract, tasks whose state entries differ)."""
-    fields = tasks_template(tasks).fields
+    template = tasks_template(tasks)
+    fields = template.fields
+    if not config.instructions:  # a config without a prompt contract takes its tasks'
+        config = replace(config, instructions=template.instructions,
+                         fact_templates=config.fact_templates or template.fact_templates)
     config = replace(config, instructions=training_instructions(demos.tasks, config.instructions,
                                                                 config.fact_templates, fields))
     for prompt in demos.tasks:
