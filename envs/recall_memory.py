@@ -224,8 +224,7 @@ class EpisodeMemory:
         """The text the retriever conditions on: the instruction (with the oracle's facts in oracle mode)."""
         instruction = self.task.instruction(self.truth)
         if self.mode == "oracle":
-            task_template = self.task.prompt_template
-            template = PromptTemplate((instruction,), task_template.fact_templates, task_template.fields)
+            template = replace(self.task.prompt_template, instructions=(instruction,))
             return build_prompt(instruction, self.task.oracle_facts(self.truth), template)
         return instruction
 
