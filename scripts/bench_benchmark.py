@@ -13,6 +13,10 @@ worker count changes how fast the table plays, never what it says.
 With ``--rendering`` it then plays the same episodes in this process twice, rendering the cameras after every
 control step (the harness's own way) and only for the observations the agent reads (``sensor_gate.SensorGate``, the
 benchmark's way), and prints each one's time, its ratio to every-step rendering and the outcomes, checked equal.
+
+With ``--overhead`` it plays the same seeds in this process through the same harness env with the agent and with a
+policy that returns zero actions (no memory, no controller, no writer: the harness alone), and prints each one's
+control steps/s and the agent's ratio to the zero policy's: what the benchmark costs over the simulator it plays.
 """
 
 from __future__ import annotations
@@ -59,6 +63,39 @@ def play_rendering(task: str, controller: str, condition: str, episodes: int,
         env.close()
 
 
+class ZeroPolicy:
+    """The harness alone: a ``ChunkPolicy`` of zero actions, ``chunk_size`` at a call."""
+
+    def __init__(self, chunk_size: int, action_dim: int = 7):
+        self.chunk_size, self.action_dim = chunk_size, action_dim
+
+    def forward(self, obs: object) -> torch.Tensor:
+        return torch.zeros(self.chunk_size, self.action_dim)
+
+
+def play_overhead(task: str, controller: str, condition: str, episodes: int) -> list[tuple[str, float, int]]:
+    """(policy, seconds, control steps) of ``episodes`` development-seed episodes through one harness env, played by
+    the agent and by ``ZeroPolicy`` (its replan interval's chunks)."""
+    from sb3_memret.controller_specs import make_controller
+
+    the_task = make_task(task)
+    env = harness.make_env(task)
+    try:
+        agent = MemoryAgent(the_task, make_controller(controller, the_task), condition, the_task.replan_every)
+        agent.bind(env)
+        out = []
+        for name, policy in (("the agent", agent), ("zero actions (the harness alone)", ZeroPolicy(agent.chunk_size))):
+            steps, start = 0, time.perf_counter()
+            for seed in range(DEV_SEED, DEV_SEED + episodes):
+                if policy is agent:
+                    agent.begin(seed)
+                steps += int(harness.play_episode(env, policy, seed).n_steps)
+            out.append((name, time.perf_counter() - start, steps))
+        return out
+    finally:
+        env.close()
+
+
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="RememberColor3-VLA-v0")
@@ -67,6 +104,7 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=8)
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--rendering", action="store_true", help="also compare every-step rendering with the gate")
+    parser.add_argument("--overhead", action="store_true", help="also compare the agent with zero actions")
     args = parser.parse_args()
 
     replan_every = make_task(args.task).replan_every
@@ -100,6 +138,14 @@ def main() -> None:
         for name, seconds in (("every step (the harness's)", every), ("what the agent reads", read)):
             print(f"| {name} | {seconds:.1f} | {args.episodes / seconds:.3f} | {steps / seconds:.1f} | "
                   f"{every / seconds:.2f}x | {sum(s for s, _ in every_outcomes)}/{args.episodes} |")
+
+    if args.overhead:
+        print("\n| policy (1 process, the same harness env) | seconds | control steps | steps/s | vs zero actions |")
+        print("|---|---|---|---|---|")
+        played = play_overhead(args.task, args.controller, args.condition, args.episodes)
+        zero_rate = played[-1][2] / played[-1][1]
+        for name, seconds, steps in played:
+            print(f"| {name} | {seconds:.1f} | {steps} | {steps / seconds:.1f} | {steps / seconds / zero_rate:.2f}x |")
 
 
 if __name__ == "__main__":

@@ -14,7 +14,7 @@ from sb3_memret.memory.schema import MemoryEntry, MemoryType  # noqa: E402
 from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
 from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E402
 from sb3_memret.evaluation.rollout import evaluate_task_condition  # noqa: E402
-from sb3_memret.tasks import make_task  # noqa: E402
+from sb3_memret.tasks import make_task, task_names  # noqa: E402
 from sb3_memret.tasks.base import EnvFrame  # noqa: E402
 from sb3_memret.tasks.mikasa.blink_count.task import (  # noqa: E402
     CUE_FACT,
@@ -59,23 +59,39 @@ def _prompt(task, count):
     return build_prompt(task.instruction_text, facts, task.prompt_template)
 
 
-def test_two_ids_as_mikasa_registers_them():
+def test_six_ids_as_mikasa_registers_them():
     import gymnasium as gym
     from mikasa_robo_suite.vla.memory_envs import blink_count_button_press_vla as mikasa
     from mikasa_robo_suite.vla.utils.apply_wrappers import VLA_WRAPPER_CONFIGS
 
-    classes = {EASY: mikasa.BlinkCountButtonPressEasyVLAEnv, MEDIUM: mikasa.BlinkCountButtonPressMediumVLAEnv}
-    assert sorted(VARIANTS) == sorted(classes)
+    classes = {name: getattr(mikasa, name.replace("-", "").replace("v0", "Env"))
+               for name in VARIANTS}
+    assert len(VARIANTS) == 6 and set(VARIANTS) <= set(task_names())
     for name, variant in VARIANTS.items():
         task = make_task(name)
         assert task.name == name and task.perceives_every_step and task.replan_every == 4
         assert task.max_control_steps == variant.steps == gym.spec(name).max_episode_steps
-        assert list(classes[name].BLINK_COUNT_RANGE) == [1, variant.max_blinks]
+        assert list(classes[name].BLINK_COUNT_RANGE) == [variant.min_blinks, variant.max_blinks]
         assert classes[name].BLINK_OFF_STEPS[1] == LONGEST_GAP
         assert VLA_WRAPPER_CONFIGS[name].curriculum_wrapper is None and not task.noop_before_manipulation
     assert INSTRUCTION == mikasa.BlinkCountButtonPressVLABaseEnv.LANGUAGE_INSTRUCTION.lower()
     with pytest.raises(ValueError, match=EASY):
-        BlinkCountTask("BlinkCountButtonPressHard-VLA-v0")
+        BlinkCountTask("BlinkCountButtonPressHarder-VLA-v0")
+
+
+def test_long_counts_are_words_and_wrong_counts_stay_in_the_variants_range():
+    assert [count_value(n) for n in (10, 13, 20, 21, 29, 30)] == [
+        "ten times", "thirteen times", "twenty times", "twenty one times", "twenty nine times", "thirty times"]
+    task = make_task("BlinkCountButtonPressMedium-Long-VLA-v0")
+    parsed = parse_prompt(f"{INSTRUCTION} the blue lamp blinked twenty one times.", PROMPT_TEMPLATE)
+    assert stated_count(parsed) == 21
+    for n, wrong in ((10, 11), (19, 20), (20, 10)):
+        episode = task.episode(EnvFrame({}, {"blinks": n}, None, False))
+        assert task.wrong_facts(episode) == [CUE_FACT.format(count=count_value(wrong))]
+    easy = make_task(EASY)
+    assert easy.wrong_facts(easy.episode(EnvFrame({}, {"blinks": 3}, None, False))) == [CUE_FACT.format(count="once")]
+    with pytest.raises(ValueError, match="a count must be 1-30, got 31"):
+        count_value(31)
 
 
 def test_the_lamp_mesh_is_mikasas_file_and_in_place():

@@ -13,7 +13,7 @@ from sb3_memret.controllers.prompts import build_prompt  # noqa: E402
 from sb3_memret.tasks import make_task, task_names  # noqa: E402
 from sb3_memret.tasks.mikasa.core.cue_task import MikasaCueTask, is_long  # noqa: E402
 
-LONG = [name for name in task_names() if is_long(name)]
+LONG = [name for name in task_names() if is_long(name) and name.startswith("Remember")]  # the cue family's
 
 
 def test_the_nine_long_variants_are_registered_with_their_short_tasks_class():
@@ -33,8 +33,11 @@ def test_horizons_and_noop_wrappers_are_mikasas():
     import gymnasium as gym
     from mikasa_robo_suite.vla.utils.apply_wrappers import VLA_WRAPPER_CONFIGS
 
-    cue_tasks = [name for name in task_names() if name.startswith(("Remember", "FindImposter"))]
-    assert len(cue_tasks) == 27  # Remember{Color,Shape,ShapeAndColor} x 3 sizes, their -Long, FindImposter x 9
+    cue_tasks = [name for name in task_names()
+                 if name.startswith(("Remember", "FindImposter", "BunchOf", "SeqOf", "ChainOf", "BlinkCount"))]
+    # Remember{Color,Shape,ShapeAndColor} x 3 sizes, their -Long, FindImposter x 9, the 18 colour-cue tasks and the
+    # 6 BlinkCount
+    assert len(cue_tasks) == 27 + 18 + 6
     for name in cue_tasks:
         task = make_task(name)
         assert isinstance(task, MikasaCueTask)

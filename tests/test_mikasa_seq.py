@@ -67,8 +67,8 @@ def test_the_task_loads_by_module_and_refuses_what_it_cannot_run():
     assert isinstance(task, SeqOfColorsTask) and task.name == TASK and task.n_items == 3
     assert task.evaluation_seeds(2) == [EVAL_SEED, EVAL_SEED + 1] and task.max_control_steps == 400
     assert task.perceives_every_step and task.default_render_backend == "cpu" and len(task.colours) == 9
-    with pytest.raises(ValueError, match="SeqOfColors5-VLA-v0"):
-        SeqOfColorsTask("SeqOfColors5-VLA-v0")
+    with pytest.raises(ValueError, match="unknown colour-cue task 'SeqOfColors9-VLA-v0'.*SeqOfColors5-VLA-v0"):
+        SeqOfColorsTask("SeqOfColors9-VLA-v0")
     with pytest.raises(ValueError, match="need a renderer .* --render-backend cpu"):
         task.env_kwargs(needs_images=False, render_backend="none")
 

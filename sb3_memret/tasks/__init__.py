@@ -1,11 +1,11 @@
 """Memory tasks behind one interface (``Task``), and the registry that ``--task`` names them by.
 
-Built in: ``drawer`` (DrawerCubeTakeOut-v1, the seed's task) and MIKASA-Robo-VLA's memory tasks of its short
-split and the cue family's -Long variants (``RememberColor3-VLA-v0``, ``FindImposterShape9-VLA-v0``,
-``InterceptSlow-VLA-v0``, ... ``task_names()`` lists them; the ``mikasa-robo-suite`` package, installed by ``make
-install``). A task of your own is one module: subclass ``Task`` and ``register_task("name", MyTask)``, or name it
-``package.module:Class``; see the docs' "Writing your own task". Task modules import only when a task is made, so
-listing names is cheap.
+Built in: ``drawer`` (DrawerCubeTakeOut-v1, the seed's task) and MIKASA-Robo-VLA's memory tasks: those of its
+short split, the cue family's -Long variants and the colour-cue tasks (Bunch-, Seq-, ChainOfColors 3/5/7 and their
+-Long) (``RememberColor3-VLA-v0``, ``FindImposterShape9-VLA-v0``, ``ChainOfColors7-Long-VLA-v0``, ...
+``task_names()`` lists them; the ``mikasa-robo-suite`` package, installed by ``make install``). A task of your
+own is one module: subclass ``Task`` and ``register_task("name", MyTask)``, or name it ``package.module:Class``; see
+the docs' "Writing your own task". Task modules import only when a task is made, so listing names is cheap.
 """
 
 from __future__ import annotations
@@ -96,8 +96,10 @@ for _env_id in ("RememberColor3-VLA-v0", "RememberColor5-VLA-v0", "RememberColor
     register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.remember.color", "RememberColorTask", _env_id))
 register_task("RememberShape3-VLA-v0",
               _lazy("sb3_memret.tasks.mikasa.remember.shape", "RememberShapeTask", "RememberShape3-VLA-v0"))
-register_task("SeqOfColors3-VLA-v0",
-              _lazy("sb3_memret.tasks.mikasa.seq_of_colors.task", "SeqOfColorsTask", "SeqOfColors3-VLA-v0"))
+for _family in ("BunchOfColors", "SeqOfColors", "ChainOfColors"):  # 3, 5, 7 colours; 400 steps and -Long
+    for _size in ("3", "5", "7"):
+        for _env_id in (f"{_family}{_size}-VLA-v0", f"{_family}{_size}-Long-VLA-v0"):
+            register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.seq_of_colors.task", "SeqOfColorsTask", _env_id))
 register_task("TakeItBack-VLA-v0", _lazy("sb3_memret.tasks.mikasa.take_it_back.task", "TakeItBackTask", "TakeItBack-VLA-v0"))
 for _env_id in ("RememberShape5-VLA-v0", "RememberShape9-VLA-v0"):
     register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.remember.shape", "RememberShapeTask", _env_id))
@@ -126,7 +128,9 @@ for _env_id in ("InterceptSlow-VLA-v0", "InterceptMedium-VLA-v0", "InterceptFast
 for _env_id in ("RotateLenientPos-VLA-v0", "RotateLenientPosNeg-VLA-v0", "RotateStrictPos-VLA-v0",
                 "RotateStrictPosNeg-VLA-v0"):
     register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.rotate.task", "RotateTask", _env_id))
-for _env_id in ("BlinkCountButtonPressEasy-VLA-v0", "BlinkCountButtonPressMedium-VLA-v0"):  # they build MIKASA's lamp
+for _env_id in ("BlinkCountButtonPressEasy-VLA-v0", "BlinkCountButtonPressMedium-VLA-v0",  # they build MIKASA's lamp
+                "BlinkCountButtonPressHard-VLA-v0", "BlinkCountButtonPressEasy-Long-VLA-v0",
+                "BlinkCountButtonPressMedium-Long-VLA-v0", "BlinkCountButtonPressHard-Long-VLA-v0"):
     register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.blink_count.task", "BlinkCountTask", _env_id),
                   lambda: importlib.import_module("sb3_memret.tasks.mikasa.core.lamp_asset").ensure_lamp_asset())
 register_task("GatherAndRecall1-VLA-v0",  # needs the lamp bulb mesh

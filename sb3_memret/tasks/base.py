@@ -123,6 +123,9 @@ class Task(ABC):
     options: ClassVar[tuple[str, ...]] = ()
     #: whether the physics calls ``perceive`` after every control step (else frames carry no percepts)
     perceives_every_step: ClassVar[bool] = False
+    #: whether ``frames`` reads the camera images (SeqOfColors' progress writer reads the cube layout there): then
+    #: every decision's frame must carry images rendered for it, also where no controller reads images
+    frames_read_images: bool = False
     #: the render backend a run gets when none is named: "none" unless the task itself must see
     default_render_backend: ClassVar[str] = "none"
     max_control_steps: int = 400

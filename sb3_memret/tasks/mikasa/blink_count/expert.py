@@ -44,8 +44,11 @@ from sb3_memret.tasks.mikasa.core.touch_expert import CONTROL_DT, ScriptedTouchC
 from sb3_memret.tasks.mikasa.core.sequence_expert import BUTTON_TOP_ABOVE_BASE, Goal
 
 # a count as the facts word it: the prompt contract's fields hold words, and "blinked once." reads as English
-COUNTS: tuple[str, ...] = ("once", "twice", *(f"{n} times" for n in ("three", "four", "five", "six", "seven", "eight",
-                                                                       "nine")))
+# (up to MIKASA's most, 30 blinks in BlinkCountButtonPressHard-Long; "twenty one times": words, no hyphen)
+_UNITS = ("one", "two", "three", "four", "five", "six", "seven", "eight", "nine")
+_TEENS = ("ten", "eleven", "twelve", "thirteen", "fourteen", "fifteen", "sixteen", "seventeen", "eighteen", "nineteen")
+COUNTS: tuple[str, ...] = ("once", "twice", *(f"{n} times" for n in (*_UNITS[2:], *_TEENS, "twenty",
+                                                                     *(f"twenty {u}" for u in _UNITS), "thirty")))
 RED, BLACK = 0, 1  # the button detector's entries: the red button (count), the black one (submit)
 GRIP_CLOSED = -1.0
 # the progress fact: how often the red button has been pressed (its field is not "count", which the cue's fact holds)

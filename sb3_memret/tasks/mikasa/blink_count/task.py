@@ -1,5 +1,5 @@
-"""MIKASA-Robo-VLA's BlinkCountButtonPressEasy-VLA-v0 and BlinkCountButtonPressMedium-VLA-v0 as sb3-memret tasks:
-how many times a lamp blinked must be remembered.
+"""MIKASA-Robo-VLA's BlinkCountButtonPress tasks (Easy, Medium, Hard and their -Long) as sb3-memret tasks: how many
+times a lamp blinked must be remembered.
 
 The temporal-memory tasks. The env is MIKASA's own (``mikasa-robo-suite``), with its protocol: ``pd_ee_delta_pose``,
 128x128 cameras, the ``normalized_dense`` reward, success counted once per episode, evaluation at seeds
@@ -13,12 +13,13 @@ cue. After 5-10 dark steps the blue lamp blinks N times (each blink lit 3 steps,
 gap ends the phase lamp turns green. Then the robot must press the red button exactly N times, each press released
 and lifted (MIKASA counts a press when the TCP comes within 2.51 cm of the cap's top, within 6.5 cm of its axis,
 then rises 8.5 cm above where the press began), and press the black button to submit. Once the lamp is dark again
-the count is known only to a memory of the cue. Episodes last 150 (Easy) or 200 (Medium) control steps; MIKASA's
-env ends one at success, and at failure: a press beyond N, or a submission with another count.
+the count is known only to a memory of the cue. Episodes last 150 (Easy), 200 (Medium), 300 (Hard) or 1200 (every
+-Long) control steps; MIKASA's env ends one at success, and at failure: a press beyond N, or a submission with
+another count.
 
-**Randomisations** (MIKASA's): N (Easy 1-3, Medium 1-5, uniform); the dark steps before the first blink and
-after each; the buttons' place (x -0.15 to -0.05 m, y -0.12 to 0.12 m, uniform), the lamps' with them; the arm's
-initial joints.
+**Randomisations** (MIKASA's): N (Easy 1-3, Medium 1-5, Hard 1-7; -Long: 1-10, 10-20, 20-30; uniform); the dark
+steps before the first blink (5-10; -Long: 5-50) and after each (3-5); the buttons' place (x -0.15 to -0.05 m,
+y -0.12 to 0.12 m, uniform), the lamps' with them; the arm's initial joints.
 
 **Success:** MIKASA's: the black button pressed, no failure before, with exactly N presses counted.
 
@@ -90,17 +91,23 @@ PROGRESS_WORDINGS = {(MemoryType.TASK_PROGRESS, word): "the {entity} was pressed
 
 @dataclass(frozen=True)
 class BlinkVariant:
-    """One of MIKASA's ids: its most blinks (``BLINK_COUNT_RANGE``'s top; the fewest is 1) and episode length."""
+    """One of MIKASA's ids: its most blinks (``BLINK_COUNT_RANGE``'s top), episode length and fewest blinks."""
 
     max_blinks: int
     steps: int
+    min_blinks: int = 1
 
 
 VARIANTS: dict[str, BlinkVariant] = {
     "BlinkCountButtonPressEasy-VLA-v0": BlinkVariant(3, 150),
     "BlinkCountButtonPressMedium-VLA-v0": BlinkVariant(5, 200),
+    "BlinkCountButtonPressHard-VLA-v0": BlinkVariant(7, 300),
+    # the -Long variants: 5-50 dark steps before the first blink (the others: 5-10)
+    "BlinkCountButtonPressEasy-Long-VLA-v0": BlinkVariant(10, 1200),
+    "BlinkCountButtonPressMedium-Long-VLA-v0": BlinkVariant(20, 1200, min_blinks=10),
+    "BlinkCountButtonPressHard-Long-VLA-v0": BlinkVariant(30, 1200, min_blinks=20),
 }
-LONGEST_GAP = 5  # MIKASA's BLINK_OFF_STEPS' top (both variants): the longest dark gap between blinks
+LONGEST_GAP = 5  # MIKASA's BLINK_OFF_STEPS' top (every variant): the longest dark gap between blinks
 MIN_LAMP_PIXELS = 8  # a lit bulb covers ~55 pixels at 128x128
 
 
@@ -242,8 +249,8 @@ class BlinkCountObservation(DetectorObservation):
 
 
 class BlinkCountTask(MikasaCueTask):
-    """MIKASA-Robo-VLA's BlinkCountButtonPress{Easy,Medium}-VLA-v0: count the blue lamp's blinks, press the red
-    button as many times, then the black one."""
+    """MIKASA-Robo-VLA's BlinkCountButtonPress{Easy,Medium,Hard}[-Long]-VLA-v0: count the blue lamp's blinks, press
+    the red button as many times, then the black one."""
 
     field, detector_key = "count", "button"
     cue_entity, cue_relation, cue_fact = CUE_ENTITY, CUE_RELATION, CUE_FACT
@@ -323,10 +330,11 @@ class BlinkCountTask(MikasaCueTask):
         return [PRESSED_FACT.format(presses=count_value(min(presses, len(COUNTS))))] if presses else []
 
     def wrong_facts(self, episode: Episode) -> list[str]:
-        """The next count, cyclically (Easy: 1 -> 2 -> 3 -> 1): one press too many fails at that press, one too few
-        at the submission."""
+        """The next count of the variant's range, cyclically (Easy: 1 -> 2 -> 3 -> 1; Medium-Long: 20 -> 10): one
+        press too many fails at that press, one too few at the submission."""
+        low, high = self.variant.min_blinks, self.variant.max_blinks
         n = parse_count(episode.group)
-        return [self.cue_fact.format(count=count_value(n % self.variant.max_blinks + 1))]
+        return [self.cue_fact.format(count=count_value(low + (n - low + 1) % (high - low + 1)))]
 
     def expert(self) -> ButtonPressController:
         """The press expert; without a count it presses once, a guess (success at chance)."""

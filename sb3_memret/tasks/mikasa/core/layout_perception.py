@@ -34,9 +34,8 @@ def table_points(pixels: np.ndarray, intrinsic: np.ndarray, extrinsic: np.ndarra
     return (origin[None] + scale[:, None] * rays)[:, :2]
 
 
-def read_cube_layout(rgb: np.ndarray, intrinsic: np.ndarray, extrinsic: np.ndarray, n_colours: int,
-                     plane_z: float = LAYOUT_PLANE_Z) -> dict[str, np.ndarray]:
-    """Colour -> table (x, y) of every cube one base-camera frame (H, W, 3) shows, among the first ``n_colours``
+def name_blobs(rgb: np.ndarray, n_colours: int) -> dict[str, np.ndarray]:
+    """Colour -> (row, col) pixel centre of every cube one frame (H, W, 3) shows, among the first ``n_colours``
     colours; a blob whose pixels disagree on its colour, or a colour seen as two blobs, is left out."""
     if not 1 <= n_colours <= len(COLOUR_NAMES):
         raise ValueError(f"n_colours must be in 1..{len(COLOUR_NAMES)}, got {n_colours}")
@@ -57,11 +56,27 @@ def read_cube_layout(rgb: np.ndarray, intrinsic: np.ndarray, extrinsic: np.ndarr
         best = int(votes.argmax())
         if votes[best] >= LAYOUT_VOTE_SHARE * votes.sum():
             found.setdefault(COLOUR_NAMES[best], []).append(where.mean(axis=0) + 0.5)
-    named = {colour: centres[0] for colour, centres in found.items() if len(centres) == 1}
+    return {colour: centres[0] for colour, centres in found.items() if len(centres) == 1}
+
+
+def read_cube_layout(rgb: np.ndarray, intrinsic: np.ndarray, extrinsic: np.ndarray, n_colours: int,
+                     plane_z: float = LAYOUT_PLANE_Z) -> dict[str, np.ndarray]:
+    """Colour -> table (x, y) of every cube one base-camera frame (H, W, 3) shows (``name_blobs``), cast with the
+    camera's calibration onto the plane ``z = plane_z``."""
+    named = name_blobs(rgb, n_colours)
     if not named:
         return {}
     points = table_points(np.array(list(named.values())), intrinsic, extrinsic, plane_z)
     return {colour: point for colour, point in zip(named, points) if np.isfinite(point).all()}
 
 
-__all__ = ["LAYOUT_PLANE_Z", "LAYOUT_VOTE_SHARE", "read_cube_layout", "table_points"]
+def read_cue_set(rgb: np.ndarray, n_colours: int) -> tuple[str, ...] | None:
+    """The colours of a cue shown together (BunchOfColors' arc): every cube the frame shows, left to right in the
+    image; None when it shows none, or all ``n_colours`` (the cubes are out: no cue shows them all)."""
+    named = name_blobs(rgb, n_colours)
+    if not named or len(named) == n_colours:
+        return None
+    return tuple(sorted(named, key=lambda colour: named[colour][1]))
+
+
+__all__ = ["LAYOUT_PLANE_Z", "LAYOUT_VOTE_SHARE", "name_blobs", "read_cube_layout", "read_cue_set", "table_points"]

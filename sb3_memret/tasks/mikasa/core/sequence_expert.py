@@ -1,5 +1,5 @@
-"""A scripted frozen controller for MIKASA's SeqOfColors tasks: touch the prompt's cue colours in their
-order, then press the centre button.
+"""A scripted frozen controller for MIKASA's colour-cue tasks (SeqOfColors, ChainOfColors, BunchOfColors): touch
+the prompt's cue colours in their order, then press the centre button.
 
 It stands in for a VLA finetuned on SeqOfColors with the cue sequence written into its prompt, one
 fact per cue item (``the first cue cube was red. the second cue cube was blue. ...``). The colours
@@ -16,10 +16,10 @@ when an observation shows what MIKASA scores as one (the TCP within 2 cm of the 
 a cube's centre and every arm joint slower than 0.2 rad/s), with margins, so it never records a
 touch MIKASA did not count. ``reset``/``reset_envs`` clear the state of the envs they start.
 
-Plan, each call (replanned from the observation and the current prompt): while at most one cube is
-in sight (cue and delay phases) wait at a ready pose; else touch the first prompt colour not yet
-touched (down a funnel over the cube, hold 3 cm above its centre until the touch is seen); once all
-are touched, descend over the button (MIKASA counts a press when the TCP comes within 2.5 cm of the
+Plan, each call (replanned from the observation and the current prompt): while any cube is out of
+sight (cue and delay phases: a sequence shows one cube, a bunch a few) wait at a ready pose; else
+touch the first prompt colour not yet touched (down a funnel over the cube, hold 3 cm above its
+centre until the touch is seen); once all are touched, descend over the button (MIKASA counts a press when the TCP comes within 2.5 cm of the
 cap's top), then lift 13 cm (MIKASA needs 8.5 cm above where the press began) and hold still
 (MIKASA's success needs the robot static). Motion within a chunk uses ``ScriptedTouchController``'s
 fitted model of the ``pd_ee_delta_pose`` arm.
@@ -167,7 +167,7 @@ class SequenceTouchController(ScriptedTouchController):
         """Record what this observation shows was done (with progress from observation), then where to head (None:
         hold still)."""
         s, observed = self.seq, self.stateful
-        if visible.sum() < 2:  # the cue or the delay: the cubes are not out yet
+        if not visible.all():  # the cue (one cube, or a bunch on an arc) or the delay: the cubes are not out yet
             return Goal(np.asarray(self.gains.ready, dtype=np.float64), funnel=False)
         static = bool(np.abs(qvel[:7]).max() <= s.static_tol)
         for index in np.flatnonzero(visible) if observed else ():

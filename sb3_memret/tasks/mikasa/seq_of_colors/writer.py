@@ -1,0 +1,137 @@
+"""The colour-cue tasks' writer: the cue's colours as one fact per item, and, with progress, what has been done.
+
+The cue's facts are worded with their item's ordinal, ``the first cue cube was red.``, ``the second cue cube was
+blue.``: a sequence's items in the order the camera showed them, a bunch's (shown together) in palette order (red,
+lime, blue, yellow, magenta, cyan, maroon, olive, teal). Each item is its own memory key, so the bank keeps them side
+by side and retention decides about each.
+
+Progress (``the red cube was touched.``, ``the button was pressed.``) is read from the base camera's cube layout and
+the arm's own sensors: the layout is each colour's first sighting in a frame showing more cubes than the cue shows at
+once (so never the cue's: it shows one cube at the table centre, or the bunch on an arc), a touch the arm static
+(every joint slower than 0.18 rad/s) with the TCP within 1.8 cm of the point 2.5 cm above a seen cube's centre
+(MIKASA: 2 cm, 0.2 rad/s), a press the TCP within 3 cm of the button's axis and 2 cm over its cap (MIKASA: 6.5 and
+2.5 cm), the button standing 4 cm from the seen cubes' mean toward the robot (MIKASA's placement).
+"""
+
+from __future__ import annotations
+
+from typing import Mapping, Sequence
+
+import numpy as np
+
+from sb3_memret.controllers.base import as_numpy
+from sb3_memret.memory.schema import Key, MemoryType
+from sb3_memret.tasks.base import EnvFrame, Predicates
+from sb3_memret.tasks.mikasa.core.layout_perception import LAYOUT_PLANE_Z
+from sb3_memret.tasks.mikasa.core.perception import COLOUR_NAMES
+from sb3_memret.tasks.mikasa.core.sequence_expert import BUTTON_TOP_ABOVE_BASE, CUBE_TOUCH_OFFSET, ORDINALS, SequenceGains
+
+CUE_ENTITY = "cue cube"  # the k-th item's entity is "{ordinal} cue cube"
+CUE_FACT = "the {ordinal} cue cube was {colour}."
+TOUCHED, PRESSED = "touched", "pressed"  # the TASK_PROGRESS values, worded by PROGRESS_WORDINGS
+PROGRESS_WORDINGS = {(MemoryType.TASK_PROGRESS, TOUCHED): "the {entity} was touched.",
+                     (MemoryType.TASK_PROGRESS, PRESSED): "the {entity} was pressed."}
+BUTTON_BASE_Z = 0.015  # MIKASA's button base centre height
+BUTTON_TOWARD_ROBOT = 0.04  # MIKASA places the button at the cubes' mean position, this far toward the robot (-x)
+N_COLOURS = 9  # every colour-cue task has all nine cubes
+
+
+def item_entity(k: int) -> str:
+    """The entity of the cue's ``k``-th item (0-based): ``first cue cube``, ``second cue cube``, ..."""
+    return f"{ORDINALS[k]} {CUE_ENTITY}"
+
+
+def item_key(k: int) -> Key:
+    return (MemoryType.OTHER, item_entity(k), "was")
+
+
+def sequence_facts(colours: Sequence[str]) -> list[str]:
+    """One fact per cue item, in the given order."""
+    return [CUE_FACT.format(ordinal=ORDINALS[k], colour=c) for k, c in enumerate(colours)]
+
+
+def in_palette_order(colours: Sequence[str]) -> tuple[str, ...]:
+    """A bunch's colours in the order its facts number them."""
+    return tuple(sorted(colours, key=COLOUR_NAMES.index))
+
+
+class SequenceWriter:
+    """Writes the cue's facts from the base camera's percepts: one by one (``together=False``), each item at the
+    control step the camera first showed its colour alone at the centre (MIKASA draws the sequence without
+    replacement, so a colour not yet seen this episode is the next item; a frame read as nothing changes nothing);
+    together, every item at the first step the camera showed exactly ``n_items`` cubes (a bunch partly hidden is not
+    read). One writer serves one env; the reset frame (``steps == 0``) starts its episode.
+
+    With ``progress``, it also writes ``the {colour} cube was touched.`` and ``the button was pressed.`` at the end of
+    the chunk whose last frame shows them (the module docstring says how): those frames must carry the camera's cube
+    layout (``state["seen_cubes"]``) and the arm's sensors (``extra/tcp_pose``, ``agent/qvel``)."""
+
+    def __init__(self, n_items: int = 3, progress: bool = False, gains: SequenceGains | None = None,
+                 together: bool = False):
+        if not 1 <= n_items < N_COLOURS:
+            raise ValueError(f"n_items must be in 1..{N_COLOURS - 1}, got {n_items}")
+        self.n_items, self.progress, self.together = n_items, progress, together
+        self.gains = gains or SequenceGains()
+        self.shown_at_once = n_items if together else 1  # the most cubes a cue frame shows
+        self.relations = {"cue": (MemoryType.OTHER, "was")}
+        if progress:
+            self.relations.update({TOUCHED: (MemoryType.TASK_PROGRESS, "was"),
+                                   PRESSED: (MemoryType.TASK_PROGRESS, "was")})
+        self.seen: list[str] = []
+        self.layout: dict[str, np.ndarray] = {}
+        self.touched: list[str] = []
+        self.pressed = False
+
+    def read(self, frame: EnvFrame) -> list[tuple[int, Predicates]]:
+        if frame.steps == 0:
+            self.seen, self.layout, self.touched, self.pressed = [], {}, [], False
+        out = [(step, predicates) for step, seen in frame.timed_percepts() for predicates in self._cue(seen)]
+        if self.progress:
+            out += [(frame.steps, predicates) for predicates in self._progress(frame)]
+        return out
+
+    def _cue(self, seen: str | Sequence[str] | None) -> list[Predicates]:
+        """The items one percept adds: a new colour of a sequence, or a whole bunch."""
+        if seen is None or len(self.seen) >= self.n_items:
+            return []
+        if self.together:
+            if len(seen) != self.n_items:
+                return []
+            self.seen = list(in_palette_order(seen))
+            return [{("cue", item_entity(k)): colour for k, colour in enumerate(self.seen)}]
+        if seen in self.seen:
+            return []
+        self.seen.append(str(seen))
+        return [{("cue", item_entity(len(self.seen) - 1)): seen}]
+
+    def _progress(self, frame: EnvFrame) -> list[Predicates]:
+        """What the frame shows was done, not written before: a touch of a seen cube, the press."""
+        if not isinstance(frame.state, Mapping) or "seen_cubes" not in frame.state:
+            raise ValueError("a progress writer reads frames carrying the camera's cube layout (state['seen_cubes'], "
+                             "from SeqOfColorsTask(progress=True).frames); this frame has none")
+        seen = frame.state["seen_cubes"]
+        if len(seen) > self.shown_at_once:  # the cubes are out (a cue shows fewer, and not where they will stand)
+            for colour, point in seen.items():
+                self.layout.setdefault(colour, np.asarray(point, dtype=np.float64))
+        g = self.gains
+        tcp = as_numpy(frame.obs["extra"]["tcp_pose"]).reshape(-1)[:3].astype(np.float64)
+        static = float(np.abs(as_numpy(frame.obs["agent"]["qvel"]).reshape(-1)[:7]).max()) <= g.static_tol
+        if len(self.layout) <= self.shown_at_once or not static:  # the cue or the delay, or the arm moving
+            return []
+        done: list[Predicates] = []
+        for colour, (x, y) in self.layout.items():
+            touch_point = np.array([x, y, LAYOUT_PLANE_Z + CUBE_TOUCH_OFFSET])
+            if colour not in self.touched and np.linalg.norm(tcp - touch_point) < g.touch_tol:
+                self.touched.append(colour)
+                done.append({(TOUCHED, f"{colour} cube"): TOUCHED})
+        if self.touched and not self.pressed and len(self.layout) == N_COLOURS:
+            button = np.mean(list(self.layout.values()), axis=0) - (BUTTON_TOWARD_ROBOT, 0.0)
+            top = BUTTON_BASE_Z + BUTTON_TOP_ABOVE_BASE
+            if np.linalg.norm(tcp[:2] - button) < g.press_xy and tcp[2] <= top + g.press_seen:
+                self.pressed = True
+                done.append({(PRESSED, "button"): PRESSED})
+        return done
+
+
+__all__ = ["BUTTON_BASE_Z", "BUTTON_TOWARD_ROBOT", "CUE_ENTITY", "CUE_FACT", "N_COLOURS", "PRESSED", "PROGRESS_WORDINGS",
+           "SequenceWriter", "TOUCHED", "in_palette_order", "item_entity", "item_key", "sequence_facts"]
