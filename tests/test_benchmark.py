@@ -382,3 +382,39 @@ def test_the_agent_renders_only_what_it_reads_and_every_outcome_stays_the_same()
     assert renders["oracle", True] == steps + 1 and renders["oracle", False] == 1
     assert task.perception_window(env) == 6
     assert renders["written", False] == 1 + 5 and renders["written", True] == steps + 1
+
+
+OWN_TASK = '''from sb3_memret.tasks.mikasa.remember.color import RememberColorTask
+
+
+class MyColour(RememberColorTask):
+    def __init__(self):
+        super().__init__("RememberColor3-VLA-v0")
+
+
+class Elsewhere(MyColour):
+    name = "MyOwnEnv-v0"
+
+    def __init__(self):
+        super().__init__()
+        self.name = "MyOwnEnv-v0"
+'''
+
+
+def test_a_task_of_ones_own_plays_the_benchmark_under_the_env_id_it_names(tmp_path, monkeypatch):
+    """``--tasks module:Class``: the class plays the MIKASA env its name gives, its row names the class, and a
+    resumed run must name it again; a class naming an env the benchmark does not hold is refused in one line."""
+    (tmp_path / "mycolour.py").write_text(OWN_TASK)
+    monkeypatch.syspath_prepend(str(tmp_path))
+    monkeypatch.setenv("PYTHONPATH", str(tmp_path))  # for the episode workers
+    out = tmp_path / "run"
+    args = ["benchmark", "mikasa", "--conditions", "oracle", "--episodes", "1", "--seeds", "dev", "--workers", "1",
+            "--no-progress", "--out", str(out)]
+    result = CliRunner().invoke(main, [*args, "--tasks", "mycolour:MyColour"])
+    assert result.exit_code == 0, result.output
+    row = json.loads((out / "results.json").read_text())["tasks"]["RememberColor3-VLA-v0"]
+    assert row["task_class"] == "mycolour:MyColour" and row["conditions"]["oracle"]["successes"] == [True]
+    again = CliRunner().invoke(main, [*args, "--tasks", "RememberColor3-VLA-v0"])
+    assert again.exit_code == 2 and "task_classes" in again.output  # played by another task: not resumed
+    refused = CliRunner().invoke(main, [*args, "--tasks", "mycolour:Elsewhere"])
+    assert refused.exit_code == 2 and "'MyOwnEnv-v0'" in refused.output and "Traceback" not in refused.output

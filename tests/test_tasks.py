@@ -12,6 +12,7 @@ from typing import Any, Mapping, Sequence
 
 import gymnasium as gym
 import numpy as np
+import click
 import pytest
 from click.testing import CliRunner
 
@@ -452,3 +453,20 @@ def test_a_decision_ends_when_its_writer_adds_a_fact_if_asked(encoder, on_write)
     venv.step(np.array([[astray]]))  # no new fact (and no success to end the episode): the whole decision
     assert (venv.unwrapped.controller_calls, memory.t) == ((7, 14) if on_write else (10, 20))
     venv.close()
+
+
+def test_a_run_whose_task_cannot_be_made_here_is_refused_in_one_line(tmp_path):
+    """A saved run of a task of one's own, read where its module is not on PYTHONPATH: every command that reads the
+    run names it, the task and why, in one line, with no traceback."""
+    run = tmp_path / "run"
+    run.mkdir()
+    (run / "config.yml").write_text("mine:\n  n_timesteps: 16\n  env_kwargs:\n    task: nomodule:Thing\n"
+                                    "    mode: recall\n    capacity: 6\n    k: 1\n")
+    for args in (["report", str(run)], ["train", "recall", "--resume", "--out", str(run)]):
+        result = CliRunner().invoke(main, args)
+        assert result.exit_code == 1 and "Traceback" not in result.output, result.output
+        assert f"the run in {str(run)!r} cannot be read here" in result.output and "'nomodule'" in result.output
+    from sb3_memret.cli.options import saved_task
+
+    with pytest.raises(click.ClickException, match="plays task 'nomodule:Thing', which cannot be made here"):
+        saved_task("nomodule:Thing", run)

@@ -37,6 +37,13 @@ def episode_seeds(seed_set: str, episodes: int) -> list[int]:
     return [SEED_SETS[seed_set] + i for i in range(episodes)]
 
 
+def manifest_ids() -> set[str]:
+    """Every env id of the manifest."""
+    from mikasa_robo_suite.vla.benchmarking import select_benchmark_tasks
+
+    return {task.env_id for task in select_benchmark_tasks(split="all", csv_path=MANIFEST)}
+
+
 def select_tasks(split: str | None = None, env_ids: Sequence[str] | None = None) -> list["BenchmarkTask"]:
     """The manifest's tasks of ``split`` (short / medium / long / all), or exactly ``env_ids`` in their order, by
     MIKASA's ``select_benchmark_tasks``. An id not in the manifest is refused (MIKASA's would accept it as a
@@ -48,7 +55,7 @@ def select_tasks(split: str | None = None, env_ids: Sequence[str] | None = None)
     if split is not None and split not in SPLITS:
         raise ValueError(f"unknown split {split!r}; expected one of {list(SPLITS)}")
     if env_ids is not None:
-        known = {task.env_id for task in select_benchmark_tasks(split="all", csv_path=MANIFEST)}
+        known = manifest_ids()
         unknown = [env_id for env_id in env_ids if env_id not in known]
         if unknown:
             raise ValueError(f"{unknown} are not MIKASA-Robo-VLA benchmark tasks; the manifest ({MANIFEST.name}) "
@@ -57,4 +64,4 @@ def select_tasks(split: str | None = None, env_ids: Sequence[str] | None = None)
     return select_benchmark_tasks(split=split, csv_path=MANIFEST)
 
 
-__all__ = ["DEV_SEED", "MANIFEST", "PROTOCOL_SEED", "SEED_SETS", "SPLITS", "episode_seeds", "select_tasks"]
+__all__ = ["DEV_SEED", "MANIFEST", "PROTOCOL_SEED", "SEED_SETS", "SPLITS", "episode_seeds", "manifest_ids", "select_tasks"]

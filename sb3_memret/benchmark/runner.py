@@ -46,9 +46,36 @@ class Protocol:
     controller: str = "scripted"
     replan_every: int | None = None  # None: each task's own (Task.replan_every)
     sim_backend: str = "cpu"
+    # tasks of one's own: (MIKASA env id, the ``package.module:Class`` that plays it) for each such task
+    task_classes: tuple[tuple[str, str], ...] = ()
 
     def seeds(self) -> list[int]:
         return episode_seeds(self.seed_set, self.episodes)
+
+    def task(self, env_id: str) -> str:
+        """What ``make_task`` builds for ``env_id``: a task of one's own named for it, else the registered task."""
+        return dict(self.task_classes).get(env_id, env_id)
+
+
+def resolve_task_ids(ids: Iterable[str]) -> tuple[list[str], tuple[tuple[str, str], ...]]:
+    """``--tasks``' entries as MIKASA env ids, and the tasks of one's own among them: a ``package.module:Class``
+    entry is imported and plays the env its ``name`` gives, which must be one of the benchmark's."""
+    from sb3_memret.benchmark.manifest import manifest_ids
+    from sb3_memret.tasks import make_task
+
+    env_ids, classes = [], []
+    for entry in ids:
+        if ":" not in entry:
+            env_ids.append(entry)
+            continue
+        name = make_task(entry).name
+        if name not in manifest_ids():
+            raise ValueError(f"task {entry!r} plays {name!r} (its name), which is not a MIKASA-Robo-VLA benchmark "
+                             f"task; a task of one's own runs in the benchmark under the env id of the MIKASA task it "
+                             f"plays, e.g. {sorted(manifest_ids())[:3]}")
+        env_ids.append(name)
+        classes.append((name, entry))
+    return env_ids, tuple(classes)
 
 
 @dataclass(frozen=True)
@@ -225,8 +252,8 @@ def plan(protocol: Protocol, conditions: Iterable[str], split: str | None = None
     result = Plan(protocol, tasks, check_conditions(list(conditions)), learners=learners)
     for row in tasks:
         try:
-            check_task_name(row.env_id)
-            task = make_task(row.env_id)
+            check_task_name(protocol.task(row.env_id))
+            task = make_task(protocol.task(row.env_id))
             controller = make_controller(protocol.controller, task)
         except (ValueError, FileNotFoundError, ImportError) as err:
             result.refused[row.env_id] = _reason(err, row.env_id)
@@ -275,7 +302,7 @@ class _Worker:
             self.env = harness.make_env(env_id, self.protocol.sim_backend)
             self.env_id = env_id
         if condition not in self.agents:
-            task = make_task(env_id)
+            task = make_task(self.protocol.task(env_id))
             self.encoder = self.encoder or MiniLMEncoder()
             learner = MemoryLearner(learner_path(self.learners, env_id), self.protocol.controller, env_id) \
                 if condition == "recall" else None
@@ -356,7 +383,8 @@ class RunFolder:
         path = self.out / PROTOCOL_FILE
         mine = json.loads(json.dumps(asdict(protocol)))
         if path.exists():
-            theirs = json.loads(path.read_text())
+            defaults = json.loads(json.dumps(asdict(Protocol())))  # a key a run's file predates holds its default
+            theirs = {**defaults, **json.loads(path.read_text())}
             diff = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
             if diff:
                 raise ValueError(f"{self.out} holds a run under another protocol ({', '.join(f'{k}: {theirs.get(k)!r}' for k in diff)}); "
@@ -408,6 +436,8 @@ def results(run: Plan, records: Iterable[dict[str, Any]]) -> dict[str, Any]:
     for row in run.tasks:
         entry: dict[str, Any] = {"split": row.split, "memory_type": row.memory_type,
                                  "max_episode_steps": row.max_episode_steps}
+        if run.protocol.task(row.env_id) != row.env_id:  # a task of one's own plays it
+            entry["task_class"] = run.protocol.task(row.env_id)
         if row.env_id in run.refused:
             tasks[row.env_id] = {**entry, "refused": run.refused[row.env_id]}
             continue

@@ -23,7 +23,8 @@ class MemretCli(click.Group):
     exit status and no traceback; SIGTERM (a scheduler's stop) is handled as Ctrl-C."""
 
     def main(self, *args, **kwargs):  # type: ignore[override]
-        from sb3_memret.common.errors import CudaNotFoundError, RendererNotFoundError, WeightsNotLoadedError
+        from sb3_memret.common.errors import (CudaNotFoundError, RendererNotFoundError, RunFolderError,
+                                              WeightsNotLoadedError)
         from sb3_memret.common.workers import StopRequested, WorkerDiedError, exit_status, stop_signals_interrupt
 
         kwargs["standalone_mode"] = False  # errors come back here instead of click's usage block
@@ -38,7 +39,7 @@ class MemretCli(click.Group):
             hint = f"  (see: {ctx.command_path} --help)" if isinstance(err, click.UsageError) and ctx else ""
             click.echo(f"Error: {err.format_message()}{hint}".replace("\n", " "), err=True)
             sys.exit(err.exit_code)
-        except (WorkerDiedError, RendererNotFoundError, WeightsNotLoadedError, CudaNotFoundError) as err:
+        except (WorkerDiedError, RendererNotFoundError, WeightsNotLoadedError, CudaNotFoundError, RunFolderError) as err:
             click.echo(f"Error: {err}", err=True)
             sys.exit(1)
 

@@ -33,7 +33,8 @@ def benchmark() -> None:
 @click.option("--split", type=click.Choice(SPLITS), default=None,
               help="The horizon split whose every task runs  [default: short, unless --tasks]")
 @click.option("--tasks", callback=_tasks, default=None, metavar="ID[,ID...]",
-              help="Exactly these tasks (MIKASA env ids), instead of a split.")
+              help="Exactly these tasks, instead of a split: MIKASA env ids, or package.module:Class for a task of "
+                   "your own (its module on PYTHONPATH), which plays the env id its name gives.")
 @click.option("--episodes", type=click.IntRange(min=1), default=50, show_default=True,
               help="Episodes per task and condition (the protocol's: 50).")
 @click.option("--controller", default="scripted", show_default=True,
@@ -64,13 +65,20 @@ def mikasa(split: str | None, tasks: list[str] | None, episodes: int, controller
     from tqdm import tqdm
 
     from sb3_memret.benchmark.report import write_report
-    from sb3_memret.benchmark.runner import Protocol, learners_landed, plan, run_benchmark
+    from sb3_memret.benchmark.runner import Protocol, learners_landed, plan, resolve_task_ids, run_benchmark
 
     if split is not None and tasks is not None:
         raise click.UsageError("give --split or --tasks, not both")
     if split is None and tasks is None:
         split = "short"
-    protocol = Protocol(seed_set=seed_set, episodes=episodes, controller=controller, replan_every=replan_every)
+    task_classes: tuple[tuple[str, str], ...] = ()
+    if tasks is not None:
+        try:
+            tasks, task_classes = resolve_task_ids(tasks)
+        except ValueError as err:
+            raise click.BadParameter(str(err), param_hint="--tasks") from None
+    protocol = Protocol(seed_set=seed_set, episodes=episodes, controller=controller, replan_every=replan_every,
+                        task_classes=task_classes)
     if learners is None and "recall" in conditions:
         from sb3_memret.benchmark.learners import shipped_learner
 

@@ -12,7 +12,7 @@ import click
 from sb3_memret.cli.options import (RUN_CONTROLLER, TASK_CONTROLLER, build_controller,
                                     camera_render_backend, check_run_task, controller_spec, default_controller,
                                     load_models, model_run, physics_options, render_backend_option,
-                                    resolve_render_backend, run_controller, task_option)
+                                    resolve_render_backend, run_controller, saved_task, task_option)
 from sb3_memret.common.seeds import HELD_OUT_SEED
 from sb3_memret.memory.retention import RETENTION_RULES
 
@@ -51,7 +51,7 @@ def evaluate(ctx: click.Context, model_path: Path, task: str | None, condition: 
 
     model, = load_models([model_path], "MODEL_PATH")
     kwargs = eval_env_kwargs(model, model_path, condition, controller, render_backend)
-    run_spec = task_in(kwargs)  # as the run names it: a registered name or package.module:Class
+    run_spec = saved_task(task_in(kwargs), model_run(model_path))  # a registered name or package.module:Class
     run_task = make_task(run_spec)
     if task is not None and task != run_spec:
         raise click.BadParameter(f"{str(model_path)!r} was trained on task {run_spec!r}, not {task!r}",
@@ -219,7 +219,7 @@ def trace(models: tuple[Path, ...], task: str | None, seed: int, sample_seed: in
 
     paths = _trace_targets(models)
     loaded = list(zip(paths, load_models(paths, "MODELS")))
-    run_task = task_in(eval_env_kwargs(loaded[0][1], paths[0], "recall", controller))
+    run_task = saved_task(task_in(eval_env_kwargs(loaded[0][1], paths[0], "recall", controller)), model_run(paths[0]))
     controller = controller or run_controller(model_run(paths[0]), run_task)
     render_backend = check_run_task(click.get_current_context(), task, run_task, paths[0], controller, render_backend)
     env_kwargs = eval_env_kwargs(loaded[0][1], paths[0], "recall", controller, render_backend)

@@ -31,6 +31,18 @@ def default_controller(task: str | None) -> str:
     return make_task(task_or_default(task)).default_controller
 
 
+def saved_task(spec: str, where: Path) -> str:
+    """``spec``, the task a saved run names, once it can be made here; else a one-line error naming the run and why
+    (a task of one's own whose module is not on PYTHONPATH, a task whose asset is missing)."""
+    from sb3_memret.tasks import check_task_name
+
+    try:
+        return check_task_name(spec)
+    except ValueError as err:
+        raise click.ClickException(f"the run in {str(where)!r} plays task {spec!r}, which cannot be made here: "
+                                   f"{err}") from None
+
+
 def run_controller(folder: Path, task: str, default: str | None = None) -> str:
     """The controller the run in ``folder`` was trained with (its run.json, or the summary.json of a run from before
     runs recorded one at start); for a folder that holds no run, ``default`` (else ``task``'s default). A run that

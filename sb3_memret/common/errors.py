@@ -19,4 +19,9 @@ class CudaNotFoundError(RuntimeError):
     """GPU simulation was asked for on a machine where torch finds no CUDA device."""
 
 
-__all__ = ["CudaNotFoundError", "RendererNotFoundError", "WeightsNotLoadedError"]
+class RunFolderError(ValueError):
+    """A saved run's configuration cannot be read here (a task of one's own whose module is not on PYTHONPATH, a
+    value no longer accepted)."""
+
+
+__all__ = ["CudaNotFoundError", "RendererNotFoundError", "RunFolderError", "WeightsNotLoadedError"]

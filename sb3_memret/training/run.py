@@ -34,6 +34,7 @@ from sb3_memret.training.config import TrainConfig, parse_section
 from sb3_memret.controllers import FrozenController
 from sb3_memret.controller_specs import make_controller
 from sb3_memret.envs.multi_task import make_decision_vec_env
+from sb3_memret.common.errors import RunFolderError
 from sb3_memret.common.seeds import HELD_OUT_SEED
 from sb3_memret.tasks import make_task, task_in
 from sb3_memret.evaluation.retrieval import RetrievalReport
@@ -108,9 +109,13 @@ def save_run_config(config: TrainConfig, path: Path) -> None:
 
 
 def load_run_config(out: Path) -> TrainConfig:
+    """The validated configuration a run folder saved; a ``RunFolderError`` saying why it cannot be read here."""
     data = yaml.safe_load((out / CONFIG_FILE).read_text())
     (env_id, section), = data.items()
-    return parse_section(section, env_id, where=str(out / CONFIG_FILE))
+    try:
+        return parse_section(section, env_id, where=str(out / CONFIG_FILE))
+    except ValueError as err:
+        raise RunFolderError(f"the run in {str(out)!r} cannot be read here: {err}") from None
 
 
 def env_kwargs_for(config: TrainConfig, controller: str, render_backend: str = "none") -> dict[str, Any]:
