@@ -9,7 +9,13 @@ your own reuses:
 - controller views, wrappers that cut MIKASA's observation to joints, hand, cameras and an object detector:
   ``DetectorObservation`` (any objects), ``ControllerObservation`` (RememberColor's cubes),
   ``ShapeControllerObservation`` (RememberShape's objects);
-- experts: ``ScriptedTouchController`` (touches the object its prompt's word names; ``TouchGains`` its motion).
+- experts: ``ScriptedTouchController`` (touches the object its prompt's word names; ``TouchGains`` its motion);
+- for a task whose memory is several facts (the colour-cue tasks): ``SeqOfColorsTask`` (any of their 18 ids),
+  ``SequenceWriter`` (one fact per cue item, and progress as memory), ``SequenceTouchController`` (touches the
+  prompt's colours in their ordinal order, then presses the button), ``SeqControllerObservation`` (its view, with
+  the button), ``read_cube_layout`` and ``read_cue_set`` (where each cube stands, which colours a frame shows),
+  ``sequence_facts`` and ``item_key`` (the items' wording and memory keys), and ``PROGRESS_WORDINGS`` with
+  ``TOUCHED_FACT`` and ``PRESSED_FACT`` (what has been done, worded).
 
 The names import on first use: the package itself imports nothing heavy.
 
@@ -31,6 +37,12 @@ _EXPORTS = {
     "SHAPE_NAMES": "core.shape_perception", "ShapeControllerObservation": "core.shape_perception",
     "read_cue_shape": "core.shape_perception",
     "ScriptedTouchController": "core.touch_expert", "TouchGains": "core.touch_expert",
+    "SequenceTouchController": "core.sequence_expert", "TOUCHED_FACT": "core.sequence_expert",
+    "PRESSED_FACT": "core.sequence_expert",
+    "read_cube_layout": "core.layout_perception", "read_cue_set": "core.layout_perception",
+    "SeqOfColorsTask": "seq_of_colors.task", "SeqControllerObservation": "seq_of_colors.task",
+    "SequenceWriter": "seq_of_colors.writer", "sequence_facts": "seq_of_colors.writer",
+    "item_key": "seq_of_colors.writer", "PROGRESS_WORDINGS": "seq_of_colors.writer",
 }
 __getattr__, __dir__ = lazy_exports(__name__, _EXPORTS, globals())
 
