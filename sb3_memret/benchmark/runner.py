@@ -56,6 +56,18 @@ class Protocol:
         """What ``make_task`` builds for ``env_id``: a task of one's own named for it, else the registered task."""
         return dict(self.task_classes).get(env_id, env_id)
 
+    def to_json(self) -> dict[str, Any]:
+        """The protocol as ``protocol.json`` holds it (lists for tuples)."""
+        return json.loads(json.dumps(asdict(self)))
+
+    @classmethod
+    def from_json(cls, data: dict[str, Any]) -> "Protocol":
+        """The protocol ``to_json`` wrote (a key an older file lacks takes its default)."""
+        data = dict(data)
+        data["policy_inputs"] = tuple(data.get("policy_inputs", cls.policy_inputs))
+        data["task_classes"] = tuple(tuple(pair) for pair in data.get("task_classes", ()))
+        return cls(**data)
+
 
 def resolve_task_ids(ids: Iterable[str]) -> tuple[list[str], tuple[tuple[str, str], ...]]:
     """``--tasks``' entries as MIKASA env ids, and the tasks of one's own among them: a ``package.module:Class``
@@ -381,10 +393,9 @@ class RunFolder:
         """Write the protocol of a new run; refuse to resume a run played under another one."""
         self.out.mkdir(parents=True, exist_ok=True)
         path = self.out / PROTOCOL_FILE
-        mine = json.loads(json.dumps(asdict(protocol)))
+        mine = protocol.to_json()
         if path.exists():
-            defaults = json.loads(json.dumps(asdict(Protocol())))  # a key a run's file predates holds its default
-            theirs = {**defaults, **json.loads(path.read_text())}
+            theirs = {**Protocol().to_json(), **json.loads(path.read_text())}  # a key it predates: its default
             diff = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
             if diff:
                 raise ValueError(f"{self.out} holds a run under another protocol ({', '.join(f'{k}: {theirs.get(k)!r}' for k in diff)}); "
@@ -465,8 +476,7 @@ def results(run: Plan, records: Iterable[dict[str, Any]]) -> dict[str, Any]:
             conditions[condition] = cell
         entry["conditions"] = conditions
         tasks[row.env_id] = entry
-    protocol = {**asdict(run.protocol), "conditions": run.conditions, "seeds": seeds}
-    protocol["policy_inputs"] = list(protocol["policy_inputs"])  # as results.json reads back
+    protocol = {**run.protocol.to_json(), "conditions": run.conditions, "seeds": seeds}  # as results.json reads back
     protocol["learners"] = None if run.learners is None else str(run.learners)
     return {"protocol": protocol, "tasks": tasks}
 
@@ -534,10 +544,9 @@ def rebuild(out: Path) -> dict[str, Any]:
     as the folder records them): what a stopped run had played, or a run's table after its code moved on."""
     folder = RunFolder(out)
     saved = json.loads((folder.out / RESULTS_FILE).read_text())
-    stored = json.loads((folder.out / PROTOCOL_FILE).read_text())
-    stored["policy_inputs"] = tuple(stored["policy_inputs"])
+    stored = Protocol.from_json(json.loads((folder.out / PROTOCOL_FILE).read_text()))
     learners = saved["protocol"].get("learners")
-    run = plan(Protocol(**stored), saved["protocol"]["conditions"], env_ids=list(saved["tasks"]),
+    run = plan(stored, saved["protocol"]["conditions"], env_ids=list(saved["tasks"]),
                learners=Path(learners) if learners else None)
     content = results(run, folder.episodes())
     (folder.out / RESULTS_FILE).write_text(json.dumps(content, indent=2) + "\n")
