@@ -17,7 +17,8 @@ from sb3_memret.tasks.mikasa.core.layout_perception import read_cue_set  # noqa:
 from sb3_memret.tasks.mikasa.core.perception import COLOUR_NAMES  # noqa: E402
 from sb3_memret.tasks.mikasa.seq_of_colors.task import SeqOfColorsTask  # noqa: E402
 from sb3_memret.tasks.mikasa.seq_of_colors.variants import ANY_ORDER, CUE_ORDER, VARIANTS, variant  # noqa: E402
-from sb3_memret.tasks.mikasa.seq_of_colors.writer import SequenceWriter  # noqa: E402
+from sb3_memret.tasks.mikasa.seq_of_colors.writer import SequenceWriter, sequence_facts  # noqa: E402
+from sb3_memret.controllers.prompts import build_prompt  # noqa: E402
 
 DEV_SEED = 5000  # development seeds only: the protocol's stay unseen
 
@@ -150,3 +151,21 @@ def test_in_mikasas_harness_the_progress_writer_reads_images_rendered_for_each_d
     finally:
         env.close()
     assert result.success_once and any("the button was pressed." in prompt for prompt in agent.prompts)
+
+
+def test_leaving_a_touched_cube_the_hand_rises_before_it_heads_sideways():
+    """The fingertips rest on a touched cube's top: heading sideways from there drags it (MIKASA fails a cube pushed
+    6 cm), so the expert first lifts the TCP straight up, then crosses the table."""
+    from test_mikasa_seq import _synthetic_obs  # red at y = -0.3, teal at +0.3
+
+    from sb3_memret.tasks.mikasa.seq_of_colors.task import PROGRESS_PROMPT_TEMPLATE, sequence_expert
+
+    expert, obs = sequence_expert(progress_from="prompt"), _synthetic_obs(1)
+    expert.reset([1])
+    at_red = {**obs, "extra": {**obs["extra"], "tcp_pose": np.array([[0.0, -0.3, 0.046, 0, 1, 0, 0]])}}
+    prompt = build_prompt(ANY_ORDER, [*sequence_facts(("red", "teal")), "the red cube was touched."],
+                          PROGRESS_PROMPT_TEMPLATE)
+    chunk = expert.act(at_red, [prompt])[0]
+    assert chunk[0, 2] > 0 and np.abs(chunk[0, :2]).max() < 0.25 * chunk[0, 2]  # up, hardly sideways
+    high = {**obs, "extra": {**obs["extra"], "tcp_pose": np.array([[0.0, -0.3, 0.12, 0, 1, 0, 0]])}}
+    assert expert.act(high, [prompt])[0][0, 1] > 0.1  # clear of the cubes: straight for teal

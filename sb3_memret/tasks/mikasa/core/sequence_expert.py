@@ -71,6 +71,12 @@ class SequenceGains:
     press_xy: float = 0.03  # ... and this close to its axis (MIKASA: 0.065)
     lift_height: float = 0.13  # lift the TCP to this over the cap's top (MIKASA: press height + 0.085) ...
     lift_seen: float = 0.12  # ... and hold still once above this
+    # leaving a touched cube: the fingertips rest on its top, and a TCP that heads sideways from there drags it
+    # (MIKASA fails a cube pushed 6 cm; measured: 7.4 cm on SeqOfColors5, development seed 5001, on the way from
+    # the last cube to the button); more than ``depart_sideways`` from the goal and lower than ``depart_height``,
+    # the TCP rises straight up first
+    depart_height: float = 0.08
+    depart_sideways: float = 0.03
 
 
 class Goal(NamedTuple):
@@ -198,14 +204,18 @@ class SequenceTouchController(ScriptedTouchController):
     def _waypoint(self, pos: np.ndarray, goal: Any) -> np.ndarray:
         """Where to head next: ``goal.point``, never below the funnel over it when ``goal.funnel`` (so the TCP
         rises before it crosses the table and comes down from above; its bottom is ``capture`` wide, so a TCP
-        that stopped a few mm off sideways is not held up by it), straight otherwise."""
+        that stopped a few mm off sideways is not held up by it), and straight up first when it is low and still far
+        sideways (leaving a cube it touched); straight otherwise."""
         if not isinstance(goal, Goal):
             return super()._waypoint(pos, goal)
         point = np.asarray(goal.point, dtype=np.float64)
         if not goal.funnel:
             return point
-        g = self.gains
-        sideways = max(0.0, float(np.linalg.norm(point[:2] - pos[:2])) - self.seq.capture)
+        g, s = self.gains, self.seq
+        distance = float(np.linalg.norm(point[:2] - pos[:2]))
+        if distance > s.depart_sideways and pos[2] < s.depart_height:
+            return np.array([pos[0], pos[1], s.depart_height + 0.01])
+        sideways = max(0.0, distance - s.capture)
         lift = min(g.hover_height, g.funnel_slope * sideways)
         return np.array([point[0], point[1], point[2] + lift])
 
