@@ -25,6 +25,8 @@ import argparse
 import math
 import time
 
+import torch
+
 from sb3_memret.benchmark import harness
 from sb3_memret.benchmark.agent import MemoryAgent
 from sb3_memret.benchmark.manifest import DEV_SEED
