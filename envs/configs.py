@@ -12,6 +12,7 @@ from typing import Any, Mapping
 from sb3_memret.memory.retention import check_retention
 from sb3_memret.memory.schema import check_age_unit
 from sb3_memret.memory.seeding import SeedingConfig
+from sb3_memret.memory.stores import StoreSpec, age_units, check_stores
 from sb3_memret.physics import BACKENDS
 from sb3_memret.tasks import Task, make_task, task_in
 from sb3_memret.tasks.base import check_render_backend
@@ -36,10 +37,12 @@ def check_memory_source(source: str) -> str:
 
 @dataclass(frozen=True)
 class MemoryConfig:
-    """Each env's memory: ``capacity`` per-episode slots after ``long_term_capacity`` slots that outlive episodes
-    (a household's; written from what the robot saw, so ``source="observed"``), where the facts come from
-    (``source``: the episode's placement, or what the robot saw), what evicts (``retention``: the learned critic or
-    a fixed rule), the unit of a memory's age (``age_unit``) and the decoys each bank starts with (``seeding``)."""
+    """Each env's memory: its stores (``stores``, a multi-timescale memory: ``sb3_memret.memory.stores``), or in
+    short ``capacity`` per-episode slots after ``long_term_capacity`` slots that outlive episodes (a household's;
+    written from what the robot saw, so ``source="observed"``); where the facts come from (``source``: the
+    episode's placement, or what the robot saw), what evicts (``retention``: the learned critic or a fixed rule; a
+    store may name its own), the unit of a memory's age (``age_unit``; a store of ``stores`` names its own) and the
+    decoys each bank starts with (``seeding``)."""
 
     capacity: int = 6
     long_term_capacity: int = 0
@@ -47,6 +50,7 @@ class MemoryConfig:
     retention: str = "learned"
     age_unit: str = "steps"
     seeding: SeedingConfig = field(default_factory=SeedingConfig)
+    stores: tuple[StoreSpec, ...] = ()
 
     def __post_init__(self) -> None:
         if self.capacity < 1:
@@ -54,15 +58,41 @@ class MemoryConfig:
         if self.long_term_capacity < 0:
             raise ValueError(f"long_term_capacity must be >= 0, got {self.long_term_capacity}")
         check_memory_source(self.source)
-        if self.long_term_capacity and self.source != "observed":
-            raise ValueError("a long-term store is written from what the robot sees: use memory_source='observed'")
         check_retention(self.retention)
         check_age_unit(self.age_unit)
+        if self.stores:
+            object.__setattr__(self, "stores", check_stores(self.stores))
+            if self.long_term_capacity:
+                raise ValueError("give either stores or long_term_capacity: a lasting store in stores is the "
+                                 "long-term store")
+        if self.household and self.source != "observed":
+            raise ValueError("a long-term store is written from what the robot sees (a lasting store): use "
+                             "memory_source='observed'")
+
+    @property
+    def store_specs(self) -> tuple[StoreSpec, ...]:
+        """The stores in slot order: ``stores``, else the long-term store (if any) and the episode's."""
+        if self.stores:
+            return self.stores
+        episode = StoreSpec("episode", self.capacity, self.age_unit)
+        if not self.long_term_capacity:
+            return (episode,)
+        return StoreSpec("lasting", self.long_term_capacity, self.age_unit), episode
 
     @property
     def slots(self) -> int:
-        """The slots the retriever chooses among: the long-term store's, then the episode's."""
-        return self.capacity + self.long_term_capacity
+        """The slots the retriever chooses among: every store's, in slot order."""
+        return sum(s.capacity for s in self.store_specs)
+
+    @property
+    def household(self) -> bool:
+        """Whether a store outlives episodes (its env is a household whose episodes are its tasks)."""
+        return any(s.survives_episodes for s in self.store_specs)
+
+    @property
+    def age_units(self) -> str | dict[str, str]:
+        """The unit the critic reads each store's ages in (one, or one per timescale: ``stores.age_units``)."""
+        return age_units(self.store_specs)
 
 
 @dataclass(frozen=True)
@@ -124,13 +154,19 @@ def _fields(cls: type) -> set[str]:
 def split_env_kwargs(env_kwargs: Mapping[str, Any]) -> tuple[Task, dict[str, Any], MemoryConfig, DecisionConfig,
                                                                PhysicsConfig]:
     """A run's flat ``env_kwargs`` as the task (with its own options), the rest (``controller``, ``encoder``) and
-    the three configs. ``memory_source`` is ``MemoryConfig.source``; ``location_decoys`` and ``holding_decoys``
-    override the ``seeding`` config's counts; a key no config or task takes is refused, naming it."""
+    the three configs. ``memory_source`` is ``MemoryConfig.source``; ``location_decoys``, ``holding_decoys`` and
+    ``event_every`` override the ``seeding`` config's counts; a key no config or task takes is refused, naming it."""
     kwargs = dict(env_kwargs)
     memory_keys, decision_keys, physics_keys = _fields(MemoryConfig), _fields(DecisionConfig), _fields(PhysicsConfig)
     if "memory_source" in kwargs:
         kwargs["source"] = kwargs.pop("memory_source")
-    decoys = {k: v for k in ("location_decoys", "holding_decoys") if (v := kwargs.pop(k, None)) is not None}
+    decoys = {k: v for k in ("location_decoys", "holding_decoys", "event_every")
+              if (v := kwargs.pop(k, None)) is not None}
+    if kwargs.get("stores"):
+        clash = sorted({"capacity", "long_term_capacity", "age_unit"} & set(kwargs))
+        if clash:
+            raise ValueError(f"stores give each store its capacity and age unit: drop {clash}, or drop stores")
+        kwargs["stores"] = check_stores(kwargs["stores"])
     seeding = replace(kwargs.pop("seeding", None) or SeedingConfig(), **decoys)
     memory = MemoryConfig(seeding=seeding, **{k: kwargs.pop(k) for k in list(kwargs) if k in memory_keys - {"seeding"}})
     decisions = DecisionConfig(**{k: kwargs.pop(k) for k in list(kwargs) if k in decision_keys})

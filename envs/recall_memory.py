@@ -14,6 +14,8 @@ from gymnasium import spaces
 
 from sb3_memret.envs.configs import MemoryConfig, check_mode
 from sb3_memret.memory.bank import MemoryBank
+from sb3_memret.memory.retention import FIXED_RULES
+from sb3_memret.memory.stores import TIMESCALES, StoreSpec, store_index, timescale_id
 from sb3_memret.memory.encoder import EMBEDDING_DIM, MiniLMEncoder
 from sb3_memret.memory.schema import Key, MemoryEntry, MemoryType
 from sb3_memret.memory.writer import EventCompiler
@@ -21,13 +23,15 @@ from sb3_memret.controllers.prompts import PromptTemplate, build_prompt
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import EnvFrame, Episode
 
-# keep-scores of a bank's entries given their ages (the retention critic, or a fixed rule)
-KeepScorer = Callable[[Sequence[MemoryEntry], np.ndarray], np.ndarray]
+# keep-scores of a store's entries given their ages and the store's timescale id (None in a memory of one store):
+# the retention critic's, or the type prior before it is trained
+KeepScorer = Callable[[Sequence[MemoryEntry], np.ndarray, "int | None"], np.ndarray]
 
 
-def observation_space(capacity: int, potential: bool = False) -> spaces.Dict:
+def observation_space(capacity: int, potential: bool = False, stores: bool = False) -> spaces.Dict:
     """The decision observation: instruction and memory embeddings, slot mask, type ids, age, usage;
-    with ``potential``, also the shaping potential in reward units, (1 - gamma) * Phi(s), for the critic."""
+    with ``potential``, also the shaping potential in reward units, (1 - gamma) * Phi(s), for the critic; with
+    ``stores`` (a memory of several stores), each slot's store as its timescale id (``stores.TIMESCALES``)."""
     fields = dict(
         instruction=spaces.Box(-1.0, 1.0, (EMBEDDING_DIM,), np.float32),
         memories=spaces.Box(-1.0, 1.0, (capacity, EMBEDDING_DIM), np.float32),
@@ -38,6 +42,8 @@ def observation_space(capacity: int, potential: bool = False) -> spaces.Dict:
     )
     if potential:
         fields["potential"] = spaces.Box(0.0, np.inf, (1,), np.float32)
+    if stores:
+        fields["store_ids"] = spaces.Box(0.0, len(TIMESCALES) - 1, (capacity,), np.float32)
     return spaces.Dict(fields)
 
 
@@ -58,13 +64,16 @@ class EpisodeMemory:
     observation phase (``Task.look_in``: the drawer opens each drawer once) writes where each object was
     seen, and during the episode the task's observed writer writes only what a camera sees.
 
-    ``config.long_term_capacity > 0`` (observed only; a household's episodes): a long-term store that
-    survives episode resets sits before the per-episode bank in the slots the retriever sees.
-    What the task calls lasting (``Task.lasting``: where objects were seen in drawers) goes there, with the
-    household's hearsay about other things each episode (``Task.hearsay``); instead of the whole observation
-    phase the robot gets the household's glimpses (``Task.look_in``), so what it knows of the rest it saw in
-    earlier episodes.
-    Times run on across episodes. ``age_unit``: a memory's age is the control steps since it was
+    The memory is one store or several (``config.store_specs``; ``sb3_memret.memory.stores``), in slot order:
+    each fact goes to the store of its timescale (``Task.timescale``: now, episode or lasting), and each store
+    evicts its own entries by its own rule (``StoreSpec.retention``, else ``config.retention``: the critic, told
+    the store's timescale, or a fixed rule) with ages in its own unit.
+    A lasting store (observed only; a household's episodes; ``config.long_term_capacity`` in short) survives
+    episode resets. What the task calls lasting (``Task.lasting``: where objects were seen in drawers) goes
+    there, with the household's hearsay about other things each episode (``Task.hearsay``); instead of the whole
+    observation phase the robot gets the household's glimpses (``Task.look_in``), so what it knows of the rest it
+    saw in earlier episodes.
+    Times run on across episodes. Age units: a memory's age is the control steps since it was
     written (``"steps"``) or the episodes, a household's tasks (``"tasks"``): objects move only between
     tasks, so a fact's age in tasks is what says how likely it is to be stale. Measured before the glimpse, so they count what retention kept:
     ``needed_fact_gone``, the target was seen since the household last rearranged (whether or not
@@ -76,10 +85,14 @@ class EpisodeMemory:
                  template: PromptTemplate, task: Task | str):
         self.mode = check_mode(mode)
         self.task = make_task(task)
-        self.source, self.seeding, self.age_unit = config.source, config.seeding, config.age_unit
+        self.source, self.seeding, self.retention = config.source, config.seeding, config.retention
         self.encoder, self.keep_scorer, self.template = encoder, keep_scorer, template
-        self.bank = MemoryBank(config.capacity)
-        self.long_term = MemoryBank(config.long_term_capacity) if config.long_term_capacity else None
+        self.specs: tuple[StoreSpec, ...] = config.store_specs
+        self.stores: list[MemoryBank] = [MemoryBank(spec.capacity) for spec in self.specs]
+        self.household = config.household
+        if self.seeding.event_every:  # refused now, not at the first event, by a task that words none
+            self.task.event_decoy(np.random.default_rng(0), 0, self.seeding)
+        self.rng: np.random.Generator | None = None  # the episode's generator: its decoys, then its events
         self.episode = 0  # episodes started so far (a household's tasks)
         self.writer = self.task.writer(self.source)
         self.compiler = EventCompiler(encoder, self.writer.relations, self.task.wordings)
@@ -96,26 +109,33 @@ class EpisodeMemory:
         return self.clock + self.t
 
     @property
-    def stores(self) -> list[MemoryBank]:
-        """The banks in slot order: the long-term store's slots first."""
-        return [self.long_term, self.bank] if self.long_term is not None else [self.bank]
+    def bank(self) -> MemoryBank:
+        """The store that holds this episode's facts."""
+        return self.stores[store_index("episode", self.specs)]
+
+    @property
+    def long_term(self) -> MemoryBank | None:
+        """The store that outlives episodes (a household's), if there is one."""
+        return next((store for store, spec in zip(self.stores, self.specs) if spec.survives_episodes), None)
 
     def start(self, frame: EnvFrame, rng: np.random.Generator, moved: bool = False) -> None:
         """A new episode: the seeded memories (true facts and decoys; decoys and what the observation
         phase saw for ``observed``) are the bank at t = 0. ``moved``: the household rearranged."""
-        self.truth = self.task.episode(frame)
-        self.clock = self.clock + self.t if self.long_term is not None else 0
+        self.truth, self.rng = self.task.episode(frame), rng
+        self.clock = self.clock + self.t if self.household else 0
         self.t, self.true_evicted = 0, False
         self.episode += 1
-        self.bank.clear()
+        for store, spec in zip(self.stores, self.specs):
+            if not spec.survives_episodes:
+                store.clear()
         self.progress.clear()
         seeds = self.task.seed_memories(frame, self.truth, rng, self.seeding, facts=self.source == "seeded")
-        if self.long_term is not None:
+        if self.household:
             if moved:
                 self.seen_since_move.clear()
             seeds += self.task.hearsay(rng, self.now, self.seeding)
         self._write(self._encoded([replace(e, timestamp=self.now) for e in seeds]))
-        if self.long_term is not None:
+        if self.household:
             slots = [self.long_term.find(key) for key, _ in self.truth.true_facts]  # one fact per key
             kept = [self.long_term.entries[slot] for slot in slots if slot is not None]
             self.target_fact_kept = len(kept) == len(slots) and all(self.is_true(entry) for entry in kept)
@@ -128,7 +148,7 @@ class EpisodeMemory:
 
     def _look_in(self, frame: EnvFrame, rng: np.random.Generator) -> None:
         """The observation phase: write what the task's ``look_in`` says the robot saw."""
-        self._write(self.compiler.update(self.task.look_in(frame, rng, household=self.long_term is not None),
+        self._write(self.compiler.update(self.task.look_in(frame, rng, household=self.household),
                                          self.now))
 
     def slot_entries(self) -> list[MemoryEntry | None]:
@@ -173,10 +193,15 @@ class EpisodeMemory:
         return [*facts, *(entry.text for entry in self.progress.values())]
 
     def observe(self, frame: EnvFrame) -> int:
-        """After an executed chunk: write the facts that changed, each at the control step it was read; returns
-        how many were written."""
+        """After an executed chunk: write the facts that changed, each at the control step it was read, and the event
+        decoys due in the chunk (``SeedingConfig.event_every``); returns how many facts the writer wrote."""
         written = self._read(frame)
+        every, start = self.seeding.event_every, self.t
         self.t += frame.steps
+        if every:
+            due = range(start // every + 1, self.t // every + 1)
+            self._write(self._encoded([self.task.event_decoy(self.rng, self.clock + k * every, self.seeding)
+                                       for k in due]))
         return written
 
     def _read(self, frame: EnvFrame) -> int:
@@ -196,16 +221,25 @@ class EpisodeMemory:
         vectors = self.encoder.encode([e.text for e in entries]) if entries else []
         return [e.with_embedding(v) for e, v in zip(entries, vectors)]
 
-    def _store_for(self, entry: MemoryEntry) -> MemoryBank:
-        """What the task calls lasting (the drawer: where an object was seen in a drawer, and hearsay) goes to the
-        long-term store; the rest lasts an episode."""
-        return self.long_term if self.long_term is not None and self.task.lasting(entry) else self.bank
+    def store_for(self, entry: MemoryEntry) -> int:
+        """The store ``entry`` goes to: that of its timescale (``Task.timescale``), or the nearest there is."""
+        return store_index(self.task.timescale(entry), self.specs)
 
-    def ages(self, entries: Sequence[MemoryEntry]) -> np.ndarray:
-        """The entries' ages in ``age_unit``: control steps, or episodes since each was written."""
-        if self.age_unit == "tasks":
+    def ages(self, entries: Sequence[MemoryEntry], unit: str) -> np.ndarray:
+        """The entries' ages in ``unit``: control steps, or episodes since each was written."""
+        if unit == "tasks":
             return np.array([self.episode - e.episode for e in entries], dtype=np.float32)
         return np.array([self.now - e.timestamp for e in entries], dtype=np.float32)
+
+    def _keep_scores(self, store: int, entries: Sequence[MemoryEntry]) -> np.ndarray:
+        """Keep-scores in ``store``: by its fixed rule, else by the critic, told the store's timescale when the
+        memory has more than one."""
+        spec = self.specs[store]
+        rule = spec.retention or self.retention
+        if rule in FIXED_RULES:
+            return FIXED_RULES[rule](entries)
+        timescale = timescale_id(spec.timescale) if len(self.specs) > 1 else None
+        return self.keep_scorer(entries, self.ages(entries, spec.age_unit), timescale)
 
     def _write(self, entries: list[MemoryEntry]) -> None:
         for entry in entries:
@@ -213,11 +247,11 @@ class EpisodeMemory:
             if entry.type == MemoryType.TASK_PROGRESS:
                 self.progress[entry.key] = entry
                 continue
-            store = self._store_for(entry)
-            outcome = store.write(entry, lambda stored: self.keep_scorer(stored, self.ages(stored)))
+            index = self.store_for(entry)
+            outcome = self.stores[index].write(entry, lambda stored: self._keep_scores(index, stored))
             if outcome.evicted is not None and self.is_true(outcome.evicted):
                 self.true_evicted = True
-            if store is self.long_term:  # seen, whether or not the store took it in
+            if self.specs[index].survives_episodes:  # seen, whether or not the store took it in
                 self.seen_since_move.add(entry.entity)
 
     def instruction(self) -> str:
@@ -250,8 +284,8 @@ class EpisodeMemory:
         return {e.key for e in chosen if self.is_true(e)} == {key for key, _ in self.truth.true_facts}
 
     def observation(self) -> dict[str, np.ndarray]:
-        views = [store.view(self.ages(store.entries)) for store in self.stores]
-        return {
+        views = [store.view(self.ages(store.entries, spec.age_unit)) for store, spec in zip(self.stores, self.specs)]
+        observation = {
             "instruction": self.encoder.encode_one(self.instruction()).astype(np.float32),
             "memories": np.concatenate([v.embeddings for v in views]),
             "mask": np.concatenate([v.mask for v in views]).astype(np.float32),
@@ -259,6 +293,10 @@ class EpisodeMemory:
             "age": np.concatenate([v.age for v in views]),
             "usage": np.concatenate([v.usage for v in views]),
         }
+        if len(self.specs) > 1:
+            observation["store_ids"] = np.concatenate([np.full(spec.capacity, timescale_id(spec.timescale), np.float32)
+                                                       for spec in self.specs])
+        return observation
 
     def info(self, success: bool) -> dict[str, Any]:
         info = {
@@ -271,7 +309,7 @@ class EpisodeMemory:
             "memory_texts": [e.text if e is not None else "" for e in self.slot_entries()],
             **self.truth.details,
         }
-        if self.long_term is not None:
+        if self.household:
             info.update(needed_fact_gone=self.needed_fact_gone, target_fact_kept=self.target_fact_kept,
                         stale_fact_kept=self.stale_fact_kept)
         return info

@@ -20,7 +20,7 @@ env drawing its next episode from its own generator, seeded by ``seed(s)`` as ``
 from __future__ import annotations
 
 import dataclasses
-from typing import Any, Sequence
+from typing import Any, Mapping, Sequence
 
 import gymnasium as gym
 import numpy as np
@@ -36,7 +36,7 @@ from sb3_memret.envs.configs import DecisionConfig, MemoryConfig, PhysicsConfig,
 from sb3_memret.envs.recall_memory import EpisodeMemory, observation_space
 from sb3_memret.memory.bank import importance_scorer
 from sb3_memret.memory.encoder import MiniLMEncoder
-from sb3_memret.memory.retention import FIXED_RULES
+from sb3_memret.memory.stores import units_per_timescale
 from sb3_memret.memory.schema import MemoryEntry
 from sb3_memret.common.obs_trees import stack_obs
 from sb3_memret.physics import make_physics
@@ -101,10 +101,9 @@ class RecallVecEnv(VecEnv):
                  memory: MemoryConfig = MemoryConfig(), decisions: DecisionConfig = DecisionConfig(),
                  physics: PhysicsConfig = PhysicsConfig(), encoder: MiniLMEncoder | None = None):
         self.task = make_task(task)
-        self.task.check_options(observed=memory.source == "observed", household=memory.long_term_capacity > 0,
+        self.task.check_options(observed=memory.source == "observed", household=memory.household,
                                 observe_potential=decisions.observe_potential)
         self.memory_config, self.decisions, self.physics_config = memory, decisions, physics
-        self.retention_rule = memory.retention
         self.tasks_per_episode = decisions.tasks_per_episode
         if not decisions.k <= memory.slots:
             raise ValueError(f"k must be in [1, slots={memory.slots}], got {decisions.k}")
@@ -121,10 +120,11 @@ class RecallVecEnv(VecEnv):
         self.encoder = encoder or MiniLMEncoder()
         self.retention: RetentionScorer | None = None
         self.observe_potential = decisions.observe_potential
-        self.age_unit = memory.age_unit
-        super().__init__(num_envs, observation_space(self.slots, self.observe_potential),
+        self.age_unit = memory.age_units
+        self.timescales = [spec.timescale for spec in memory.store_specs]
+        super().__init__(num_envs, observation_space(self.slots, self.observe_potential, len(self.timescales) > 1),
                          spaces.MultiDiscrete([self.slots] * self.k))
-        self.households = [self.task.new_household() for _ in range(num_envs)] if memory.long_term_capacity else None
+        self.households = [self.task.new_household() for _ in range(num_envs)] if memory.household else None
         self.physics: PhysicsBackend = make_physics(physics.backend, num_envs, task_kwargs, self.max_control_steps,
                                                     physics.ray_address, task=self.task)
         try:
@@ -147,30 +147,24 @@ class RecallVecEnv(VecEnv):
         self._controller_batch = False  # whether controller.reset has set up the batch of num_envs
 
     # ------------------------------------------------------------ retention
-    def set_retention_weights(self, state_dict: dict[str, torch.Tensor], age_unit: str) -> None:
+    def set_retention_weights(self, state_dict: dict[str, torch.Tensor], age_unit: str | Mapping[str, str]) -> None:
         """Use these retention-network weights for eviction (pushed by the trainer each rollout); the
-        network reads ages in ``age_unit``, which must be the unit this env observes."""
-        if age_unit != self.age_unit:
+        network reads ages in ``age_unit`` (one, or one per store's timescale), which must be the units this env
+        observes."""
+        if units_per_timescale(age_unit, self.timescales) != units_per_timescale(self.age_unit, self.timescales):
             raise ValueError(f"the retention critic reads ages in {age_unit!r}, but this env counts them in "
-                             f"{self.age_unit!r}: build the env with age_unit={age_unit!r}")
+                             f"{self.age_unit!r}: build the env (or its stores) with those age units")
         if self.retention is None:
-            self.retention = RetentionScorer(age_unit=age_unit)
+            self.retention = RetentionScorer(age_unit=age_unit, stores=len(self.timescales) > 1)
         self.retention.load_state_dict(state_dict)
         self.retention.eval()
 
-    def keep_scores(self, entries: Sequence[MemoryEntry], ages: np.ndarray) -> np.ndarray:
-        """Keep-scores of ``entries`` of these ``ages`` (in ``age_unit``): the fixed rule's, else the
-        retention critic's (the type prior before any push)."""
-        if self.retention_rule in FIXED_RULES:
-            return FIXED_RULES[self.retention_rule](entries)
+    def keep_scores(self, entries: Sequence[MemoryEntry], ages: np.ndarray, timescale: int | None) -> np.ndarray:
+        """The retention critic's keep-scores of one store's ``entries`` of these ``ages`` (in the store's unit),
+        told the store's ``timescale`` id (None: a memory of one store); the type prior before any push."""
         if self.retention is None:
             return importance_scorer(entries)
-        with torch.no_grad():
-            mem = torch.as_tensor(np.stack([e.embedding for e in entries]))[None]
-            types = torch.tensor([[int(e.type) for e in entries]])
-            age = torch.as_tensor(np.asarray(ages, dtype=np.float32))[None]
-            usage = torch.tensor([[float(e.usage_count) for e in entries]])
-            return self.retention(mem, types, age, usage)[0].numpy()
+        return self.retention.score_entries(entries, ages, timescale)
 
     @property
     def physics_restarts(self) -> int:

@@ -178,7 +178,7 @@ def test_recall_keeps_progress_beside_the_bank_and_states_it_after_the_chosen_fa
     from sb3_memret.envs.recall_memory import EpisodeMemory
 
     task = make_task(SPEC)
-    modes = {mode: EpisodeMemory(MemoryConfig(4), mode, encoder, lambda entries, ages: np.ones(len(entries)),
+    modes = {mode: EpisodeMemory(MemoryConfig(4), mode, encoder, lambda entries, ages, timescale: np.ones(len(entries)),
                                  task.prompt_template, task) for mode in ("recall", "oracle", "none")}
     down_up = [0.10, 0.05, 0.01, 0.05, 0.09, 0.13]
     cue = CUE_FACT.format(count="three times")
@@ -205,7 +205,7 @@ def test_the_benchmarks_recall_states_the_presses_after_what_the_learner_retriev
     from sb3_memret.benchmark.agent import RecalledFacts
 
     learner = SimpleNamespace(settings={"capacity": 6, "age_unit": "steps"},
-                              keep_scores=lambda entries, ages: np.ones(len(entries)),
+                              keep_scores=lambda entries, ages, timescale: np.ones(len(entries)),
                               retrieve=lambda observation: np.array([0]))
     task = make_task(SPEC)
     schedule = RecalledFacts(task, learner, task.prompt_template, encoder, seed=0)

@@ -125,7 +125,7 @@ def test_observed_memory_comes_from_what_the_robot_saw_alone(encoder):
     kwargs = dict(objects=OBJECT_SETS["train"], n_objects=3)
     runner = TaskRunner({"obs_mode": "state_dict", "render_backend": "none", **kwargs}, 80, "drawer")
     config = MemoryConfig(6, source="observed", seeding=SeedingConfig(location_decoys=2))
-    memory = EpisodeMemory(config, "recall", encoder, lambda entries, ages: np.ones(len(entries)), TEMPLATE, "drawer")
+    memory = EpisodeMemory(config, "recall", encoder, lambda entries, ages, timescale: np.ones(len(entries)), TEMPLATE, "drawer")
     frame = runner.reset(7, {})
     placed, target = frame.state.placed(), frame.state.target_name()
     memory.start(frame, np.random.default_rng(0))
@@ -141,7 +141,7 @@ def test_long_term_slots_come_first_and_a_needed_fact_can_be_gone(encoder):
     runner = TaskRunner({"obs_mode": "state_dict", "render_backend": "none", "objects": OBJECT_SETS["train"],
                          "n_objects": 3}, 80, "drawer")
     memory = EpisodeMemory(_long_term(3), "recall", encoder,
-                           lambda entries, ages: np.array([e.timestamp for e in entries], float), TEMPLATE,
+                           lambda entries, ages, timescale: np.array([e.timestamp for e in entries], float), TEMPLATE,
                            _household(hearsay_per_episode=1))
     frame = runner.reset(0, {"placement": {"tin": 2, "cube": 1, "box": 3}, "target": "tin"})
     memory.start(frame, np.random.default_rng(0), moved=True)
@@ -168,7 +168,7 @@ def test_long_term_slots_come_first_and_a_needed_fact_can_be_gone(encoder):
 def test_what_the_store_kept_is_counted_before_the_glimpse_and_a_refused_sighting_still_counts_as_seen(encoder):
     runner = TaskRunner({"obs_mode": "state_dict", "render_backend": "none", "objects": OBJECT_SETS["train"],
                          "n_objects": 3}, 80, "drawer")
-    oldest_first = lambda entries, ages: -np.array([e.timestamp for e in entries], float)  # refuses every newcomer
+    oldest_first = lambda entries, ages, timescale: -np.array([e.timestamp for e in entries], float)  # refuses every newcomer
     memory = EpisodeMemory(_long_term(2), "recall", encoder, oldest_first, TEMPLATE,
                            _household(hearsay_per_episode=0))
     frame = runner.reset(0, {"placement": {"tin": 2, "cube": 1, "box": 3}, "target": "tin"})
@@ -196,7 +196,7 @@ def test_a_household_glimpse_writes_what_is_in_the_drawers_looked_into_and_nothi
     runner = TaskRunner({"obs_mode": "state_dict", "render_backend": "none", "objects": OBJECT_SETS["train"],
                          "n_objects": 3}, 80, "drawer")
     memory = EpisodeMemory(_long_term(3), "recall", encoder,
-                           lambda entries, ages: np.array([e.timestamp for e in entries], float), TEMPLATE,
+                           lambda entries, ages, timescale: np.array([e.timestamp for e in entries], float), TEMPLATE,
                            _household(hearsay_per_episode=0, glimpses_per_episode=glimpses))
     placement = {"tin": 2, "cube": 1, "box": 3}
     frame = runner.reset(0, {"placement": placement, "target": "tin"})
@@ -218,7 +218,7 @@ def test_ages_count_control_steps_or_tasks_alike_for_the_critic_and_the_observat
                          "n_objects": 3}, 80, "drawer")
     scored: list[np.ndarray] = []
 
-    def newest_first(entries, ages):
+    def newest_first(entries, ages, timescale):
         scored.append(np.asarray(ages))
         return -np.asarray(ages, dtype=float)
 

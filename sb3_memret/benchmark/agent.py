@@ -64,19 +64,13 @@ class MemoryLearner:
         if self.settings.get("observe_potential"):
             raise ValueError(f"{self.path}: a learner whose critic observes the shaping potential reads simulator "
                              "state at run time; the benchmark's agent may read cameras and proprioception only")
-        if self.settings.get("long_term_capacity"):
+        if self.settings.get("long_term_capacity") or any(
+                store.get("timescale") == "lasting" for store in self.settings.get("stores") or ()):
             raise ValueError(f"{self.path}: a household learner (long-term store) is not a MIKASA task's learner")
 
-    def keep_scores(self, entries: Sequence[Any], ages: np.ndarray) -> np.ndarray:
-        """The run's retention critic's keep-scores (the lowest is evicted when the bank is full)."""
-        import torch
-
-        with torch.no_grad():
-            mem = torch.as_tensor(np.stack([e.embedding for e in entries]))[None]
-            types = torch.tensor([[int(e.type) for e in entries]])
-            age = torch.as_tensor(np.asarray(ages, dtype=np.float32))[None]
-            usage = torch.tensor([[float(e.usage_count) for e in entries]])
-            return self.model.policy.retention(mem, types, age, usage)[0].numpy()
+    def keep_scores(self, entries: Sequence[Any], ages: np.ndarray, timescale: int | None) -> np.ndarray:
+        """The run's retention critic's keep-scores of one store's entries (the lowest is evicted when it is full)."""
+        return self.model.policy.retention.score_entries(entries, ages, timescale)
 
     def retrieve(self, observation: Mapping[str, np.ndarray]) -> np.ndarray:
         """The slots the learner retrieves, greedily (top-K by score)."""
@@ -95,11 +89,15 @@ class RecalledFacts:
         from sb3_memret.memory.seeding import SeedingConfig
 
         settings = learner.settings
-        seeding = dataclasses.replace(SeedingConfig(), **{k: settings[k] for k in ("location_decoys", "holding_decoys")
+        seeding = dataclasses.replace(SeedingConfig(), **{k: settings[k] for k in ("location_decoys", "holding_decoys", "event_every")
                                                           if settings.get(k) is not None})
         self.learner, self.seed = learner, seed
-        config = MemoryConfig(settings["capacity"], source=settings.get("memory_source", "seeded"),
-                              age_unit=settings["age_unit"], seeding=seeding)
+        if settings.get("stores"):
+            config = MemoryConfig(source=settings.get("memory_source", "seeded"), seeding=seeding,
+                                  stores=tuple(settings["stores"]))
+        else:
+            config = MemoryConfig(settings["capacity"], source=settings.get("memory_source", "seeded"),
+                                  age_unit=settings["age_unit"], seeding=seeding)
         self.memory = EpisodeMemory(config, "recall", encoder, learner.keep_scores, template, task)
 
     def start(self, frame: EnvFrame, episode: Episode) -> None:

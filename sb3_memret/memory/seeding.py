@@ -11,13 +11,20 @@ DEFAULT_VOCABULARY: tuple[str, ...] = ("marker", "key", "block", "battery", "mug
 
 @dataclass(frozen=True)
 class SeedingConfig:
-    """How many decoys of each kind, drawn from which words (never the name of a task object)."""
+    """How many decoys of each kind, drawn from which words (never the name of a task object); with
+    ``event_every > 0``, also one event decoy every that many control steps of an episode (``Task.event_decoy``:
+    things seen in passing, written while the task goes on, so that what the cue established competes for room
+    with a stream of what only mattered at the moment)."""
 
     location_decoys: int = 5
     holding_decoys: int = 2
     vocabulary: tuple[str, ...] = DEFAULT_VOCABULARY
+    event_every: int = 0
 
     def __post_init__(self) -> None:
+        if isinstance(self.event_every, bool) or not isinstance(self.event_every, int) or self.event_every < 0:
+            raise ValueError(f"event_every must be an integer >= 0 (control steps between event decoys; 0: none), "
+                             f"got {self.event_every!r}")
         need = max(self.location_decoys, self.holding_decoys)
         if min(self.location_decoys, self.holding_decoys) < 0 or len(set(self.vocabulary)) < need:
             raise ValueError(

@@ -2,14 +2,16 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping, Sequence
 from contextlib import contextmanager
 
+import numpy as np
 import torch
 from torch import nn
 
 from sb3_memret.memory.encoder import EMBEDDING_DIM
-from sb3_memret.memory.schema import MemoryType, check_age_unit
+from sb3_memret.memory.schema import MemoryEntry, MemoryType
+from sb3_memret.memory.stores import TIMESCALES, units_per_timescale
 
 HIDDEN = 128
 TYPE_EMBEDDING_DIM = 32
@@ -109,41 +111,73 @@ class RetentionScorer(nn.Module):
     with usage, so a retrieval would raise the next state's value and earn an advantage the reward
     never paid (measured: the set retriever collapsed on the drawer with one shared head). ``age_unit``:
     ages in control steps (scale 100, the seed's) or in tasks (scale 1: episodes of a household,
-    between which objects may move, so a fact's chance of being stale grows with its age in tasks).
+    between which objects may move, so a fact's chance of being stale grows with its age in tasks); in a
+    memory of several stores (``stores``), one unit per store's timescale may be given, and the critic also reads
+    each memory's store: a timescale embedding added to its type embedding.
     """
 
-    def __init__(self, embedding_dim: int = EMBEDDING_DIM, hidden: int = HIDDEN, age_unit: str = "steps"):
+    def __init__(self, embedding_dim: int = EMBEDDING_DIM, hidden: int = HIDDEN,
+                 age_unit: str | Mapping[str, str] = "steps", stores: bool = False):
         super().__init__()
-        self.age_unit = check_age_unit(age_unit)
-        self.age_scale = AGE_SCALES[age_unit]
+        if not isinstance(age_unit, str) and not stores:
+            raise ValueError(f"age units per store ({dict(age_unit)!r}) need a memory of several stores (stores=True)")
+        units = units_per_timescale(age_unit, age_unit if not isinstance(age_unit, str) else TIMESCALES)
+        self.age_unit = age_unit if isinstance(age_unit, str) else dict(units)
+        scales = [AGE_SCALES[units.get(t, "steps")] for t in TIMESCALES]
+        self.register_buffer("age_scales", torch.tensor(scales, dtype=torch.float32), persistent=False)
         self.type_embedding = nn.Embedding(len(MemoryType), TYPE_EMBEDDING_DIM)
+        self.store_embedding = nn.Embedding(len(TIMESCALES), TYPE_EMBEDDING_DIM) if stores else None
         self.net = mlp(embedding_dim + TYPE_EMBEDDING_DIM + 2, hidden)
         with own_random_stream(RANKING_SEED_OFFSET):
             self.ranking = mlp(embedding_dim + TYPE_EMBEDDING_DIM + 2, hidden)
         nn.init.zeros_(self.ranking[-1].weight)
         nn.init.zeros_(self.ranking[-1].bias)
 
-    def _features(self, memories: torch.Tensor, type_ids: torch.Tensor, age: torch.Tensor, usage: torch.Tensor) -> torch.Tensor:
-        return torch.cat(
-            [memories, self.type_embedding(type_ids.long()), (age / self.age_scale).unsqueeze(-1), (usage / USAGE_SCALE).unsqueeze(-1)],
-            dim=-1,
-        )
+    def _features(self, memories: torch.Tensor, type_ids: torch.Tensor, age: torch.Tensor, usage: torch.Tensor,
+                  store_ids: torch.Tensor | None = None) -> torch.Tensor:
+        kinds = self.type_embedding(type_ids.long())
+        if self.store_embedding is not None:
+            if store_ids is None:
+                raise ValueError("this critic reads each memory's store (a memory of several stores): pass store_ids")
+            stores = store_ids.long()
+            kinds = kinds + self.store_embedding(stores)
+            scale = self.age_scales[stores]
+        else:
+            scale = self.age_scales[TIMESCALES.index("episode")]
+        return torch.cat([memories, kinds, (age / scale).unsqueeze(-1), (usage / USAGE_SCALE).unsqueeze(-1)], dim=-1)
 
-    def forward(self, memories: torch.Tensor, type_ids: torch.Tensor, age: torch.Tensor, usage: torch.Tensor) -> torch.Tensor:
-        """memories (B, N, D), type_ids/age/usage (B, N) -> keep-scores (B, N), the order eviction reads."""
-        x = self._features(memories, type_ids, age, usage)
+    def forward(self, memories: torch.Tensor, type_ids: torch.Tensor, age: torch.Tensor, usage: torch.Tensor,
+                store_ids: torch.Tensor | None = None) -> torch.Tensor:
+        """memories (B, N, D), type_ids/age/usage (B, N) (and store_ids, with stores) -> keep-scores (B, N), the
+        order eviction reads."""
+        x = self._features(memories, type_ids, age, usage, store_ids)
         return (self.net(x) + self.ranking(x)).squeeze(-1)
 
+    def score_entries(self, entries: Sequence[MemoryEntry], ages: np.ndarray, timescale: int | None) -> np.ndarray:
+        """Keep-scores of one store's ``entries`` of these ``ages``, the store's ``timescale`` id given in a memory of
+        several stores (None otherwise): what an env evicts by."""
+        with torch.no_grad():
+            mem = torch.as_tensor(np.stack([e.embedding for e in entries]))[None]
+            types = torch.tensor([[int(e.type) for e in entries]])
+            age = torch.as_tensor(np.asarray(ages, dtype=np.float32))[None]
+            usage = torch.tensor([[float(e.usage_count) for e in entries]])
+            stores = None if timescale is None else torch.full_like(types, int(timescale))
+            if (stores is None) != (self.store_embedding is None):
+                raise ValueError(f"a critic {'with' if self.store_embedding is not None else 'without'} a store "
+                                 f"embedding was asked to score a store of timescale id {timescale!r}")
+            return self(mem, types, age, usage, stores)[0].numpy()
+
     def calibration_scores(self, memories: torch.Tensor, type_ids: torch.Tensor, age: torch.Tensor,
-                           usage: torch.Tensor) -> torch.Tensor:
+                           usage: torch.Tensor, store_ids: torch.Tensor | None = None) -> torch.Tensor:
         """The keep-scores with the value head and the shared features detached: what the calibration loss
         trains, so that only the ranking head learns from it."""
-        x = self._features(memories, type_ids, age, usage).detach()
+        x = self._features(memories, type_ids, age, usage, store_ids).detach()
         return (self.net(x).detach() + self.ranking(x)).squeeze(-1)
 
-    def value(self, memories, type_ids, age, usage, mask: torch.Tensor) -> torch.Tensor:
+    def value(self, memories, type_ids, age, usage, mask: torch.Tensor,
+              store_ids: torch.Tensor | None = None) -> torch.Tensor:
         """(B,) mean value-head score over the valid slots: the critic's V(s)."""
-        scores = self.net(self._features(memories, type_ids, age, usage)).squeeze(-1)
+        scores = self.net(self._features(memories, type_ids, age, usage, store_ids)).squeeze(-1)
         mask = mask.float()
         return (scores * mask).sum(-1) / mask.sum(-1).clamp(min=1.0)
 

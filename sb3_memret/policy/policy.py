@@ -13,7 +13,7 @@ from stable_baselines3.common.save_util import load_from_zip_file
 from stable_baselines3.common.torch_layers import BaseFeaturesExtractor
 
 from sb3_memret.memory.encoder import EMBEDDING_DIM
-from sb3_memret.memory.schema import check_age_unit
+from sb3_memret.memory.stores import TIMESCALES, units_per_timescale
 from sb3_memret.policy.distributions import PlackettLuceDistribution, gumbel_noise
 from sb3_memret.policy.networks import CONTEXT_LR_SCALE, HIDDEN, RETRIEVERS, RelevanceMLP, RetentionScorer, SetRetriever
 
@@ -42,7 +42,9 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
     shaping potential (env ``observe_potential``), the value is that mean minus the potential: the
     shaped value is the unshaped one minus the potential (Ng et al., 1999), so the keep-scores model
     only what the task's future is worth, not how far the current task has got. ``age_unit`` is
-    the unit of the memories' ages the env observes (``MemoryConfig.age_unit``, ``sb3_memret.envs.configs``).
+    the unit of the memories' ages the env observes (``MemoryConfig.age_units``, ``sb3_memret.envs.configs``):
+    one, or one per store's timescale where the observation carries each slot's store (``store_ids``, a memory of
+    several stores), which the critic then reads too.
 
     ``predict(obs, deterministic=True)`` is greedy retrieval (top-K by score).
 
@@ -69,7 +71,8 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
     """
 
     def __init__(self, observation_space: spaces.Dict, action_space: spaces.MultiDiscrete, lr_schedule,
-                 temperature: float = 0.5, hidden: int = HIDDEN, retriever: str = "mlp", age_unit: str = "steps",
+                 temperature: float = 0.5, hidden: int = HIDDEN, retriever: str = "mlp",
+                 age_unit: str | dict[str, str] = "steps",
                  exploration: str = "episode", retriever_lr_scale: float = 1.0, context_lr_scale: float | None = None,
                  **kwargs: Any):
         if not isinstance(action_space, spaces.MultiDiscrete):
@@ -92,7 +95,8 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
         self.episode_noise: torch.Tensor | None = None  # (n_envs, N) while PPO collects with exploration="episode"
         self.hidden = hidden
         self.retriever_kind = retriever
-        self.age_unit = check_age_unit(age_unit)
+        units_per_timescale(age_unit, TIMESCALES if isinstance(age_unit, str) else age_unit)  # each unit known
+        self.age_unit = age_unit if isinstance(age_unit, str) else dict(age_unit)
         kwargs.setdefault("features_extractor_class", BankExtractor)
         kwargs.setdefault("optimizer_class", torch.optim.AdamW)
         kwargs["ortho_init"] = False
@@ -101,7 +105,8 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
     def _build(self, lr_schedule) -> None:
         self.action_dist = PlackettLuceDistribution(len(self.action_space.nvec), self.temperature)
         self.retriever = SetRetriever(hidden=self.hidden) if self.retriever_kind == "set" else RelevanceMLP(hidden=self.hidden)
-        self.retention = RetentionScorer(hidden=self.hidden, age_unit=self.age_unit)
+        self.retention = RetentionScorer(hidden=self.hidden, age_unit=self.age_unit,
+                                         stores="store_ids" in self.observation_space.spaces)
         context = self.retriever.context_parameters()
         in_context = {id(p) for p in context}
         per_memory = [p for p in self.retriever.parameters() if id(p) not in in_context]
@@ -129,7 +134,8 @@ class MemoryRetrievalPolicy(ActorCriticPolicy):
         return "potential" in self.observation_space.spaces
 
     def _value(self, f: dict[str, torch.Tensor]) -> torch.Tensor:
-        value = self.retention.value(f["memories"], f["type_ids"].long(), f["age"], f["usage"], f["mask"] > 0.5)[:, None]
+        value = self.retention.value(f["memories"], f["type_ids"].long(), f["age"], f["usage"], f["mask"] > 0.5,
+                                     f.get("store_ids"))[:, None]
         return value - f["potential"] if self.potential_baseline else value
 
     def forward(self, obs, deterministic: bool = False):

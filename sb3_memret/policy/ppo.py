@@ -112,7 +112,7 @@ class MemRetPPO(PPO):
         credit = retrieval_credit(obs["memories"], obs["mask"], buffer.actions, buffer.advantages,
                                   buffer.episode_starts, self.gamma * self.gae_lambda)
         flat = {key: torch.as_tensor(obs[key].reshape(-1, *obs[key].shape[2:]), device=self.device)
-                for key in ("memories", "mask", "type_ids", "age", "usage")}
+                for key in ("memories", "mask", "type_ids", "age", "usage", "store_ids") if key in obs}
         return flat, credit
 
     def _calibrate_retention(self, flat: dict[str, torch.Tensor], credit: np.ndarray) -> None:
@@ -123,7 +123,8 @@ class MemRetPPO(PPO):
         for _ in range(self.n_epochs):
             for batch in torch.randperm(len(credit_t), device=self.device).split(self.batch_size):
                 keep = retention.calibration_scores(flat["memories"][batch], flat["type_ids"][batch],
-                                                    flat["age"][batch], flat["usage"][batch])
+                                                    flat["age"][batch], flat["usage"][batch],
+                                                    flat["store_ids"][batch] if "store_ids" in flat else None)
                 loss = self.calibration_coef * calibration_loss(keep, credit_t[batch], flat["mask"][batch] > 0.5)
                 optimizer.zero_grad()
                 loss.backward()

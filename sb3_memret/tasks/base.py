@@ -204,16 +204,24 @@ class Task(ABC):
         must learn to let go of); none by default."""
         return []
 
+    def event_decoy(self, rng: np.random.Generator, now: int, seeding: "SeedingConfig") -> MemoryEntry:
+        """One event decoy at time ``now`` (``SeedingConfig.event_every``): a thing of ``seeding``'s vocabulary seen in
+        passing, worded as the controller's prompts word such a fact; a task that words none refuses the option."""
+        raise ValueError(f"task {self.name!r} words no event decoys (Task.event_decoy); leave event_every at 0")
+
     def look_in(self, frame: EnvFrame, rng: np.random.Generator, household: bool) -> Predicates:
         """The observation phase of the ``observed`` variant (``features`` "observed"): predicates of what the robot
         saw at the reset (``EnvFrame.look_in``), everywhere it looks, or with ``household`` only where this episode's
         glimpses fall."""
         raise NotImplementedError(f"task {self.name!r} has no observation phase (Task.look_in)")
 
-    def lasting(self, entry: MemoryEntry) -> bool:
-        """Whether ``entry`` belongs in a household's long-term store, which survives episode resets (the drawer:
-        where an object was seen in a drawer); the rest lasts an episode."""
-        return False
+    def timescale(self, entry: MemoryEntry) -> str:
+        """The timescale ``entry`` matters at, which picks its store (``sb3_memret.memory.stores``): ``"lasting"``
+        for what outlives an episode (the drawer: where an object was seen in a drawer), ``"now"`` for what holds
+        only at the moment (what the robot holds, a failure just seen), ``"episode"`` for the rest."""
+        if entry.type in (MemoryType.HOLDING, MemoryType.FAILURE):
+            return "now"
+        return "episode"
 
     # ------------------------------------------------------------ prompts
     @property

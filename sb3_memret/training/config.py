@@ -12,11 +12,18 @@ from stable_baselines3.common.utils import LinearSchedule
 
 from sb3_memret.memory.retention import RETENTION_RULES
 from sb3_memret.memory.schema import AGE_UNITS
+from sb3_memret.memory.stores import TIMESCALES, age_units, check_stores
 from sb3_memret.tasks import check_task_name, make_task, task_in
 
 ZOO_CONFIGS = Path(__file__).resolve().parents[2] / "zoo_configs"  # the shipped hyperparameters, one file per family
 
 Check = tuple[type | tuple[type, ...], Callable[[Any], bool], str]
+
+
+def _are_stores(value: list) -> bool:
+    """Whether ``value`` lists a multi-timescale memory's stores (``check_stores`` says why not)."""
+    check_stores(value)
+    return True
 
 
 def _is_task(value: str) -> bool:
@@ -116,10 +123,13 @@ ENV_KEYS: dict[str, Check] = {
     "success_bonus": ((int, float), lambda v: v >= 0, "a number >= 0"),
     "location_decoys": (int, lambda v: v >= 0, "an integer >= 0"),
     "holding_decoys": (int, lambda v: v >= 0, "an integer >= 0"),
+    "event_every": (int, lambda v: v >= 0, "an integer >= 0 (control steps between event decoys; 0: none)"),
     "long_term_capacity": (int, lambda v: v >= 0, "an integer >= 0 (0: no long-term store)"),
     "retention": (str, lambda v: v in RETENTION_RULES, f"one of {list(RETENTION_RULES)}"),
     "tasks_per_episode": _positive_int(),
     "age_unit": (str, lambda v: v in AGE_UNITS, f"one of {list(AGE_UNITS)} (what a memory's age counts)"),
+    "stores": (list, _are_stores, f"a list of stores, each a mapping with timescale (one of {list(TIMESCALES)}), "
+               "capacity and optionally age_unit and retention"),
     "observe_potential": (bool, lambda v: True, "true or false (the critic subtracts the shaping potential)"),
     "memory_source": (str, lambda v: v in ("seeded", "observed"), "one of 'seeded' (from the placement), "
                       "'observed' (from what the robot saw)"),
@@ -127,7 +137,7 @@ ENV_KEYS: dict[str, Check] = {
 
 
 # what every task of a learner across tasks shares: one observation and action space, one critic's age unit
-MULTI_TASK_SHARED = ("capacity", "long_term_capacity", "k", "observe_potential", "age_unit")
+MULTI_TASK_SHARED = ("capacity", "long_term_capacity", "k", "observe_potential", "age_unit", "stores")
 
 
 class MissingSectionError(ValueError):
@@ -183,7 +193,9 @@ class TrainConfig:
         if "learning_rate" in kwargs:
             kwargs["learning_rate"] = learning_rate_schedule(kwargs["learning_rate"])
         policy_kwargs = dict(self.policy_kwargs)
-        if "age_unit" in self.env_kwargs:  # the critic reads ages in the unit the env counts them in
+        if self.env_kwargs.get("stores"):  # the critic reads ages in the units the env's stores count them in
+            policy_kwargs["age_unit"] = age_units(check_stores(self.env_kwargs["stores"]))
+        elif "age_unit" in self.env_kwargs:
             policy_kwargs["age_unit"] = self.env_kwargs["age_unit"]
         return {**kwargs, "policy_kwargs": policy_kwargs}
 
@@ -260,7 +272,14 @@ def parse_section(section: Any, env_id: str, where: str = "config") -> TrainConf
         raise ValueError(f"{where}: {env_id} must set n_timesteps")
     if "task" in env_kwargs and "tasks" in env_kwargs:
         raise ValueError(f"{where}: {env_id}.env_kwargs sets both task and tasks; one task or a list of them")
-    slots = env_kwargs.get("capacity", 6) + env_kwargs.get("long_term_capacity", 0)
+    if env_kwargs.get("stores"):
+        clash = sorted({"capacity", "long_term_capacity", "age_unit"} & set(env_kwargs))
+        if clash:
+            raise ValueError(f"{where}: {env_id}.env_kwargs sets stores and {clash}: each store gives its own "
+                             "capacity and age unit")
+        slots = sum(store.capacity for store in check_stores(env_kwargs["stores"]))
+    else:
+        slots = env_kwargs.get("capacity", 6) + env_kwargs.get("long_term_capacity", 0)
     if "k" in env_kwargs and env_kwargs["k"] > slots:
         raise ValueError(f"{where}: {env_id}.env_kwargs: k={env_kwargs['k']} exceeds capacity={slots}")
     initial, every = ppo.get("initial_eval_episodes"), ppo.get("eval_episodes", DEFAULT_EVAL_EPISODES)

@@ -138,8 +138,9 @@ def eval_env_kwargs(model: MemRetPPO, model_path: Path, mode: str, controller: s
     first_task = next(iter(kwargs["tasks"])) if "tasks" in kwargs else task_in(kwargs)
     render_backend = render_backend or make_task(first_task).default_render_backend
     kwargs.update(mode=mode, controller=controller, gamma=model.gamma, k=len(nvec), render_backend=render_backend,
-                  capacity=int(nvec[0]) - kwargs.get("long_term_capacity", 0),
-                  observe_potential="potential" in model.observation_space.spaces, age_unit=model.policy.age_unit)
+                  observe_potential="potential" in model.observation_space.spaces)
+    if not kwargs.get("stores"):  # else each store names its capacity and age unit
+        kwargs.update(capacity=int(nvec[0]) - kwargs.get("long_term_capacity", 0), age_unit=model.policy.age_unit)
     return kwargs
 
 

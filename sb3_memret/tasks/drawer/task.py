@@ -22,7 +22,7 @@ from sb3_memret.tasks.base import EnvFrame, Episode, Predicates, Task, check_ren
 from sb3_memret.tasks.demos import DemoEpisode, PromptMix
 from sb3_memret.tasks.drawer.cabinet import LAYERS
 from sb3_memret.tasks.drawer.household import Household, HouseholdConfig
-from sb3_memret.tasks.drawer.objects import OBJECT_SETS, object_set
+from sb3_memret.tasks.drawer.objects import CATALOGUE, OBJECT_SETS, object_set
 from sb3_memret.tasks.drawer.prompts import (INSTRUCTION_TEMPLATE, OUTSIDE, OUTSIDE_TEMPLATE, TEMPLATE,
                                            check_prompt_layer, instruction_text, location_text)
 from sb3_memret.tasks.drawer.seeding import hearsay_memories, seed_memories
@@ -116,6 +116,12 @@ class DrawerTask(Task):
     def hearsay(self, rng: np.random.Generator, now: int, seeding: SeedingConfig) -> list[MemoryEntry]:
         return hearsay_memories(self.household.hearsay_per_episode, rng, now, seeding)
 
+    def event_decoy(self, rng: np.random.Generator, now: int, seeding: SeedingConfig) -> MemoryEntry:
+        """Something else seen out on the table (``the key is out of the drawers.``): it is put away at any moment."""
+        seeding.check_task_objects(CATALOGUE)
+        thing = str(rng.choice(sorted(set(seeding.vocabulary))))
+        return MemoryEntry.create(MemoryType.OBJECT_LOCATION, thing, "is_in", OUTSIDE, now, wordings=self.wordings)
+
     def look_in(self, frame: EnvFrame, rng: np.random.Generator, household: bool) -> Predicates:
         """Every drawer opened once, or in a household ``glimpses_per_episode`` of them drawn at random."""
         if not household:
@@ -130,8 +136,13 @@ class DrawerTask(Task):
         return ViewPredicateExtractor.look_in(frame.look_in[[layer - 1 for layer in layers]],
                                               frame.state.object_names[0], layers)
 
-    def lasting(self, entry: MemoryEntry) -> bool:
-        return entry.type == MemoryType.OBJECT_LOCATION and entry.value.startswith("drawer layer")
+    def timescale(self, entry: MemoryEntry) -> str:
+        """Where an object was seen in a drawer lasts (a household's objects stay put between tasks)."""
+        if entry.type == MemoryType.OBJECT_LOCATION and entry.value.startswith("drawer layer"):
+            return "lasting"
+        if entry.type == MemoryType.OBJECT_LOCATION and entry.value == OUTSIDE:  # out on the table: of the moment
+            return "now"
+        return super().timescale(entry)
 
     def writer(self, source: str = "seeded") -> DrawerWriter:
         return DrawerWriter(source)
