@@ -51,6 +51,32 @@ def test_a_run_of_no_memory_condition_shows_the_published_rows_alone():
     assert "| sb3-memret, learned controller, oracle (this run, -VLA-v0) | 100% (1/1) |" in render_report(content)
 
 
+def test_a_controller_that_reads_the_simulator_is_a_privileged_upper_bound_kept_out_of_the_comparison():
+    """A scripted expert reads object poses through a simulated detector: its report names it an upper bound, does
+    not state the protocol's policy inputs as its inputs and sets no row of it beside the published methods."""
+    from sb3_memret.benchmark.report import render_report
+
+    cell = {"episodes": 1, "seeds": [5000], "successes": [True], "success": 1.0, "complete": True}
+    reads = "proprioception and a simulated object detector (objects in sight), beyond the protocol's policy inputs"
+    content = {"protocol": {"benchmark": "MIKASA-Robo-VLA", "harness": "h", "wrapper_chain": "w", "control_mode": "c",
+                            "obs_mode": "rgb", "metric": "success_once", "policy_inputs": ["rgb", "proprio",
+                                                                                           "instruction"],
+                            "episodes": 1, "seed_set": "dev", "seeds": [5000], "controller": "scripted",
+                            "replan_every": None, "conditions": ["oracle"]},
+               "privileged_upper_bound": True,
+               "tasks": {"RememberColor9-VLA-v0": {"split": "short", "memory_type": "Object", "replan_every": 4,
+                                                   "controller": {"reads": reads, "privileged": True},
+                                                   "conditions": {"oracle": cell}}}}
+    report = render_report(content)
+    assert "scripted controller, a privileged upper bound" in report.splitlines()[0]
+    assert "Policy inputs:" not in report and "not a protocol entry" in report
+    assert "## Published figures beside ours" not in report and "sb3-memret, scripted controller" not in report
+    del content["privileged_upper_bound"]  # a results file from before the flag: told by what its controller reads
+    assert "Policy inputs:" not in render_report(content)
+    content["tasks"]["RememberColor9-VLA-v0"]["controller"] = {"reads": "cameras and proprioception"}
+    assert "- Policy inputs: rgb, proprio, instruction" in render_report(content)
+
+
 def test_a_figure_that_is_not_a_fraction_is_refused(tmp_path):
     bad = tmp_path / "published.csv"
     rows = PUBLISHED.read_text().splitlines()

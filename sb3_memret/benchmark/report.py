@@ -64,18 +64,35 @@ def _by_cue(tasks: Mapping[str, Any], conditions: list[str]) -> list[str]:
             "| task | cue | " + " | ".join(conditions) + " |", "|---|---|" + "---|" * len(conditions), *rows]
 
 
+def privileged_upper_bound(content: Mapping[str, Any]) -> bool:
+    """Whether a run's controller reads the simulator beyond the protocol's inputs (``results.json`` says so; a file
+    written before it did names a scripted controller by what it reads)."""
+    if "privileged_upper_bound" in content:
+        return bool(content["privileged_upper_bound"])
+    return any("simulated object detector" in t.get("controller", {}).get("reads", "")
+               for t in content["tasks"].values())
+
+
 def render_report(content: Mapping[str, Any]) -> str:
     """The markdown report of one run's results."""
     protocol, tasks = content["protocol"], content["tasks"]
     conditions = protocol["conditions"]
     seeds = protocol["seeds"]
     splits = sorted({t["split"] for t in tasks.values()})
+    privileged = privileged_upper_bound(content)
+    if privileged:
+        inputs = ("- **A privileged upper bound, not a protocol entry**: the frozen controller reads the simulator "
+                  f"beyond the protocol's policy inputs ({', '.join(protocol['policy_inputs'])}); the memory's own "
+                  "inputs are the harness's. Its rows are kept out of the published-methods comparison.")
+    else:
+        inputs = f"- Policy inputs: {', '.join(protocol['policy_inputs'])} (never `oracle_info` or `task_cue`)."
+    title = f"{protocol['controller']} controller" + (", a privileged upper bound" if privileged else "")
     lines = [
-        f"# {protocol['benchmark']}: {', '.join(splits)} split, {protocol['controller']} controller",
+        f"# {protocol['benchmark']}: {', '.join(splits)} split, {title}",
         "",
         f"- Harness: `{protocol['harness']}`, wrappers `{protocol['wrapper_chain']}`, `{protocol['control_mode']}`, "
         f"`{protocol['obs_mode']}`, metric `{protocol['metric']}`.",
-        f"- Policy inputs: {', '.join(protocol['policy_inputs'])} (never `oracle_info` or `task_cue`).",
+        inputs,
         f"- Episodes per task and condition: {protocol['episodes']}, {protocol['seed_set']} seeds "
         f"{seeds[0]}..{seeds[-1]}.",
         f"- Frozen controller: `{protocol['controller']}`, reading {_reads(tasks)}; it replans every "
@@ -121,8 +138,10 @@ def render_report(content: Mapping[str, Any]) -> str:
     # what a memory method is compared on: a condition whose facts come from the cameras, else the oracle's (marked
     # by its name); none and wrong are no memory method's, so a run of only those shows the published rows alone
     best = next((c for c in COMPARED_CONDITIONS if c in conditions), None)
-    lines += published_section({env_id: _cell(t["conditions"].get(best)) if best else ""
-                                for env_id, t in tasks.items() if "conditions" in t}, protocol["controller"], best)
+    if not privileged:  # an upper bound is no method's entry: it is not set beside the published ones
+        lines += published_section({env_id: _cell(t["conditions"].get(best)) if best else ""
+                                    for env_id, t in tasks.items() if "conditions" in t}, protocol["controller"],
+                                   best)
     refused = [(env_id, t["refused"]) for env_id, t in tasks.items() if "refused" in t]
     refused += [(f"{env_id} ({c})", cell.get("refused") or cell.get("error"))
                 for env_id, t in tasks.items() for c, cell in t.get("conditions", {}).items()

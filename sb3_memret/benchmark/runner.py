@@ -270,9 +270,7 @@ def plan(protocol: Protocol, conditions: Iterable[str], split: str | None = None
         except (ValueError, FileNotFoundError, ImportError) as err:
             result.refused[row.env_id] = _reason(err, row.env_id)
             continue
-        result.controllers[row.env_id] = {"name": protocol.controller, "sha256": controller_digest(controller),
-                                          "reads": "cameras and proprioception" if controller.spec.needs_images else
-                                          "proprioception and a simulated object detector (objects in sight)"}
+        result.controllers[row.env_id] = controller_record(protocol.controller, controller)
         result.task_digests[row.env_id] = task_digest(task)
         result.replan_every[row.env_id] = task.replan_interval(protocol.replan_every, controller.spec.chunk_len)
         path = learner_path(learners, row.env_id)
@@ -478,7 +476,18 @@ def results(run: Plan, records: Iterable[dict[str, Any]]) -> dict[str, Any]:
         tasks[row.env_id] = entry
     protocol = {**run.protocol.to_json(), "conditions": run.conditions, "seeds": seeds}  # as results.json reads back
     protocol["learners"] = None if run.learners is None else str(run.learners)
-    return {"protocol": protocol, "tasks": tasks}
+    privileged = any(t.get("controller", {}).get("privileged") for t in tasks.values())
+    return {"protocol": protocol, "privileged_upper_bound": privileged, "tasks": tasks}
+
+
+def controller_record(name: str, controller: Any) -> dict[str, Any]:
+    """What a table says of its frozen controller: its name, digest and what it reads; a controller that reads the
+    simulator (a scripted expert's simulated object detector) beyond the protocol's policy inputs is a privileged
+    upper bound, and the record says so."""
+    privileged = not controller.spec.needs_images
+    reads = "cameras and proprioception" if not privileged else \
+        "proprioception and a simulated object detector (objects in sight), beyond the protocol's policy inputs"
+    return {"name": name, "sha256": controller_digest(controller), "reads": reads, "privileged": privileged}
 
 
 def widened(run: Plan, out: Path) -> Plan:
@@ -553,5 +562,5 @@ def rebuild(out: Path) -> dict[str, Any]:
     return content
 
 
-__all__ = ["CONDITIONS", "Plan", "Protocol", "RunFolder", "Unit", "controller_digest", "cue_label", "done_units",
+__all__ = ["CONDITIONS", "Plan", "Protocol", "RunFolder", "Unit", "controller_digest", "controller_record", "cue_label", "done_units",
            "learner_path", "learners_landed", "plan", "play_units", "rebuild", "results", "run_benchmark", "widened"]
