@@ -70,8 +70,8 @@ def _plan(episodes: int = 2) -> Plan:
 
 
 def _record(env_id: str, condition: str, seed: int, success: bool, **extra) -> dict:
-    return {"env_id": env_id, "condition": condition, "seed": seed, "success": success,
-            "controller_sha256": f"c-{env_id}", "task_sha256": f"t-{env_id}", **extra}
+    return {"env_id": env_id, "condition": condition, "seed": seed, "success": success, "return": float(success),
+            "steps": 10, "controller_sha256": f"c-{env_id}", "task_sha256": f"t-{env_id}", **extra}
 
 
 def test_results_count_current_episodes_and_keep_refusals():
@@ -83,7 +83,7 @@ def test_results_count_current_episodes_and_keep_refusals():
     content = results(run, records)
     a = content["tasks"]["A-VLA-v0"]["conditions"]
     assert a["oracle"] == {"episodes": 2, "seeds": [5000, 5001], "successes": [True, False], "success": 0.5,
-                           "complete": True}
+                           "returns": [1.0, 0.0], "episode_lengths": [10, 10], "complete": True}
     assert a["none"]["episodes"] == 1 and not a["none"]["complete"]  # the stale episode does not count
     assert content["tasks"]["B-VLA-v0"]["conditions"]["oracle"]["error"] == "RuntimeError: boom"
     assert content["tasks"]["C-VLA-v0"]["refused"] == "needs an asset"
@@ -151,6 +151,14 @@ def test_the_command_refuses_bad_options_in_one_line(tmp_path):
     result = runner.invoke(main, ["benchmark", "mikasa", "--split", "short", "--tasks", "TakeItBack-VLA-v0",
                                   "--out", str(tmp_path)])
     assert result.exit_code == 2 and "not both" in result.output
+    # nothing of what was asked can run: one line naming why, a failing exit, no table
+    result = runner.invoke(main, ["benchmark", "mikasa", "--tasks", "TakeItBack-VLA-v0", "--controller", "psychic",
+                                  "--out", str(tmp_path / "none")])
+    assert result.exit_code == 1 and "nothing to play: " in result.output and "psychic" in result.output
+    assert "Traceback" not in result.output and not (tmp_path / "none" / "results.json").exists()
+    result = runner.invoke(main, ["benchmark", "mikasa", "--tasks", "TakeItBack-VLA-v0", "--conditions", "recall",
+                                  "--learners", str(tmp_path / "no-learners"), "--out", str(tmp_path / "none")])
+    assert result.exit_code == 1 and "nothing to play: no trained memory learner: expected" in result.output
 
 
 class _Guarded(Mapping):

@@ -32,3 +32,24 @@ def test_torch_threads_are_restored():
     assert torch.get_num_threads() == before
     with torch_threads(None):
         assert torch.get_num_threads() == before
+
+
+def test_a_pool_whose_worker_is_killed_is_replaced_and_plays_only_what_had_not_landed(tmp_path, capsys):
+    from sb3_memret.common.workers import replaying_pool
+    from dying_worker import set_up, square_or_die
+
+    jobs = [1, 2, -3, 4, 5]
+    landed = list(replaying_pool(square_or_die, jobs, 2, set_up, (str(tmp_path),), replacements=1, what="episodes"))
+    assert sorted(landed) == sorted((job, job ** 2) for job in jobs)  # each job exactly once
+    err = capsys.readouterr().err
+    assert "a worker died (pid " in err and "killed by SIGKILL" in err and "a new pool plays the" in err
+
+
+def test_a_worker_that_keeps_dying_ends_the_pool_with_how_and_how_to_resume(tmp_path):
+    from sb3_memret.common.workers import WorkerDiedError, replaying_pool
+    from dying_worker import set_up, square_or_die
+
+    (tmp_path / "always").touch()
+    with pytest.raises(WorkerDiedError, match=r"killed by SIGKILL.*2 times in all; 1 episodes not played: run the "
+                                              r"same command again to resume"):
+        list(replaying_pool(square_or_die, [-1], 1, set_up, (str(tmp_path),), replacements=1, what="episodes"))

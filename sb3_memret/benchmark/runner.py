@@ -14,7 +14,6 @@ import ast
 import hashlib
 import inspect
 import json
-import multiprocessing
 import sys
 import traceback
 from collections import defaultdict
@@ -24,9 +23,11 @@ from typing import Any, Callable, Iterable, Iterator
 
 from sb3_memret.benchmark.agent import CONDITIONS, check_conditions
 from sb3_memret.benchmark.manifest import episode_seeds, select_tasks
+from sb3_memret.benchmark.mikasa_results import write_mikasa_results
 
 EPISODES_FILE, RESULTS_FILE, PROTOCOL_FILE, ERRORS_FILE = "episodes.jsonl", "results.json", "protocol.json", "errors.log"
 LEARNER_FILE = "final_model.zip"
+WORKER_REPLACEMENTS = 3  # pools a table starts again after an episode worker died, before it stops with a resume hint
 
 
 @dataclass(frozen=True)
@@ -366,18 +367,21 @@ def _play(unit: Unit) -> dict[str, Any]:
     return _WORKER.play(unit)
 
 
-def play_units(units: list[Unit], protocol: Protocol, learners: Path | None, workers: int) -> Iterator[dict[str, Any]]:
+def play_units(units: list[Unit], protocol: Protocol, learners: Path | None, workers: int,
+               replacements: int = WORKER_REPLACEMENTS) -> Iterator[dict[str, Any]]:
     """Each unit's outcome as it lands: in this process for one worker, else in ``workers`` spawned processes
-    (each unit to the next free one; a task's units stay together in the queue, so envs are rebuilt rarely)."""
+    (each unit to the next free one; a task's units stay together in the queue, so envs are rebuilt rarely). A
+    worker that dies is replaced and the units that had not landed are played again, up to ``replacements`` times
+    (``common.workers.replaying_pool``); landed units are never replayed."""
     if workers <= 1:
         worker = _Worker(protocol, learners)
         yield from (worker.play(unit) for unit in units)
         return
-    from sb3_memret.common.workers import START_METHOD
+    from sb3_memret.common.workers import replaying_pool
 
-    context = multiprocessing.get_context(START_METHOD)
-    with context.Pool(workers, initializer=_init_worker, initargs=(protocol, learners)) as pool:
-        yield from pool.imap_unordered(_play, units, chunksize=1)
+    for _, record in replaying_pool(_play, units, workers, _init_worker, (protocol, learners), replacements,
+                                    what="episodes"):
+        yield record
 
 
 # ---------------------------------------------------------------- the run folder
@@ -460,6 +464,8 @@ def results(run: Plan, records: Iterable[dict[str, Any]]) -> dict[str, Any]:
             played = [latest[u] for s in seeds if (u := Unit(row.env_id, condition, s)) in latest]
             cell: dict[str, Any] = {"episodes": len(played), "seeds": [r["seed"] for r in played],
                                     "successes": [r["success"] for r in played],
+                                    "returns": [r.get("return") for r in played],
+                                    "episode_lengths": [r.get("steps") for r in played],
                                     "success": sum(r["success"] for r in played) / len(played) if played else None,
                                     "complete": len(played) == len(seeds)}
             cues = [r.get("cue") for r in played]
@@ -527,6 +533,7 @@ def run_benchmark(run: Plan, out: Path, learners: Path | None = None, workers: i
     def publish() -> dict[str, Any]:
         content = results(shown, records)
         (folder.out / RESULTS_FILE).write_text(json.dumps(content, indent=2) + "\n")
+        write_mikasa_results(folder.out, content)
         if on_task_done is not None:
             on_task_done(content)
         return content
@@ -559,6 +566,7 @@ def rebuild(out: Path) -> dict[str, Any]:
                learners=Path(learners) if learners else None)
     content = results(run, folder.episodes())
     (folder.out / RESULTS_FILE).write_text(json.dumps(content, indent=2) + "\n")
+    write_mikasa_results(folder.out, content)
     return content
 
 

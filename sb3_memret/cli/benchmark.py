@@ -94,6 +94,11 @@ def mikasa(split: str | None, tasks: list[str] | None, episodes: int, controller
         click.echo(f"refused {env_id}: {why}", err=True)
     for (env_id, condition), why in run.refused_conditions.items():
         click.echo(f"refused {env_id} ({condition}): {why}", err=True)
+    playable = [(row.env_id, c) for row in run.tasks if row.env_id not in run.refused for c in run.conditions
+                if (row.env_id, c) not in run.refused_conditions]
+    if not playable:  # nothing of what was asked can run: say why once, and fail
+        why = next(iter(run.refused.values()), None) or next(iter(run.refused_conditions.values()), "no task asked")
+        raise click.ClickException(f"nothing to play: {why}")
     bar = tqdm(total=None, unit="episode", disable=not progress, desc="benchmark")
 
     def on_progress(done: int, total: int) -> None:

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import multiprocessing
 import signal
+import sys
 import threading
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
@@ -180,6 +181,57 @@ def map_in_workers(
     return results  # type: ignore[return-value]
 
 
+def replaying_pool(work: Callable[[J], R], jobs: Sequence[J], n_workers: int, initializer: Callable[..., None],
+                   initargs: tuple, replacements: int, what: str = "jobs") -> Iterator[tuple[J, R]]:
+    """``(job, work(job))`` as each lands, from ``n_workers`` spawned processes set up by ``initializer(*initargs)``.
+
+    A worker that dies (killed, out of memory) breaks its pool: a new pool replaces it and plays the jobs that had not
+    landed, up to ``replacements`` times; after that a ``WorkerDiedError`` says how the workers ended and that running
+    the same command again resumes. A landed job is never played again. The pool is shut down at once when the
+    caller stops early (Ctrl-C, SIGTERM): the jobs under way are ended, not waited for.
+    """
+    left, deaths = list(jobs), 0
+    context = multiprocessing.get_context(START_METHOD)
+    while left:
+        pool = ProcessPoolExecutor(n_workers, mp_context=context, initializer=initializer, initargs=initargs)
+        seen: dict[int, BaseProcess] = {}
+        try:
+            pending: dict[Future, int] = {pool.submit(work, job): i for i, job in enumerate(left)}
+            done_here: set[int] = set()
+            try:
+                while pending:
+                    seen.update(_pool_processes(pool))
+                    done, _ = wait(pending, return_when=FIRST_COMPLETED)
+                    for future in done:
+                        i = pending.pop(future)
+                        result = future.result()
+                        done_here.add(i)
+                        yield left[i], result
+            except BrokenProcessPool:
+                seen.update(_pool_processes(pool))
+                ended = {pid: exit_description(p) for pid, p in seen.items()}  # joins each, so its exit code is known
+                how = "; ".join(f"pid {pid} {ended[pid]}" for pid, p in seen.items()
+                                if p.exitcode not in (None, 0)) or "a worker process ended"
+                left = [job for i, job in enumerate(left) if i not in done_here]
+                deaths += 1
+                if deaths > replacements:
+                    raise WorkerDiedError(f"a worker died ({how}), {deaths} times in all; {len(left)} {what} not "
+                                          "played: run the same command again to resume") from None
+                print(f"a worker died ({how}): a new pool plays the {len(left)} {what} left", file=sys.stderr)
+                continue
+            left = []
+        finally:
+            for process in _pool_processes(pool).values():
+                if process.is_alive():
+                    process.terminate()
+            pool.shutdown(wait=True, cancel_futures=True)
+
+
+def _pool_processes(pool: ProcessPoolExecutor) -> dict[int, BaseProcess]:
+    """The pool's worker processes by pid (the executor keeps them in ``_processes``; none once it has shut down)."""
+    return dict(getattr(pool, "_processes", None) or {})
+
+
 __all__ = ["START_METHOD", "STOP_SIGNALS", "StopRequested", "WorkerDiedError", "exit_description", "exit_status",
-           "init_pool_worker", "init_worker_process", "map_in_workers", "stop_signals_deferred", "stop_signals_interrupt",
+           "init_pool_worker", "init_worker_process", "map_in_workers", "replaying_pool", "stop_signals_deferred", "stop_signals_interrupt",
            "torch_threads"]

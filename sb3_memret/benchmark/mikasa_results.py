@@ -1,0 +1,72 @@
+"""A run's table in MIKASA-Robo-VLA's own result layout: per condition, one ``<env id>.json`` per task as its
+``evaluate_task`` returns it and a ``summary.json`` from its ``summarize_task_results``, written by its
+``write_benchmark_results``, so that the entry reads with the benchmark's own tools. Built from ``results.json``
+alone, for the task cells that played all of the protocol's episodes."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any, Mapping
+
+MIKASA_DIR = "mikasa"  # under a run folder: mikasa/<condition>/<env id>.json and summary.json
+ACTION_CHUNK_SIZE = 1  # the agent's ``chunk_size``: the harness calls it at every control step
+
+
+def task_result(env_id: str, task: Mapping[str, Any], condition: str, protocol: Mapping[str, Any],
+                privileged: bool) -> dict[str, Any]:
+    """``evaluate_task``'s dict for one task's complete cell of ``condition``."""
+    cell = task["conditions"][condition]
+    successes = [bool(s) for s in cell["successes"]]
+    returns = [float(r) if r is not None else float("nan") for r in cell.get("returns") or [None] * len(successes)]
+    controller = task.get("controller", {})
+    return {
+        "env_id": env_id,
+        "split": str(task["split"]).title(),
+        "memory_type": task["memory_type"],
+        "start_seed": int(cell["seeds"][0]),
+        "n_episodes": len(successes),
+        "successes": successes,
+        "returns": returns,
+        "sr": sum(successes) / len(successes),
+        "mean_return": sum(returns) / len(returns),
+        "benchmark_commit": None,
+        "control_mode": protocol["control_mode"],
+        "obs_mode": protocol["obs_mode"],
+        "wrapper_chain": protocol["wrapper_chain"],
+        "action_chunk_size": ACTION_CHUNK_SIZE,
+        "model": {"name": "sb3-memret", "condition": condition, "controller": controller.get("name"),
+                  "controller_sha256": controller.get("sha256"), "reads": controller.get("reads"),
+                  "privileged_upper_bound": privileged, "seed_set": protocol.get("seed_set")},
+        "episode_lengths": list(cell.get("episode_lengths") or []),
+        "episode_seeds": [int(s) for s in cell["seeds"]],
+    }
+
+
+def mikasa_task_results(content: Mapping[str, Any]) -> dict[str, list[dict[str, Any]]]:
+    """Per condition, ``evaluate_task``'s dict of every task whose cell of it is complete."""
+    from sb3_memret.benchmark.report import privileged_upper_bound
+
+    protocol, privileged = content["protocol"], privileged_upper_bound(content)
+    by_condition: dict[str, list[dict[str, Any]]] = {}
+    for condition in protocol["conditions"]:
+        done = [task_result(env_id, task, condition, protocol, privileged) for env_id, task in content["tasks"].items()
+                if task.get("conditions", {}).get(condition, {}).get("complete")]
+        if done:
+            by_condition[condition] = done
+    return by_condition
+
+
+def write_mikasa_results(out: Path, content: Mapping[str, Any]) -> list[Path]:
+    """Write ``out/mikasa/<condition>/`` with MIKASA's own ``write_benchmark_results`` and ``summarize_task_results``;
+    the condition folders written."""
+    from mikasa_robo_suite.vla.benchmarking import summarize_task_results, write_benchmark_results
+
+    written = []
+    for condition, task_results in mikasa_task_results(content).items():
+        folder = Path(out) / MIKASA_DIR / condition
+        write_benchmark_results(folder, task_results, summarize_task_results(task_results))
+        written.append(folder)
+    return written
+
+
+__all__ = ["MIKASA_DIR", "mikasa_task_results", "task_result", "write_mikasa_results"]
