@@ -151,6 +151,15 @@ def _fields(cls: type) -> set[str]:
     return {f.name for f in fields(cls)}
 
 
+def with_retention(env_kwargs: Mapping[str, Any], rule: str) -> dict[str, Any]:
+    """``env_kwargs`` evicting by ``rule`` everywhere: the memory's rule and every store's own."""
+    kwargs = {**env_kwargs, "retention": check_retention(rule)}
+    if kwargs.get("stores"):
+        kwargs["stores"] = [{**(s.to_mapping() if isinstance(s, StoreSpec) else dict(s)), "retention": rule}
+                            for s in kwargs["stores"]]
+    return kwargs
+
+
 def split_env_kwargs(env_kwargs: Mapping[str, Any]) -> tuple[Task, dict[str, Any], MemoryConfig, DecisionConfig,
                                                                PhysicsConfig]:
     """A run's flat ``env_kwargs`` as the task (with its own options), the rest (``controller``, ``encoder``) and
@@ -179,4 +188,4 @@ def split_env_kwargs(env_kwargs: Mapping[str, Any]) -> tuple[Task, dict[str, Any
 
 
 __all__ = ["DecisionConfig", "MEMORY_SOURCES", "MODES", "MemoryConfig", "PhysicsConfig", "check_memory_source", "check_mode",
-           "split_env_kwargs"]
+           "split_env_kwargs", "with_retention"]

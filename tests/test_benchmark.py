@@ -426,3 +426,24 @@ def test_a_task_of_ones_own_plays_the_benchmark_under_the_env_id_it_names(tmp_pa
     assert again.exit_code == 2 and "task_classes" in again.output  # played by another task: not resumed
     refused = CliRunner().invoke(main, [*args, "--tasks", "mycolour:Elsewhere"])
     assert refused.exit_code == 2 and "'MyOwnEnv-v0'" in refused.output and "Traceback" not in refused.output
+
+
+def test_a_table_names_the_weights_it_played_and_each_file_s_sha256(tmp_path):
+    import hashlib
+    from types import SimpleNamespace
+
+    from sb3_memret.benchmark.runner import controller_record
+    from sb3_memret.controllers.shipped import CHECKPOINTS
+
+    (tmp_path / "config.json").write_text("{}")
+    (tmp_path / "model.safetensors").write_bytes(b"weights")
+    local = SimpleNamespace(checkpoint=tmp_path, spec=SimpleNamespace(needs_images=True))
+    record = controller_record("learned", local)
+    assert record["checkpoint"] == str(tmp_path.resolve()) and not record["privileged"]
+    assert record["checkpoint_files_sha256"] == {"config.json": hashlib.sha256(b"{}").hexdigest(),
+                                                 "model.safetensors": hashlib.sha256(b"weights").hexdigest()}
+    shipped = CHECKPOINTS / "mikasa-multitask-camera"
+    assert controller_record("learned", SimpleNamespace(checkpoint=shipped, spec=local.spec))["checkpoint"] == \
+        "shipped: mikasa-multitask-camera"
+    scripted = controller_record("scripted", SimpleNamespace(spec=SimpleNamespace(needs_images=False)))
+    assert scripted["privileged"] and "checkpoint" not in scripted

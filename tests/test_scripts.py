@@ -28,3 +28,10 @@ def test_every_script_answers_help_with_what_it_measures(path, load_script, monk
         module.main()
     assert stopped.value.code == 0
     assert "usage:" in capsys.readouterr().out
+
+
+def test_the_timescale_comparison_s_paired_test_is_mcnemar_s_exact_one(load_script):
+    p = load_script("compare_timescales").mcnemar_p
+    assert p(0, 0) == 1.0 and p(3, 3) == 1.0
+    assert p(6, 0) == p(0, 6) == 2 / 64  # six discordant pairs all one way
+    assert p(9, 1) == 2 * (1 + 10) / 1024

@@ -220,3 +220,14 @@ def test_a_task_that_words_no_event_decoys_refuses_them_at_once(encoder):
     with pytest.raises(ValueError, match="words no event decoys"):
         EpisodeMemory(MemoryConfig(4, seeding=SeedingConfig(event_every=8)), "recall", encoder, None, TEMPLATE,
                       "RememberColor3-VLA-v0")
+
+
+def test_one_rule_swapped_in_reaches_every_store():
+    from sb3_memret.envs.configs import with_retention
+
+    kwargs = with_retention({"stores": [{"timescale": "now", "capacity": 2, "retention": "lru"},
+                                        StoreSpec("episode", 3)], "k": 1}, "fifo")
+    assert kwargs["retention"] == "fifo" and [s["retention"] for s in kwargs["stores"]] == ["fifo", "fifo"]
+    assert with_retention({"capacity": 4}, "prior") == {"capacity": 4, "retention": "prior"}
+    with pytest.raises(ValueError, match="unknown retention rule 'newest'"):
+        with_retention({}, "newest")

@@ -28,9 +28,11 @@ def _cell(cell: Mapping[str, Any] | None) -> str:
 
 
 def _reads(tasks: Mapping[str, Any]) -> str:
-    """What the controllers read, from the tasks that ran."""
+    """What the controllers read, from the tasks that ran, and the weights they play (shipped, or a local path)."""
     reads = sorted({t["controller"]["reads"] for t in tasks.values() if "controller" in t})
-    return "; ".join(reads) or "nothing (no task ran)"
+    weights = sorted({t["controller"]["checkpoint"] for t in tasks.values() if "checkpoint" in t.get("controller", {})})
+    where = f" (weights: {', '.join(weights)}; each file's SHA-256 in results.json)" if weights else ""
+    return ("; ".join(reads) or "nothing (no task ran)") + where
 
 
 def _complete(tasks: Mapping[str, Any], condition: str) -> dict[str, float]:

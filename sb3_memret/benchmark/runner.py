@@ -493,7 +493,16 @@ def controller_record(name: str, controller: Any) -> dict[str, Any]:
     privileged = not controller.spec.needs_images
     reads = "cameras and proprioception" if not privileged else \
         "proprioception and a simulated object detector (objects in sight), beyond the protocol's policy inputs"
-    return {"name": name, "sha256": controller_digest(controller), "reads": reads, "privileged": privileged}
+    record = {"name": name, "sha256": controller_digest(controller), "reads": reads, "privileged": privileged}
+    checkpoint = getattr(controller, "checkpoint", None)
+    if checkpoint is not None and Path(checkpoint).is_dir():  # the weights it plays, each file's SHA-256 to check
+        path = Path(checkpoint).resolve()
+        from sb3_memret.controllers.shipped import CHECKPOINTS
+
+        record["checkpoint"] = f"shipped: {path.name}" if path.parent == CHECKPOINTS else str(path)
+        record["checkpoint_files_sha256"] = {p.name: hashlib.sha256(p.read_bytes()).hexdigest()
+                                             for p in sorted(path.iterdir()) if p.is_file()}
+    return record
 
 
 def widened(run: Plan, out: Path) -> Plan:

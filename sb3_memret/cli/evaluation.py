@@ -67,9 +67,9 @@ def evaluate(ctx: click.Context, model_path: Path, task: str | None, condition: 
             raise click.BadParameter(str(err), param_hint="--objects") from None
         kwargs["objects"] = objects
     if retention is not None:  # every store evicts by it, whatever rule its own config named
-        kwargs["retention"] = retention
-        if kwargs.get("stores"):
-            kwargs["stores"] = [{**dict(store), "retention": retention} for store in kwargs["stores"]]
+        from sb3_memret.envs.configs import with_retention
+
+        kwargs = with_retention(kwargs, retention)
     venv = make_recall_vec_env(n_envs, kwargs, backend=backend, ray_address=ray_address)
     try:
         with click.progressbar(length=episodes, label=f"{condition} evaluation", file=sys.stderr) as bar:
