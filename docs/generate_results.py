@@ -204,7 +204,10 @@ def main(root: Path, out: Path) -> list[Path]:
                   "|---|---|---|---|---|---|---|"]
         for name, content in pages:
             p = content["protocol"]
-            lines.append(f"| [{name}]({name}.md) | {p['benchmark']} | `{p['controller']}` | {p['seed_set']} "
+            from sb3_memret.benchmark.report import privileged_upper_bound
+
+            bound = " (a privileged upper bound: it reads the simulator)" if privileged_upper_bound(content) else ""
+            lines.append(f"| [{name}]({name}.md) | {p['benchmark']} | `{p['controller']}`{bound} | {p['seed_set']} "
                          f"({p['episodes']} a cell) | {', '.join(p['conditions'])} | {len(content['tasks'])} | "
                          f"{_progress(content)} |")
     else:

@@ -51,3 +51,20 @@ def test_the_layout_is_written_by_mikasa_s_own_writer_and_its_summary_reads_back
     assert summary == summarize_task_results(per_task)
     assert math.isclose(summary["sr_split"], (0.25 + 0.0) / 2)
     assert summary["sr_per_memory_type"] == {"Object": 0.25, "Spatial": 0.0}
+
+
+def test_a_cell_written_before_results_held_returns_takes_them_from_the_episode_log(tmp_path):
+    import pytest
+
+    content = _content()
+    cell = content["tasks"]["RememberColor3-VLA-v0"]["conditions"]["oracle"]
+    del cell["returns"], cell["episode_lengths"]
+    content["protocol"]["conditions"] = ["oracle"]
+    with pytest.raises(ValueError, match=r"RememberColor3-VLA-v0 \(oracle\): no return logged for seeds"):
+        write_mikasa_results(tmp_path, content)
+    log = [{"env_id": "RememberColor3-VLA-v0", "condition": "oracle", "seed": seed, "success": ok,
+            "return": 2.0, "steps": 30} for seed, ok in zip(cell["seeds"], cell["successes"])]
+    (tmp_path / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in log))
+    write_mikasa_results(tmp_path, content)
+    result = json.loads((tmp_path / MIKASA_DIR / "oracle" / "RememberColor3-VLA-v0.json").read_text())
+    assert result["returns"] == [2.0] * 4 and result["episode_lengths"] == [30] * 4 and result["sr"] == 0.75

@@ -13,11 +13,21 @@ ACTION_CHUNK_SIZE = 1  # the agent's ``chunk_size``: the harness calls it at eve
 
 
 def task_result(env_id: str, task: Mapping[str, Any], condition: str, protocol: Mapping[str, Any],
-                privileged: bool) -> dict[str, Any]:
-    """``evaluate_task``'s dict for one task's complete cell of ``condition``."""
-    cell = task["conditions"][condition]
+                privileged: bool, logged: Mapping[tuple[str, str, int], Mapping[str, Any]] | None = None
+                ) -> dict[str, Any]:
+    """``evaluate_task``'s dict for one task's complete cell of ``condition``; a cell written before results held
+    returns and lengths takes them from the run's episode log (``logged``: its last record per episode)."""
+    cell = dict(task["conditions"][condition])
     successes = [bool(s) for s in cell["successes"]]
-    returns = [float(r) if r is not None else float("nan") for r in cell.get("returns") or [None] * len(successes)]
+    if "returns" not in cell:
+        records = [(logged or {}).get((env_id, condition, int(seed)), {}) for seed in cell["seeds"]]
+        cell["returns"] = [r.get("return") for r in records]
+        cell["episode_lengths"] = [r.get("steps") for r in records]
+    missing = [seed for seed, r in zip(cell["seeds"], cell["returns"]) if r is None]
+    if missing:
+        raise ValueError(f"{env_id} ({condition}): no return logged for seeds {missing[:3]}: MIKASA's layout needs one "
+                         "per episode")
+    returns = [float(r) for r in cell["returns"]]
     controller = task.get("controller", {})
     return {
         "env_id": env_id,
@@ -42,14 +52,16 @@ def task_result(env_id: str, task: Mapping[str, Any], condition: str, protocol: 
     }
 
 
-def mikasa_task_results(content: Mapping[str, Any]) -> dict[str, list[dict[str, Any]]]:
+def mikasa_task_results(content: Mapping[str, Any], logged: Mapping[tuple[str, str, int], Mapping[str, Any]] | None
+                        = None) -> dict[str, list[dict[str, Any]]]:
     """Per condition, ``evaluate_task``'s dict of every task whose cell of it is complete."""
     from sb3_memret.benchmark.report import privileged_upper_bound
 
     protocol, privileged = content["protocol"], privileged_upper_bound(content)
     by_condition: dict[str, list[dict[str, Any]]] = {}
     for condition in protocol["conditions"]:
-        done = [task_result(env_id, task, condition, protocol, privileged) for env_id, task in content["tasks"].items()
+        done = [task_result(env_id, task, condition, protocol, privileged, logged)
+                for env_id, task in content["tasks"].items()
                 if task.get("conditions", {}).get(condition, {}).get("complete")]
         if done:
             by_condition[condition] = done
@@ -61,8 +73,13 @@ def write_mikasa_results(out: Path, content: Mapping[str, Any]) -> list[Path]:
     the condition folders written."""
     from mikasa_robo_suite.vla.benchmarking import summarize_task_results, write_benchmark_results
 
+    from sb3_memret.benchmark.runner import EPISODES_FILE, RunFolder
+
+    logged = None
+    if (Path(out) / EPISODES_FILE).is_file():
+        logged = {(r["env_id"], r["condition"], int(r["seed"])): r for r in RunFolder(out).episodes() if "error" not in r}
     written = []
-    for condition, task_results in mikasa_task_results(content).items():
+    for condition, task_results in mikasa_task_results(content, logged).items():
         folder = Path(out) / MIKASA_DIR / condition
         write_benchmark_results(folder, task_results, summarize_task_results(task_results))
         written.append(folder)
