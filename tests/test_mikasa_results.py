@@ -64,7 +64,6 @@ def test_a_cell_written_before_results_held_returns_takes_them_from_the_episode_
         write_mikasa_results(tmp_path, content)
     log = [{"env_id": "RememberColor3-VLA-v0", "condition": "oracle", "seed": seed, "success": ok,
             "return": 2.0, "steps": 30} for seed, ok in zip(cell["seeds"], cell["successes"])]
-    (tmp_path / "episodes.jsonl").write_text("".join(json.dumps(r) + "\n" for r in log))
-    write_mikasa_results(tmp_path, content)
+    write_mikasa_results(tmp_path, content, log)
     result = json.loads((tmp_path / MIKASA_DIR / "oracle" / "RememberColor3-VLA-v0.json").read_text())
     assert result["returns"] == [2.0] * 4 and result["episode_lengths"] == [30] * 4 and result["sr"] == 0.75

@@ -6,7 +6,7 @@ alone, for the task cells that played all of the protocol's episodes."""
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any, Mapping
+from typing import Any, Iterable, Mapping
 
 MIKASA_DIR = "mikasa"  # under a run folder: mikasa/<condition>/<env id>.json and summary.json
 ACTION_CHUNK_SIZE = 1  # the agent's ``chunk_size``: the harness calls it at every control step
@@ -68,16 +68,14 @@ def mikasa_task_results(content: Mapping[str, Any], logged: Mapping[tuple[str, s
     return by_condition
 
 
-def write_mikasa_results(out: Path, content: Mapping[str, Any]) -> list[Path]:
-    """Write ``out/mikasa/<condition>/`` with MIKASA's own ``write_benchmark_results`` and ``summarize_task_results``;
-    the condition folders written."""
+def write_mikasa_results(out: Path, content: Mapping[str, Any], records: Iterable[Mapping[str, Any]] = ()
+                         ) -> list[Path]:
+    """Write ``out/mikasa/<condition>/`` with MIKASA's own ``write_benchmark_results`` and ``summarize_task_results``
+    (``records``: the run's episode log, for cells written before results held returns); the condition folders
+    written."""
     from mikasa_robo_suite.vla.benchmarking import summarize_task_results, write_benchmark_results
 
-    from sb3_memret.benchmark.runner import EPISODES_FILE, RunFolder
-
-    logged = None
-    if (Path(out) / EPISODES_FILE).is_file():
-        logged = {(r["env_id"], r["condition"], int(r["seed"])): r for r in RunFolder(out).episodes() if "error" not in r}
+    logged = {(r["env_id"], r["condition"], int(r["seed"])): r for r in records if "error" not in r}
     written = []
     for condition, task_results in mikasa_task_results(content, logged).items():
         folder = Path(out) / MIKASA_DIR / condition

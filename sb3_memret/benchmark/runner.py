@@ -542,7 +542,7 @@ def run_benchmark(run: Plan, out: Path, learners: Path | None = None, workers: i
     def publish() -> dict[str, Any]:
         content = results(shown, records)
         (folder.out / RESULTS_FILE).write_text(json.dumps(content, indent=2) + "\n")
-        write_mikasa_results(folder.out, content)
+        write_mikasa_results(folder.out, content, records)
         if on_task_done is not None:
             on_task_done(content)
         return content
@@ -573,9 +573,10 @@ def rebuild(out: Path) -> dict[str, Any]:
     learners = saved["protocol"].get("learners")
     run = plan(stored, saved["protocol"]["conditions"], env_ids=list(saved["tasks"]),
                learners=Path(learners) if learners else None)
-    content = results(run, folder.episodes())
+    records = folder.episodes()
+    content = results(run, records)
     (folder.out / RESULTS_FILE).write_text(json.dumps(content, indent=2) + "\n")
-    write_mikasa_results(folder.out, content)
+    write_mikasa_results(folder.out, content, records)
     return content
 
 
