@@ -21,8 +21,10 @@ from collections import defaultdict
 from pathlib import Path
 from typing import Any
 
+import numpy as np
 from stable_baselines3 import PPO
 
+from sb3_memret.common.seeds import HELD_OUT_SEED
 from sb3_memret.envs.configs import with_retention
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.evaluation.retrieval import evaluate_retrieval
@@ -31,14 +33,20 @@ from sb3_memret.training.run import eval_env_kwargs
 
 
 def play(model_path: Path, rule: str, episodes: int, controller: str, held_out: str) -> tuple[str, list[dict]]:
-    """The run's layout ("stores" or "one bank") and each episode's outcome with ``rule`` evicting."""
+    """The run's layout ("stores" or "one bank") and each episode's outcome with ``rule`` evicting, at the task's
+    held-out seeds, or where it has none (the drawer) at seeds drawn from the held-out seed: the same episodes for
+    every run and rule."""
     model = PPO.load(model_path, device="cpu")
     kwargs = with_retention(eval_env_kwargs(model, model_path, "recall", controller), rule)
     layout = "stores" if kwargs.get("stores") else "one bank"
     venv = make_recall_vec_env(1, kwargs)
     outcomes: list[dict[str, Any]] = []
+    seeds = venv.unwrapped.held_out_seed_blocks([episodes], held_out)
+    task_seeds = None if seeds is not None else \
+        [int(s) for s in np.random.default_rng(HELD_OUT_SEED).integers(0, 2**31, episodes)]
     try:
-        evaluate_retrieval(model, venv, episodes, seed=0, on_episode=outcomes.append, held_out=held_out)
+        evaluate_retrieval(model, venv, episodes, seed=0, on_episode=outcomes.append, held_out=held_out,
+                           task_seeds=task_seeds)
     finally:
         venv.close()
     return layout, outcomes
