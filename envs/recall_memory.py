@@ -69,7 +69,7 @@ class EpisodeMemory:
     evicts its own entries by its own rule (``StoreSpec.retention``, else ``config.retention``: the critic, told
     the store's timescale, or a fixed rule) with ages in its own unit.
     A lasting store (observed only; a household's episodes; ``config.long_term_capacity`` in short) survives
-    episode resets. What the task calls lasting (``Task.lasting``: where objects were seen in drawers) goes
+    episode resets. What the task calls lasting (``Task.timescale``: where objects were seen in drawers) goes
     there, with the household's hearsay about other things each episode (``Task.hearsay``); instead of the whole
     observation phase the robot gets the household's glimpses (``Task.look_in``), so what it knows of the rest it
     saw in earlier episodes.
