@@ -1,4 +1,4 @@
-"""MIKASA GatherAndRecall1: the flash read from pixels, the controller's view, the prompt contract, the gather-and-press
+"""MIKASA GatherAndRecall 1/3/5/7/9: the flash read from pixels, the controller's view, the prompt contract, the gather-and-press
 expert, the task in the memory loop. Development seeds (5000+) only."""
 
 import numpy as np
@@ -20,9 +20,11 @@ from sb3_memret.tasks.mikasa.gather_and_recall.task import (  # noqa: E402
     FLASH_COLOURS,
     INSTRUCTION,
     PROMPT_TEMPLATE,
+    VARIANTS,
     GatherAndRecallTask,
     read_flash,
 )
+from sb3_memret.tasks.mikasa.gather_and_recall.expert import place_targets  # noqa: E402
 
 TASK = "GatherAndRecall1-VLA-v0"
 FORBIDDEN = ("oracle", "flash", "lamp", "pressed", "on_disc", "goal")
@@ -44,13 +46,13 @@ def _prompt(colour):
     return build_prompt(INSTRUCTION, [] if colour is None else [f"the flash was {colour}."], PROMPT_TEMPLATE)
 
 
-def _play(env, expert, seed, colour, on_step=None):
+def _play(env, expert, seed, colour, on_step=None, steps=200):
     """One episode with the expert prompted with ``colour``'s fact (None: none); MIKASA's success once."""
     obs, info = env.reset(seed=seed)
     prompt = _prompt(colour)
     expert.reset([seed])
     success, chunk = False, None
-    for step in range(200):
+    for step in range(steps):
         if step % 4 == 0:
             chunk = expert.act(obs, [prompt])[0]
         obs, _, terminated, truncated, info = env.step(torch.from_numpy(chunk[step % 4][None]).float())
@@ -102,6 +104,32 @@ def test_the_reader_sees_the_flash_and_nothing_else(rgb_env, task):
     assert frames["flash"] >= 8 and frames["right"] == frames["flash"] and frames["other"] == 0, frames
 
 
+def test_three_cubes_are_gathered_and_the_flash_read_among_them():
+    """GatherAndRecall3: the expert places all three cubes and presses the flash's button; the green and blue cubes
+    never read as a flash."""
+    task = make_task("GatherAndRecall3-VLA-v0")
+    env = task.make_env(obs_mode="rgb", render_backend="cpu", sim_backend="cpu")
+    frames = {"flash": 0, "right": 0, "other": 0, "placed": 0}
+
+    def check(obs, info):
+        read = read_flash(as_numpy(obs["sensor_data"]["base_camera"]["rgb"])[0])
+        frames["placed"] = int(info["n_on_disc"][0])
+        if bool(info["flash_active"][0]):
+            frames["flash"] += 1
+            frames["right"] += read == FLASH_COLOURS[int(info["flash_color"][0])]
+        else:
+            frames["other"] += read is not None
+
+    try:
+        env.reset(seed=DEV_SEED + 7)
+        truth = FLASH_COLOURS[int(env.unwrapped.flash_color[0])]
+        assert _play(env, task.expert(), DEV_SEED + 7, truth, check, steps=task.max_control_steps)
+        assert frames["placed"] == 3 and frames["flash"] >= 8 and frames["right"] == frames["flash"], frames
+        assert frames["other"] == 0, frames
+    finally:
+        env.close()
+
+
 def test_wrapper_exposes_only_the_controllers_view(task):
     env = task.make_env(obs_mode="state_dict", render_backend="cpu", sim_backend="cpu", robot_uids="panda")
     try:
@@ -109,8 +137,9 @@ def test_wrapper_exposes_only_the_controllers_view(task):
         assert leaked_keys(raw, FORBIDDEN)  # the raw state holds the answer ...
         obs, _ = env.reset(seed=DEV_SEED)
         assert not leaked_keys(obs, FORBIDDEN)  # ... the controller's view does not
-        assert set(obs["extra"]) == {"tcp_pose", "button_positions", "button_visible", "cube_position",
+        assert set(obs["extra"]) == {"tcp_pose", "button_positions", "button_visible", "cube_positions",
                                      "disc_position"}
+        assert obs["extra"]["cube_positions"].shape == (1, 1, 3)
         buttons = obs["extra"]["button_positions"][0].numpy()
         assert np.allclose(np.diff(buttons[:, 1]), 0.14, atol=1e-4)  # red, green, blue, 14 cm apart to the left
         assert np.allclose(obs["extra"]["disc_position"][0, 1].numpy() - buttons[1, 1], 0, atol=1e-4)
@@ -129,8 +158,8 @@ def test_prompts_parse_with_the_flash_fact():
 def test_task_contract(rgb_env, task):
     assert make_task(TASK).name == TASK and task.perceives_every_step and task.max_control_steps == 200
     assert task.development_seeds(2) == [DEV_SEED, DEV_SEED + 1]
-    with pytest.raises(ValueError, match="GatherAndRecall1-VLA-v0"):
-        GatherAndRecallTask("GatherAndRecall3-VLA-v0")
+    with pytest.raises(ValueError, match="GatherAndRecall2-VLA-v0.*GatherAndRecall1-VLA-v0"):
+        GatherAndRecallTask("GatherAndRecall2-VLA-v0")
     obs, info = rgb_env.reset(seed=DEV_SEED)
     (frame,) = task.frames(rgb_env, obs, info, reset=True)
     episode = task.episode(frame)
@@ -153,6 +182,62 @@ def test_task_contract(rgb_env, task):
     assert task.demo_frame(obs, with_images=False)["observation.state"].shape == (len(names),)
 
 
+@pytest.mark.parametrize("env_id", sorted(VARIANTS))
+def test_every_variant_is_registered_with_mikasas_length(env_id):
+    from sb3_memret.benchmark.manifest import select_tasks
+
+    task = make_task(env_id)
+    n_cubes, steps = VARIANTS[env_id]
+    assert task.n_cubes == n_cubes == int(env_id.removeprefix("GatherAndRecall").split("-")[0])
+    (row,) = select_tasks(env_ids=[env_id])
+    assert task.max_control_steps == steps == row.max_episode_steps
+    names = task.demo_features(with_images=False)["observation.state"]["names"]
+    assert sum(name.endswith("_x") and name.startswith("cube") for name in names) == n_cubes
+
+
+def test_place_targets_keep_cubes_apart_and_on_the_disc():
+    disc = np.array([0.04, 0.14, 0.003])
+    assert np.allclose(place_targets(disc, 1, 0.075), [disc[:2]])
+    for n in (3, 5, 7, 9):
+        targets = place_targets(disc, n, 0.075)
+        assert targets.shape == (n, 2)
+        off_centre = np.linalg.norm(targets - disc[:2], axis=1)
+        centred = int(n > 5)  # past five, the first cube goes to the centre, the rest on the ring
+        assert np.allclose(off_centre[:centred], 0.0) and np.allclose(off_centre[centred:], 0.075)  # MIKASA: 10 cm
+        gaps = np.linalg.norm(targets[:, None] - targets[None], axis=2)[~np.eye(n, dtype=bool)]
+        assert gaps.min() > 0.057  # 4 cm cubes at least 1.7 cm apart: open fingers fit between them
+    with pytest.raises(ValueError, match="at least 1"):
+        place_targets(disc, 0, 0.075)
+
+
+def test_expert_places_the_cubes_in_order_then_presses():
+    """Three cubes: the first unplaced one is grasped, a held one is carried to its own place above the placed
+    ones, and the button is pressed only once all three rest on the disc."""
+    expert = make_task("GatherAndRecall3-VLA-v0").expert()
+    expert.reset([1])
+    disc = np.array([0.04, 0.14, 0.003])
+    places = place_targets(disc, 3, expert.gather.ring_radius)
+    buttons = np.array([[[-0.18, 0.0, 0.015], [-0.18, 0.14, 0.015], [-0.18, 0.28, 0.015]]])
+
+    def goal(tcp, cubes, gap=0.08):
+        return expert._goal(np.asarray(tcp, float), np.asarray(cubes, float), gap, disc, buttons[0, 2])
+
+    start = [[-0.04, -0.35, 0.02], [-0.04, -0.26, 0.02], [-0.04, -0.17, 0.02]]
+    first_placed = [[*places[0], 0.026], *start[1:]]
+    aim = goal([0.0, 0.0, 0.2], first_placed)
+    assert aim.mode == "grasp" and np.allclose(aim.point, start[1])  # the first one not yet on the disc
+    held = goal([-0.04, -0.26, 0.03], [first_placed[0], [-0.04, -0.26, 0.03], start[2]], gap=0.04)
+    assert held.mode == "carry" and np.allclose(held.point[:2], places[1] + (0.0, 0.0), atol=0.011)
+    assert held.height >= 0.10 and held.point[2] >= 0.10  # over the placed cube's top (4.6 cm)
+    beside = goal([*places[0], 0.05], [[*places[0], 0.026], *start[1:]])
+    assert beside.mode == "rise"  # open fingers never sweep sideways past a placed cube
+    all_placed = [[*p, 0.026] for p in places]
+    press = goal([0.0, 0.0, 0.2], all_placed)
+    assert press.mode == "press" and np.allclose(press.point[:2], buttons[0, 2, :2])
+    nudged = [all_placed[0], all_placed[1], [disc[0] + 0.12, disc[1], 0.026]]  # pushed off the disc
+    assert goal([0.0, 0.0, 0.2], nudged).mode == "grasp"
+
+
 def test_expert_heads_for_the_cube_then_for_the_named_button(task):
     expert = task.expert()
     expert.reset([1, 2])
@@ -160,7 +245,7 @@ def test_expert_heads_for_the_cube_then_for_the_named_button(task):
     buttons = np.tile([[-0.2, -0.02, 0.015], [-0.2, 0.12, 0.015], [-0.2, 0.26, 0.015]], (2, 1, 1))
     obs = {"agent": {"qpos": qpos, "qvel": np.zeros((2, 9))},
            "extra": {"tcp_pose": np.tile([0.0, 0.0, 0.2, 0, 1, 0, 0], (2, 1)),
-                     "cube_position": np.array([[-0.06, -0.26, 0.02], [-0.06, -0.26, 0.02]]),
+                     "cube_positions": np.array([[[-0.06, -0.26, 0.02]], [[-0.06, -0.26, 0.02]]]),
                      "disc_position": np.tile([0.02, 0.12, 0.003], (2, 1)),
                      "button_positions": buttons, "button_visible": np.ones((2, 3), bool)}}
     chunks = expert.act(obs, [_prompt("blue"), _prompt(None)])
@@ -168,7 +253,7 @@ def test_expert_heads_for_the_cube_then_for_the_named_button(task):
     assert np.all(chunks[:, 0, 1] < 0) and np.all(chunks[:, 0, 6] == 1.0)  # toward the cube, gripper open
     # the cube resting on the disc, the hand above it: to the button the prompt names, else the red one
     placed = {**obs, "extra": {**obs["extra"], "tcp_pose": np.tile([0.02, 0.12, 0.15, 0, 1, 0, 0], (2, 1)),
-                               "cube_position": np.tile([0.02, 0.12, 0.026], (2, 1))}}
+                               "cube_positions": np.tile([0.02, 0.12, 0.026], (2, 1, 1))}}
     chunks = expert.act(placed, [_prompt("blue"), _prompt(None)])
     assert chunks[0, 0, 1] > 0.3 and chunks[1, 0, 1] < -0.3 and np.all(chunks[:, 0, 0] < 0)
     assert np.all(chunks[:, :, 6] == -1.0)  # pressing with the fingers closed

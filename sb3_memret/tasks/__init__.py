@@ -133,9 +133,10 @@ for _env_id in ("BlinkCountButtonPressEasy-VLA-v0", "BlinkCountButtonPressMedium
                 "BlinkCountButtonPressMedium-Long-VLA-v0", "BlinkCountButtonPressHard-Long-VLA-v0"):
     register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.blink_count.task", "BlinkCountTask", _env_id),
                   lambda: importlib.import_module("sb3_memret.tasks.mikasa.core.lamp_asset").ensure_lamp_asset())
-register_task("GatherAndRecall1-VLA-v0",  # needs the lamp bulb mesh
-              _lazy("sb3_memret.tasks.mikasa.gather_and_recall.task", "GatherAndRecallTask", "GatherAndRecall1-VLA-v0"),
-              lambda: importlib.import_module("sb3_memret.tasks.mikasa.core.lamp_asset").ensure_lamp_asset())
+for _env_id in ("GatherAndRecall1-VLA-v0", "GatherAndRecall3-VLA-v0", "GatherAndRecall5-VLA-v0",  # the lamp's bulb
+                "GatherAndRecall7-VLA-v0", "GatherAndRecall9-VLA-v0"):
+    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.gather_and_recall.task", "GatherAndRecallTask", _env_id),
+                  lambda: importlib.import_module("sb3_memret.tasks.mikasa.core.lamp_asset").ensure_lamp_asset())
 
 __all__ = ["DEFAULT_TASK", "EnvFrame", "Episode", "Predicates", "Task", "Writer", "check_task_name",
            "make_task", "register_task", "task_in", "task_names"]
