@@ -187,7 +187,7 @@ class EpisodeMemory:
         """The facts a prompt carries: the chosen ones (or the mode's fixed ones), then the progress written so far,
         in the order first written (an update keeps its place)."""
         if self.mode == "oracle":
-            facts = self.task.oracle_facts(self.truth)
+            facts = self.task.facts_at("oracle", self.truth, self.t)
         else:
             facts = [] if self.mode == "none" else [e.text for e in chosen]
         return [*facts, *(entry.text for entry in self.progress.values())]
@@ -259,7 +259,7 @@ class EpisodeMemory:
         instruction = self.task.instruction(self.truth)
         if self.mode == "oracle":
             template = replace(self.task.prompt_template, instructions=(instruction,))
-            return build_prompt(instruction, self.task.oracle_facts(self.truth), template)
+            return build_prompt(instruction, self.task.facts_at("oracle", self.truth, self.t), template)
         return instruction
 
     def is_true(self, entry: MemoryEntry) -> bool:

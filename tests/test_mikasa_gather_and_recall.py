@@ -22,9 +22,9 @@ from sb3_memret.tasks.mikasa.gather_and_recall.task import (  # noqa: E402
     PROMPT_TEMPLATE,
     VARIANTS,
     GatherAndRecallTask,
-    read_flash,
 )
 from sb3_memret.tasks.mikasa.gather_and_recall.expert import place_targets  # noqa: E402
+from sb3_memret.tasks.mikasa.core.lamp_perception import read_lit_colour  # noqa: E402
 
 TASK = "GatherAndRecall1-VLA-v0"
 FORBIDDEN = ("oracle", "flash", "lamp", "pressed", "on_disc", "goal")
@@ -72,18 +72,18 @@ def test_the_instruction_is_mikasas(rgb_env):
 def test_read_flash_needs_a_lit_bulb(rgb_env):
     obs, _ = rgb_env.reset(seed=DEV_SEED)
     rgb = as_numpy(obs["sensor_data"]["base_camera"]["rgb"])[0]
-    assert read_flash(rgb) is None  # the lamp is white, the red cube and the caps are not lit
+    assert read_lit_colour(rgb) is None  # the lamp is white, the red cube and the caps are not lit
     for index, colour in enumerate(FLASH_COLOURS):
         lit = rgb.copy()
         lit[100:110, 80:90] = 3
         lit[100:110, 80:90, index] = 255
-        assert read_flash(lit) == colour
+        assert read_lit_colour(lit) == colour
     mixed = rgb.copy()
     mixed[100:110, 80:90] = (255, 3, 3)
     mixed[100:110, 85:90] = (3, 3, 255)
-    assert read_flash(mixed) is None
+    assert read_lit_colour(mixed) is None
     with pytest.raises(ValueError, match="one \\(H, W, 3\\) frame"):
-        read_flash(rgb[None])
+        read_lit_colour(rgb[None])
 
 
 def test_three_cubes_are_gathered_and_the_flash_read_among_them():
@@ -94,7 +94,7 @@ def test_three_cubes_are_gathered_and_the_flash_read_among_them():
     frames = {"flash": 0, "right": 0, "other": 0, "placed": 0}
 
     def check(obs, info):
-        read = read_flash(as_numpy(obs["sensor_data"]["base_camera"]["rgb"])[0])
+        read = read_lit_colour(as_numpy(obs["sensor_data"]["base_camera"]["rgb"])[0])
         frames["placed"] = int(info["n_on_disc"][0])
         if bool(info["flash_active"][0]):
             frames["flash"] += 1

@@ -173,21 +173,11 @@ def task_digest(task: Any) -> str:
     return code_digest(*parts, *([wrapper] if isinstance(wrapper, type) else []))
 
 
-# benchmark tasks that have no sb3-memret task, with the reason where it is known
-WHY_NO_TASK = {
-    "TimedTransferEasy-VLA-v0": "what it asks to remember is the time since the lamp turned green, a fact that "
-                                "changes at every step, while a task's prompt conditions state one fact per episode "
-                                "(Task.oracle_facts); and a controller that counts its own steps succeeds without "
-                                "any memory (every signal step's success window holds steps 98-106)",
-}
-
-
 def _reason(err: BaseException, env_id: str) -> str:
     """An error's first clause: why, without the list of what would be accepted."""
     text = str(err).splitlines()[0]
     if text.startswith("unknown task"):
-        return f"no sb3-memret task: {WHY_NO_TASK[env_id]}" if env_id in WHY_NO_TASK else \
-            "no sb3-memret task implements it yet"
+        return "no sb3-memret task implements it yet"
     for cut in ("; available tasks", "; expected one of"):
         text = text.split(cut)[0]
     return text.removeprefix("task ").split(" is not available: ")[-1]

@@ -56,22 +56,24 @@ class ConditionFacts(FactSchedule):
 
     task: Task
     condition: str
-    _facts: list[str] = field(default_factory=list)
+    _episode: Episode | None = None
     _progress: list[str] = field(default_factory=list)
+    t: int = 0  # control steps into the episode: a task's facts may carry a time (``Task.facts_at``)
 
     def __post_init__(self) -> None:
         check_fixed_condition(self.condition)
 
     def start(self, frame: EnvFrame, episode: Episode) -> None:
-        facts = {"oracle": self.task.oracle_facts, "wrong": self.task.wrong_facts}.get(self.condition)
-        self._facts = facts(episode) if facts is not None else []
+        self._episode, self.t = episode, 0
         self._progress = self.task.progress_facts(frame)
 
     def observe(self, frame: EnvFrame) -> None:
+        self.t += frame.steps
         self._progress = self.task.progress_facts(frame)
 
     def facts(self, decision: int) -> Sequence[str]:
-        return [*self._facts, *self._progress]
+        facts = [] if self.condition == "none" else self.task.facts_at(self.condition, self._episode, self.t)
+        return [*facts, *self._progress]
 
 
 class WrittenFacts(FactSchedule):

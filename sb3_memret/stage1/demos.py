@@ -140,12 +140,13 @@ class DemoRecorder:
             frame[key] = resize_images(frame[key][None], size)[0]
         return frame
 
-    def facts(self, episode: DemoEpisode, truth: Any) -> list[str]:
-        """The facts ``episode``'s prompt carries: the plan's, or the task's for its prompt kind."""
+    def facts(self, episode: DemoEpisode, truth: Any, t: int) -> list[str]:
+        """The facts ``episode``'s prompt carries ``t`` control steps in: the plan's, or the task's for its prompt
+        kind (``Task.facts_at``)."""
         if episode.facts is not None:
             return list(episode.facts)
-        return {"bare": [], "matching": self.task.oracle_facts(truth),
-                "mismatched": self.task.wrong_facts(truth)}[episode.prompt_kind]
+        condition = {"bare": None, "matching": "oracle", "mismatched": "wrong"}[episode.prompt_kind]
+        return [] if condition is None else self.task.facts_at(condition, truth, t)
 
     def record(self, episode: DemoEpisode) -> EpisodeFrames:
         """Play one episode, the expert (or the learner) acting on each decision's prompt (the episode's facts, then
@@ -154,7 +155,6 @@ class DemoRecorder:
         obs, info = self.env.reset(seed=episode.seed, options=dict(episode.reset_options))
         first = self.task.frames(self.env, obs, info, reset=True)[0]
         truth = self.task.episode(first)
-        facts = self.facts(episode, truth)
         if self.progress is not None:
             first.percepts = [self.task.perceive(self.env, obs)] if self.task.perceives_every_step else []
             self.progress.start(first, truth)
@@ -164,8 +164,8 @@ class DemoRecorder:
         frames, prompts, kept, actions, success, done, idle = [], [], [], [], False, False, 0
         while not done:
             done_so_far = self.progress.facts_of_type(MemoryType.TASK_PROGRESS) if self.progress is not None else []
-            prompt = build_prompt(self.task.instruction(truth), [*facts, *done_so_far],
-                                  self.expert.spec.prompt_template)
+            facts = [*self.facts(episode, truth, len(actions)), *done_so_far]
+            prompt = build_prompt(self.task.instruction(truth), facts, self.expert.spec.prompt_template)
             labels = self.expert.act(obs, [prompt])[0][: self.replan_every]
             executed = labels if self.learner is None else self.learner.act(obs, [prompt])[0][: self.replan_every]
             percepts = []

@@ -137,6 +137,10 @@ for _env_id in ("GatherAndRecall1-VLA-v0", "GatherAndRecall3-VLA-v0", "GatherAnd
                 "GatherAndRecall7-VLA-v0", "GatherAndRecall9-VLA-v0"):
     register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.gather_and_recall.task", "GatherAndRecallTask", _env_id),
                   lambda: importlib.import_module("sb3_memret.tasks.mikasa.core.lamp_asset").ensure_lamp_asset())
+for _env_id in ("TimedTransferEasy-VLA-v0", "TimedTransferMedium-VLA-v0", "TimedTransferHard-VLA-v0",  # the lamp's bulb
+                "TimedTransferEasy-Long-VLA-v0", "TimedTransferMedium-Long-VLA-v0", "TimedTransferHard-Long-VLA-v0"):
+    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.timed_transfer.task", "TimedTransferTask", _env_id),
+                  lambda: importlib.import_module("sb3_memret.tasks.mikasa.core.lamp_asset").ensure_lamp_asset())
 
 __all__ = ["DEFAULT_TASK", "EnvFrame", "Episode", "Predicates", "Task", "Writer", "check_task_name",
            "make_task", "register_task", "task_in", "task_names"]

@@ -10,7 +10,7 @@ evaluation) is task-agnostic and reaches the task only through this class:
 - **the writer**: ``writer()`` turns frames into predicates, which the ``EventCompiler``
   compiles into typed facts (``relations`` says which memory type each predicate becomes);
 - **the prompt contract**: ``prompt_template`` (what the controller was trained on),
-  ``instruction``, ``oracle_facts`` and ``wrong_facts``;
+  ``instruction``, ``oracle_facts`` and ``wrong_facts`` (``facts_at``: as they read at a step);
 - **decoys**: ``seed_memories``, the bank at t = 0;
 - **ground truth, for metrics only**: ``episode(frame)`` (never an input of the policy or the
   controller);
@@ -247,6 +247,14 @@ class Task(ABC):
     @abstractmethod
     def wrong_facts(self, episode: Episode) -> list[str]:
         """Fact texts worded as the true ones but naming something else (the wrong condition)."""
+
+    def facts_at(self, condition: str, episode: Episode, t: int) -> list[str]:
+        """The oracle's or the wrong condition's facts ``t`` control steps into ``episode``, where every prompt of a
+        fixed condition takes them: ``oracle_facts`` or ``wrong_facts``, the same at every step, unless the task's
+        facts carry a time (TimedTransfer's ``the lamp turned green 96 steps ago.``)."""
+        if condition not in ("oracle", "wrong"):
+            raise ValueError(f"condition {condition!r} has no facts of its own; expected 'oracle' or 'wrong'")
+        return self.oracle_facts(episode) if condition == "oracle" else self.wrong_facts(episode)
 
     def progress_facts(self, frame: EnvFrame) -> list[str]:
         """What the robot has done by ``frame``, worded as this task's progress writer words it, from the

@@ -24,9 +24,9 @@ lamp (24 cm beyond the disc); the arm's initial joints.
 **Success:** MIKASA's, at any step: every cube on the disc and the flash's button pressed (the TCP within 4 cm of its
 axis and 2.5 cm over its cap).
 
-**Facts:** one, read from the base camera at every control step (``read_flash``): the lit bulb is emissive and
+**Facts:** one, read from the base camera at every control step (``read_lit_colour``): the lit bulb is emissive and
 renders at the full level of its colour's channel (255, the other two <= 3), which nothing else in the scene
-reaches (the red cube's faces render at 231 and 148); the colour of at least ``MIN_FLASH_PIXELS`` such pixels is
+reaches (the red cube's faces render at 231 and 148); the colour of at least ``MIN_LIT_PIXELS`` such pixels is
 written as ``the flash was green.``. Over 20 expert episodes at development seeds 5000-5019 (912 frames, 214 of
 them lit) every lit frame read its colour and no other frame read one; the flash was first read at steps 24-26
 (``lab/2026-11-27-gather-and-recall-reader/gather_and_recall_reader.py``); with several cubes the green and blue
@@ -53,6 +53,7 @@ from sb3_memret.controllers.base import Obs, as_numpy
 from sb3_memret.controllers.prompts import PromptTemplate
 from sb3_memret.tasks.mikasa.core import demo_layout
 from sb3_memret.tasks.mikasa.core.cue_task import MikasaCueTask
+from sb3_memret.tasks.mikasa.core.lamp_perception import read_lit_colour
 from sb3_memret.tasks.mikasa.gather_and_recall.expert import GatherPressController
 from sb3_memret.tasks.mikasa.core.perception import DetectorObservation, stack_positions
 
@@ -70,30 +71,6 @@ EPISODE_STEPS = 200
 VARIANTS: dict[str, tuple[int, int]] = {"GatherAndRecall1-VLA-v0": (1, 200), "GatherAndRecall3-VLA-v0": (3, 400),
                                         "GatherAndRecall5-VLA-v0": (5, 600), "GatherAndRecall7-VLA-v0": (7, 800),
                                         "GatherAndRecall9-VLA-v0": (9, 1000)}
-
-LIT_LEVEL = 250  # the lit bulb's channel renders at 255; the red cube's faces at 231 and 148
-DARK_LEVEL = 30  # ... and its other two channels at most 3
-MIN_FLASH_PIXELS = 8  # the lit bulb covered 85-110 pixels at 128x128 where measured
-MIN_VOTE_SHARE = 0.8  # lit pixels that disagree more than this are not read
-
-
-def read_flash(rgb: np.ndarray) -> str | None:
-    """The colour the lamp flashes in one base-camera frame (H, W, 3) uint8, or None while it is white: the colour
-    of the pixels lit to the full level of one channel with the other two dark."""
-    rgb = np.asarray(rgb)
-    if rgb.ndim != 3 or rgb.shape[-1] != 3:
-        raise ValueError(f"expected one (H, W, 3) frame, got shape {rgb.shape}")
-    pixels = rgb.reshape(-1, 3).astype(np.int16)
-    channel = pixels.argmax(axis=1)
-    others = np.sort(pixels, axis=1)[:, 1]  # the brighter of the other two
-    lit = (pixels.max(axis=1) >= LIT_LEVEL) & (others <= DARK_LEVEL)
-    scale = rgb.shape[0] * rgb.shape[1] / 128 ** 2
-    if lit.sum() < MIN_FLASH_PIXELS * scale:
-        return None
-    votes = np.bincount(channel[lit], minlength=3)
-    best = int(votes.argmax())
-    return FLASH_COLOURS[best] if votes[best] >= MIN_VOTE_SHARE * votes.sum() else None
-
 
 class GatherObservation(DetectorObservation):
     """A GatherAndRecall observation cut to a controller's view: the joints, the hand, the cameras, the buttons by
@@ -142,7 +119,7 @@ class GatherAndRecallTask(MikasaCueTask):
                                 render_backend=render_backend, **kwargs)
 
     def read_cue(self, rgb: np.ndarray) -> str | None:
-        return read_flash(rgb)
+        return read_lit_colour(rgb)
 
     def expert(self) -> GatherPressController:
         """The gather-and-press expert; without a fact it presses the red button, a guess (success at chance)."""
@@ -166,4 +143,4 @@ class GatherAndRecallTask(MikasaCueTask):
 
 
 __all__ = ["CUE_FACT", "EPISODE_STEPS", "FLASH_COLOURS", "GatherAndRecallTask", "GatherObservation", "INSTRUCTION",
-           "PROMPT_TEMPLATE", "VARIANTS", "read_flash"]
+           "PROMPT_TEMPLATE", "VARIANTS"]
