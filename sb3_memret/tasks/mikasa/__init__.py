@@ -20,9 +20,10 @@ your own reuses:
 The names import on first use: the package itself imports nothing heavy.
 
 Layout: ``core/`` holds what the families share (the cue-task base, the pixel readers, the touch, carry and sequence
-experts, MIKASA's lamp and its lit-bulb reader, the base camera's calibration, the demonstration layout); each family has a folder of its own (``remember/``,
-``find_imposter/``, ``shell_game/``, ``intercept/``, ``rotate/``, ``blink_count/``, ``seq_of_colors/``,
-``take_it_back/``, ``gather_and_recall/``, ``timed_transfer/``, ``trace_shape/``) with its task, and its expert and readers where it has its own;
+experts, MIKASA's lamp and its lit-bulb reader, the base camera's calibration, the demonstration layout); each family
+has a folder of its own (``remember/``, ``find_imposter/``, ``shell_game/``, ``intercept/``, ``rotate/``,
+``blink_count/``, ``seq_of_colors/``, ``take_it_back/``, ``gather_and_recall/``, ``timed_transfer/``,
+``trace_shape/``) with its task, and its expert and readers where it has its own;
 ``assets/`` holds the files the wheel ships.
 """
 
