@@ -119,7 +119,8 @@ for _module, _class, _sizes in (("color", "RememberColorTask", ("3", "5", "9")),
         register_task(_env_id, _lazy(f"sb3_memret.tasks.mikasa.remember.{_module}", _class, _env_id))
 
 for _env_id in ("ShellGameTouch-VLA-v0", "ShellGamePush-VLA-v0", "ShellGameColorLampTouch-VLA-v0",
-                "ShellGameShuffleTouch-VLA-v0", "ShellGameShuffleColorLampTouch-VLA-v0"):  # they need the YCB mug
+                "ShellGameShuffleTouch-VLA-v0", "ShellGameShuffleColorLampTouch-VLA-v0",  # they need the YCB mug
+                "ShellGameShuffleTouch-Long-VLA-v0", "ShellGameShuffleColorLampTouch-Long-VLA-v0"):
     register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.shell_game.task", "shell_game_task", _env_id),
                   lambda: importlib.import_module("sb3_memret.tasks.mikasa.shell_game.assets").ycb_mug_missing())
 for _env_id in ("InterceptSlow-VLA-v0", "InterceptMedium-VLA-v0", "InterceptFast-VLA-v0", "InterceptGrabSlow-VLA-v0",

@@ -108,7 +108,7 @@ class ShellGameTask(MikasaCueTask):
     vocabulary = SIDES
     observation_wrapper: ClassVar = CupObservation
     env_ids: ClassVar[tuple[str, ...]] = ("ShellGameTouch-VLA-v0", "ShellGamePush-VLA-v0",
-                                          "ShellGameShuffleTouch-VLA-v0")
+                                          "ShellGameShuffleTouch-VLA-v0", "ShellGameShuffleTouch-Long-VLA-v0")
 
     def __init__(self, env_id: str = "ShellGameTouch-VLA-v0"):
         if env_id not in self.env_ids:
@@ -209,7 +209,8 @@ class ShellGameColorLampTask(ShellGameTask):
     colour is under each cup (through the shuffle), then touch the cup of the lamp's colour."""
 
     observation_wrapper: ClassVar = LampCupObservation
-    env_ids: ClassVar[tuple[str, ...]] = ("ShellGameColorLampTouch-VLA-v0", "ShellGameShuffleColorLampTouch-VLA-v0")
+    env_ids: ClassVar[tuple[str, ...]] = ("ShellGameColorLampTouch-VLA-v0", "ShellGameShuffleColorLampTouch-VLA-v0",
+                                          "ShellGameShuffleColorLampTouch-Long-VLA-v0")
 
     def __init__(self, env_id: str = "ShellGameColorLampTouch-VLA-v0"):
         super().__init__(env_id)

@@ -1,5 +1,5 @@
-"""The five ShellGame envs of the short split (``Variant``): instructions, lengths, balls, and the fact that names a
-ball's cup."""
+"""The ShellGame envs (``Variant``), the short split's five and the medium split's two -Long shuffles: instructions,
+lengths, balls, and the fact that names a ball's cup."""
 
 from __future__ import annotations
 
@@ -45,6 +45,9 @@ VARIANTS: dict[str, Variant] = {
         "observe which color is under each cup, track the cups as they shuffle, then touch the cup matching the lamp "
         "color.", 60, True, LAMP_COLOURS),
 }
+VARIANTS.update({  # the -Long shuffles: MIKASA's 600 steps, worded as the short ones
+    name.replace("-VLA-v0", "-Long-VLA-v0"): Variant(VARIANTS[name].instruction, 600, True, VARIANTS[name].colours)
+    for name in ("ShellGameShuffleTouch-VLA-v0", "ShellGameShuffleColorLampTouch-VLA-v0")})
 
 def ball_entity(colour: str, n_colours: int) -> str:
     """The fact's entity for the ball of ``colour``: ``ball`` where there is one, ``red ball`` among three."""
