@@ -145,6 +145,9 @@ for _env_id in ("TimedTransferEasy-VLA-v0", "TimedTransferMedium-VLA-v0", "Timed
 for _env_id in ("TraceShapeEasy-VLA-v0", "TraceShapeMedium-VLA-v0", "TraceShapeHard-VLA-v0"):  # the lamp's bulb
     register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.trace_shape.task", "TraceShapeTask", _env_id),
                   lambda: importlib.import_module("sb3_memret.tasks.mikasa.core.lamp_asset").ensure_lamp_asset())
+for _env_id in ("TraceShapeSeqEasy-VLA-v0", "TraceShapeSeqMedium-VLA-v0", "TraceShapeSeqHard-VLA-v0"):  # the lamp's bulb
+    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.trace_shape.sequence", "TraceShapeSeqTask", _env_id),
+                  lambda: importlib.import_module("sb3_memret.tasks.mikasa.core.lamp_asset").ensure_lamp_asset())
 
 __all__ = ["DEFAULT_TASK", "EnvFrame", "Episode", "Predicates", "Task", "Writer", "check_task_name",
            "make_task", "register_task", "task_in", "task_names"]
