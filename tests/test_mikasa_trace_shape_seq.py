@@ -17,7 +17,7 @@ from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
 from sb3_memret.tasks.base import EnvFrame  # noqa: E402
 from sb3_memret.tasks.mikasa.core.cue_task import DEV_SEED  # noqa: E402
-from sb3_memret.tasks.mikasa.trace_shape.expert import paths_done, sequence_of  # noqa: E402
+from sb3_memret.tasks.mikasa.trace_shape.sequence_expert import paths_done, sequence_of  # noqa: E402
 from sb3_memret.tasks.mikasa.trace_shape.paths import NUM_WAYPOINTS, TracedPath  # noqa: E402
 from sb3_memret.tasks.mikasa.trace_shape.sequence import (  # noqa: E402
     INSTRUCTION,

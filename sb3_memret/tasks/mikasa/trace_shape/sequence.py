@@ -55,7 +55,7 @@ from sb3_memret.tasks.mikasa.core.cue_task import MikasaCueTask
 from sb3_memret.tasks.mikasa.core.lamp_perception import read_lit_colour
 from sb3_memret.tasks.mikasa.core.layout_perception import LAYOUT_PLANE_Z, table_points
 from sb3_memret.tasks.mikasa.core.perception import DetectorObservation, stack_positions
-from sb3_memret.tasks.mikasa.trace_shape.expert import ORDINAL_COUNTS, TraceSequenceController
+from sb3_memret.tasks.mikasa.trace_shape.sequence_expert import ORDINAL_COUNTS, TraceSequenceController
 from sb3_memret.tasks.mikasa.trace_shape.paths import MIN_SIGHTINGS, NUM_WAYPOINTS, SHAPES, TracedPath, fit_path
 from sb3_memret.tasks.mikasa.trace_shape.task import TRUE_TOLERANCE_MM, WRONG_SHIFT_MM, red_cube_pixel
 
