@@ -243,6 +243,8 @@ class TraceShapeSeqTask(MikasaCueTask):
     observation_wrapper: ClassVar = TraceSequenceObservation
     noop_before_manipulation = False  # MIKASA's wrapper table gives TraceShapeSeq none
     wordings = PROGRESS_WORDINGS
+    ends_at_success = True  # as TraceShape: success absorbing at what MIKASA pays then (its bonus, 40 / 40)
+    success_reward = 1.0
 
     def __init__(self, env_id: str = "TraceShapeSeqEasy-VLA-v0"):
         if env_id not in VARIANTS:

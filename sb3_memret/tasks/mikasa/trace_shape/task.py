@@ -182,6 +182,11 @@ class TraceShapeTask(MikasaCueTask):
     instruction_text, template, vocabulary = INSTRUCTION, PROMPT_TEMPLATE, SHAPES
     observation_wrapper: ClassVar = TraceShapeObservation
     noop_before_manipulation = False  # MIKASA's wrapper table gives TraceShape none
+    # MIKASA's env ends an episode at its success, while its dense reward pays 0.2-0.3 a step for holding the cube by
+    # the path: a learner would earn more by never closing it. Success stands for an absorbing state paying what
+    # MIKASA pays at a success step (its bonus, 30 / 30), as the decision env's absorbing_success_value adds.
+    ends_at_success = True
+    success_reward = 1.0
 
     def __init__(self, env_id: str = "TraceShapeEasy-VLA-v0"):
         if env_id not in VARIANTS:
