@@ -346,8 +346,8 @@ def test_a_task_without_an_implementation_is_refused_with_its_reason():
     from sb3_memret.benchmark.runner import plan
 
     run = plan(Protocol(seed_set="dev", episodes=1), ["none"],
-               env_ids=["TraceShapeSeqEasy-VLA-v0", "BatteriesCheckerEasy-3-VLA-v0"])
-    assert run.refused["TraceShapeSeqEasy-VLA-v0"] == "no sb3-memret task implements it yet"
+               env_ids=["BatteriesCheckerHard-6-VLA-v0", "BatteriesCheckerEasy-3-VLA-v0"])
+    assert run.refused["BatteriesCheckerHard-6-VLA-v0"] == "no sb3-memret task implements it yet"
     assert run.refused["BatteriesCheckerEasy-3-VLA-v0"] == "no sb3-memret task implements it yet"
     assert run.units(set()) == []
 
