@@ -149,6 +149,23 @@ def test_prompts_parse_and_the_expert_orders_colours_by_their_ordinals():
         parse_prompt(f"{INSTRUCTION} the first cue cube is red.", PROMPT_TEMPLATE)  # off the template
 
 
+def test_event_decoys_are_other_things_colours_of_the_moment_and_the_cue_s_items_of_the_episode():
+    from sb3_memret.memory.schema import MemoryEntry
+
+    task, seeding, rng = SeqOfColorsTask("BunchOfColors7-VLA-v0"), SeedingConfig(), np.random.default_rng(0)
+    events = [task.event_decoy(rng, 40 + 8 * i, seeding) for i in range(30)]
+    assert [e.timestamp for e in events] == [40 + 8 * i for i in range(30)]
+    assert {e.entity for e in events} <= set(seeding.vocabulary) and {e.value for e in events} <= set(COLOUR_NAMES)
+    assert len({e.text for e in events}) > 10 and all(e.text == f"the {e.entity} was {e.value}." for e in events)
+    prompt = f"{sequence_prompt(('maroon', 'yellow'))} {events[0].text}"  # a retrieved event passes the prompt check
+    assert len(parse_prompt(prompt, task.prompt_template).facts) == 3
+    decoys = task.seed_memories(None, None, rng, SeedingConfig(location_decoys=5))
+    items = [MemoryEntry.create(*item_key(k), colour, 3) for k, colour in enumerate(COLOUR_NAMES[:7])]
+    progress = MemoryEntry.create(MemoryType.TASK_PROGRESS, "red cube", "was", "touched", 60)
+    assert {task.timescale(e) for e in events + decoys} == {"now"}
+    assert {task.timescale(e) for e in items + [progress]} == {"episode"}
+
+
 def _synthetic_obs(batch: int):
     cubes = np.zeros((batch, 9, 3))
     cubes[:, :, 0], cubes[:, :, 1], cubes[:, :, 2] = 0.0, np.linspace(-0.3, 0.3, 9), 0.02

@@ -54,6 +54,8 @@ from gymnasium import spaces
 
 from sb3_memret.controllers.base import Obs, as_numpy
 from sb3_memret.controllers.prompts import PromptTemplate, build_prompt
+from sb3_memret.memory.schema import MemoryEntry, MemoryType
+from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.tasks.base import EnvFrame, Episode
 from sb3_memret.tasks.mikasa.core import demo_layout
 from sb3_memret.tasks.mikasa.core.cue_task import MikasaCueTask
@@ -207,6 +209,17 @@ class SeqOfColorsTask(MikasaCueTask):
         details = {"cue_colours": " ".join(colours)}
         details.update({key: frame.state[key] for key in ("cue_step_duration", "cue_steps") if key in frame.state})
         return Episode("cue cubes", colours[0], facts, details)
+
+    def event_decoy(self, rng: np.random.Generator, now: int, seeding: SeedingConfig) -> MemoryEntry:
+        """Another thing's colour seen in passing (``the key was teal.``), worded as the reset's decoys are."""
+        thing = str(rng.choice(sorted(set(seeding.vocabulary))))
+        return MemoryEntry.create(MemoryType.OTHER, thing, self.cue_relation, str(rng.choice(self.words)), now)
+
+    def timescale(self, entry: MemoryEntry) -> str:
+        """The cue's items hold for the episode; another thing's colour (a decoy, an event) only at the moment."""
+        if entry.type == MemoryType.OTHER and not entry.entity.endswith(CUE_ENTITY):
+            return "now"
+        return super().timescale(entry)
 
     # ------------------------------------------------------------ prompts and controllers
     @staticmethod
