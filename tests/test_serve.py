@@ -11,6 +11,7 @@ import sys
 import threading
 import time
 import urllib.request
+import uuid
 from pathlib import Path
 
 import numpy as np
@@ -20,16 +21,18 @@ pytest.importorskip("openpi_server", reason="openpi-server is not installed (pip
 
 import websockets.sync.client  # noqa: E402
 from openpi_client import msgpack_numpy  # noqa: E402
+from openpi_client.websocket_client_policy import WebsocketClientPolicy  # noqa: E402
 from openpi_server import WebsocketPolicyServer  # noqa: E402
 
 from sb3_memret.controller_specs import make_controller  # noqa: E402
 from sb3_memret.controllers.base import as_numpy  # noqa: E402
-from sb3_memret.controllers.openpi import PolicyServerClient, PolicyServerError  # noqa: E402
+from sb3_memret.controllers.openpi import API_KEY_ENV, PolicyServerClient, PolicyServerError  # noqa: E402
 from sb3_memret.tasks.drawer.expert import ScriptedDrawerController  # noqa: E402
 from sb3_memret.tasks.drawer.prompts import condition_prompt  # noqa: E402
 from conftest import drawer_episode  # noqa: E402
 from sb3_memret.physics.chunks import execute_chunk
-from sb3_memret.stage1.serve import ControllerPolicy, serve, serve_until_stopped  # noqa: E402
+from sb3_memret.stage1.serve import (MAX_PROMPT_CHARS, MAX_REQUEST_BYTES, ControllerPolicy,  # noqa: E402
+                                     GuardedPolicyServer, is_loopback, serve, serve_until_stopped)
 from sb3_memret.common.workers import StopRequested, stop_signals_interrupt  # noqa: E402
 
 DECISIONS = 6  # enough for the scripted expert to leave its first phase
@@ -57,10 +60,12 @@ def wait_healthy(port: int, timeout: float = 120.0, process: subprocess.Popen | 
     raise TimeoutError(f"no server on port {port}")
 
 
-def serve_in_thread(controller: str) -> int:
-    """openpi's WebsocketPolicyServer around ControllerPolicy(controller), in a daemon thread; its port."""
-    policy, port = ControllerPolicy(controller, "drawer"), free_port()
-    server = WebsocketPolicyServer(policy, host="127.0.0.1", port=port, metadata=policy.metadata)
+def serve_in_thread(controller: str | ControllerPolicy, api_key: str | None = None) -> int:
+    """The server ``serve`` runs around ``controller`` (a spec, or a ControllerPolicy), in a daemon thread; its
+    port."""
+    policy = controller if isinstance(controller, ControllerPolicy) else ControllerPolicy(controller, "drawer")
+    port = free_port()
+    server = GuardedPolicyServer(policy, "127.0.0.1", port, api_key)
     threading.Thread(target=lambda: asyncio.run(server.run()), daemon=True).start()
     wait_healthy(port)
     return port
@@ -284,12 +289,12 @@ def test_a_peer_that_never_closes_is_cut_after_the_grace_or_a_second_signal(seco
 
 
 def start_cli_server(controller: str) -> tuple[subprocess.Popen, int]:
-    """``sb3-memret serve CONTROLLER`` in a process of its own, answering on its port."""
+    """``sb3-memret serve CONTROLLER`` in a process of its own, answering on its port of its default host."""
     port = free_port()
-    command = [str(Path(sys.executable).parent / "sb3-memret"), "serve", controller, "--host", "127.0.0.1",
-               "--port", str(port)]
+    command = [str(Path(sys.executable).parent / "sb3-memret"), "serve", controller, "--port", str(port)]
     # Ctrl-C must reach it even where the tests run with SIGINT ignored (a shell's background job passes that on)
-    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+    environment = {name: value for name, value in os.environ.items() if name != API_KEY_ENV}  # no key: none checked
+    process = subprocess.Popen(command, stdout=subprocess.PIPE, stderr=subprocess.PIPE, env=environment,
                                preexec_fn=lambda: signal.signal(signal.SIGINT, signal.SIG_DFL))
     try:
         wait_healthy(port, process=process)
@@ -313,7 +318,7 @@ def stop_cli_server(process: subprocess.Popen, signum: int, bound: float = EXIT_
     return stderr.decode().strip().splitlines()
 
 
-def test_the_cli_serves_the_scripted_expert_for_a_whole_episode(task_env):
+def test_the_cli_serves_the_scripted_expert_for_a_whole_episode_on_the_loopback_by_default(task_env):
     process, port = start_cli_server("scripted")
     try:
         remote = make_controller(f"openpi://127.0.0.1:{port}", "drawer")
@@ -324,7 +329,7 @@ def test_the_cli_serves_the_scripted_expert_for_a_whole_episode(task_env):
         remote.close()
     finally:
         lines = stop_cli_server(process, signal.SIGINT)  # Ctrl-C
-    assert lines[0] == f"serving scripted on ws://127.0.0.1:{port} (openpi protocol; Ctrl-C stops)"
+    assert lines[0] == f"serving scripted on ws://127.0.0.1:{port} (openpi protocol; Ctrl-C stops)"  # the loopback
     assert lines[1].startswith("SIGINT: stopping;") and lines[2].startswith("stopped on SIGINT after")
     assert process.returncode == 130 and not any("Traceback" in line for line in lines)
 
@@ -370,3 +375,126 @@ def test_a_taken_port_is_one_line():
     assert result.exit_code == 2 and "Error: Invalid value for --port: cannot serve on 127.0.0.1" in result.output
     assert "address already in use" in result.output and "Traceback" not in result.output
     assert signal.getsignal(signal.SIGTERM) is before  # serve() put the handlers back
+
+
+@pytest.mark.parametrize("host, loopback", [("127.0.0.1", True), ("127.0.0.2", True), ("::1", True),
+                                            ("localhost", True), ("0.0.0.0", False), ("::", False), ("", False),
+                                            ("192.0.2.7", False), ("robot.example.org", False)])
+def test_only_loopback_addresses_count_as_the_loopback(host, loopback):
+    assert is_loopback(host) is loopback
+
+
+def invoke_cli(args: list[str], key: str | None = None):
+    """``sb3-memret serve ARGS`` in this process, with ``key`` (or none) in the environment."""
+    from click.testing import CliRunner
+
+    from sb3_memret.cli import main
+
+    return CliRunner().invoke(main, ["serve", *args], prog_name="sb3-memret", env={API_KEY_ENV: key})
+
+
+@pytest.mark.parametrize("host", ["0.0.0.0", "192.0.2.7"])
+def test_a_non_loopback_host_without_a_key_refuses_to_start(host):
+    result = invoke_cli(["scripted", "--host", host, "--port", str(free_port())])
+    assert result.exit_code == 2 and len(result.output.strip().splitlines()) == 1
+    assert f"Invalid value for --host: host '{host}' is not a loopback address" in result.output
+    assert "--api-key" in result.output and API_KEY_ENV in result.output
+    with pytest.raises(ValueError, match="is not a loopback address"):
+        serve(ControllerPolicy("scripted", "drawer"), host, free_port())
+
+
+def test_a_key_that_cannot_travel_in_a_header_is_one_line_that_hides_it():
+    result = invoke_cli(["scripted", "--host", "0.0.0.0", "--port", str(free_port())], key="two words")
+    assert result.exit_code == 2 and len(result.output.strip().splitlines()) == 1
+    assert "Invalid value for --api-key: the API key (9 characters) must be one or more printable" in result.output
+    assert "two words" not in result.output
+
+
+class CountingPolicy(ControllerPolicy):
+    """The scripted expert, counting the requests that reach it and those that reach its controller."""
+
+    def __init__(self) -> None:
+        super().__init__("scripted", "drawer")
+        self.requests = self.acted = 0
+
+    def infer(self, request: dict) -> dict:
+        self.requests += 1
+        return super().infer(request)
+
+    def _controller_for(self, request: dict):
+        self.acted += 1
+        return super()._controller_for(request)
+
+
+def plain_request(prompt: str = condition_prompt("oracle", 1)) -> dict:
+    """A valid state-only request, built by hand (the expert acts on any state)."""
+    return {"observation/state": np.zeros(8, np.float32), "observation/drawer_opening": np.zeros(3, np.float32),
+            "observation/target_detection": np.zeros(8, np.float32), "prompt": prompt}
+
+
+@pytest.mark.filterwarnings("ignore:connect\\(\\) must be used as a context manager")  # openpi's client
+def test_only_a_client_with_the_key_is_served_and_others_are_refused_at_the_handshake():
+    policy = CountingPolicy()
+    port = serve_in_thread(policy, api_key="s3cret-key")
+    served = WebsocketClientPolicy("127.0.0.1", port, api_key="s3cret-key").infer(plain_request())
+    assert served["actions"].shape == (32, 7)
+    for key, status in ((None, 401), ("s3cret-kez", 403), ("s3cret-key-and-more", 403)):
+        with pytest.raises(websockets.exceptions.InvalidStatus) as refused:
+            WebsocketClientPolicy("127.0.0.1", port, api_key=key)
+        assert refused.value.response.status_code == status
+    assert policy.requests == 1  # the refused clients never sent a message
+
+
+def test_the_projects_client_sends_the_key_from_the_environment(monkeypatch):
+    port = serve_in_thread("scripted", api_key="s3cret-key")
+    monkeypatch.setenv(API_KEY_ENV, "s3cret-key")
+    assert PolicyServerClient("127.0.0.1", port).infer(plain_request())["actions"].shape == (32, 7)
+    monkeypatch.setenv(API_KEY_ENV, "wrong")
+    with pytest.raises(PolicyServerError, match=f"HTTP 403: wrong API key\\); set {API_KEY_ENV} to the API key"):
+        PolicyServerClient("127.0.0.1", port)
+
+
+def largest_valid_request() -> dict:
+    """Every key the server reads at its largest: both cameras, 8-byte state values, the longest prompt in 4-byte
+    characters, the episode keys at their widest."""
+    image = np.zeros((224, 224, 3), np.uint8)
+    return {"observation/image": image, "observation/wrist_image": image,
+            "observation/state": np.zeros(8), "observation/drawer_opening": np.zeros(3),
+            "observation/target_detection": np.zeros(8), "prompt": "\U0001F9CA" * MAX_PROMPT_CHARS,
+            "sb3_memret/client": uuid.uuid4().hex, "sb3_memret/env": 2**63 - 1, "sb3_memret/episode": 2**63 - 1,
+            "sb3_memret/seed": 2**63 - 1}
+
+
+def send_one(port: int, message: bytes) -> bytes | str:
+    """The server's reply to ``message``, sent alone on a fresh connection."""
+    with websockets.sync.client.connect(f"ws://127.0.0.1:{port}", compression=None, max_size=None) as ws:
+        ws.recv(timeout=EXIT_BOUND)  # metadata
+        ws.send(message)
+        return ws.recv(timeout=EXIT_BOUND)
+
+
+def test_a_message_over_the_largest_valid_request_is_closed_with_1009_unread():
+    policy = CountingPolicy()
+    port = serve_in_thread(policy)
+    largest = msgpack_numpy.packb(largest_valid_request())
+    assert len(largest) <= MAX_REQUEST_BYTES
+    assert "malformed prompt" in send_one(port, largest)  # it reached the controller, which parsed the prompt
+    with pytest.raises(websockets.exceptions.ConnectionClosed) as closed:
+        send_one(port, b"\0" * (MAX_REQUEST_BYTES + 1))
+    assert closed.value.rcvd.code == 1009
+    assert policy.requests == policy.acted == 1
+
+
+def test_an_over_long_prompt_is_refused_before_the_controller_parses_it():
+    policy = CountingPolicy()
+    client = PolicyServerClient("127.0.0.1", serve_in_thread(policy))
+    with pytest.raises(PolicyServerError, match=f"'prompt' has 100000 characters; at most {MAX_PROMPT_CHARS} are"):
+        client.infer(plain_request("x" * 100_000))  # no full stop: splitting it into sentences takes seconds
+    with pytest.raises(ValueError, match=f"'prompt' has {MAX_PROMPT_CHARS + 1} characters"):
+        policy.infer(plain_request("x" * (MAX_PROMPT_CHARS + 1)))
+    with pytest.raises(ValueError, match=f"'prompt' is int; expected a str of at most {MAX_PROMPT_CHARS} characters"):
+        policy.infer(plain_request(7))
+    assert policy.acted == 0
+    with pytest.raises(ValueError, match="malformed prompt"):  # at the limit: parsed, and refused there
+        policy.infer(plain_request("x" * MAX_PROMPT_CHARS))
+    client.close()

@@ -247,21 +247,33 @@ def paired_datasets(datasets: tuple[Path, ...], dataset_tasks: str, task: str | 
 @click.command()
 @click.argument("controller", metavar="CONTROLLER")
 @task_option()
-@click.option("--host", default="0.0.0.0", show_default=True)
+@click.option("--host", default="127.0.0.1", show_default=True,
+              help="Address to listen on: the loopback reaches this machine alone; any other needs --api-key.")
 @click.option("--port", type=click.IntRange(1, 65535), default=8000, show_default=True)
-def serve(controller: str, task: str, host: str, port: int) -> None:
+@click.option("--api-key", envvar="SB3_MEMRET_SERVE_API_KEY", show_envvar=True, default=None,
+              help="Key a client must send (`Authorization: Api-Key KEY`, as openpi's client sends its api_key); "
+                   "refused at the handshake otherwise. Prefer the environment variable: a command line is public.")
+def serve(controller: str, task: str, host: str, port: int, api_key: str | None) -> None:
     """Serve the frozen CONTROLLER (as --controller takes it) over openpi's websocket protocol, with
-    openpi's own server: `--controller openpi://HOST:PORT` then runs it from any command. One Ctrl-C or
-    SIGTERM stops it: open connections close once any inference in progress has replied."""
-    from sb3_memret.stage1.serve import ControllerPolicy, serve as serve_policy
-
+    openpi's own server: `--controller openpi://HOST:PORT` then runs it from any command. It listens on
+    the loopback unless given --host, which then needs an API key. A message larger than any valid
+    request is refused unread, a prompt longer than any the project builds before it is parsed. One
+    Ctrl-C or SIGTERM stops it: open connections close once any inference in progress has replied."""
+    try:
+        from sb3_memret.stage1.serve import ControllerPolicy, check_exposure, serve as serve_policy
+    except ImportError as err:
+        raise click.UsageError(str(err)) from err
+    try:
+        check_exposure(host, api_key)
+    except ValueError as err:
+        raise click.BadParameter(str(err), param_hint="--host" if api_key is None else "--api-key") from err
     try:
         policy = ControllerPolicy(controller, task)
     except (ValueError, OSError, ImportError, RuntimeError) as err:
         raise click.BadParameter(str(err), param_hint="CONTROLLER") from err
-    click.echo(f"serving {controller} on ws://{host}:{port} (openpi protocol; Ctrl-C stops)", err=True)
+    keyed = "; API key required" if api_key is not None else ""
+    click.echo(f"serving {controller} on ws://{host}:{port} (openpi protocol{keyed}; Ctrl-C stops)", err=True)
     try:
-        serve_policy(policy, host, port)
+        serve_policy(policy, host, port, api_key)
     except OSError as err:  # it could not listen there (the port is taken, say)
         raise click.BadParameter(f"cannot serve on {host}:{port}: {err.strerror or err}", param_hint="--port") from err
-

@@ -13,11 +13,14 @@ controller works without them.
 
 openpi's own client waits forever for a reply; this one bounds every wait (connect, metadata,
 each inference), retries a bounded number of times, then raises naming the server and the limit.
+With ``SB3_MEMRET_SERVE_API_KEY`` set it sends that key as openpi's client sends its ``api_key``
+(``Authorization: Api-Key KEY``), which a server started by ``sb3-memret serve`` with a key requires.
 """
 
 from __future__ import annotations
 
 import contextlib
+import os
 import time
 import uuid
 from dataclasses import dataclass
@@ -48,6 +51,7 @@ CAMERAS = {"observation/image": "base_camera", "observation/wrist_image": "hand_
 EXTRA_STATE = {"observation/drawer_opening": "drawer_opening", "observation/target_detection": "target_detection"}
 CLIENT_KEY, ENV_KEY = "sb3_memret/client", "sb3_memret/env"
 EPISODE_KEY, SEED_KEY = "sb3_memret/episode", "sb3_memret/seed"
+API_KEY_ENV = "SB3_MEMRET_SERVE_API_KEY"  # the key `sb3-memret serve` requires, sent when set
 T = TypeVar("T")
 CLOSE_TIMEOUT = 0.5  # s; a dropped connection is not worth waiting longer for its closing handshake
 
@@ -94,10 +98,18 @@ class PolicyServerClient:
         with contextlib.ExitStack() as stack:
             # No keepalive pings: openpi's server cannot answer them during inference, and every wait
             # here is bounded anyway.
-            ws = stack.enter_context(websockets.sync.client.connect(
-                self.uri, open_timeout=self.limits.connect_timeout, close_timeout=CLOSE_TIMEOUT, ping_interval=None,
-                compression=None, max_size=None,
-            ))
+            try:
+                ws = stack.enter_context(websockets.sync.client.connect(
+                    self.uri, open_timeout=self.limits.connect_timeout, close_timeout=CLOSE_TIMEOUT,
+                    ping_interval=None, compression=None, max_size=None, additional_headers=api_key_header(),
+                ))
+            except websockets.exceptions.InvalidStatus as err:
+                if err.response.status_code not in (401, 403):
+                    raise
+                refusal = err.response.body.decode(errors="replace").strip()  # retrying cannot help
+                raise PolicyServerError(f"openpi server at {self.uri} refused the connection (HTTP "
+                                        f"{err.response.status_code}: {refusal}); set {API_KEY_ENV} to the API key "
+                                        "it serves with") from err
             self.metadata = msgpack_numpy.unpackb(ws.recv(timeout=self.limits.connect_timeout))
             self._ws, self._closer = ws, stack.pop_all()
 
@@ -224,6 +236,12 @@ class OpenPIController(FrozenController):
                 "(pass chunk_len= to match the served model's action horizon; actions are never transformed here)"
             )
         return actions
+
+
+def api_key_header() -> dict[str, str] | None:
+    """The ``Authorization`` header openpi's client sends for an API key, from ``$SB3_MEMRET_SERVE_API_KEY``."""
+    key = os.environ.get(API_KEY_ENV)
+    return {"Authorization": f"Api-Key {key}"} if key else None
 
 
 def pi05_libero_request(obs: Obs, i: int, prompt: str, with_images: bool = True) -> dict[str, Any]:

@@ -17,6 +17,13 @@ number changes; the instances are shallow copies of one built controller, sharin
 (``reset`` replaces the per-episode state). A stateless controller is one shared instance. A
 request without those keys (a plain openpi client) is slot 0 of one continuing episode.
 
+Exposure: ``serve`` binds the loopback (127.0.0.1) unless told another host, and there it needs an API key
+(``check_exposure``): a client sends ``Authorization: Api-Key KEY`` (openpi's client does, given ``api_key``; the
+project's reads ``SB3_MEMRET_SERVE_API_KEY``), and one without the key is refused at the handshake, 401 without a
+key and 403 with another, before any message is read. A given key is checked on the loopback too; ``/healthz``
+answers anyone. A message larger than the largest valid request (``MAX_REQUEST_BYTES``, 314 KiB) is refused by
+websockets unread (close code 1009), and a prompt longer than ``MAX_PROMPT_CHARS`` before it is parsed.
+
 Stopping: ``serve`` takes SIGINT and SIGTERM through the event loop, never as an exception raised wherever the
 main thread happens to be (a ``__del__`` would swallow it, a callback cut half-way would leave the shutdown waiting
 forever); one signal closes the connections, a second or ``STOP_GRACE`` seconds cut those that do not close.
@@ -26,6 +33,10 @@ from __future__ import annotations
 
 import asyncio
 import copy
+import hmac
+import http
+import ipaddress
+import re
 import signal
 import sys
 import threading
@@ -38,15 +49,34 @@ import numpy as np
 from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers.base import FrozenController
 from sb3_memret.controllers.observation import IMAGE_SHAPE, STATE_PARTS
-from sb3_memret.controllers.openpi import CAMERAS, CLIENT_KEY, ENV_KEY, EPISODE_KEY, EXTRA_STATE, SEED_KEY
+from sb3_memret.controllers.openpi import (API_KEY_ENV, CAMERAS, CLIENT_KEY, ENV_KEY, EPISODE_KEY, EXTRA_STATE,
+                                          SEED_KEY)
 from sb3_memret.common.workers import STOP_SIGNALS, StopRequested
 from sb3_memret.tasks import Task
+
+try:
+    import websockets.asyncio.server
+    from openpi_server import WebsocketPolicyServer
+    from websockets.asyncio.server import ServerConnection
+    from websockets.http11 import Request, Response
+except ImportError as err:
+    raise ImportError(f"serving needs openpi-server ({err}); install it with `pip install --no-deps openpi-server`"
+                      ) from err
 
 STATE_KEY, PROMPT_KEY = "observation/state", "prompt"
 SIZES = {key: len(names) for _, key, names in STATE_PARTS}  # eef_state 8, drawer_opening 3, target_detection 8
 MAX_SLOTS = 4096  # per-slot controllers kept; the least recently used beyond this are dropped
 STOP_GRACE = 15.0  # s for open connections to close after a stop signal; websockets' closing handshake waits <= 10 s
 CUT_WAIT = 1.0  # s for cancelled server tasks to unwind before the loop closes
+# twice the longest prompt the project builds (TraceShapeSeq's instruction and k=7 facts of five paths: ~2,000);
+# parsing a 100,000-character one held the server for seconds
+MAX_PROMPT_CHARS = 4096
+FRAMING_BYTES = 4096  # msgpack's keys and array headers and the episode keys, with room to spare
+# both cameras (any request may carry them: a plain openpi client always does), the state parts at up to 8 bytes a
+# value, the longest prompt at up to 4 UTF-8 bytes a character: 321,688 bytes (314 KiB)
+MAX_REQUEST_BYTES = (len(CAMERAS) * int(np.prod(IMAGE_SHAPE)) + 8 * sum(SIZES.values()) + 4 * MAX_PROMPT_CHARS
+                     + FRAMING_BYTES)
+API_KEY_RE = re.compile(r"[!-~]+")  # printable ASCII without spaces: it travels in an HTTP header
 
 
 class _RequestGroup(dict):
@@ -86,7 +116,8 @@ class ControllerPolicy:
     def infer(self, request: dict[str, Any]) -> dict[str, np.ndarray]:
         """One request -> ``{"actions": (chunk_len, action_dim)}`` from its slot's controller."""
         obs = self._observation(request)
-        return {"actions": self._controller_for(request).act(obs, [request[PROMPT_KEY]])[0]}
+        prompt = _prompt(request[PROMPT_KEY])
+        return {"actions": self._controller_for(request).act(obs, [prompt])[0]}
 
     def _controller_for(self, request: dict[str, Any]) -> FrozenController:
         """The request's slot's controller, reset when the slot's episode changed (every call if stateless)."""
@@ -121,11 +152,77 @@ class ControllerPolicy:
 
 
 def _array(request: dict[str, Any], key: str, shape: tuple[int, ...], dtype: type) -> np.ndarray:
-    """``request[key]`` with a batch axis of one, refused unless it has ``shape`` (images: also ``dtype``)."""
+    """``request[key]`` with a batch axis of one, refused unless it has ``shape`` and ``dtype`` (state: any real
+    number of up to 8 bytes, as ``MAX_REQUEST_BYTES`` counts it)."""
     value = np.asarray(request[key])
-    if value.shape != shape or (dtype is np.uint8 and value.dtype != np.uint8):
+    real = value.dtype.kind in "iuf" and value.dtype.itemsize <= 8
+    if value.shape != shape or not (value.dtype == np.uint8 if dtype is np.uint8 else real):
         raise ValueError(f"request key {key!r} is {value.dtype}{value.shape}; expected {np.dtype(dtype)}{shape}")
     return value.astype(dtype)[None]
+
+
+def _prompt(value: Any) -> str:
+    """The request's prompt, refused unless it is a string of at most ``MAX_PROMPT_CHARS``: checked before the
+    controller parses it, which takes seconds on a long one."""
+    if not isinstance(value, str):
+        raise ValueError(f"request key {PROMPT_KEY!r} is {type(value).__name__}; expected a str of at most "
+                         f"{MAX_PROMPT_CHARS} characters")
+    if len(value) > MAX_PROMPT_CHARS:
+        raise ValueError(f"request key {PROMPT_KEY!r} has {len(value)} characters; at most {MAX_PROMPT_CHARS} are "
+                         "accepted (an instruction and its facts take about half that)")
+    return value
+
+
+def is_loopback(host: str) -> bool:
+    """Whether ``host`` is ``localhost`` or a loopback address (127.0.0.0/8, ::1): only this machine reaches it. Any
+    other name may resolve to an exposed address, so it counts as exposed."""
+    try:
+        return host == "localhost" or ipaddress.ip_address(host).is_loopback
+    except ValueError:
+        return False
+
+
+def check_exposure(host: str, api_key: str | None) -> None:
+    """Refuse a non-loopback ``host`` without an API key (anyone reaching it could drive the controller) and a key
+    that cannot travel in an HTTP header."""
+    if api_key is not None and not API_KEY_RE.fullmatch(api_key):
+        raise ValueError(f"the API key ({len(api_key)} characters) must be one or more printable ASCII characters "
+                         "without spaces: it travels in an HTTP header")
+    if api_key is None and not is_loopback(host):
+        raise ValueError(f"host {host!r} is not a loopback address, so serving there needs an API key (--api-key "
+                         f"KEY, or the environment variable {API_KEY_ENV}); the loopback, 127.0.0.1, needs none")
+
+
+class GuardedPolicyServer(WebsocketPolicyServer):
+    """openpi's server, which serves messages of any size to anyone, with a size limit (``MAX_REQUEST_BYTES``) and,
+    given ``api_key``, a key check at the handshake."""
+
+    def __init__(self, policy: ControllerPolicy, host: str = "127.0.0.1", port: int = 8000,
+                 api_key: str | None = None):
+        check_exposure(host, api_key)
+        super().__init__(policy, host=host, port=port, metadata=policy.metadata)
+        self._expected = None if api_key is None else f"Api-Key {api_key}".encode()
+
+    async def run(self) -> None:
+        """openpi's ``run`` with ``max_size`` and ``_admit``: websockets closes an oversize message with 1009 unread."""
+        async with websockets.asyncio.server.serve(self._handler, self._host, self._port, compression=None,
+                                                   max_size=MAX_REQUEST_BYTES, process_request=self._admit) as server:
+            await server.serve_forever()
+
+    def _admit(self, connection: ServerConnection, request: Request) -> Response | None:
+        """openpi's ``/healthz`` reply; else, with a key set, refuse a handshake without it: 401 with no key, 403 with
+        another (or several)."""
+        if request.path == "/healthz":
+            return connection.respond(http.HTTPStatus.OK, "OK\n")
+        if self._expected is None:
+            return None
+        sent = request.headers.get_all("Authorization")
+        if not sent:
+            return connection.respond(http.HTTPStatus.UNAUTHORIZED,
+                                      "this server needs an API key: send the header 'Authorization: Api-Key KEY'\n")
+        if len(sent) != 1 or not hmac.compare_digest(sent[0].encode(), self._expected):
+            return connection.respond(http.HTTPStatus.FORBIDDEN, "wrong API key\n")
+        return None
 
 
 def print_to_stderr(line: str) -> None:
@@ -133,17 +230,15 @@ def print_to_stderr(line: str) -> None:
     print(line, file=sys.stderr, flush=True)
 
 
-def serve(policy: ControllerPolicy, host: str = "0.0.0.0", port: int = 8000,
+def serve(policy: ControllerPolicy, host: str = "127.0.0.1", port: int = 8000, api_key: str | None = None,
           log: Callable[[str], None] = print_to_stderr) -> None:
-    """Serve a controller (a ``ControllerPolicy``) on ws://host:port until SIGINT or SIGTERM,
+    """Serve a controller (a ``ControllerPolicy``) on ws://host:port (``GuardedPolicyServer``) until SIGINT or SIGTERM,
     then stop it (see ``serve_until_stopped``) and raise that signal's interrupt: KeyboardInterrupt for Ctrl-C,
     ``StopRequested`` for SIGTERM. Only the main thread receives signals, so only it may call this."""
-    from openpi_server import WebsocketPolicyServer
-
     if threading.current_thread() is not threading.main_thread():
         raise RuntimeError("serve() stops on SIGINT and SIGTERM, which only the main thread receives; in another "
-                           "thread run openpi_server.WebsocketPolicyServer(...).run() as a task and cancel it")
-    server = WebsocketPolicyServer(policy, host=host, port=port, metadata=policy.metadata)
+                           "thread run GuardedPolicyServer(...).run() as a task and cancel it")
+    server = GuardedPolicyServer(policy, host, port, api_key)
     loop = asyncio.new_event_loop()
     signals: asyncio.Queue[int] = asyncio.Queue()
     try:
@@ -220,4 +315,5 @@ def _signals_to(loop: asyncio.AbstractEventLoop, signals: asyncio.Queue[int]) ->
             signal.signal(signum, handler)
 
 
-__all__ = ["ControllerPolicy", "serve", "serve_until_stopped"]
+__all__ = ["MAX_PROMPT_CHARS", "MAX_REQUEST_BYTES", "ControllerPolicy", "GuardedPolicyServer", "check_exposure",
+           "is_loopback", "serve", "serve_until_stopped"]
