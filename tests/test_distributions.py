@@ -74,6 +74,26 @@ def test_entropy_uniform_k1_is_log_n_and_k2_matches_enumeration():
     assert dist.entropy().item() == pytest.approx(brute, rel=1e-5)
 
 
+
+@pytest.mark.parametrize("n,k", [(5, 3), (7, 4), (8, 5)])
+def test_entropy_over_sets_equals_the_sum_over_every_ordered_selection_with_empty_slots(n, k):
+    torch.manual_seed(n * k)
+    scores = 2 * torch.randn(3, n)
+    mask = torch.ones(3, n, dtype=torch.bool)
+    mask[0, [1, n - 1]] = False  # a bank with two empty slots
+    dist = PlackettLuceDistribution(k, 0.5).proba_distribution(scores, mask)
+    brute = torch.zeros(3)
+    for perm in itertools.permutations(range(n), k):
+        lp = dist.log_prob(torch.tensor([perm] * 3))
+        brute -= torch.where(lp > -1e8, lp.exp() * lp, torch.zeros_like(lp))
+    assert torch.allclose(dist.entropy(), brute, rtol=1e-4)
+
+
+def test_the_exact_entropy_refuses_a_bank_and_k_too_large_to_sum_over():
+    dist = PlackettLuceDistribution(7, 0.5).proba_distribution(torch.zeros(1, 40), torch.ones(1, 40, dtype=torch.bool))
+    with pytest.raises(ValueError, match="top-7 over 40 slots sums over 4,598,479 sets"):
+        dist.entropy()
+
 def test_entropy_and_log_prob_are_differentiable():
     scores = torch.randn(3, 6, requires_grad=True)
     dist = PlackettLuceDistribution(2, 0.5).proba_distribution(scores, torch.ones(3, 6, dtype=torch.bool))

@@ -10,7 +10,9 @@ draw exactly Plackett-Luce while an episode's draws agree (``MemoryRetrievalPoli
 
 from __future__ import annotations
 
+import functools
 import itertools
+import math
 
 import torch
 from stable_baselines3.common.distributions import Distribution
@@ -24,6 +26,31 @@ def gumbel_noise(shape: tuple[int, ...] | torch.Size, device: torch.device | str
     """Standard Gumbel noise: adding it to logits and taking the top K draws a Plackett-Luce selection."""
     uniform = torch.rand(shape, device=device, generator=generator).clamp_(1e-10, 1 - 1e-10)
     return -torch.log(-torch.log(uniform))
+
+
+MAX_ENTROPY_SETS = 200_000  # sets the exact entropy sums over: C(20, 6) + ... is 60,460; C(32, 6) alone 906,192
+
+
+@functools.lru_cache(maxsize=32)
+def subset_levels(n: int, k: int) -> tuple[tuple[torch.Tensor, torch.Tensor, torch.Tensor], ...]:
+    """For each set size s < k, the sets of s of ``n`` slots: their members (sets, s), each member's set without it
+    as an index into the level below (sets, s), and membership masks (sets, n)."""
+    count = sum(math.comb(n, s) for s in range(min(k, n + 1)))
+    if count > MAX_ENTROPY_SETS:
+        raise ValueError(f"the exact Plackett-Luce entropy of a top-{k} over {n} slots sums over {count:,} sets, more "
+                         f"than {MAX_ENTROPY_SETS:,}: use a smaller bank or K")
+    levels, index = [], {0: 0}
+    for size in range(min(k, n + 1)):
+        sets = list(itertools.combinations(range(n), size))
+        codes = [sum(1 << j for j in members) for members in sets]
+        members = torch.tensor(sets, dtype=torch.long).reshape(len(sets), size)
+        parents = torch.tensor([[index[code - (1 << j)] for j in members_] for members_, code in zip(sets, codes)],
+                               dtype=torch.long).reshape(len(sets), size) if size else members
+        taken = torch.zeros(len(sets), n, dtype=torch.bool)
+        taken[torch.arange(len(sets)).repeat_interleave(size), members.reshape(-1)] = True
+        levels.append((members, parents, taken))
+        index = {code: i for i, code in enumerate(codes)}
+    return tuple(levels)
 
 
 class PlackettLuceDistribution(Distribution):
@@ -63,20 +90,25 @@ class PlackettLuceDistribution(Distribution):
         return total
 
     def entropy(self) -> torch.Tensor:
-        """Exact entropy by the chain rule, summing over every ordered prefix of length < k."""
-        n = self.logits.shape[-1]
-        total = torch.zeros(self.logits.shape[0], device=self.logits.device)
-        for step in range(self.k):
-            for prefix in itertools.permutations(range(n), step):
-                logits = self.logits
-                log_p_prefix = torch.zeros_like(total)
-                for slot in prefix:
-                    log_p_prefix = log_p_prefix + logits[:, slot] - torch.logsumexp(logits, -1)
-                    logits = logits.index_fill(1, torch.tensor([slot], device=logits.device), NEG_INF)
-                log_p = torch.log_softmax(logits, -1)
-                valid = logits > NEG_INF / 2
-                step_entropy = -(torch.where(valid, log_p.exp() * log_p, torch.zeros_like(log_p))).sum(-1)
-                total = total + log_p_prefix.exp() * step_entropy
+        """Exact entropy by the chain rule over the sets drawn so far: the next draw's law depends on which slots are
+        taken, not in what order, so H = sum over sets S, |S| < k, of P(S drawn first) H(next | S), with P(S) summed
+        over S's orders by dynamic programming: sum_{s<k} C(n, s) sets (2,510 for 7 of 12) where the orders number
+        n! / (n - s)! (773,665)."""
+        batch, n = self.logits.shape
+        device = self.logits.device
+        levels = [tuple(t.to(device) for t in level) for level in subset_levels(n, self.k)]
+        log_p_sets = self.logits.new_zeros(batch, 1)  # log P(S) for the sets of this size: the empty set first
+        total = self.logits.new_zeros(batch)
+        for size, (members, parents, taken) in enumerate(levels):
+            logits = self.logits.unsqueeze(1).masked_fill(taken.unsqueeze(0), NEG_INF)  # (B, sets, n)
+            log_p = torch.log_softmax(logits, -1)
+            valid = logits > NEG_INF / 2
+            step_entropy = -torch.where(valid, log_p.exp() * log_p, torch.zeros_like(log_p)).sum(-1)
+            total = total + (log_p_sets.exp() * step_entropy).sum(-1)
+            if size + 1 < self.k:  # each larger set T: over its last slot j, P(T \ {j}) p(j | T \ {j})
+                nxt_members, nxt_parents, _ = levels[size + 1]
+                log_p_next = log_p_sets.unsqueeze(-1) + log_p  # (B, sets, n): S drawn first, then j
+                log_p_sets = torch.logsumexp(log_p_next[:, nxt_parents, nxt_members], dim=-1)
         return total
 
     def sample(self, noise: torch.Tensor | None = None) -> torch.Tensor:
