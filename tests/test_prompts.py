@@ -45,6 +45,7 @@ def test_the_first_fact_with_a_field_names_it():
         "open the red door. The key is behind door 2.",  # capitalised
         "open the red door.  the key is behind door 2.",  # double space
         "open the red door. the key is behind door 2",  # no full stop
+        "open the red door. the key" + " is behind door 2" * 5000,  # a long tail without one (refused before the scan)
         "open the red door. the key is behind the door 2.",  # wording drift
         " open the red door.",  # leading space
         "push the red door.",  # unknown instruction
