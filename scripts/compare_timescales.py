@@ -77,8 +77,9 @@ def main() -> None:
     parser.add_argument("--rules", default=",".join(RETENTION_RULES), help="Comma list of eviction rules.")
     parser.add_argument("--episodes", type=int, default=48)
     parser.add_argument("--controller", default="scripted")
-    parser.add_argument("--held-out", default="evaluation", choices=["evaluation", "development"],
-                        help="The task's seeds to play: its protocol's, or those checkpoints are chosen on.")
+    parser.add_argument("--held-out", default="development", choices=["evaluation", "development"],
+                        help="The task's seeds to play: those checkpoints are chosen on, or its protocol's (the test "
+                             "set: the final figure only).")
     parser.add_argument("--out", type=Path, default=None, help="Write every episode's outcome here (JSON).")
     args = parser.parse_args()
     rules = [r for r in args.rules.split(",") if r]
