@@ -39,6 +39,7 @@ from sb3_memret.memory.encoder import MiniLMEncoder
 from sb3_memret.memory.stores import units_per_timescale
 from sb3_memret.memory.schema import MemoryEntry
 from sb3_memret.common.obs_trees import stack_obs
+from sb3_memret.common.seeds import HELD_OUT_KINDS
 from sb3_memret.physics import make_physics
 from sb3_memret.physics.backends import PhysicsBackend, ResetRequest
 from sb3_memret.policy.networks import RetentionScorer
@@ -47,8 +48,6 @@ from sb3_memret.evaluation.rollout import task_env_kwargs
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import EnvFrame
 from sb3_memret.common.workers import torch_threads
-
-HELD_OUT_KINDS = ("evaluation", "development")  # a task's seeds for the final figure, and for choosing
 
 
 class RecallVecEnv(VecEnv):

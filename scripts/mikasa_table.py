@@ -1,14 +1,15 @@
-"""The MIKASA table: each trained memory learner's task at MIKASA's evaluation seeds, with no fact, a wrong
-fact, the oracle fact and the learned memory, beside the published end-to-end VLAs.
+"""The MIKASA table: each trained memory learner's task with no fact, a wrong fact, the oracle fact and the
+learned memory, beside the published end-to-end VLAs; at the tasks' development seeds, and at MIKASA's evaluation
+seeds (its test set) only with ``--seeds protocol``, for the final figure.
 
 For each run folder (``sb3-memret train recall --task T``) it plays, through the CLI a user would type,
-``rollout --task T --controller C --condition none|wrong|oracle --episodes N --replan-every R --json`` with
-the run's controller and replan interval, and ``eval RUN/final_model.zip --episodes N --json`` (recall, greedy retrieval),
-then prints one markdown row per task and, below, the published RememberColor figures. ``--out DIR``
-also writes ``mikasa_table.md`` and ``mikasa_table.json``.
+``rollout --task T --controller C --condition none|wrong|oracle --episodes N --replan-every R --seeds S --json``
+with the run's controller and replan interval, and ``eval RUN/final_model.zip --episodes N --seeds S --json``
+(recall, greedy retrieval), then prints one markdown row per task and, below, the published RememberColor figures.
+``--out DIR`` also writes ``mikasa_table.md`` and ``mikasa_table.json``.
 
 Usage: ``python scripts/mikasa_table.py runs/recall-RememberColor3-VLA-v0-seed0 ... [--episodes 50]
-[--model best_model.zip] [--out runs/mikasa-table]``.
+[--seeds protocol] [--model best_model.zip] [--out runs/mikasa-table]``.
 
 The published figures are success rates in % over 100 episodes on the -v0 tasks, end-to-end VLAs trained
 offline on MIKASA's demonstrations: Octo-small, OpenVLA (action chunk 8) and pi0 from the MIKASA-Robo paper
@@ -61,16 +62,17 @@ def run_setting(run: Path) -> tuple[str, str, int]:
     return task, controller, int(env_kwargs.get("replan_every", 4))
 
 
-def task_row(run: Path, episodes: int, model: str) -> dict[str, Any]:
-    """One task's figures: success per prompt condition and with the learned memory, and greedy retrieval."""
+def task_row(run: Path, episodes: int, model: str, seeds: str = "dev") -> dict[str, Any]:
+    """One task's figures at its ``seeds`` (the CLI's ``--seeds``): success per prompt condition and with the
+    learned memory, and greedy retrieval."""
     task, controller, replan_every = run_setting(run)
     row: dict[str, Any] = {"task": task, "controller": controller, "run": str(run), "episodes": episodes,
-                           "replan_every": replan_every}
+                           "seeds": seeds, "replan_every": replan_every}
     for condition in CONDITIONS:
         result = cli_json(["rollout", "--task", task, "--controller", controller, "--condition", condition,
-                           "--episodes", str(episodes), "--replan-every", str(replan_every)])
+                           "--episodes", str(episodes), "--replan-every", str(replan_every), "--seeds", seeds])
         row[condition] = result["success"]["overall"]
-    recall = cli_json(["eval", str(run / model), "--episodes", str(episodes)])
+    recall = cli_json(["eval", str(run / model), "--episodes", str(episodes), "--seeds", seeds])
     row["recall"] = recall["success"]["overall"]
     row["greedy_retrieval"] = recall["greedy_accuracy"]
     return row
@@ -97,7 +99,10 @@ def markdown(rows: list[dict[str, Any]]) -> str:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     parser.add_argument("runs", nargs="+", type=Path, help="recall run folders, one per MIKASA task")
-    parser.add_argument("--episodes", type=int, default=50, help="episodes per cell, at MIKASA's seeds")
+    parser.add_argument("--episodes", type=int, default=50, help="episodes per cell")
+    parser.add_argument("--seeds", choices=["dev", "protocol"], default="dev",
+                        help="the tasks' development seeds (dev, 5000 + i), or MIKASA's evaluation seeds (protocol, "
+                             "4242424242 + i: its test set, for the final figure only)")
     parser.add_argument("--model", default="final_model.zip", help="the model file in each run folder")
     parser.add_argument("--out", type=Path, default=None, help="also write mikasa_table.md and .json here")
     args = parser.parse_args()
@@ -106,7 +111,7 @@ def main() -> None:
     missing = [str(run / args.model) for run in args.runs if not (run / args.model).is_file()]
     if missing:
         parser.error(f"no model file {missing}; pass run folders of `sb3-memret train recall` (or --model)")
-    rows = [task_row(run, args.episodes, args.model) for run in args.runs]
+    rows = [task_row(run, args.episodes, args.model, args.seeds) for run in args.runs]
     table = markdown(rows)
     print(table)
     if args.out is not None:

@@ -10,6 +10,8 @@ expert). This plays a task's episodes under prompt *schedules* and prints succes
   which is what a retriever at maximum entropy plays. For it the script also prints success by how many
   of the decisions from ``--switch`` on carried the true fact: the signal PPO has to find.
 
+Episodes play the task's development seeds; ``--seeds protocol`` plays its test set, for a final figure only.
+
     python scripts/prompt_schedules.py --task TakeItBack-VLA-v0 --controller learned --episodes 30
 """
 
@@ -23,6 +25,7 @@ from typing import Sequence
 
 import numpy as np
 
+from sb3_memret.cli.options import SEED_SET_KINDS
 from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers.base import FrozenController
 from sb3_memret.memory.seeding import SeedingConfig
@@ -69,13 +72,15 @@ class ScheduledFacts(FactSchedule):
 
 
 def play(task: Task, controller: FrozenController, schedules: Sequence[str], episodes: int, switch: int,
-         replan_every: int = 4, decoys: int = 5, seed: int = 0, verbose: bool = False) -> list[dict]:
-    """Play ``episodes`` episodes of ``task`` (its protocol seeds) under each schedule; one record per episode:
-    its schedule, seed, group, first decoy, whether each decision carried the true fact, and success."""
+         replan_every: int = 4, decoys: int = 5, seed: int = 0, verbose: bool = False,
+         held_out: str = "development") -> list[dict]:
+    """Play ``episodes`` episodes of ``task`` (its ``held_out`` seeds: development, or "evaluation", the protocol's
+    test set, for a final figure only; 0, 1, ... for a task without them) under each schedule; one record per
+    episode: its schedule, seed, group, first decoy, whether each decision carried the true fact, and success."""
     for s in schedules:
         if s not in SCHEDULES:
             raise ValueError(f"unknown schedule {s!r}; expected some of {list(SCHEDULES)}")
-    seeds = task.evaluation_seeds(episodes) or list(range(episodes))
+    seeds = getattr(task, f"{held_out}_seeds")(episodes) or list(range(episodes))
     records: list[dict] = []
     start = time.perf_counter()
     for schedule in schedules:
@@ -125,6 +130,9 @@ def main() -> None:
     parser.add_argument("--replan-every", type=int, default=4)
     parser.add_argument("--decoys", type=int, default=5)
     parser.add_argument("--seed", type=int, default=0, help="seeds the decoys and the uniform draws")
+    parser.add_argument("--seeds", choices=list(SEED_SET_KINDS), default="dev",
+                        help="the episodes: the task's development seeds (dev, MIKASA's 5000 + i), or its protocol's "
+                             "test set (protocol, 4242424242 + i), for a final figure only")
     parser.add_argument("--out", default=None, help="write the per-episode records here (JSON)")
     args = parser.parse_args()
     task = make_task(args.task)
@@ -132,7 +140,8 @@ def main() -> None:
     switch = -(-task.max_control_steps // args.replan_every) // 2 if args.switch is None else args.switch
     try:
         records = play(task, controller, [s for s in args.schedules.split(",") if s], args.episodes, switch,
-                       args.replan_every, args.decoys, args.seed, verbose=True)
+                       args.replan_every, args.decoys, args.seed, verbose=True,
+                       held_out=SEED_SET_KINDS[args.seeds])
     except ValueError as err:
         parser.error(str(err))
     print("\n".join(uniform_breakdown(records, switch)))

@@ -1,8 +1,8 @@
 """What the MIKASA test modules share: the skip reason when the package is missing, and the leak check."""
 
-#: the first of MIKASA's evaluation seeds (4242424242 + i) that the protocol tests play: the suite's budget; the
-#: figures over all 50 come from ``lab/2026-11-23-the-memory-learner-on-the-scripted-experts/mikasa_probe.py --episodes 50`` (README, Tasks)
-PROTOCOL_SEEDS = 12
+#: the first of the development seeds (5000 + i: ``Task.development_seeds``) that the tests over many episodes play,
+#: the suite's budget; MIKASA's evaluation seeds (4242424242 + i) are its test set, which no test plays
+DEV_SEEDS = 12
 #: the first of them on which a condition that must always fail (no fact, a fact missing) is played: any one success
 #: there fails the test, so a sample checks it as surely, at a third of the cost
 FAILING_SEEDS = 4

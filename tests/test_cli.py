@@ -54,6 +54,21 @@ def test_rollout_json():
     assert payload["success"]["1"] == 1.0
 
 
+def test_every_command_that_plays_episodes_defaults_to_development_seeds():
+    """A task's test set (MIKASA's protocol seeds) plays only when asked for by name, `--seeds protocol`; `rollout`
+    refuses seeds of one's choosing beside it."""
+    import click
+
+    for path in (("rollout",), ("eval",), ("benchmark", "mikasa")):
+        command = main
+        for name in path:
+            command = command.get_command(click.Context(command), name)
+        (option,) = [p for p in command.params if p.name == "seed_set"]
+        assert option.default == "dev" and sorted(option.type.choices) == ["dev", "protocol"], path
+    result = CliRunner().invoke(main, ["rollout", "--controller", "scripted", "--seeds", "protocol", "--seed", "3"])
+    assert result.exit_code == 2 and "give it or --seed, not both" in result.output
+
+
 def test_bad_options_give_clear_errors():
     runner = CliRunner()
     result = runner.invoke(main, ["rollout", "--condition", "maybe"])

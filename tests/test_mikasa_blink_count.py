@@ -236,7 +236,7 @@ def test_the_task_runs_through_the_rollout(medium):
     """Two Easy episodes at development seeds (2 blinks, then 1), the writer's fact from the camera in the prompt."""
     task = make_task(EASY)
     results = evaluate_task_condition(task.expert(), "written", task, episodes=2, seed=DEV_SEED + 8,
-                                      protocol_seeds=False)
+                                      held_out=None)
     assert [(r.group, r.success) for r in results] == [("twice", True), ("once", True)]
 
 

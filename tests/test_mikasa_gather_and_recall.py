@@ -259,7 +259,7 @@ def test_expert_presses_the_true_colour_only(task):
 def test_the_written_fact_reaches_the_expert():
     """``rollout --condition written``: the writer reads the flash from the camera and the expert presses its button."""
     results = evaluate_task_condition(make_task(TASK).expert(), "written", TASK, episodes=2, seed=DEV_SEED + 3,
-                                      protocol_seeds=False)
+                                      held_out=None)
     assert [r.success for r in results] == [True, True] and all(r.steps < 100 for r in results)
 
 

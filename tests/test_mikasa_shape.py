@@ -7,7 +7,7 @@ import numpy as np
 import pytest
 import torch
 
-from mikasa_support import FAILING_SEEDS, MIKASA_MISSING, PROTOCOL_SEEDS, leaked_keys
+from mikasa_support import DEV_SEEDS, FAILING_SEEDS, MIKASA_MISSING, leaked_keys
 
 pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
@@ -18,7 +18,7 @@ from sb3_memret.controllers.prompts import parse_prompt  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
 from sb3_memret.tasks.base import EnvFrame  # noqa: E402
 from sb3_memret.tasks.mikasa.core.perception import cue_blob  # noqa: E402
-from sb3_memret.tasks.mikasa.remember.color import EVAL_SEED  # noqa: E402
+from sb3_memret.tasks.mikasa.core.cue_task import DEV_SEED, EVAL_SEED  # noqa: E402
 from sb3_memret.tasks.mikasa.remember.shape import (  # noqa: E402
     CUE_KEY,
     INSTRUCTION,
@@ -37,8 +37,8 @@ from sb3_memret.tasks.mikasa.core.shape_perception import (  # noqa: E402
 )
 
 TASK = "RememberShape3-VLA-v0"
-# the first evaluation seeds whose cue is a cube, a cylinder and a sphere
-SEEDS = (4242424242, 4242424244, 4242424245)
+# the first development seeds whose cue is a cube, a cylinder and a sphere
+SEEDS = (5003, 5001, 5000)
 # RememberShape9's first development seeds (5000 + i) whose cue is each of the nine shapes, in SHAPE_NAMES' order
 NINE_SEEDS = (5000, 5022, 5004, 5003, 5009, 5002, 5001, 5020, 5017)
 FORBIDDEN = ("oracle", "task_cue", "goal_")
@@ -306,14 +306,14 @@ def _run(env, expert, seed: int, shape: str | None, replan: int = 4, read: bool 
 
 
 @pytest.mark.slow
-def test_expert_and_reader_over_mikasas_first_evaluation_seeds(rgb_env):
-    """Oracle >= 90 %, wrong at most chance (1/3), none never on the first seeds; every frame of the oracle episodes
-    read: every cue frame right, no other frame read."""
+def test_expert_and_reader_over_development_seeds(rgb_env):
+    """Oracle >= 90 %, wrong at most chance (1/3), none never on the first development seeds; every frame of the
+    oracle episodes read: every cue frame right, no other frame read."""
     expert = shape_expert()
     wins = {"oracle": 0, "none": 0, "wrong": 0}
     cue_right = cue_frames = false_reads = 0
-    for i in range(PROTOCOL_SEEDS):
-        seed = EVAL_SEED + i
+    for i in range(DEV_SEEDS):
+        seed = DEV_SEED + i
         true = SHAPE_NAMES[int(rgb_env.reset(seed=seed)[1]["oracle_info"][0])]
         wrong = SHAPE_NAMES[(SHAPE_NAMES.index(true) + 1) % 3]
         for condition, shape in (("oracle", true), ("none", None), ("wrong", wrong)):
@@ -325,4 +325,4 @@ def test_expert_and_reader_over_mikasas_first_evaluation_seeds(rgb_env):
             cue_frames, cue_right = cue_frames + len(cue), cue_right + sum(r == true for r in cue)
             false_reads += sum(r is not None for p, r in readings if p != "cue")
     assert cue_right == cue_frames and false_reads == 0, (cue_right, cue_frames, false_reads)
-    assert wins["oracle"] >= 0.9 * PROTOCOL_SEEDS and wins["none"] == 0 and wins["wrong"] <= PROTOCOL_SEEDS / 3, wins
+    assert wins["oracle"] >= 0.9 * DEV_SEEDS and wins["none"] == 0 and wins["wrong"] <= DEV_SEEDS / 3, wins

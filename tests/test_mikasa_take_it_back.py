@@ -5,7 +5,7 @@ import numpy as np
 import pytest
 import torch
 
-from mikasa_support import MIKASA_MISSING, PROTOCOL_SEEDS, leaked_keys
+from mikasa_support import DEV_SEEDS, MIKASA_MISSING, leaked_keys
 
 pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
@@ -15,7 +15,7 @@ from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
 from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
 from sb3_memret.tasks.base import EnvFrame  # noqa: E402
-from sb3_memret.tasks.mikasa.core.cue_task import EVAL_SEED  # noqa: E402
+from sb3_memret.tasks.mikasa.core.cue_task import DEV_SEED, EVAL_SEED  # noqa: E402
 from sb3_memret.tasks.mikasa.take_it_back.task import (  # noqa: E402
     INSTRUCTION,
     PROMPT_TEMPLATE,
@@ -63,7 +63,7 @@ def test_sides_cover_mikasas_starts_within_its_radius():
                 assert np.hypot(x - SIDE_CENTRES[side][0], y - SIDE_CENTRES[side][1]) < 0.06
 
 
-@pytest.mark.parametrize("seed", [EVAL_SEED + i for i in range(6)])
+@pytest.mark.parametrize("seed", [DEV_SEED + i for i in range(6)])
 def test_the_start_is_read_from_the_first_frame(rgb_env, task, seed):
     obs, info = rgb_env.reset(seed=seed)
     (frame,) = task.frames(rgb_env, obs, info, reset=True)
@@ -73,7 +73,7 @@ def test_the_start_is_read_from_the_first_frame(rgb_env, task, seed):
 
 
 def test_cube_on_table_needs_the_cube_in_sight(rgb_env):
-    obs, _ = rgb_env.reset(seed=EVAL_SEED)
+    obs, _ = rgb_env.reset(seed=DEV_SEED)
     params = rgb_env.unwrapped.get_sensor_params()["base_camera"]
     intrinsic, extrinsic = params["intrinsic_cv"][0].numpy(), params["extrinsic_cv"][0].numpy()
     rgb = obs["sensor_data"]["base_camera"]["rgb"][0].numpy()
@@ -84,13 +84,13 @@ def test_cube_on_table_needs_the_cube_in_sight(rgb_env):
 
 
 def test_wrapper_exposes_only_the_controllers_view(state_env, rgb_env):
-    obs, _ = state_env.reset(seed=EVAL_SEED)
+    obs, _ = state_env.reset(seed=DEV_SEED)
     assert set(obs) == {"agent", "extra", "sensor_data"}
     assert set(obs["extra"]) == {"tcp_pose", "cube_position", "target_positions", "target_visible"}
     assert not leaked_keys(obs, FORBIDDEN)
     assert obs["extra"]["target_visible"][0].tolist() == [True, False]  # the red target; the purple is not out yet
     assert np.all(obs["extra"]["target_positions"][0, 1].numpy() == 0)
-    obs, _ = rgb_env.reset(seed=EVAL_SEED + 1)
+    obs, _ = rgb_env.reset(seed=DEV_SEED + 1)
     assert not leaked_keys(obs, FORBIDDEN)
     assert set(obs["sensor_data"]) == {"base_camera"}
 
@@ -131,7 +131,7 @@ def test_task_contract(rgb_env, task):
     assert task.evaluation_seeds(2) == [EVAL_SEED, EVAL_SEED + 1] and task.max_control_steps == 60
     with pytest.raises(ValueError, match="TakeItBack-VLA-v0"):
         TakeItBackTask("TakeItBack-Long-VLA-v0")
-    obs, info = rgb_env.reset(seed=EVAL_SEED)
+    obs, info = rgb_env.reset(seed=DEV_SEED)
     (frame,) = task.frames(rgb_env, obs, info, reset=True)
     episode = task.episode(frame)
     side = episode.group
@@ -176,28 +176,28 @@ def _run(env, expert, seed: int, side: str | None) -> bool:
 def test_expert_takes_the_cube_there_and_back_with_the_true_start_only(rgb_env, task):
     expert = task.expert()
     expert.check_env(rgb_env)
-    seed = EVAL_SEED  # its cube starts on the right
+    seed = DEV_SEED + 3  # its cube starts on the right
     assert _run(rgb_env, expert, seed, "right")
     assert not _run(rgb_env, expert, seed, "left")
 
 
 @pytest.mark.slow
-def test_expert_and_reader_over_mikasas_first_evaluation_seeds(rgb_env, task):
+def test_expert_and_reader_over_development_seeds(rgb_env, task):
     """The start read right at every seed; oracle >= 90 %; none only where the middle start lies within MIKASA's 8 cm
-    of the true one (every middle start and the nearer left and right ones: 26/50 measured, 4 of the first 12);
-    wrong (the far side) only where the carry back passes within 8 cm of the start on its way, which MIKASA's success
-    at any step counts (3/50 measured, none of the first 12)."""
+    of the true one (every middle start and the nearer left and right ones: 22 of the first 50 development seeds
+    measured, 4 of the first 12); wrong (the far side) only where the carry back passes within 8 cm of the start on
+    its way, which MIKASA's success at any step counts (9 of 50 measured, 1 of the first 12)."""
     expert = task.expert()
     wins = {"oracle": 0, "none": 0, "wrong": 0}
-    for i in range(PROTOCOL_SEEDS):
-        obs, info = rgb_env.reset(seed=EVAL_SEED + i)
+    for i in range(DEV_SEEDS):
+        obs, info = rgb_env.reset(seed=DEV_SEED + i)
         (frame,) = task.frames(rgb_env, obs, info, reset=True)
         episode = task.episode(frame)
         assert side_of(frame.state["seen_start"][1]) == episode.group
         wrong = task.wrong_facts(episode)[0].split()[-1].rstrip(".")
         for condition, side in (("oracle", episode.group), ("none", None), ("wrong", wrong)):
-            wins[condition] += _run(rgb_env, expert, EVAL_SEED + i, side)
-    n = PROTOCOL_SEEDS
+            wins[condition] += _run(rgb_env, expert, DEV_SEED + i, side)
+    n = DEV_SEEDS
     assert wins["oracle"] >= 0.9 * n and wins["wrong"] <= 0.1 * n and 0.2 * n <= wins["none"] <= 0.7 * n, wins
 
 
@@ -209,7 +209,7 @@ def test_the_start_fact_is_written_at_reset_and_retrieved(encoder):
     venv = make_recall_vec_env(1, {"task": TASK, "controller": "scripted", "encoder": encoder, "replan_every": 4,
                                    "capacity": 6, "location_decoys": 5, "render_backend": "cpu"}, seed=0)
     try:
-        venv.set_task_seeds([[EVAL_SEED + 2]])  # a start on the left
+        venv.set_task_seeds([[DEV_SEED + 1]])  # a start on the left
         venv.reset()
         memory = venv.venv.memories[0]
         side = memory.truth.group

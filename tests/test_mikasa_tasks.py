@@ -1,5 +1,6 @@
 """MIKASA-Robo-VLA's RememberColor tasks in the memory loop: the writer's fact comes from the camera,
-prompts follow the task's contract, evaluation plays MIKASA's seeds, and the CLI runs them."""
+prompts follow the task's contract, evaluation plays development seeds (MIKASA's own stay unseen), and the CLI
+runs them."""
 
 from __future__ import annotations
 
@@ -12,6 +13,7 @@ from click.testing import CliRunner
 from sb3_memret.cli import main
 from sb3_memret.envs.vec_env import make_recall_vec_env
 from sb3_memret.tasks import make_task
+from sb3_memret.tasks.mikasa.core.cue_task import DEV_SEED
 from sb3_memret.tasks.mikasa.remember.color import EVAL_SEED, RememberColorTask
 
 TASK = "RememberColor3-VLA-v0"
@@ -23,6 +25,7 @@ def test_the_three_sizes_are_registered_and_other_ids_refused():
         assert isinstance(task, RememberColorTask) and len(task.colours) == n
     assert make_task(TASK).evaluation_seeds(3) == [EVAL_SEED, EVAL_SEED + 1, EVAL_SEED + 2] == [4242424242, 4242424243,
                                                                                                  4242424244]
+    assert make_task(TASK).development_seeds(2) == [DEV_SEED, DEV_SEED + 1] == [5000, 5001]  # never the protocol's
     with pytest.raises(ValueError, match="unknown RememberColor task 'RememberColor4-VLA-v0'"):
         RememberColorTask("RememberColor4-VLA-v0")
     with pytest.raises(ValueError, match="ShellGameTouch-VLA-v0' is not available: .*YCB mug"):
@@ -40,11 +43,11 @@ def test_the_cue_fact_is_written_from_the_camera_and_retrieved(encoder):
     venv = make_recall_vec_env(1, {"task": TASK, "controller": "scripted", "encoder": encoder, "replan_every": 4,
                                    "capacity": 6, "location_decoys": 5, "render_backend": "cpu"}, seed=0)
     try:
-        venv.set_task_seeds([[EVAL_SEED]])
+        venv.set_task_seeds([[DEV_SEED]])
         venv.reset()
         memory = venv.venv.memories[0]
         colour = memory.truth.group
-        assert venv.venv.episode_task_seeds == [EVAL_SEED]
+        assert venv.venv.episode_task_seeds == [DEV_SEED]
         done, success, retrieved = False, False, []
         while not done:
             slot = memory.true_slot()
@@ -55,27 +58,30 @@ def test_the_cue_fact_is_written_from_the_camera_and_retrieved(encoder):
                 texts = [e.text for e in memory.bank.entries]
         assert f"the cue cube was {colour}." in texts
         assert all(t.endswith(".") and " was " in t for t in texts)
-        assert any(retrieved) and success and infos[0]["group"] == colour and infos[0]["task_seed"] == EVAL_SEED
+        assert any(retrieved) and success and infos[0]["group"] == colour and infos[0]["task_seed"] == DEV_SEED
     finally:
         venv.close()
 
 
 @pytest.mark.parametrize("condition, expected", [("oracle", 1.0), ("wrong", 0.0)])
-def test_rollout_runs_a_mikasa_task_at_its_seeds(condition, expected):
+def test_rollout_runs_a_mikasa_task_at_its_development_seeds(condition, expected):
     result = CliRunner().invoke(main, ["rollout", "--task", TASK, "--controller", "scripted", "--condition", condition,
                                        "--episodes", "2", "--replan-every", "4", "--json"])
     assert result.exit_code == 0, result.output
     summary = json.loads(result.output.strip().splitlines()[-1])
-    assert summary["task"] == TASK and summary["seeds"] == [EVAL_SEED, EVAL_SEED + 1]
+    assert summary["task"] == TASK and summary["seeds"] == [DEV_SEED, DEV_SEED + 1]
     assert summary["success"]["overall"] == expected
 
 
-def test_rollout_plays_development_seeds_when_asked():
-    result = CliRunner().invoke(main, ["rollout", "--task", TASK, "--controller", "scripted", "--condition", "oracle",
-                                       "--episodes", "1", "--seeds", "dev", "--seed", "5000", "--json"])
+def test_rollout_plays_seeds_of_ones_choosing_but_never_beside_the_test_set():
+    args = ["rollout", "--task", TASK, "--controller", "scripted", "--condition", "oracle", "--episodes", "1",
+            "--seed", "6000", "--json"]
+    result = CliRunner().invoke(main, args)
     assert result.exit_code == 0, result.output
     summary = json.loads(result.output.strip().splitlines()[-1])
-    assert summary["seeds"] == [5000] and summary["success"]["overall"] == 1.0
+    assert summary["seeds"] == [6000] and summary["success"]["overall"] == 1.0
+    result = CliRunner().invoke(main, [*args, "--seeds", "protocol"])
+    assert result.exit_code == 2 and "--seeds protocol plays the task's own test set" in result.output
 
 
 def test_rollout_refuses_a_group_on_a_task_whose_env_draws_its_groups():

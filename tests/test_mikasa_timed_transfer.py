@@ -153,7 +153,7 @@ def test_the_count_decides_the_episode(condition, succeeds):
     """Written: the writer's count from the camera carries the expert into MIKASA's window; without a count it never
     sets the cube down; with a count half the delay ahead it sets it down too early."""
     (result,) = evaluate_task_condition(make_task(TASK).expert(), condition, TASK, episodes=1, seed=DEV_SEED + 2,
-                                        protocol_seeds=False)
+                                        held_out=None)
     assert result.success is succeeds
     if condition == "written":  # in the window: the count 95-105 from the signal at step 1-3
         assert 96 <= result.steps <= 108

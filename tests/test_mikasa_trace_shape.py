@@ -189,5 +189,5 @@ def test_the_path_decides_the_episode(condition, succeeds):
     """Written: the path read from the camera carries the expert round all twelve checkpoints; without one it holds
     the cube; with the path moved 8 cm it misses them."""
     (result,) = evaluate_task_condition(make_task(TASK).expert(), condition, TASK, episodes=1, seed=DEV_SEED + 1,
-                                        protocol_seeds=False)
+                                        held_out=None)
     assert result.success is succeeds

@@ -153,5 +153,5 @@ def test_the_written_sequence_and_progress_carry_the_expert_to_the_button():
     """The writer's sequence from the camera and its progress from the arm: both paths traced in order, then the
     button; without facts, nothing is submitted."""
     (written,) = evaluate_task_condition(make_task(TASK).expert(), "written", TASK, episodes=1, seed=TWO_PATHS_SEED,
-                                         protocol_seeds=False)
+                                         held_out=None)
     assert written.success

@@ -231,24 +231,37 @@ def test_a_task_that_ends_at_success_must_say_what_success_pays(encoder):
 
 
 class SeededDoorsTask(DoorsTask):
-    """The doors with a benchmark protocol: held-out episodes play seeds 4242424242 + i."""
+    """The doors with a benchmark protocol: its test set 4242424242 + i, development seeds 5000 + i."""
 
     def evaluation_seeds(self, n_episodes: int) -> list[int]:
         return [4242424242 + i for i in range(n_episodes)]
 
+    def development_seeds(self, n_episodes: int) -> list[int]:
+        return [5000 + i for i in range(n_episodes)]
 
-def test_evaluation_plays_the_tasks_protocol_seeds_once_each(encoder):
+
+def test_evaluation_plays_the_tasks_development_seeds_once_each_and_its_test_set_only_by_name(encoder):
+    from sb3_memret.evaluation.retrieval import evaluate_retrieval
+    from sb3_memret.evaluation.rollout import evaluate_task_condition
+
     venv = make_recall_vec_env(2, {"task": SeededDoorsTask(), "controller": "scripted", "encoder": encoder,
                                    "replan_every": 4, "location_decoys": 3, "capacity": 4}, backend="inprocess")
     model = MemRetPPO(env=venv, n_steps=8, batch_size=8, seed=0)
-    from sb3_memret.evaluation.retrieval import evaluate_retrieval
-
     played = []
     report = evaluate_retrieval(model, venv, 5, seed=3, on_episode=played.append)
-    assert sorted(e["task_seed"] for e in played) == [4242424242 + i for i in range(5)]
+    assert sorted(e["task_seed"] for e in played) == [5000 + i for i in range(5)]
     for episode in played:  # the seed decides the light, as MIKASA's seeds decide its cue
         assert episode["group"] == _colour_of(episode["task_seed"])
     assert report.episodes == 5 and venv.task_seed_queues == [[], []]  # later episodes draw seeds again
+    tested = []
+    evaluate_retrieval(model, venv, 2, seed=3, on_episode=tested.append, held_out="evaluation")
+    assert sorted(e["task_seed"] for e in tested) == [4242424242, 4242424243]
+    rollouts = {kind: [r.seed for r in evaluate_task_condition(DoorsExpert(), "oracle", SeededDoorsTask(), 2, seed=7,
+                                                                replan_every=4, held_out=kind)]
+                for kind in ("development", "evaluation", None)}
+    assert rollouts == {"development": [5000, 5001], "evaluation": [4242424242, 4242424243], None: [7, 8]}
+    with pytest.raises(ValueError, match="unknown held-out seed kind 'test'"):
+        evaluate_task_condition(DoorsExpert(), "oracle", SeededDoorsTask(), 1, held_out="test")
     explicit = []
     evaluate_retrieval(model, venv, 3, seed=3, on_episode=explicit.append, task_seeds=[11, 12, 13])
     assert sorted(e["task_seed"] for e in explicit) == [11, 12, 13]

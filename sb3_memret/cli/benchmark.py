@@ -41,9 +41,10 @@ def benchmark() -> None:
               help="The frozen controller (scripted: each task's expert; learned: its shipped camera controller).")
 @click.option("--conditions", callback=_conditions, default="none,oracle,wrong", show_default=True,
               metavar="C[,C...]", help=f"Prompt conditions, a comma list of {', '.join(CONDITIONS)}.")
-@click.option("--seeds", "seed_set", type=click.Choice(sorted(SEED_SETS)), default="protocol", show_default=True,
-              help="protocol: the benchmark's test seeds 4242424242 + i (the final figure only); dev: 5000 + i, "
-                   "for choosing checkpoints and variants.")
+@click.option("--seeds", "seed_set", type=click.Choice(sorted(SEED_SETS)), default="dev", show_default=True,
+              help="dev: development seeds 5000 + i, for every choice (checkpoints, controllers, variants); protocol: "
+                   "the benchmark's test seeds 4242424242 + i, for the final figure only (a published table asks "
+                   "for them by name).")
 @click.option("--learners", type=click.Path(path_type=Path), default=None,
               help="For recall: a folder with a trained memory learner per task, DIR/<env id>/final_model.zip, or "
                    "one learner across tasks' model file (train recall --tasks), for every task it was trained on  "
@@ -59,9 +60,9 @@ def mikasa(split: str | None, tasks: list[str] | None, episodes: int, controller
            seed_set: str, learners: Path | None, replan_every: int | None, workers: int, out: Path,
            progress: bool) -> None:
     """MIKASA-Robo-VLA's protocol through its own harness: every task of a split (or --tasks), each prompt
-    condition, success once over seeded episodes; writes OUT/results.json and OUT/report.md (resumable). A
-    learner that lands in --learners while the table plays (`benchmark learners` beside it) gets its recall
-    episodes in a further pass."""
+    condition, success once over seeded episodes (development seeds unless --seeds protocol asks for the test set);
+    writes OUT/results.json and OUT/report.md (resumable). A learner that lands in --learners while the table plays
+    (`benchmark learners` beside it) gets its recall episodes in a further pass."""
     from tqdm import tqdm
 
     from sb3_memret.benchmark.report import write_report

@@ -9,10 +9,10 @@ from pathlib import Path
 
 import click
 
-from sb3_memret.cli.options import (RUN_CONTROLLER, TASK_CONTROLLER, build_controller,
+from sb3_memret.cli.options import (RUN_CONTROLLER, SEED_SET_KINDS, TASK_CONTROLLER, build_controller,
                                     camera_render_backend, check_run_task, controller_spec, default_controller,
                                     load_models, model_run, physics_options, render_backend_option,
-                                    resolve_render_backend, run_controller, saved_task, task_option)
+                                    resolve_render_backend, run_controller, saved_task, seeds_option, task_option)
 from sb3_memret.common.seeds import HELD_OUT_SEED
 from sb3_memret.memory.retention import RETENTION_RULES
 
@@ -28,6 +28,7 @@ from sb3_memret.memory.retention import RETENTION_RULES
 @click.option("--n-envs", type=click.IntRange(min=1), default=1, show_default=True)
 @click.option("--seed", type=click.IntRange(min=0), default=HELD_OUT_SEED, show_default=True,
               help="Seed of the evaluation episodes (training never uses it).")
+@seeds_option("A task without them (the drawer) plays episodes --seed draws.")
 @click.option("--stochastic", is_flag=True, help="Sample retrievals instead of acting greedily.")
 @click.option("--objects", default=None,
               help="A task with object sets (the drawer's train, heldout, ...): the set the episodes hide (heldout: "
@@ -39,10 +40,11 @@ from sb3_memret.memory.retention import RETENTION_RULES
 @physics_options
 @click.pass_context
 def evaluate(ctx: click.Context, model_path: Path, task: str | None, condition: str, episodes: int, controller: str, n_envs: int, seed: int,
-             stochastic: bool, objects: str | None, retention: str | None, as_json: bool, render_backend: str,
-             backend: str, ray_address: str | None) -> None:
+             seed_set: str, stochastic: bool, objects: str | None, retention: str | None, as_json: bool,
+             render_backend: str, backend: str, ray_address: str | None) -> None:
     """Evaluate a trained model: success per group (the drawer's layer, the cue's colour) and retrieval
-    accuracy, at the task's protocol seeds where it has them (MIKASA's 4242424242 + i)."""
+    accuracy, at the task's development seeds where it has them (MIKASA's 5000 + i); its test set (MIKASA's
+    4242424242 + i) only with --seeds protocol, for the final figure."""
     from sb3_memret.evaluation.retrieval import evaluate_retrieval
     from sb3_memret.envs.vec_env import make_recall_vec_env
     from sb3_memret.training.run import eval_env_kwargs
@@ -74,7 +76,7 @@ def evaluate(ctx: click.Context, model_path: Path, task: str | None, condition: 
     try:
         with click.progressbar(length=episodes, label=f"{condition} evaluation", file=sys.stderr) as bar:
             report = evaluate_retrieval(model, venv, episodes, seed=seed, deterministic=not stochastic,
-                                        on_episode=lambda _: bar.update(1))
+                                        on_episode=lambda _: bar.update(1), held_out=SEED_SET_KINDS[seed_set])
     finally:
         venv.close()
     if as_json:

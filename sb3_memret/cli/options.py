@@ -1,5 +1,5 @@
-"""What the commands share: the ``--task``, ``--controller``, ``--render-backend`` and physics options, their
-callbacks and defaults, and checks of a run folder against the options."""
+"""What the commands share: the ``--task``, ``--controller``, ``--render-backend``, ``--seeds`` and physics options,
+their callbacks and defaults, and checks of a run folder against the options."""
 
 from __future__ import annotations
 
@@ -131,6 +131,20 @@ def task_option(default: str | None = DEFAULT_TASK):
                             help=f"Memory task: one of {', '.join(task_names())}, or package.module:Class (a Task "
                                  "of your own)." + ("" if default else "  [default: the run's]"))(command)
     return decorate
+
+
+# ``--seeds`` by value: the task's held-out seed set it plays (Task.development_seeds, Task.evaluation_seeds)
+SEED_SET_KINDS = {"dev": "development", "protocol": "evaluation"}
+
+
+def seeds_option(otherwise: str):
+    """``--seeds``: a task's development seeds unless its test set is asked for by name; ``otherwise`` says what a
+    task without seed sets plays."""
+    return click.option("--seeds", "seed_set", type=click.Choice(list(SEED_SET_KINDS)), default="dev",
+                        show_default=True,
+                        help="dev: the task's development seeds (MIKASA's 5000 + i), for every choice (checkpoints, "
+                             "controllers, variants); protocol: its benchmark's test set (MIKASA's 4242424242 + i), "
+                             "for the final figure only. " + otherwise)
 
 
 def check_physics(ctx: click.Context, param: click.Parameter, value):

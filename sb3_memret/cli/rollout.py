@@ -7,8 +7,8 @@ import sys
 
 import click
 
-from sb3_memret.cli.options import (TASK_CONTROLLER, build_controller, camera_render_backend, render_backend_option,
-                                    task_option)
+from sb3_memret.cli.options import (SEED_SET_KINDS, TASK_CONTROLLER, build_controller, camera_render_backend,
+                                    render_backend_option, seeds_option, task_option)
 
 
 @click.command()
@@ -28,24 +28,26 @@ from sb3_memret.cli.options import (TASK_CONTROLLER, build_controller, camera_re
 @click.option("--group", default=None,
               help="Only this group, for a task whose episodes a command chooses by group (Task.chosen_groups: the "
                    "drawer's layers 1-3, 1 = top)  [default: every group]")
-@click.option("--seed", type=click.IntRange(min=0), default=0, show_default=True,
-              help="First episode seed (a task with protocol seeds, as MIKASA's, plays those instead, unless "
-                   "--seeds dev).")
-@click.option("--seeds", "seed_set", type=click.Choice(["protocol", "dev"]), default="protocol", show_default=True,
-              help="protocol: a task's benchmark seeds where it has them (MIKASA's 4242424242 + i, its test set); "
-                   "dev: --seed, --seed + 1, ... on every task, for development (e.g. --seed 5000).")
+@click.option("--seed", type=click.IntRange(min=0), default=None,
+              help="First episode seed: episodes play --seed, --seed + 1, ... on any task, instead of its seed set "
+                   "(not with --seeds protocol)  [default: the task's seed set (--seeds) where it has one, else 0]")
+@seeds_option("A task without them (the drawer) plays --seed onwards.")
 @click.option("--replan-every", type=click.IntRange(min=1), default=None,
               help="Control steps executed from each action chunk before replanning  [default: the task's "
                    "(Task.replan_every): 8 on the drawer, 4 on MIKASA's tasks]")
 @click.option("--json", "as_json", is_flag=True, help="Print the result as JSON on stdout.")
 @render_backend_option
-def rollout(task: str, controller, condition: str, episodes: int, group: str | None, seed: int, seed_set: str,
-            replan_every: int | None, as_json: bool, render_backend: str) -> None:
+def rollout(task: str, controller, condition: str, episodes: int, group: str | None, seed: int | None,
+            seed_set: str, replan_every: int | None, as_json: bool, render_backend: str) -> None:
     """Run a frozen controller on a task under a prompt condition and print its success per group (the
-    drawer's layer, the cue's colour)."""
+    drawer's layer, the cue's colour), at the task's development seeds unless told otherwise (--seed, --seeds)."""
     from sb3_memret.evaluation.rollout import evaluate_task_condition, summarize
     from sb3_memret.tasks import make_task
 
+    if seed is not None and seed_set == "protocol":
+        raise click.BadParameter("--seeds protocol plays the task's own test set; give it or --seed, not both",
+                                 param_hint="--seed")
+    held_out = SEED_SET_KINDS[seed_set] if seed is None else None  # seeds of one's choosing: on any task
     the_task = make_task(task)
     render_backend = camera_render_backend(click.get_current_context(), render_backend, controller)
     try:
@@ -56,8 +58,8 @@ def rollout(task: str, controller, condition: str, episodes: int, group: str | N
     with click.progressbar(length=episodes * len(groups), label=f"{condition} rollouts", file=sys.stderr) as bar:
         try:  # a chosen group's episodes: the same seeds as every other group's
             results = [result for options in groups for result in evaluate_task_condition(
-                controller, condition, the_task, episodes, seed, replan_every, on_episode=lambda _: bar.update(1),
-                render_backend=render_backend, reset_options=options, protocol_seeds=seed_set == "protocol")]
+                controller, condition, the_task, episodes, seed or 0, replan_every, on_episode=lambda _: bar.update(1),
+                render_backend=render_backend, reset_options=options, held_out=held_out)]
         except ValueError as err:
             raise click.UsageError(str(err)) from err
     summary = summarize(results)

@@ -84,13 +84,14 @@ def evaluate_retrieval(
     samples: int = 32,
     on_episode: Callable[[dict[str, Any]], None] | None = None,
     task_seeds: Sequence[int] | None = None,
-    held_out: str = "evaluation",
+    held_out: str = "development",
 ) -> RetrievalReport:
     """Run ``n_episodes`` (split over the envs of ``venv`` as SB3's ``evaluate_policy`` does) and
     score retrieval and success. ``seed`` reseeds the envs first so the episodes are reproducible.
     The task envs start at ``task_seeds``, each seed played once, in contiguous blocks per env; by default at
-    each env's task's ``held_out`` seeds where it has them (``RecallVecEnv.held_out_seed_blocks``): "evaluation",
-    its protocol's (MIKASA's 4242424242 + i), or "development" (what training chooses checkpoints on).
+    each env's task's ``held_out`` seeds where it has them (``RecallVecEnv.held_out_seed_blocks``): "development"
+    (MIKASA's 5000 + i: what training and every choice play), or "evaluation", its protocol's test set (MIKASA's
+    4242424242 + i), for the final figure only, asked for by name.
     The model's retention critic is pushed to the envs first, so it evicts as it did in training.
     Its random draws (the sampled-fraction estimate, stochastic actions) come from a generator of its own,
     seeded by ``seed``: an evaluation leaves torch's global random state, and so training, as it found it."""

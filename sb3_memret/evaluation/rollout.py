@@ -11,6 +11,7 @@ from sb3_memret.controllers.base import FrozenController
 from sb3_memret.memory.schema import Key, MemoryType
 from sb3_memret.memory.writer import EventCompiler
 from sb3_memret.common.obs_trees import stack_obs
+from sb3_memret.common.seeds import HELD_OUT_KINDS
 from sb3_memret.physics.backends import TaskRunner
 from sb3_memret.controllers.prompts import CONDITIONS, build_prompt, check_fixed_condition
 from sb3_memret.tasks import Task, make_task
@@ -199,18 +200,21 @@ def evaluate_task_condition(
     on_episode: Callable[[EpisodeResult], None] | None = None,
     render_backend: str | None = None,
     reset_options: Mapping[str, Any] | None = None,
-    protocol_seeds: bool = True,
+    held_out: str | None = "development",
 ) -> list[EpisodeResult]:
-    """``episodes`` episodes of ``task`` at its protocol seeds (MIKASA's 4242424242 + i; not with
-    ``protocol_seeds=False``, for development), else at seed..seed+episodes-1, each prompted by ``condition``: the
+    """``episodes`` episodes of ``task`` at its ``held_out`` seeds where it has them ("development": MIKASA's
+    5000 + i, for every choice; "evaluation": its protocol's 4242424242 + i, the test set, for the final figure only),
+    else (or with ``held_out=None``) at seed..seed+episodes-1, each prompted by ``condition``: the
     task's instruction with its oracle facts, with none, with its wrong facts, or with the facts its writer has
     written so far (``WrittenFacts``); the controller replans every ``replan_every`` steps (None: the task's).
     Success is the task's (once per episode)."""
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
+    if held_out is not None and held_out not in HELD_OUT_KINDS:
+        raise ValueError(f"unknown held-out seed kind {held_out!r}; expected one of {list(HELD_OUT_KINDS)} or None")
     task = make_task(task)
     schedule = condition_schedule(task, condition)
-    seeds = (task.evaluation_seeds(episodes) if protocol_seeds else None) or range(seed, seed + episodes)
+    seeds = (getattr(task, f"{held_out}_seeds")(episodes) if held_out else None) or range(seed, seed + episodes)
     return play_task_episodes(controller, task, seeds, schedule, replan_every, on_episode, render_backend,
                               reset_options)
 
