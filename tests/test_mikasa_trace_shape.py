@@ -1,5 +1,6 @@
-"""MIKASA TraceShape: the shipped camera calibration, MIKASA's paths and their fit, the red cube read from pixels, the
-writer, the controller's view, the tracing expert, the task's conditions. Development seeds (5000+) only."""
+"""MIKASA TraceShape: MIKASA's paths and their fit, the red cube read from pixels, the writer, the controller's view,
+the tracing expert, the task's conditions (the shipped calibration: test_mikasa_calibration.py). Development seeds
+(5000+) only."""
 
 import numpy as np
 import pytest
@@ -15,7 +16,6 @@ from sb3_memret.memory.schema import MemoryEntry, MemoryType  # noqa: E402
 from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
 from sb3_memret.tasks.base import EnvFrame  # noqa: E402
-from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC  # noqa: E402
 from sb3_memret.tasks.mikasa.core.cue_task import DEV_SEED  # noqa: E402
 from sb3_memret.tasks.mikasa.trace_shape.expert import path_of  # noqa: E402
 from sb3_memret.tasks.mikasa.trace_shape.paths import (  # noqa: E402
@@ -53,13 +53,6 @@ def hard_env():
 
 def test_the_instruction_is_mikasas(hard_env):
     assert hard_env.unwrapped.LANGUAGE_INSTRUCTION.lower().replace(". ", "; ") == INSTRUCTION
-
-
-def test_the_shipped_calibration_is_the_simulators(hard_env):
-    hard_env.reset(seed=DEV_SEED)
-    params = hard_env.unwrapped.get_sensor_params()["base_camera"]
-    assert np.allclose(as_numpy(params["intrinsic_cv"])[0], BASE_CAMERA_INTRINSIC, atol=1e-6)
-    assert np.allclose(as_numpy(params["extrinsic_cv"])[0], BASE_CAMERA_EXTRINSIC, atol=1e-6)
 
 
 @pytest.mark.parametrize("shape", SHAPES)

@@ -35,14 +35,15 @@ press counters), so the count reaches it only through its prompt. Measured at th
 (``lab/2026-11-27-blink-reader-error/blink_reader_error.py``, the arm moving as the expert moves it): 40 of 40 counts right on each task, each
 written at the step the phase lamp turned green.
 
-**Progress as memory**: how often the red button was pressed is not in sight (its cap springs back), so a
-controller that reads only the current frame and its prompt cannot count its own presses. The writer then also writes
-them, a TASK_PROGRESS fact replaced at each press: ``the red button was pressed twice.``. It reads where the red cap
-stands from the base camera (``read_red_cap``: its top face's flat colour, cast onto the plane of the cap's top;
-within 0.21 cm of the simulator's at development seeds 6000-6011) and the TCP from the arm's own sensors at every
-control step, and counts as MIKASA does (a press within 6.5 cm of the cap's axis down to 2.51 cm over its top,
-counted once the TCP has risen 8.5 cm above where it began, and only once the phase lamp is green). The written
-facts carry the expert through 10 of 10 Easy (development seeds 5100-5109) and 8 of 8 Medium (5000-5007) episodes.
+**Progress as memory**: how often the red button was pressed is not in sight (its cap springs back), so a controller
+that reads only the current frame and its prompt cannot count its own presses. The writer then also writes them, a
+TASK_PROGRESS fact replaced at each press: ``the red button was pressed twice.``. It reads where the red cap stands
+from the base camera (``read_red_cap``: its top face's flat colour, cast through the camera's shipped calibration
+onto the plane of the cap's top; within 0.21 cm of the simulator's at development seeds 6000-6011) and the TCP from
+the arm's own sensors at every control step, and counts as MIKASA does (a press within 6.5 cm of the cap's axis down
+to 2.51 cm over its top, counted once the TCP has risen 8.5 cm above where it began, and only once the phase lamp is
+green). The written facts carry the expert through 10 of 10 Easy (development seeds 5100-5109) and 8 of 8 Medium
+(5000-5007) episodes.
 
 **The expert** (``ButtonPressController``, ``press_expert``) waits over the red button through the cue, then
 presses it as many times as its prompt's count, then presses the black button; without a count it presses once, a
@@ -69,6 +70,7 @@ from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.controllers.prompts import PromptTemplate
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates
 from sb3_memret.tasks.mikasa.core import demo_layout
+from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC
 from sb3_memret.tasks.mikasa.core.cue_task import MikasaCueTask
 from sb3_memret.tasks.mikasa.core.layout_perception import table_points
 from sb3_memret.tasks.mikasa.core.perception import HIDDEN_Z, REFERENCE_SIZE, DetectorObservation
@@ -295,8 +297,7 @@ class BlinkCountTask(MikasaCueTask):
         lamps = lamp_lit(rgb, 2), lamp_lit(rgb, 1)
         if not self.progress:
             return lamps
-        params = env.unwrapped.get_sensor_params()["base_camera"]
-        cap = read_red_cap(rgb, as_numpy(params["intrinsic_cv"])[0], as_numpy(params["extrinsic_cv"])[0])
+        cap = read_red_cap(rgb, BASE_CAMERA_INTRINSIC, BASE_CAMERA_EXTRINSIC)
         tcp = as_numpy(obs["extra"]["tcp_pose"]).reshape(-1)[:3]
         return PressPercept(*lamps, tuple(float(v) for v in tcp), None if cap is None else tuple(float(v) for v in cap))
 

@@ -1,7 +1,7 @@
 """The calibration of MIKASA-Robo-VLA's base camera, a rig constant: every MIKASA task mounts it alike (``look_at``
 eye (0.3, 0, 0.6) m, target (-0.1, 0, 0.1) m, a 90-degree field of view, 128x128 pixels). Measured once from the
 simulator (``get_sensor_params``) and shipped, as a real rig's calibration is: a writer casts pixels onto the table
-with it and never asks the live simulator (tests/test_mikasa_trace_shape.py checks it against the simulator's).
+with it and never asks the live simulator (tests/test_mikasa_calibration.py checks it against the simulator's).
 """
 
 from __future__ import annotations

@@ -22,15 +22,15 @@ the ball's centre (xy) within the target's 10 cm radius. InterceptGrab: the robo
 and the arm is static (every arm joint < 0.2 rad/s).
 
 **The memory:** one frame shows where the ball is, never where it is going or how fast: its speed (18-36, 36-54 or
-54-71 cm/s rolling, by task) is only in the difference between frames. The writer reads it from the base camera:
-at every control step the ball's pixels (saturated red; the target's red is pinker) are cast onto the table plane
-through the camera's calibration (``ball_on_table``); from the third step on (rolling) a line fitted to
-``MIN_SIGHTINGS`` sightings spanning ``MIN_SPAN`` steps gives the speed, written once as ``the ball rolls left at
-37 cm/s.`` (cm/s: the prompt contract has no decimals), at steps 7-17 (a slow ball comes into view late). Decoys
-are worded alike about other things at any variant's speed (``the key rolls left at 30 cm/s.``). The controller sees
-``InterceptObservation`` only: its joints, its hand, where the ball is while it is in the base camera's view (as a
-detector would report it: not while the ball is beyond the image's edge) and where the target is; never
-``oracle_info`` (MIKASA's launch velocity), so the ball's velocity reaches it only through its prompt.
+54-71 cm/s rolling, by task) is only in the difference between frames. The writer reads it from the base camera: at
+every control step the ball's pixels (saturated red; the target's red is pinker) are cast onto the table plane
+through the camera's shipped calibration (``core.calibration``; ``ball_on_table``); from the third step on (rolling)
+a line fitted to ``MIN_SIGHTINGS`` sightings spanning ``MIN_SPAN`` steps gives the speed, written once as ``the ball
+rolls left at 37 cm/s.`` (cm/s: the prompt contract has no decimals), at steps 7-17 (a slow ball comes into view
+late). Decoys are worded alike about other things at any variant's speed (``the key rolls left at 30 cm/s.``). The
+controller sees ``InterceptObservation`` only: its joints, its hand, where the ball is while it is in the base
+camera's view (as a detector would report it: not while the ball is beyond the image's edge) and where the target is;
+never ``oracle_info`` (MIKASA's launch velocity), so the ball's velocity reaches it only through its prompt.
 
 Who needs the memory is the controller's strategy: the expert (``InterceptController``) meets the ball on the move,
 pacing it at the prompt's speed while it comes down around it, and replans every 4 steps from where it sees the
@@ -61,6 +61,7 @@ from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.controllers.prompts import NUMBER, PromptTemplate
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates
 from sb3_memret.tasks.mikasa.core import demo_layout
+from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC, BASE_CAMERA_SIZE
 from sb3_memret.tasks.mikasa.core.cue_task import MikasaCueTask
 from sb3_memret.tasks.mikasa.core.touch_expert import CONTROL_DT
 from sb3_memret.tasks.mikasa.intercept.expert import DIRECTIONS, InterceptController, Motion
@@ -206,14 +207,14 @@ class MotionEpisode(Episode):
                 and abs(stated.speed - truth.speed) * 100 <= self.tolerance)
 
 
-def _in_view(points: Any, intrinsic: Any, extrinsic: Any, width: int, height: int) -> np.ndarray:
-    """Whether each point (B, 3) projects inside a (width x height) camera's image, in front of it."""
-    points, intrinsic, extrinsic = (as_numpy(a).astype(np.float64) for a in (points, intrinsic, extrinsic))
-    camera = np.einsum("bij,bj->bi", extrinsic[:, :, :3], points) + extrinsic[:, :, 3]
-    pixel = np.einsum("bij,bj->bi", intrinsic, camera)
+def _in_view(points: Any) -> np.ndarray:
+    """Whether each point (B, 3) projects inside the base camera's image, in front of it (its shipped calibration)."""
+    points = as_numpy(points).astype(np.float64)
+    camera = points @ BASE_CAMERA_EXTRINSIC[:, :3].T + BASE_CAMERA_EXTRINSIC[:, 3]
+    pixel = camera @ BASE_CAMERA_INTRINSIC.T
     depth = camera[:, 2]
     u, v = pixel[:, 0] / np.where(depth > 0, depth, 1.0), pixel[:, 1] / np.where(depth > 0, depth, 1.0)
-    return (depth > 0) & (u >= 0) & (u <= width) & (v >= 0) & (v <= height)
+    return (depth > 0) & (u >= 0) & (u <= BASE_CAMERA_SIZE) & (v >= 0) & (v <= BASE_CAMERA_SIZE)
 
 
 class InterceptObservation(DetectorObservation):
@@ -234,9 +235,7 @@ class InterceptObservation(DetectorObservation):
         out = super().observation(obs)
         base = self.env.unwrapped
         like = out["extra"]["ball_positions"]
-        params = base.get_sensor_params()["base_camera"]
-        config = base.scene.sensors["base_camera"].config
-        seen = _in_view(like[:, 0], params["intrinsic_cv"], params["extrinsic_cv"], config.width, config.height)
+        seen = _in_view(like[:, 0])
         if hasattr(like, "detach"):
             import torch
 
@@ -289,9 +288,8 @@ class InterceptTask(MikasaCueTask):
                 for i in range(len(success))]
 
     def perceive(self, env: gym.Env, obs: Any) -> tuple[float, float] | None:
-        params = env.unwrapped.get_sensor_params()["base_camera"]
-        seen = ball_on_table(as_numpy(obs["sensor_data"]["base_camera"]["rgb"])[0],
-                             as_numpy(params["intrinsic_cv"])[0], as_numpy(params["extrinsic_cv"])[0])
+        seen = ball_on_table(as_numpy(obs["sensor_data"]["base_camera"]["rgb"])[0], BASE_CAMERA_INTRINSIC,
+                             BASE_CAMERA_EXTRINSIC)
         return None if seen is None else (float(seen[0]), float(seen[1]))
 
     # ------------------------------------------------------------ memory

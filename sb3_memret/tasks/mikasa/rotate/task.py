@@ -20,16 +20,16 @@ seen from above; PosNeg: 0.1 rad to 45 degrees either way, the sign by a coin), 
 0.2 rad/s); Strict also needs the peg's centre within 5 cm of its start in x and in y.
 
 **Facts:** one, read from the base camera's first frame: the peg's top face (its one shade, (58, 102, 187), whatever
-the peg's angle) is cast onto the plane of that face (z = 5 cm) through the camera's calibration and its long axis is
-the principal axis of those points (``peg_on_table``): ``the peg started at 35 degrees.``, the angle of the axis
-from the table's x axis, counter-clockwise, in whole degrees from 0 to 179 (the halves look alike, so a camera
-cannot tell 35 from 215 degrees; nor need it: the rotation counts from the peg as it lay). Measured at the
-development seeds 5000-5099 (``lab/2026-11-27-rotate-reader-error/rotate_reader_error.py``): the reading is off the simulator's angle by 0.25
-degrees on average, 0.67 at the 95th percentile, 1.32 at most (rounding to whole degrees adds up to 0.5, and
-MIKASA's instruction rounds the rotation to whole degrees, up to 0.5 more): well inside MIKASA's 5.7. Decoys are worded
-alike about other things (``the key started at 57 degrees.``). The controller sees ``RotateObservation`` only (never
-``oracle_info`` or ``task_cue``), so the start reaches it only through its prompt, and the rotation only through the
-instruction.
+the peg's angle) is cast onto the plane of that face (z = 5 cm) through the camera's shipped calibration
+(``core.calibration``) and its long axis is the principal axis of those points (``peg_on_table``): ``the peg started
+at 35 degrees.``, the angle of the axis from the table's x axis, counter-clockwise, in whole degrees from 0 to 179
+(the halves look alike, so a camera cannot tell 35 from 215 degrees; nor need it: the rotation counts from the peg as
+it lay). Measured at the development seeds 5000-5099 (``lab/2026-11-27-rotate-reader-error/rotate_reader_error.py``):
+the reading is off the simulator's angle by 0.25 degrees on average, 0.67 at the 95th percentile, 1.32 at most
+(rounding to whole degrees adds up to 0.5, and MIKASA's instruction rounds the rotation to whole degrees, up to 0.5
+more): well inside MIKASA's 5.7. Decoys are worded alike about other things (``the key started at 57 degrees.``). The
+controller sees ``RotateObservation`` only (never ``oracle_info`` or ``task_cue``), so the start reaches it only
+through its prompt, and the rotation only through the instruction.
 
 **The instruction** is MIKASA's ``info["language_instruction"]`` of the episode's reset, lowercased into the prompt
 contract's form (``angle_deg`` holds a signed whole number: ``sb3_memret.controllers.prompts``); the task reads it there
@@ -53,6 +53,7 @@ from sb3_memret.memory.schema import MemoryType
 from sb3_memret.controllers.prompts import NUMBER, SIGNED_NUMBER, PromptTemplate
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates
 from sb3_memret.tasks.mikasa.core import demo_layout
+from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC
 from sb3_memret.tasks.mikasa.core.cue_task import MikasaCueTask
 from sb3_memret.tasks.mikasa.core.perception import DetectorObservation
 from sb3_memret.tasks.mikasa.rotate.expert import PegTurnController
@@ -184,11 +185,9 @@ class RotateTask(MikasaCueTask):
         seen: list[float | None] = [None] * len(success)
         instructions: list[str | None] = [None] * len(success)
         if reset:  # what the base camera saw of the peg before anything moved, and the episode's instruction
-            params = base.get_sensor_params()["base_camera"]
-            intrinsic, extrinsic = as_numpy(params["intrinsic_cv"]), as_numpy(params["extrinsic_cv"])
             rgb = obs["sensor_data"]["base_camera"]["rgb"]
-            seen = [None if (peg := peg_on_table(rgb[i], intrinsic[i], extrinsic[i])) is None else peg[1]
-                    for i in range(len(success))]
+            pegs = [peg_on_table(rgb[i], BASE_CAMERA_INTRINSIC, BASE_CAMERA_EXTRINSIC) for i in range(len(success))]
+            seen = [None if peg is None else peg[1] for peg in pegs]
             instructions = [episode_instruction(info, i) for i in range(len(success))]
         return [EnvFrame(select_obs(obs, i), {"start_deg": float(starts[i] % 180.0), "seen_start_deg": seen[i],
                                               "instruction": instructions[i]}, None, bool(success[i]))

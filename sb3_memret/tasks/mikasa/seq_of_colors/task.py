@@ -38,7 +38,7 @@ The writer sees every control step of the cue: it reads a sequence's colour from
 **Progress as memory**: nothing in sight changes when a cube is touched, so a controller that reads only the current
 frame and its prompt cannot tell which cubes it has touched. The writer then also writes what has been done, as
 TASK_PROGRESS facts (``the red cube was touched.``, ``the button was pressed.``), from the base camera's cube layout
-and the arm's own sensors (``writer`` says how). Its expert is the stateless
+(read through its shipped calibration) and the arm's own sensors (``writer`` says how). Its expert is the stateless
 ``SequenceTouchController(progress_from="prompt")``, which learns what it has done from those facts alone.
 ``SeqOfColorsTask(env_id, progress=False)`` is the task without progress facts, whose expert keeps track of its own
 touches (state across calls).
@@ -58,6 +58,7 @@ from sb3_memret.memory.schema import MemoryEntry, MemoryType
 from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.tasks.base import EnvFrame, Episode
 from sb3_memret.tasks.mikasa.core import demo_layout
+from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC
 from sb3_memret.tasks.mikasa.core.cue_task import MikasaCueTask
 from sb3_memret.tasks.mikasa.core.layout_perception import read_cube_layout, read_cue_set
 from sb3_memret.tasks.mikasa.core.perception import (COLOUR_NAMES, ControllerObservation, read_cue_colour,
@@ -176,15 +177,13 @@ class SeqOfColorsTask(MikasaCueTask):
             states.append({"colours": in_palette_order(colours) if self.variant.together else colours,
                            length_key: int(lengths[i])})
         if self.progress:
-            params = base.get_sensor_params()["base_camera"]
-            intrinsic, extrinsic = as_numpy(params["intrinsic_cv"]), as_numpy(params["extrinsic_cv"])
             rgb = obs["sensor_data"]["base_camera"]["rgb"]
             touched = self._touched(base, n)
             # a press begun (MIKASA's pending one) or counted: the writer writes it at the press's bottom too
             pressed = as_numpy(base.pending_press).reshape(-1) | (as_numpy(base.button_press_count).reshape(-1) > 0)
             for i, state in enumerate(states):
-                # what the base camera shows of the cubes, read with its calibration (the writer's)
-                state["seen_cubes"] = read_cube_layout(rgb[i], intrinsic[i], extrinsic[i], N_COLOURS)
+                # what the base camera shows of the cubes, read with its shipped calibration (the writer's)
+                state["seen_cubes"] = read_cube_layout(rgb[i], BASE_CAMERA_INTRINSIC, BASE_CAMERA_EXTRINSIC, N_COLOURS)
                 # what MIKASA counted done (privileged: the fixed conditions' progress facts)
                 state["touched"] = touched[i]
                 state["pressed"] = bool(pressed[i])

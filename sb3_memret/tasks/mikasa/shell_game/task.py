@@ -54,7 +54,7 @@ right cup.``). After a shuffle a fact names the cup's place at the end (``the ba
 the cup now standing right).
 
 **Writer** (``CupWriter``, every control step, the base camera only): in the cue it casts each ball's pixels
-onto the table (its colour, through the camera's calibration); when the mugs come down it finds them as the
+onto the table (its colour, through the camera's shipped calibration); when the mugs come down it finds them as the
 pixels that changed since the last cue frame (``cups_on_table``: the arm stands still then) and names, for each
 ball, the cup nearest to where the ball lay, by its place in the row. In a shuffle it follows the three cups
 from frame to frame by the shuffle's law (``follow``: a swap turns two cups counter-clockwise, seen from above,
@@ -89,6 +89,7 @@ from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.controllers.prompts import PromptTemplate
 from sb3_memret.tasks.base import EnvFrame, Episode
 from sb3_memret.tasks.mikasa.core import demo_layout
+from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC
 from sb3_memret.tasks.mikasa.core.cue_task import MikasaCueTask
 from sb3_memret.tasks.mikasa.shell_game.variants import (BALL, FACT_TEMPLATE, LAMP_COLOURS, RELATION, SIDES, VARIANTS,
                                                          ball_entity, cup_fact)
@@ -135,9 +136,8 @@ class ShellGameTask(MikasaCueTask):
         return super().make_env(**kwargs)
 
     def perceive(self, env: gym.Env, obs: Any) -> CameraFrame:
-        params = env.unwrapped.get_sensor_params()["base_camera"]
-        return CameraFrame(as_numpy(obs["sensor_data"]["base_camera"]["rgb"])[0],
-                           as_numpy(params["intrinsic_cv"])[0], as_numpy(params["extrinsic_cv"])[0])
+        return CameraFrame(as_numpy(obs["sensor_data"]["base_camera"]["rgb"])[0], BASE_CAMERA_INTRINSIC,
+                           BASE_CAMERA_EXTRINSIC)
 
     def final_places(self, base: Any, n_envs: int) -> np.ndarray:
         """(n_envs, n_balls): the place (0 left .. 2 right) each ball's cup ends at; privileged, for metrics only."""

@@ -19,9 +19,9 @@ place (x 0.20-0.25 m, y within 2.5 cm of the middle); the arm's initial joints.
 earlier in the episode, and its xy is now within 8 cm of its start.
 
 **Facts:** one, read from the base camera's first frame: the green cube's pixels are cast onto the
-table through the camera's calibration (``cube_on_table``) and its y names the side, ``the cube started
-at the left.`` (the robot's left: +y); each side's centre is within 5.6 cm of every start it names,
-inside MIKASA's 8 cm. Decoys are worded alike about other things (``the key started at the right.``).
+table through the camera's shipped calibration (``core.calibration``; ``cube_on_table``) and its y names the
+side, ``the cube started at the left.`` (the robot's left: +y); each side's centre is within 5.6 cm of every
+start it names, inside MIKASA's 8 cm. Decoys are worded alike about other things (``the key started at the right.``).
 The controller sees ``TakeItBackObservation`` only (never ``oracle_info``), so the start reaches it only
 through its prompt.
 """
@@ -39,6 +39,7 @@ from sb3_memret.memory.schema import MemoryType
 from sb3_memret.controllers.prompts import PromptTemplate
 from sb3_memret.tasks.base import EnvFrame, Episode, Predicates
 from sb3_memret.tasks.mikasa.core import demo_layout
+from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC
 from sb3_memret.tasks.mikasa.core.carry_expert import CarryBackController
 from sb3_memret.tasks.mikasa.core.cue_task import MikasaCueTask
 from sb3_memret.tasks.mikasa.core.perception import DetectorObservation, stack_positions
@@ -147,10 +148,8 @@ class TakeItBackTask(MikasaCueTask):
         success = as_numpy(info["success"]).reshape(-1)
         seen: list[np.ndarray | None] = [None] * len(success)
         if reset:  # what the base camera saw of the cube before anything moved
-            params = base.get_sensor_params()["base_camera"]
-            intrinsic, extrinsic = as_numpy(params["intrinsic_cv"]), as_numpy(params["extrinsic_cv"])
             rgb = obs["sensor_data"]["base_camera"]["rgb"]
-            seen = [cube_on_table(rgb[i], intrinsic[i], extrinsic[i]) for i in range(len(success))]
+            seen = [cube_on_table(rgb[i], BASE_CAMERA_INTRINSIC, BASE_CAMERA_EXTRINSIC) for i in range(len(success))]
         return [EnvFrame(select_obs(obs, i), {"side": side_of(float(starts[i, 1])), "start": starts[i, :2],
                                               "seen_start": seen[i]}, None, bool(success[i]))
                 for i in range(len(success))]
