@@ -11,6 +11,7 @@ import multiprocessing
 import signal
 import sys
 import threading
+import time
 from concurrent.futures import FIRST_COMPLETED, Future, ProcessPoolExecutor, wait
 from concurrent.futures.process import BrokenProcessPool
 from contextlib import contextmanager
@@ -118,9 +119,13 @@ def exit_status(stopped_by: str) -> int:
     return 128 + signum if signum is not None else 1
 
 
-def exit_description(process: BaseProcess) -> str:
+def exit_description(process: BaseProcess, timeout: float = 1.0) -> str:
     """How a worker process ended, e.g. 'killed by SIGKILL' or 'exited with code 1'."""
-    process.join(timeout=1.0)
+    deadline = time.monotonic() + timeout
+    process.join(timeout=timeout)
+    # the executor's own thread may be reaping the same process this moment: its exit code lands a little later
+    while process.exitcode is None and time.monotonic() < deadline:
+        time.sleep(0.01)
     code = process.exitcode
     if code is None:
         return "stopped answering (still running)"
