@@ -91,9 +91,9 @@ class PlackettLuceDistribution(Distribution):
 
     def entropy(self) -> torch.Tensor:
         """Exact entropy by the chain rule over the sets drawn so far: the next draw's law depends on which slots are
-        taken, not in what order, so H = sum over sets S, |S| < k, of P(S drawn first) H(next | S), with P(S) summed
-        over S's orders by dynamic programming: sum_{s<k} C(n, s) sets (2,510 for 7 of 12) where the orders number
-        n! / (n - s)! (773,665)."""
+        taken, not in what order, so H sums P(S drawn first) H(next given S) over the sets S of fewer than k slots,
+        each P(S) summed over S's orders by dynamic programming: sum_{s<k} C(n, s) sets (2,510 for 7 of 12) where the
+        orders number n! / (n - s)! (773,665)."""
         batch, n = self.logits.shape
         device = self.logits.device
         levels = [tuple(t.to(device) for t in level) for level in subset_levels(n, self.k)]
