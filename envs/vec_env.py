@@ -39,7 +39,7 @@ from sb3_memret.memory.encoder import MiniLMEncoder
 from sb3_memret.memory.stores import units_per_timescale
 from sb3_memret.memory.schema import MemoryEntry
 from sb3_memret.common.obs_trees import stack_obs
-from sb3_memret.common.seeds import HELD_OUT_KINDS
+from sb3_memret.common.seeds import held_out_seeds
 from sb3_memret.physics import make_physics
 from sb3_memret.physics.backends import PhysicsBackend, ResetRequest
 from sb3_memret.policy.networks import RetentionScorer
@@ -192,11 +192,9 @@ class RecallVecEnv(VecEnv):
         """Per env, the task seeds of its ``counts[i]`` held-out episodes: contiguous blocks of the task's ``kind``
         seeds ("evaluation": its benchmark protocol's; "development": those to choose checkpoints on), or None
         where the task has none (the evaluation seed then decides)."""
-        if kind not in HELD_OUT_KINDS:
-            raise ValueError(f"unknown held-out seed kind {kind!r}; expected one of {list(HELD_OUT_KINDS)}")
         if len(counts) != self.num_envs:
             raise ValueError(f"counts must give each of the {self.num_envs} envs its episodes, got {len(counts)}")
-        seeds = getattr(self.task, f"{kind}_seeds")(int(sum(counts)))
+        seeds = held_out_seeds(self.task, kind, int(sum(counts)))
         if seeds is None:
             return None
         starts = np.concatenate([[0], np.cumsum(counts)]).astype(int)
@@ -391,4 +389,4 @@ def make_recall_vec_env(n_envs: int = 1, env_kwargs: dict[str, Any] | None = Non
     return VecMonitor(venv)
 
 
-__all__ = ["HELD_OUT_KINDS", "RecallVecEnv", "make_recall_vec_env", "recall_vec_env"]
+__all__ = ["RecallVecEnv", "make_recall_vec_env", "recall_vec_env"]

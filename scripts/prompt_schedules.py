@@ -26,6 +26,7 @@ from typing import Sequence
 import numpy as np
 
 from sb3_memret.cli.options import SEED_SET_KINDS
+from sb3_memret.common.seeds import held_out_seeds
 from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers.base import FrozenController
 from sb3_memret.memory.seeding import SeedingConfig
@@ -80,7 +81,7 @@ def play(task: Task, controller: FrozenController, schedules: Sequence[str], epi
     for s in schedules:
         if s not in SCHEDULES:
             raise ValueError(f"unknown schedule {s!r}; expected some of {list(SCHEDULES)}")
-    seeds = getattr(task, f"{held_out}_seeds")(episodes) or list(range(episodes))
+    seeds = held_out_seeds(task, held_out, episodes) or list(range(episodes))
     records: list[dict] = []
     start = time.perf_counter()
     for schedule in schedules:

@@ -8,4 +8,12 @@ HELD_OUT_SEED = 1_000_000
 # final figure only, and the seeds every choice is made on (the default everywhere)
 HELD_OUT_KINDS = ("evaluation", "development")
 
-__all__ = ["DEMO_SEED", "HELD_OUT_KINDS", "HELD_OUT_SEED"]
+
+def held_out_seeds(task, kind: str, n: int) -> list[int] | None:
+    """The first ``n`` of ``task``'s ``kind`` seeds (``Task.evaluation_seeds``, ``Task.development_seeds``), or None
+    where it has none; an unknown kind is refused."""
+    if kind not in HELD_OUT_KINDS:
+        raise ValueError(f"unknown held-out seed kind {kind!r}; expected one of {list(HELD_OUT_KINDS)}")
+    return getattr(task, f"{kind}_seeds")(n)
+
+__all__ = ["DEMO_SEED", "HELD_OUT_KINDS", "HELD_OUT_SEED", "held_out_seeds"]

@@ -11,7 +11,7 @@ from sb3_memret.controllers.base import FrozenController
 from sb3_memret.memory.schema import Key, MemoryType
 from sb3_memret.memory.writer import EventCompiler
 from sb3_memret.common.obs_trees import stack_obs
-from sb3_memret.common.seeds import HELD_OUT_KINDS
+from sb3_memret.common.seeds import held_out_seeds
 from sb3_memret.physics.backends import TaskRunner
 from sb3_memret.controllers.prompts import CONDITIONS, build_prompt, check_fixed_condition
 from sb3_memret.tasks import Task, make_task
@@ -210,11 +210,9 @@ def evaluate_task_condition(
     Success is the task's (once per episode)."""
     if episodes < 1:
         raise ValueError(f"episodes must be >= 1, got {episodes}")
-    if held_out is not None and held_out not in HELD_OUT_KINDS:
-        raise ValueError(f"unknown held-out seed kind {held_out!r}; expected one of {list(HELD_OUT_KINDS)} or None")
     task = make_task(task)
     schedule = condition_schedule(task, condition)
-    seeds = (getattr(task, f"{held_out}_seeds")(episodes) if held_out else None) or range(seed, seed + episodes)
+    seeds = (held_out_seeds(task, held_out, episodes) if held_out is not None else None) or range(seed, seed + episodes)
     return play_task_episodes(controller, task, seeds, schedule, replan_every, on_episode, render_backend,
                               reset_options)
 
