@@ -7,13 +7,15 @@ circle round ...``, misleads it as a wrong fact would); without one it grasps th
 never succeeds. It keeps no state: every ``act`` re-reads the observation and the prompt. It reads only what
 ``TraceShapeObservation`` gives (joints, hand pose, the green cube's position, as a detector reports it).
 
-Plan, each call: while the cube is not in its fingers, come down a funnel over it with the gripper open and close it
-at its centre (``CarryBackController``'s grasp); holding it, lift it to ``carry_z`` and steer it round the path: at
-every predicted step of the chunk, towards the waypoint ``lookahead`` places past the one nearest the cube (a pure
-pursuit, always forward, so it joins the path wherever it is nearest and goes round and round). MIKASA counts a
-checkpoint once the cube's xy passes within 3.5 cm of it after the lamp turns green, and succeeds when all twelve are
-visited and the cube is back by the first: within one lap of the green lamp. Motion within a chunk uses
-``ScriptedTouchController``'s fitted model of the ``pd_ee_delta_pose`` arm.
+Plan, each call: while the cube is not in its fingers, come down a funnel over it with the gripper open (rising
+straight up first where the hand is below the funnel, so that low fingers do not sweep the cube away) and close it
+only once the hand is measured at the cube's centre (``TraceGains.seize_above``): fingers closed higher pinch the
+cube's top edges, and the cube swings round them and falls while traced. Holding it, lift it to ``carry_z`` and
+steer it round the path: at every predicted step of the chunk, towards the waypoint ``lookahead`` places past the one
+nearest the cube (a pure pursuit, always forward, so it joins the path wherever it is nearest and goes round and
+round). MIKASA counts a checkpoint once the cube's xy passes within 3.5 cm of it after the lamp turns green, and
+succeeds when all twelve are visited and the cube is back by the first: within one lap of the green lamp. Motion
+within a chunk uses ``ScriptedTouchController``'s fitted model of the ``pd_ee_delta_pose`` arm.
 """
 
 from __future__ import annotations
@@ -39,12 +41,16 @@ class TraceGains:
     max_step: float = 0.025  # the cube's largest step a control step while tracing (corners stay within reach)
     held_reach: float = 0.035  # the fingers on a cube this close to the TCP: held (a cube swung in the fingers too)
     held_gap: tuple[float, float] = (0.02, 0.06)  # ... with this gap between them (a cube tilted in the fingers too)
+    grasp_below: float = 0.004  # aim the grasp this far below the cube's centre (the arm stops within 8 mm of it) ...
+    seize_above: float = 0.006  # ... and close the fingers once the TCP is measured no higher over the centre ...
+    seize_sideways: float = 0.01  # ... and this close to it sideways (fingertips 9 mm below the TCP: pads centred)
+    funnel_slack: float = 0.015  # the hand this far below the funnel over the cube: rise straight up first
 
 
 class TraceGoal(NamedTuple):
-    """Where a chunk heads and how: ``grasp`` (down a funnel onto ``point``), ``hold`` (at ``point``, closed),
-    ``trace`` (round ``path``, the cube ``hand`` off the TCP); the sequence's ``release``, ``rise`` (open, to
-    ``point``) and ``press`` (closed, down a funnel onto ``point``)."""
+    """Where a chunk heads and how: ``grasp`` (open, down a funnel onto ``point``), ``seize`` (closing there),
+    ``hold`` (at ``point``, closed), ``trace`` (round ``path``, the cube ``hand`` off the TCP); the sequence's
+    ``release``, ``rise`` (open, to ``point``) and ``press`` (closed, down a funnel onto ``point``)."""
 
     point: np.ndarray
     mode: str
@@ -92,20 +98,34 @@ class TraceShapeController(ScriptedTouchController):
         t = self.trace
         held = t.held_gap[0] <= gap <= t.held_gap[1] and np.linalg.norm(pos - cube) <= t.held_reach
         if not held:
-            return TraceGoal(cube.copy(), "grasp")
+            return self._grasp(pos, cube)
         hand = pos - cube  # the cube sits off the TCP in the fingers: steer the cube, not the TCP
         if path is None:
             return TraceGoal(np.array([cube[0], cube[1], t.carry_z]) + hand, "hold")
         return TraceGoal(pos.copy(), "trace", path.waypoints(), hand)
 
+    def _grasp(self, pos: np.ndarray, cube: np.ndarray) -> TraceGoal:
+        """Down the funnel onto the grasp point, just below the cube's centre; ``seize`` once the TCP is measured
+        there (a prediction that runs ahead of a lagging arm closed the fingers on the cube's top edges)."""
+        t = self.trace
+        point = cube - (0.0, 0.0, t.grasp_below)
+        there = np.linalg.norm(pos[:2] - cube[:2]) <= t.seize_sideways and pos[2] - cube[2] <= t.seize_above
+        return TraceGoal(point, "seize" if there else "grasp")
+
+    def _funnel(self, pos: np.ndarray, point: np.ndarray) -> np.ndarray:
+        """Towards the funnel's point over ``point`` at the hand's sideways distance; straight up first where the hand
+        is more than ``funnel_slack`` below that (low fingers moving sideways push the cube away)."""
+        g = self.gains
+        height = point[2] + min(g.hover_height, g.funnel_slope * float(np.linalg.norm(point[:2] - pos[:2])))
+        if pos[2] < height - self.trace.funnel_slack:
+            return np.array([pos[0], pos[1], height])
+        return np.array([point[0], point[1], height])
+
     def _waypoint(self, pos: np.ndarray, goal: Any) -> np.ndarray:
-        """Grasping: the cube's centre, never below a funnel over it. Holding: the point. Tracing: rise to the carry
+        """Grasping: the grasp point, never below a funnel over it. Holding: the point. Tracing: rise to the carry
         height first, then the pursuit point past the waypoint nearest the (predicted) cube."""
-        if goal.mode == "grasp":
-            g = self.gains
-            point = np.asarray(goal.point, dtype=np.float64)
-            sideways = float(np.linalg.norm(point[:2] - pos[:2]))
-            return np.array([point[0], point[1], point[2] + min(g.hover_height, g.funnel_slope * sideways)])
+        if goal.mode in ("grasp", "seize"):
+            return self._funnel(pos, np.asarray(goal.point, dtype=np.float64))
         if goal.mode == "hold":
             return np.asarray(goal.point, dtype=np.float64)
         t = self.trace
@@ -119,9 +139,7 @@ class TraceShapeController(ScriptedTouchController):
         return np.array([cube[0] + step[0], cube[1] + step[1], t.carry_z]) + goal.hand
 
     def _grip(self, pos: np.ndarray, goal: Any) -> float:
-        if goal.mode in ("hold", "trace"):
-            return GRIP_CLOSED
-        return GRIP_CLOSED if np.linalg.norm(pos - goal.point) <= self.carry.grasp_tol else GRIP_OPEN
+        return GRIP_CLOSED if goal.mode in ("seize", "hold", "trace") else GRIP_OPEN
 
 
 __all__ = ["TraceGains", "TraceGoal", "TraceShapeController", "path_of"]

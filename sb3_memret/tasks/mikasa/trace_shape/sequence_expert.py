@@ -21,7 +21,8 @@ import numpy as np
 from sb3_memret.controllers.base import Obs, as_numpy
 from sb3_memret.controllers.prompts import ParsedPrompt, PromptTemplate
 from sb3_memret.tasks.mikasa.core.carry_expert import GRIP_CLOSED, GRIP_OPEN, CarryGains
-from sb3_memret.tasks.mikasa.core.touch_expert import CONTROL_DT, TouchGains, tcp_velocity
+from sb3_memret.tasks.mikasa.core.touch_expert import (COAST_GAIN, CONTROL_DT, DRIVE_GAIN, POS_SCALE, TouchGains,
+                                                        tcp_velocity)
 from sb3_memret.tasks.mikasa.trace_shape.expert import TraceGains, TraceGoal, TraceShapeController
 from sb3_memret.tasks.mikasa.trace_shape.paths import TracedPath
 
@@ -61,6 +62,24 @@ class PressGains:
     near_side: float = 0.03  # press this far nearer the arm than the cap's centre (MIKASA: within 6.5 cm) ...
     reach: float = 0.79  # ... and no farther from the arm's base than this: the TCP pointing down reached 0.805 m
     release_rise: float = 0.06  # having let the cube go, rise this high over it before heading for the button
+    command_reach: float = 0.80  # no step commands the TCP farther from the arm's base (an unsolvable target freezes
+    # the arm where it is: ManiSkill's pd_ee_delta_pose keeps the joints when its IK fails; 500 steps lost that way)
+
+
+def within_reach(chunk: np.ndarray, pos: np.ndarray, step: np.ndarray, reach: float) -> np.ndarray:
+    """``chunk`` with each step's commanded translation cut back so that the point it commands (the predicted TCP plus
+    the delta, ``pd_ee_delta_pose``) lies within ``reach`` of the arm's base sideways: beyond, its IK fails and the arm
+    stands still. The TCP is predicted with ``ScriptedTouchController``'s fitted model."""
+    chunk, pos, step = chunk.copy(), np.asarray(pos, dtype=np.float64).copy(), np.asarray(step, dtype=np.float64)
+    base = np.asarray(ARM_BASE_XY)
+    for k in range(len(chunk)):
+        target = pos[:2] + POS_SCALE * chunk[k, :2]
+        out = float(np.linalg.norm(target - base))
+        if out > reach:
+            chunk[k, :2] = (base + (target - base) * reach / out - pos[:2]) / POS_SCALE
+        step = DRIVE_GAIN * POS_SCALE * chunk[k, :3] + COAST_GAIN * step
+        pos = pos + step
+    return chunk
 
 
 class TraceSequenceController(TraceShapeController):
@@ -107,6 +126,11 @@ class TraceSequenceController(TraceShapeController):
         aim = base + away / max(distance, 1e-9) * min(distance - p.near_side, p.reach)
         return TraceGoal(np.array([aim[0], aim[1], top + p.press_height]), "press")
 
+    def _chunk(self, tcp_pose: np.ndarray, step: np.ndarray, goal: Any) -> np.ndarray:
+        """As tracing; pressing, every commanded point within the arm's reach (``within_reach``)."""
+        chunk = super()._chunk(tcp_pose, step, goal)
+        return within_reach(chunk, tcp_pose[:3], step, self.press.command_reach) if goal.mode == "press" else chunk
+
     def _waypoint(self, pos: np.ndarray, goal: Any) -> np.ndarray:
         """Releasing, rising: the point. Pressing: the point, never below a funnel over it. Else as tracing."""
         if goal.mode in ("release", "rise"):
@@ -126,4 +150,4 @@ class TraceSequenceController(TraceShapeController):
 
 
 __all__ = ["ARM_BASE_XY", "BUTTON_TOP_ABOVE_CAP", "ORDINAL_COUNTS", "PressGains", "TraceSequenceController",
-           "paths_done", "sequence_of"]
+           "paths_done", "sequence_of", "within_reach"]
