@@ -17,6 +17,7 @@ from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
 from sb3_memret.tasks.base import EnvFrame  # noqa: E402
 from sb3_memret.tasks.mikasa.core.cue_task import DEV_SEED  # noqa: E402
+from sb3_memret.tasks.mikasa.core.carry_expert import GRIP_CLOSED, GRIP_OPEN  # noqa: E402
 from sb3_memret.tasks.mikasa.trace_shape.expert import path_of  # noqa: E402
 from sb3_memret.tasks.mikasa.trace_shape.paths import (  # noqa: E402
     NUM_WAYPOINTS,
@@ -184,3 +185,22 @@ def test_the_path_decides_the_episode(condition, succeeds):
     (result,) = evaluate_task_condition(make_task(TASK).expert(), condition, TASK, episodes=1, seed=DEV_SEED + 1,
                                         held_out=None)
     assert result.success is succeeds
+
+
+def test_the_fingers_close_only_once_the_hand_is_measured_at_the_cubes_centre():
+    """A close timed on the predicted TCP pinched the cube's top edges where the arm lagged (dev seeds: the cube swung
+    out of the fingers and was swept off): the fingers stay open until the TCP is at the cube's centre."""
+    expert, cube = make_task(TASK).expert(), np.array([-0.3, 0.04, 0.02])
+    above = expert._goal(cube + (0.0, 0.0, 0.02), cube, 0.08, None)
+    assert above.mode == "grasp" and expert._grip(cube, above) == GRIP_OPEN
+    assert above.point[2] < cube[2]  # aimed just below the centre: the arm stops within 8 mm of its aim
+    there = expert._goal(cube + (0.004, 0.0, 0.004), cube, 0.08, None)
+    assert there.mode == "seize" and expert._grip(cube, there) == GRIP_CLOSED
+
+
+def test_a_low_hand_beside_the_cube_rises_before_it_moves_over():
+    """Fingers low beside a dropped cube moving sideways push it away (dev seeds: off the board): up first."""
+    expert, cube = make_task(TASK).expert(), np.array([-0.3, 0.04, 0.02])
+    hand = cube + (0.05, 0.0, 0.01)
+    waypoint = expert._waypoint(hand, expert._goal(hand, cube, 0.08, None))
+    assert np.allclose(waypoint[:2], hand[:2]) and waypoint[2] > hand[2] + 0.03

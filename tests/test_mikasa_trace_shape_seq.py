@@ -17,7 +17,12 @@ from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
 from sb3_memret.tasks.base import EnvFrame  # noqa: E402
 from sb3_memret.tasks.mikasa.core.cue_task import DEV_SEED  # noqa: E402
-from sb3_memret.tasks.mikasa.trace_shape.sequence_expert import paths_done, sequence_of  # noqa: E402
+from sb3_memret.tasks.mikasa.trace_shape.sequence_expert import (  # noqa: E402
+    ARM_BASE_XY,
+    paths_done,
+    sequence_of,
+    within_reach,
+)
 from sb3_memret.tasks.mikasa.trace_shape.paths import NUM_WAYPOINTS, TracedPath  # noqa: E402
 from sb3_memret.tasks.mikasa.trace_shape.sequence import (  # noqa: E402
     INSTRUCTION,
@@ -155,3 +160,19 @@ def test_the_written_sequence_and_progress_carry_the_expert_to_the_button():
     (written,) = evaluate_task_condition(make_task(TASK).expert(), "written", TASK, episodes=1, seed=TWO_PATHS_SEED,
                                          held_out=None)
     assert written.success
+
+
+def test_the_press_never_commands_a_point_beyond_the_arms_reach():
+    """pd_ee_delta_pose keeps the joints where its IK fails: a press commanding a point beyond reach froze the arm by
+    a far button for hundreds of steps (dev seeds). Each step's commanded point is cut back to the reach; a chunk
+    within reach is left alone."""
+    base = np.asarray(ARM_BASE_XY)
+    pos, still = np.array([0.13, 0.2, 0.08]), np.zeros(3)
+    out = np.zeros((4, 7))
+    out[:, 0], out[:, 1] = 1.0, 0.3
+    cut = within_reach(out, pos, still, 0.80)
+    assert np.linalg.norm(pos[:2] + 0.1 * cut[0, :2] - base) == pytest.approx(0.80)
+    assert (cut[:, 2:] == out[:, 2:]).all()
+    near = np.zeros((4, 7))
+    near[:, 0] = -0.5
+    assert np.array_equal(within_reach(near, pos, still, 0.80), near)
