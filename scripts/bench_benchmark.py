@@ -57,7 +57,7 @@ def play_rendering(task: str, controller: str, condition: str, episodes: int,
         agent.bind(env)
         outcomes, start = [], time.perf_counter()
         for seed in range(DEV_SEED, DEV_SEED + episodes):
-            agent.begin(seed)
+            agent.begin(seed - DEV_SEED)
             result = harness.play_episode(env, agent, seed)
             outcomes.append((bool(result.success_once), int(result.n_steps)))
         return time.perf_counter() - start, outcomes
@@ -90,7 +90,7 @@ def play_overhead(task: str, controller: str, condition: str, episodes: int) -> 
             steps, start = 0, time.perf_counter()
             for seed in range(DEV_SEED, DEV_SEED + episodes):
                 if policy is agent:
-                    agent.begin(seed)
+                    agent.begin(seed - DEV_SEED)
                 steps += int(harness.play_episode(env, policy, seed).n_steps)
             out.append((name, time.perf_counter() - start, steps))
         return out

@@ -379,7 +379,7 @@ def test_the_agent_renders_only_what_it_reads_and_every_outcome_stays_the_same()
                 key = (condition, every_step)
                 agent = MemoryAgent(task, task.expert(), condition, task.replan_every, render_every_step=every_step)
                 agent.bind(env)
-                agent.begin(5001)
+                agent.begin(0)
                 result = harness.play_episode(env, agent, 5001)
                 outcomes[key] = (result.success_once, result.episode_return, result.n_steps, agent.prompts)
     finally:
@@ -437,7 +437,7 @@ def test_a_table_names_the_weights_it_played_and_each_file_s_sha256(tmp_path):
 
     (tmp_path / "config.json").write_text("{}")
     (tmp_path / "model.safetensors").write_bytes(b"weights")
-    local = SimpleNamespace(checkpoint=tmp_path, spec=SimpleNamespace(needs_images=True))
+    local = SimpleNamespace(checkpoint=tmp_path, spec=SimpleNamespace(needs_images=True, harness_inputs=True))
     record = controller_record("learned", local)
     assert record["checkpoint"] == str(tmp_path.resolve()) and not record["privileged"]
     assert record["checkpoint_files_sha256"] == {"config.json": hashlib.sha256(b"{}").hexdigest(),
@@ -445,5 +445,8 @@ def test_a_table_names_the_weights_it_played_and_each_file_s_sha256(tmp_path):
     shipped = CHECKPOINTS / "mikasa-multitask-camera"
     assert controller_record("learned", SimpleNamespace(checkpoint=shipped, spec=local.spec))["checkpoint"] == \
         "shipped: mikasa-multitask-camera"
-    scripted = controller_record("scripted", SimpleNamespace(spec=SimpleNamespace(needs_images=False)))
-    assert scripted["privileged"] and "checkpoint" not in scripted
+    scripted = controller_record("scripted", SimpleNamespace(spec=SimpleNamespace(needs_images=False,
+                                                                                    harness_inputs=False)))
+    assert scripted["privileged"] and "checkpoint" not in scripted and "detector" in scripted["reads"]
+    joints = controller_record("learned", SimpleNamespace(spec=SimpleNamespace(needs_images=True, harness_inputs=False)))
+    assert joints["privileged"] and "joint positions and velocities" in joints["reads"]  # a camera policy on qvel

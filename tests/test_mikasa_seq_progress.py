@@ -70,9 +70,8 @@ def _layout() -> dict[str, np.ndarray]:
             for c, a in zip(COLOUR_NAMES, np.linspace(-1, 1, 9))}
 
 
-def _frame(tcp, steps: int = 4, seen=None, moving: bool = False, percepts=()) -> EnvFrame:
-    obs = {"extra": {"tcp_pose": np.array([[*tcp, 0, 1, 0, 0]])},
-           "agent": {"qvel": np.full((1, 9), 0.5 if moving else 0.0)}}
+def _frame(tcp, steps: int = 4, seen=None, percepts=()) -> EnvFrame:
+    obs = {"extra": {"tcp_pose": np.array([[*tcp, 0, 1, 0, 0]])}}  # the hand's pose alone, as the harness gives it
     return EnvFrame(obs, {"seen_cubes": _layout() if seen is None else seen}, None, False, steps=steps,
                     percepts=list(percepts))
 
@@ -84,12 +83,14 @@ def test_the_writer_writes_each_touch_and_the_press_once_from_what_it_saw():
     cue_only = {"red": np.array([0.0, 0.0])}  # the cue at the table centre: never where the red cube will stand
     assert writer.read(_frame((0.0, 0.0, 0.045), steps=0, seen=cue_only, percepts=["red"])) == \
         [(0, {("cue", "first cue cube"): "red"})]
-    assert writer.read(_frame(red, moving=True)) == []  # passing over it: not a touch
-    assert writer.read(_frame(red)) == [(4, {("touched", "red cube"): "touched"})]
+    assert writer.read(_frame(red)) == []  # arriving over it (8 cm since the last frame): not a touch yet
+    assert writer.read(_frame((red[0], red[1] + 0.005, red[2]))) == []  # still moving 1.25 mm a step
+    assert writer.read(_frame((red[0], red[1] + 0.005, red[2]))) == [(4, {("touched", "red cube"): "touched"})]
     assert writer.read(_frame(red)) == []  # once
     assert writer.read(_frame((*layout["red"], 0.09))) == []  # 4.5 cm over the touch point
     button = np.mean(list(layout.values()), axis=0) - (0.04, 0)
     assert writer.read(_frame((*button, 0.09))) == []  # over the cap, not down on it
+    assert writer.read(_frame((*button, 0.07))) == []  # on its way down
     assert writer.read(_frame((*button, 0.07))) == [(4, {("pressed", "button"): "pressed"})]
     assert writer.read(_frame((*button, 0.07), steps=0, seen={})) == []  # a new episode starts afresh
     assert writer.read(_frame(red, seen={"red": layout["red"]})) == []  # one cube in sight is the cue's
@@ -159,7 +160,7 @@ def test_written_or_simulated_progress_lets_the_stateless_expert_finish_and_cue_
     from sb3_memret.evaluation.rollout import condition_schedule, play_task_episodes
 
     task = make_task(SPEC)
-    monkeypatch.setattr(task, "max_control_steps", 88)
+    monkeypatch.setattr(task, "max_control_steps", 104)  # the writer waits for the hand to settle
     done = ["the cyan cube was touched.", "the maroon cube was touched.", "the olive cube was touched.",
             "the button was pressed."]
     for condition in ("written", "oracle"):

@@ -379,7 +379,7 @@ class _FakeMikasa:
 
 
 class _Source(gym.Env):
-    """A raw ManiSkill-layout env over ``_FakeMikasa`` (as the benchmark's HarnessView builds one)."""
+    """A raw ManiSkill-layout env over ``_FakeMikasa`` (as the benchmark's PrivilegedView builds one)."""
 
     def __init__(self, base):
         self._base = base

@@ -14,6 +14,7 @@ from click.testing import CliRunner
 
 from sb3_memret.cli import main
 from sb3_memret.controller_specs import make_controller
+from sb3_memret.controllers.harness_proprio import HARNESS_PROPRIO_NAMES
 from sb3_memret.stage1.datasets import load_task_demonstrations
 from sb3_memret.controllers.learned.modeling import masked_mse
 from sb3_memret.stage1.finetune import masked_stats, read_log
@@ -200,3 +201,39 @@ def test_a_perception_head_that_reads_the_hand_across_tasks_and_its_error_per_ta
     (row,) = [line.split("|") for line in one.stdout.splitlines() if line.startswith(f"| {SHAPE} |")]
     assert int(row[2]) > 0 and f"| {COLOUR} |" not in one.stdout
     assert "| cube_red_x |" not in one.stdout and "| cube_red |" not in one.stdout
+
+
+def test_a_controller_on_the_harness_proprio_plays_the_benchmark_as_a_protocol_entry(datasets, tmp_path):
+    """``state=harness``: the policy reads the harness's seven proprioception numbers (derived from the
+    demonstrations' hand and fingers), its perception head none of the robot's own readings; in the benchmark it gets
+    the policy side's view alone (the guard would stop any read of the simulator) and its table is a protocol entry."""
+    out = tmp_path / "ckpt"
+    result = CliRunner().invoke(main, ["finetune", str(datasets[COLOUR]), str(datasets[SHAPE]), "--tasks",
+                                       f"{COLOUR},{SHAPE}", "--set", "state=harness", "--out", str(out), "--set",
+                                       "training.steps=5", *SMALL])
+    assert result.exit_code == 0, result.output
+    controller = make_controller(f"learned:{out}", COLOUR)
+    config = controller.policy.config
+    assert config.state_names == HARNESS_PROPRIO_NAMES and controller.spec.harness_inputs
+    assert not set(config.perceived_names) & (set(proprio_names()) | set(HARNESS_PROPRIO_NAMES))
+    assert {"cube_red_x", "shape_sphere_x"} <= set(config.perceived_names)
+    assert not make_controller(f"learned:{datasets_policy(datasets, tmp_path)}", COLOUR).spec.harness_inputs
+    table = tmp_path / "table"
+    result = CliRunner().invoke(main, ["benchmark", "mikasa", "--tasks", COLOUR, "--controller", f"learned:{out}",
+                                       "--conditions", "oracle", "--episodes", "1", "--workers", "1", "--out",
+                                       str(table), "--no-progress"])
+    assert result.exit_code == 0, result.output
+    content = json.loads((table / "results.json").read_text())
+    record = content["tasks"][COLOUR]["controller"]
+    assert not content["privileged_upper_bound"] and not record["privileged"]
+    assert record["reads"].startswith("the harness's inputs alone")
+    assert "error" not in (table / "episodes.jsonl").read_text()
+
+
+def datasets_policy(datasets, tmp_path):
+    """A camera policy on the robot's joints, velocities and hand pose (``state=proprio``): beyond the harness's."""
+    out = tmp_path / "proprio"
+    result = CliRunner().invoke(main, ["finetune", str(datasets[COLOUR]), "--task", COLOUR, "--out", str(out),
+                                       "--set", "state=proprio", "--set", "training.steps=2", *SMALL])
+    assert result.exit_code == 0, result.output
+    return out

@@ -12,6 +12,14 @@ itself, returning that chunk's actions one per call. What the controller's promp
 - ``recall``: with the facts a trained memory learner retrieves from a bank holding the writer's facts and the
   task's decoys (its run's settings: capacity, K, decoys, age unit), greedily, its retention critic evicting.
 
+What each part reads (``sb3_memret.benchmark.view``): the writer, the bank, the retriever and a controller on the
+harness's inputs see the harness's observation alone (``policy_view``); a controller that reads more (the scripted
+experts' detector, a camera policy's joint velocities) gets a ``PrivilegedView`` and its rows are an upper bound. The
+agent holds the env behind a ``SimulatorGuard``: while it acts, only the benchmark's own reads (the episode's truth,
+the stated instruction, a privileged controller's view) reach the simulator, and any other read fails. The recall
+condition's decoys come from the agent's own generator (``seed``, and the episode's place in the run), never from the
+episode's seed.
+
 The instruction is the task's; where each episode's is the one its env states (``Task.instruction_in_info``: MIKASA's
 Rotate names the angle to turn in ``info["language_instruction"]``), the agent asks the env for it at the episode's
 first step (``stated_instruction``), as the harness keeps the reset's info from its policy.
@@ -26,6 +34,8 @@ from typing import TYPE_CHECKING, Any, Mapping, Sequence
 import gymnasium as gym
 import numpy as np
 
+from sb3_memret.benchmark.guard import SimulatorGuard, benchmark_reads
+from sb3_memret.benchmark.view import PrivilegedView, policy_view
 from sb3_memret.controllers.base import FrozenController
 from sb3_memret.controllers.prompts import build_prompt
 from sb3_memret.tasks.base import EnvFrame, Episode, Task
@@ -83,7 +93,8 @@ class RecalledFacts:
     decision from a bank that the task's writer fills and its decoys seed (the learner's run settings), its retention
     critic evicting; then, on a task with progress as memory, what the robot has done so far."""
 
-    def __init__(self, task: Task, learner: MemoryLearner, template: Any, encoder: Any, seed: int):
+    def __init__(self, task: Task, learner: MemoryLearner, template: Any, encoder: Any,
+                 rng: np.random.Generator):
         from sb3_memret.envs.configs import MemoryConfig
         from sb3_memret.envs.recall_memory import EpisodeMemory
         from sb3_memret.memory.seeding import SeedingConfig
@@ -91,7 +102,7 @@ class RecalledFacts:
         settings = learner.settings
         seeding = dataclasses.replace(SeedingConfig(), **{k: settings[k] for k in ("location_decoys", "holding_decoys", "event_every")
                                                           if settings.get(k) is not None})
-        self.learner, self.seed = learner, seed
+        self.learner, self.rng = learner, rng
         if settings.get("stores"):
             config = MemoryConfig(source=settings.get("memory_source", "seeded"), seeding=seeding,
                                   stores=tuple(settings["stores"]))
@@ -101,7 +112,7 @@ class RecalledFacts:
         self.memory = EpisodeMemory(config, "recall", encoder, learner.keep_scores, template, task)
 
     def start(self, frame: EnvFrame, episode: Episode) -> None:
-        self.memory.start(frame, np.random.default_rng(self.seed))
+        self.memory.start(frame, self.rng)
 
     def observe(self, frame: EnvFrame) -> None:
         self.memory.observe(frame)
@@ -113,12 +124,14 @@ class RecalledFacts:
 
 class MemoryAgent:
     """MIKASA's ``ChunkPolicy`` for one condition: ``bind`` it to a task's harness env, ``begin`` each episode
-    with its seed, then let the harness call ``forward``."""
+    with its place in the run, then let the harness call ``forward``. ``seed`` seeds the agent's own generator
+    (the recall condition's decoys, the controller's reset)."""
 
     chunk_size = 1
 
     def __init__(self, task: Task, controller: FrozenController, condition: str, replan_every: int | None,
-                 learner: MemoryLearner | None = None, encoder: Any = None, render_every_step: bool = False):
+                 learner: MemoryLearner | None = None, encoder: Any = None, render_every_step: bool = False,
+                 seed: int = 0):
         check_conditions([condition])
         replan_every = task.replan_interval(replan_every, controller.spec.chunk_len)
         if condition == "recall" and learner is None:
@@ -130,9 +143,10 @@ class MemoryAgent:
         self._gate: Any = None
         self._window: int | None = None  # the task's perception window in this env (``Task.perception_window``)
         self._encoder = encoder
-        self.env: gym.Env | None = None
-        self._view: Any = None
-        self._seed: int | None = None
+        self.seed = int(seed)
+        self.env: SimulatorGuard | None = None
+        self._privileged: PrivilegedView | None = None
+        self._episode_rng: np.random.Generator | None = None
         self._queue: list[np.ndarray] = []
         self._steps = 0
         self.schedule: "FactSchedule | None" = None
@@ -150,27 +164,29 @@ class MemoryAgent:
         return self._encoder
 
     def bind(self, env: gym.Env) -> None:
-        """Act in ``env`` (a harness env of this agent's task) from now on."""
+        """Act in ``env`` (a harness env of this agent's task) from now on, held behind a ``SimulatorGuard``."""
         from sb3_memret.physics.sensor_gate import SensorGate
 
-        self.env, self._view = env, None
+        self.env, self._privileged = SimulatorGuard(env), None
         self.controller.check_env(env)
         self._gate = SensorGate.of(env)
         self._window = self.task.perception_window(env) if self.task.perceives_every_step else None
 
-    def begin(self, seed: int) -> None:
-        """The next ``forward`` starts the episode played at ``seed``."""
+    def begin(self, episode: int) -> None:
+        """The next ``forward`` starts the run's ``episode``-th episode (its generator: the agent's seed and it)."""
         if self.env is None:
             raise RuntimeError("bind() the agent to its harness env before an episode")
-        self._seed, self._queue, self._steps = int(seed), [], 0
+        self._episode_rng = np.random.default_rng([self.seed, int(episode)])
+        self._queue, self._steps = [], 0
         self._gate.open = True  # the reset's observation starts the episode
 
     # ------------------------------------------------------------ acting
-    def _frame(self, obs: Mapping[str, Any], view: Mapping[str, Any], first: bool) -> EnvFrame:
+    def _frame(self, view: Mapping[str, Any], first: bool) -> EnvFrame:
         info: dict[str, Any] = {"success": np.zeros(1, dtype=bool)}
-        if first and self.task.instruction_in_info:
-            info["language_instruction"] = stated_instruction(self.env)
-        frame, = self.task.frames(self.env, view, info, reset=first)
+        with benchmark_reads("the episode's truth (metrics, the oracle and wrong conditions) and stated instruction"):
+            if first and self.task.instruction_in_info:
+                info["language_instruction"] = stated_instruction(self.env)
+            frame, = self.task.frames(self.env, view, info, reset=first)
         frame.steps = 0 if first else 1
         if self._perceives(self._steps):
             frame.percepts = [self.task.perceive(self.env, view)]
@@ -185,24 +201,23 @@ class MemoryAgent:
         from sb3_memret.evaluation.rollout import condition_schedule
 
         self.episode, self.prompts, self.decisions = self.task.episode(frame), [], 0
-        self.controller.reset([self._seed])
+        self.controller.reset([int(self._episode_rng.integers(2**31))])
         self.schedule = RecalledFacts(self.task, self.learner, self.controller.spec.prompt_template, self.encoder,
-                                      self._seed) if self.condition == "recall" else \
+                                      self._episode_rng) if self.condition == "recall" else \
             condition_schedule(self.task, self.condition)
         self.schedule.start(frame, self.episode)
 
     def forward(self, obs: Mapping[str, Any]) -> np.ndarray:
         """The next action (7,) for the harness's observation (its ``rgb`` and ``proprio`` only are read)."""
-        from sb3_memret.benchmark.view import HarnessView
-        from sb3_memret.common.obs_trees import stack_obs
+        if self._episode_rng is None:
+            raise RuntimeError("begin(episode) the episode before the harness calls forward()")
+        with self.env.armed():
+            return self._act(obs)
 
-        if self._seed is None:
-            raise RuntimeError("begin(seed) the episode before the harness calls forward()")
-        if self._view is None:
-            self._view = HarnessView(self.task, self.env, obs)
-        view = self._view.observation(obs)
+    def _act(self, obs: Mapping[str, Any]) -> np.ndarray:
+        view = policy_view(obs)
         first = self._steps == 0
-        frame = self._frame(obs, view, first)
+        frame = self._frame(view, first)
         if first:
             self._start(frame)
         else:
@@ -212,12 +227,22 @@ class MemoryAgent:
                                   self.controller.spec.prompt_template)
             self.decisions += 1
             self.prompts.append(prompt)
-            chunk = self.controller.act(stack_obs([view]), [prompt])[0][:self.replan_every]
+            chunk = self.controller.act(self._controller_view(obs, view), [prompt])[0][:self.replan_every]
             self._queue = [np.asarray(action, dtype=np.float32) for action in chunk]
         self._steps += 1
         action = self._queue.pop(0)
         self._gate.open = self.render_every_step or self._reads_next_images()
         return action
+
+    def _controller_view(self, obs: Mapping[str, Any], view: Mapping[str, Any]) -> Mapping[str, Any]:
+        """The controller's observation: the policy side's view for a controller on the harness's inputs, else the
+        privileged one (the benchmark reads the simulator for it; its rows are labelled an upper bound)."""
+        if self.controller.spec.harness_inputs:
+            return view
+        with benchmark_reads("a privileged controller's view"):
+            if self._privileged is None:
+                self._privileged = PrivilegedView(self.task, self.env, obs)
+            return self._privileged.observation(obs)
 
     def _reads_next_images(self) -> bool:
         """Whether the next observation's images are read: by the controller at a decision; where the condition

@@ -320,7 +320,7 @@ class _Worker:
             return {**asdict(unit), "error": self.failed[unit.env_id, unit.condition]}
         try:
             agent = self.agent(unit.env_id, unit.condition)
-            agent.begin(unit.seed)
+            agent.begin(self.protocol.seeds().index(unit.seed))  # its place in the run, not the episode's seed
             result = harness.play_episode(self.env, agent, unit.seed)
         except Exception as err:  # recorded with the task, which the report then refuses
             error = f"{type(err).__name__}: {err}".splitlines()[0]
@@ -478,11 +478,17 @@ def results(run: Plan, records: Iterable[dict[str, Any]]) -> dict[str, Any]:
 
 def controller_record(name: str, controller: Any) -> dict[str, Any]:
     """What a table says of its frozen controller: its name, digest and what it reads; a controller that reads the
-    simulator (a scripted expert's simulated object detector) beyond the protocol's policy inputs is a privileged
-    upper bound, and the record says so."""
-    privileged = not controller.spec.needs_images
-    reads = "cameras and proprioception" if not privileged else \
-        "proprioception and a simulated object detector (objects in sight), beyond the protocol's policy inputs"
+    simulator beyond the protocol's policy inputs (a scripted expert's simulated object detector, a camera policy's
+    joint positions and velocities) is a privileged upper bound, and the record says so."""
+    spec = controller.spec
+    privileged = not spec.harness_inputs
+    if spec.harness_inputs:
+        reads = "the harness's inputs alone: both cameras and its 7-D proprioception (hand xyz, roll-pitch-yaw, gripper)"
+    elif spec.needs_images:
+        reads = ("cameras and robot state read from the simulator (joint positions and velocities, hand pose), "
+                 "beyond the protocol's 7-D proprioception")
+    else:
+        reads = "proprioception and a simulated object detector (objects in sight), beyond the protocol's policy inputs"
     record = {"name": name, "sha256": controller_digest(controller), "reads": reads, "privileged": privileged}
     checkpoint = getattr(controller, "checkpoint", None)
     if checkpoint is not None and Path(checkpoint).is_dir():  # the weights it plays, each file's SHA-256 to check

@@ -1,12 +1,16 @@
-"""A task's controller observation, rebuilt from MIKASA's harness observation.
+"""What the agent's parts see of MIKASA's harness: the policy side's view, and a privileged controller's.
 
 The harness hands a policy ``rgb`` (1, 128, 128, 6: the base camera's channels, then the wrist camera's) and
-``proprio`` (1, 7), flattened by its wrapper chain. The project's controllers and writers read the task's own
-layout (``agent/qpos``, ``agent/qvel``, ``extra/tcp_pose``, ``sensor_data/<camera>/rgb``, plus what the task's
-detector reports), which the task's observation wrapper makes from ManiSkill's raw observation. ``HarnessView``
-feeds that same wrapper a raw-layout observation assembled from the harness's images and the robot's own joint and
-hand readings (proprioception, as ``proprio`` is), so the controller sees exactly what it sees in the project's
-own envs; ``oracle_info`` and ``task_cue`` are never read.
+``proprio`` (1, 7: the hand's xyz and roll-pitch-yaw, the gripper's opening), and the instruction. The project's
+writers and controllers read the task's own layout (``agent/qpos``, ``extra/tcp_pose``, ``sensor_data/<camera>/rgb``).
+
+- ``policy_view`` rebuilds that layout from the harness's observation alone: the cameras, the hand's pose (its
+  quaternion from the roll-pitch-yaw) and the two fingers (half the gripper's opening each); the arm's joints are NaN
+  and nothing else is there (a read of a joint velocity or a detection fails, naming what the harness gives). The
+  writer always reads it, and so does a controller on the harness's inputs (``ControllerSpec.harness_inputs``).
+- ``PrivilegedView`` is a controller's that reads the simulator beyond that (the scripted experts' object detector,
+  a camera policy's joint velocities): the task's observation wrapper over ManiSkill's raw layout, the robot's
+  joints read from the simulator. Its rows are a privileged upper bound, and the tables say so.
 """
 
 from __future__ import annotations
@@ -17,20 +21,49 @@ import gymnasium as gym
 import numpy as np
 from gymnasium import spaces
 
+from sb3_memret.controllers.harness_proprio import HARNESS_PROPRIO_NAMES, rpy_to_quat
+
 CAMERAS = ("base_camera", "hand_camera")  # the order of their channels in the harness's ``rgb``
+ARM_JOINTS = 7  # the Panda's arm joints before its two fingers in ``agent/qpos``
 
 
-def raw_observation(env: gym.Env, obs: Mapping[str, Any]) -> dict[str, Any]:
-    """ManiSkill's raw observation layout, from the harness's images and the robot's joints and hand pose."""
-    rgb = obs["rgb"]
+class HarnessObservation(dict):
+    """A layout the harness's inputs fill: reading an entry they do not give raises, naming what they give."""
+
+    def __missing__(self, key: str) -> Any:
+        raise KeyError(f"{key!r} is not in the benchmark's policy-side view: MIKASA's harness gives a policy its two "
+                       f"cameras, the 7-D proprioception {list(HARNESS_PROPRIO_NAMES)} and the instruction; "
+                       f"it has {sorted(self)}")
+
+
+def _cameras(rgb: np.ndarray) -> dict[str, Any]:
     if rgb.shape[-1] != 3 * len(CAMERAS):
         raise ValueError(f"the harness's rgb has {rgb.shape[-1]} channels; expected {3 * len(CAMERAS)} "
                          f"({' then '.join(CAMERAS)})")
+    return HarnessObservation({camera: HarnessObservation(rgb=rgb[..., 3 * i:3 * i + 3])
+                               for i, camera in enumerate(CAMERAS)})
+
+
+def policy_view(obs: Mapping[str, Any]) -> dict[str, Any]:
+    """The task's layout (batch of one, numpy) from the harness's ``rgb`` and ``proprio`` alone."""
+    from sb3_memret.common.obs_trees import to_numpy
+
+    rgb, proprio = to_numpy(obs["rgb"]), to_numpy(obs["proprio"]).astype(np.float64).reshape(-1, 7)
+    tcp_pose = np.concatenate([proprio[:, :3], rpy_to_quat(proprio[:, 3:6])], axis=1).astype(np.float32)
+    fingers = np.repeat(proprio[:, 6:7] / 2, 2, axis=1)
+    qpos = np.concatenate([np.full((len(proprio), ARM_JOINTS), np.nan), fingers], axis=1).astype(np.float32)
+    return HarnessObservation(agent=HarnessObservation(qpos=qpos), extra=HarnessObservation(tcp_pose=tcp_pose),
+                              sensor_data=_cameras(rgb))
+
+
+def raw_observation(env: gym.Env, obs: Mapping[str, Any]) -> dict[str, Any]:
+    """ManiSkill's raw observation layout, from the harness's images and the robot's joints and hand pose read from
+    the simulator (a privileged controller's)."""
     agent = env.unwrapped.agent
     return {
         "agent": {"qpos": agent.robot.get_qpos(), "qvel": agent.robot.get_qvel()},
         "extra": {"tcp_pose": agent.tcp.pose.raw_pose},
-        "sensor_data": {camera: {"rgb": rgb[..., 3 * i:3 * i + 3]} for i, camera in enumerate(CAMERAS)},
+        "sensor_data": dict(_cameras(np.asarray(obs["rgb"]))),
     }
 
 
@@ -57,8 +90,9 @@ class _RawSource(gym.Env):
         return self._harness.unwrapped
 
 
-class HarnessView:
-    """``observation(obs)``: the task's controller observation (numpy, batch of one) for a harness observation."""
+class PrivilegedView:
+    """``observation(obs)``: a privileged controller's observation (numpy, batch of one) for a harness observation:
+    the task's observation wrapper over the raw layout, which reads the simulator."""
 
     def __init__(self, task: Any, harness_env: gym.Env, obs: Mapping[str, Any]):
         from sb3_memret.common.obs_trees import to_numpy
@@ -74,4 +108,4 @@ class HarnessView:
         return self._to_numpy(self.wrapper.observation(raw_observation(self.env, obs)))
 
 
-__all__ = ["CAMERAS", "HarnessView", "raw_observation"]
+__all__ = ["CAMERAS", "HarnessObservation", "PrivilegedView", "policy_view", "raw_observation"]

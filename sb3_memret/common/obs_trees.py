@@ -8,10 +8,16 @@ from typing import Any, Mapping, Sequence
 import numpy as np
 
 
+def _mapping(tree: Mapping[str, Any], items: dict[str, Any]) -> dict[str, Any]:
+    """``items`` as a mapping of ``tree``'s own kind where that is a dict subclass (one that refuses missing keys by
+    name, as the benchmark's policy-side view), else a dict."""
+    return type(tree)(items) if isinstance(tree, dict) and type(tree) is not dict else items
+
+
 def to_numpy(tree: Any) -> Any:
     """A nested observation with every tensor as a numpy array (cheap to pickle, device-free)."""
     if isinstance(tree, Mapping):
-        return {key: to_numpy(value) for key, value in tree.items()}
+        return _mapping(tree, {key: to_numpy(value) for key, value in tree.items()})
     return tree.detach().cpu().numpy() if hasattr(tree, "detach") else np.asarray(tree)
 
 
@@ -19,14 +25,14 @@ def stack_obs(frames: Sequence[Mapping[str, Any]]) -> dict[str, Any]:
     """Batch-of-one observations concatenated into one batched observation, in the given order."""
     first = frames[0]
     if isinstance(first, Mapping):
-        return {key: stack_obs([frame[key] for frame in frames]) for key in first}
+        return _mapping(first, {key: stack_obs([frame[key] for frame in frames]) for key in first})
     return np.concatenate(frames, axis=0)
 
 
 def select_obs(tree: Any, index: int) -> Any:
     """Env ``index`` of a batched observation, keeping a batch dimension of one."""
     if isinstance(tree, Mapping):
-        return {key: select_obs(value, index) for key, value in tree.items()}
+        return _mapping(tree, {key: select_obs(value, index) for key, value in tree.items()})
     return tree[index:index + 1]
 
 

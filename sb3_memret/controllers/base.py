@@ -29,7 +29,10 @@ class ControllerSpec:
     sent unmodified, so it must match); ``chunk_len`` is the horizon of one ``act`` call;
     ``needs_images`` says it reads camera images; ``prompt_template`` lists its training
     prompts' wording; ``robot`` is the robot a camera controller saw in training (it learns its
-    look: the drawer's camera policy lost half its successes to a Panda drawn with coarser meshes).
+    look: the drawer's camera policy lost half its successes to a Panda drawn with coarser meshes);
+    ``harness_inputs`` that it reads nothing but what MIKASA's harness gives a policy (both cameras, the 7-D
+    proprioception of ``harness_proprio``, the prompt): the benchmark then hands it that alone, and its rows are a
+    protocol entry rather than a privileged upper bound.
     """
 
     action_convention: str
@@ -38,6 +41,7 @@ class ControllerSpec:
     action_dim: int = 7
     needs_images: bool = False
     robot: str | None = None  # a camera controller: the robot its training images showed (None: any)
+    harness_inputs: bool = False
 
 
 class FrozenController(ABC):

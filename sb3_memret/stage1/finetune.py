@@ -12,8 +12,10 @@ layouts: each frame's perception loss covers only the entries its own task has.
 Cameras: a frozen pretrained trunk's features are computed once per frame before training (the
 trainable heads then cost little per step); a network trained from pixels sees each batch with
 random shifts (``image_shift``). The state the policy reads is picked by name from the task's
-layout: all of it, or with ``state="proprio"`` only what a robot reads of itself; the entries it does
-not read (the simulator's detection, drawer openings) become the policy's ``perceived_names``: its
+layout: all of it, with ``state="proprio"`` only what a robot reads of itself, or with ``state="harness"`` the
+seven numbers MIKASA's harness gives a policy (``harness_proprio``: the hand's xyz and roll-pitch-yaw, the gripper),
+derived from the layout's hand pose and finger joints; the entries it does not read beyond the robot's own
+(the simulator's detection, drawer openings) become the policy's ``perceived_names``: its
 perception head estimates them from the images, trained on the simulator's labels (``perception_coef``),
 and its action head reads the estimates. (Measured here: frozen EfficientNet-Lite0 features locate the
 cube within 0.8 cm and its yaw within 7 degrees, ``lab/2026-11-26-the-learned-controllers/probe_camera_features.py``, yet behaviour
@@ -35,6 +37,7 @@ import numpy as np
 import torch
 
 from sb3_memret.common.cache import write_atomically
+from sb3_memret.controllers.harness_proprio import HARNESS_PROPRIO_NAMES, SOURCE_NAMES, with_harness_proprio
 from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig, perceived_objects
 from sb3_memret.controllers.learned.modeling import LearnedPolicy, TrainingBatch, pointer_ambiguity
 from sb3_memret.controllers.learned.processing import (LearnedPolicyProcessor, PromptTokenizer, channels_first,
@@ -51,7 +54,8 @@ LOG_HEADER = ["step", "train_loss", "train_perception_mse", "val_loss", "val_per
               "seconds"]
 STATE_FILE = "training_state.pt"  # an unfinished finetune at its last logged step, removed once the policy is saved
 POINTER_TARGETS_FILE = "pointer_targets.json"  # finetune's hindsight target of each training prompt, for reading
-STATE_CHOICES = ("full", "proprio")  # the whole state layout, or what a robot reads of itself
+# the whole state layout, what a robot reads of itself, or the seven numbers MIKASA's harness gives a policy
+STATE_CHOICES = ("full", "proprio", "harness")
 FEATURE_BATCH = 64  # frames per batch when a frozen trunk's features are computed
 
 
@@ -92,9 +96,16 @@ def training_instructions(prompts: Sequence[str], instructions: Sequence[str], f
 
 
 def state_names_for(task: Task, state: str) -> tuple[str, ...]:
-    """The state entries a policy reads: ``full`` (the task's layout) or ``proprio`` (what a robot reads of itself)."""
+    """The state entries a policy reads: ``full`` (the task's layout), ``proprio`` (what a robot reads of itself) or
+    ``harness`` (MIKASA's harness proprioception, derived from the layout's hand pose and fingers)."""
     if state not in STATE_CHOICES:
         raise ValueError(f"unknown state {state!r}; expected one of {list(STATE_CHOICES)}")
+    if state == "harness":
+        missing = [name for name in SOURCE_NAMES if name not in task.state_names()]
+        if missing:
+            raise ValueError(f"task {task.name!r}'s state layout has no {missing}: state='harness' is MIKASA's "
+                             "harness proprioception, derived from the Panda's hand pose and finger joints")
+        return HARNESS_PROPRIO_NAMES
     return task.state_names() if state == "full" else task.proprio_names()
 
 
@@ -131,7 +142,7 @@ def finetune(
 ) -> Path:
     """Train a LearnedPolicy on ``datasets`` of ``task``, or on a mapping from each of several tasks to its datasets
     (one multi-task policy), and save it to ``out`` (``save_pretrained``); returns ``out``. ``state`` picks the state
-    entries it reads (``full`` or ``proprio``); ``cameras=False`` leaves the datasets' camera images out;
+    entries it reads (``full``, ``proprio`` or ``harness``); ``cameras=False`` leaves the datasets' camera images out;
     ``cache_features`` keeps a frozen trunk's features of each dataset on disk for the next finetune
     (``feature_cache``). The prompt contract is the tasks' own templates (together), or ``config``'s. At every logged
     step the run's state is kept in ``out/training_state.pt``; ``resume`` goes on from it, to the same weights as a
@@ -140,6 +151,11 @@ def finetune(
     out = Path(out)
     check_unfinished(out, resume)
     tasks, demos = _load(datasets, task)
+    if state == "harness":
+        states, names = with_harness_proprio(demos.states, demos.state_names)
+        known = None if demos.known is None else np.c_[demos.known, np.ones((len(states), len(HARNESS_PROPRIO_NAMES)),
+                                                                            dtype=bool)]
+        demos = replace(demos, states=states, state_names=names, known=known)
     config = config or default_config(tasks)
     torch.manual_seed(settings.seed)
     rng = np.random.default_rng(settings.seed)
@@ -218,10 +234,12 @@ def policy_config(config: LearnedPolicyConfig, tasks: Sequence[Task], demos: Dem
                              f"{state!r} entries differ from {tasks[0].name!r}'s: train it with state='proprio'")
     columns = state_columns(demos.state_names, names, "the datasets' state")
     keys = tuple(demos.images) if cameras else ()
-    if state == "proprio" and not keys:
+    if state != "full" and not keys:
         raise ValueError("a policy on proprioception alone cannot see where anything is: train it on datasets with "
                          "camera images (sb3-memret demos --render-backend cpu), or use state='full'")
-    unread = np.setdiff1d(np.arange(len(demos.state_names)), columns)
+    own = set(tasks[0].proprio_names()) | set(HARNESS_PROPRIO_NAMES)  # the robot's own readings: never perceived
+    unread = np.array([i for i, name in enumerate(demos.state_names) if i not in columns and name not in own],
+                      dtype=np.int64)
     if not keys or perception_coef == 0:
         unread = unread[:0]
     config = replace(config, task=tasks[0].name, tasks=tuple(t.name for t in tasks) if len(tasks) > 1 else (),

@@ -7,7 +7,7 @@ Every key is checked before any data is read: an unknown key or a value out of r
 is accepted. Layout::
 
     policy: learned            # or pi05
-    state: null                # full | proprio; null: proprio when the datasets have cameras, else full
+    state: null                # full | proprio | harness (MIKASA's 7-D proprio); null: proprio with cameras, else full
     cameras: true              # read the datasets' camera images
     cache_features: true       # keep a frozen trunk's features on disk for the next finetune
     model: {...}               # the learned policy's network (MODEL_KEYS)

@@ -37,6 +37,7 @@ class LearnedController(FrozenController):
             needs_images=bool(config.image_features),
             prompt_template=config.prompt_template(task.prompt_template.fields),
             robot=config.robot,
+            harness_inputs=bool(config.image_features) and self.processor.harness_only,
         )
         self._num_envs = 0
 

@@ -1,7 +1,8 @@
 """Observations and prompts to the learned policy's inputs, the same at training and at acting.
 
 The state comes from the task's demonstration layout (``Task.controller_inputs``), picked by name
-(``LearnedPolicyConfig.state_names``); camera images are area-resized to the policy's size with the
+(``LearnedPolicyConfig.state_names``; MIKASA's harness proprioception, ``harness_proprio``, is derived from the
+layout's hand pose and fingers as at training); camera images are area-resized to the policy's size with the
 same uint8 rounding the demonstrations were stored with.
 """
 
@@ -12,9 +13,11 @@ from typing import Any, Protocol, Sequence
 import numpy as np
 import torch
 
-from sb3_memret.controllers.base import Obs
+from sb3_memret.controllers.base import Obs, as_numpy
+from sb3_memret.controllers.harness_proprio import (HARNESS_PROPRIO_NAMES, harness_proprio, reads_harness_proprio,
+                                                    with_harness_proprio)
 from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig
-from sb3_memret.controllers.observation import STATE_KEY, resize_image_tensor
+from sb3_memret.controllers.observation import IMAGE_KEYS, STATE_KEY, resize_image_tensor
 from sb3_memret.memory.encoder import MiniLMEncoder
 from sb3_memret.controllers.prompts import ParsedPrompt
 
@@ -70,8 +73,20 @@ class LearnedPolicyProcessor:
         self.config, self.task = config, task
         self.tokenizer = tokenizer or PromptTokenizer()
         self.device = torch.device(device)
-        self.columns = None if task is None else self.state_columns(task.state_names(),
-                                                                    f"task {task.name!r}'s observation layout")
+        self.derives_harness = reads_harness_proprio(config.state_names)
+        # a policy on the harness's inputs alone reads no other entry of the task's layout (``harness_inputs``)
+        self.harness_only = self.derives_harness and set(config.state_names) <= set(HARNESS_PROPRIO_NAMES)
+        if task is None:
+            self.columns = None
+        elif self.harness_only:
+            self.columns = self.state_columns(HARNESS_PROPRIO_NAMES, "the harness's proprioception")
+        else:
+            self.columns = self.state_columns(self.layout(task.state_names()), f"task {task.name!r}'s observation layout")
+
+    def layout(self, names: Sequence[str]) -> tuple[str, ...]:
+        """The state entries the policy can pick from in a layout of ``names``: with the harness's seven appended
+        where it reads them."""
+        return (*names, *HARNESS_PROPRIO_NAMES) if self.derives_harness else tuple(names)
 
     def state_columns(self, names: Sequence[str], where: str) -> np.ndarray:
         """Where the entries the policy reads (``config.state_names``) lie in a state laid out as ``names``."""
@@ -89,11 +104,26 @@ class LearnedPolicyProcessor:
     def __call__(self, obs: Obs, prompts: Sequence[str]) -> dict[str, torch.Tensor | list[torch.Tensor]]:
         if self.task is None:
             raise ValueError("a processor without a task builds training inputs only; give it the task to act on")
-        inputs = self.task.controller_inputs(obs, len(prompts), bool(self.config.image_features))
-        state = self.state(inputs[STATE_KEY], self.columns)
+        inputs = harness_inputs(obs, self.config.image_features) if self.harness_only else \
+            self.task.controller_inputs(obs, len(prompts), bool(self.config.image_features))
+        states = inputs[STATE_KEY]
+        if self.derives_harness and not self.harness_only:
+            states, _ = with_harness_proprio(states, self.task.state_names())
+        state = self.state(states, self.columns)
         tokens, mask = self.tokenizer(prompts)
         images = [self.camera(channels_first(inputs[key])) for key in self.config.image_features]
         return {"state": state, "tokens": tokens.to(self.device), "token_mask": mask.to(self.device), "images": images}
+
+
+def harness_inputs(obs: Obs, image_features: Sequence[str]) -> dict[str, np.ndarray]:
+    """A policy's inputs from what MIKASA's harness gives alone, batched: the seven proprioception numbers (from the
+    observation's hand pose and finger joints, as ``harness_proprio`` derives them at training) and the cameras."""
+    qpos = as_numpy(obs["agent"]["qpos"])
+    inputs = {STATE_KEY: harness_proprio(as_numpy(obs["extra"]["tcp_pose"]).reshape(len(qpos), -1),
+                                         qpos.reshape(len(qpos), -1)[:, 7:9])}
+    for feature in image_features:
+        inputs[feature] = as_numpy(obs["sensor_data"][IMAGE_KEYS[feature]]["rgb"])
+    return inputs
 
 
 def channels_first(images: np.ndarray) -> torch.Tensor:

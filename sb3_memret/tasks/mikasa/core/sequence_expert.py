@@ -65,6 +65,9 @@ class SequenceGains:
     touch_height: float = 0.03  # TCP over the cube centre at a touch: fingertips (9 mm lower) just clear its top
     touch_tol: float = 0.018  # record a touch within this of MIKASA's touch point (MIKASA: 0.02)
     static_tol: float = 0.18  # ... with every arm joint slower than this (MIKASA: 0.2 rad/s)
+    # the writer's stillness: the harness gives a policy no joint velocities, so the TCP moved less than this per
+    # control step since the writer's last frame
+    still_step: float = 0.001
     capture: float = 0.01  # the funnel's bottom: this close sideways, the TCP heads straight for the goal
     press_height: float = 0.012  # TCP over the cap's top when pressing (a full press; the fingers stay clear)
     press_seen: float = 0.02  # record the press with the TCP this low over the cap's top (MIKASA: 0.0251) ...

@@ -6,10 +6,10 @@ lime, blue, yellow, magenta, cyan, maroon, olive, teal). Each item is its own me
 by side and retention decides about each.
 
 Progress (``the red cube was touched.``, ``the button was pressed.``) is read from the base camera's cube layout and
-the arm's own sensors: the layout is each colour's first sighting in a frame showing more cubes than the cue shows at
-once (so never the cue's: it shows one cube at the table centre, or the bunch on an arc), a touch the arm static
-(every joint slower than 0.18 rad/s) with the TCP within 1.8 cm of the point 2.5 cm above a seen cube's centre
-(MIKASA: 2 cm, 0.2 rad/s), a press the TCP within 3 cm of the button's axis and 2 cm over its cap (MIKASA: 6.5 and
+the hand's pose (what MIKASA's harness gives a policy): the layout is each colour's first sighting in a frame showing
+more cubes than the cue shows at once (so never the cue's: it shows one cube at the table centre, or the bunch on an
+arc), a touch the TCP still (under 1 mm per control step since the writer's last frame) within 1.8 cm of the point
+2.5 cm above a seen cube's centre (MIKASA: 2 cm, every joint under 0.2 rad/s), a press the TCP within 3 cm of the button's axis and 2 cm over its cap (MIKASA: 6.5 and
 2.5 cm), the button standing 4 cm from the seen cubes' mean toward the robot (MIKASA's placement).
 """
 
@@ -64,7 +64,7 @@ class SequenceWriter:
 
     With ``progress``, it also writes ``the {colour} cube was touched.`` and ``the button was pressed.`` at the end of
     the chunk whose last frame shows them (the module docstring says how): those frames must carry the camera's cube
-    layout (``state["seen_cubes"]``) and the arm's sensors (``extra/tcp_pose``, ``agent/qvel``)."""
+    layout (``state["seen_cubes"]``) and the hand's pose (``extra/tcp_pose``)."""
 
     def __init__(self, n_items: int = 3, progress: bool = False, gains: SequenceGains | None = None,
                  together: bool = False):
@@ -81,10 +81,11 @@ class SequenceWriter:
         self.layout: dict[str, np.ndarray] = {}
         self.touched: list[str] = []
         self.pressed = False
+        self.last_tcp: np.ndarray | None = None  # the hand's position at the last frame read
 
     def read(self, frame: EnvFrame) -> list[tuple[int, Predicates]]:
         if frame.steps == 0:
-            self.seen, self.layout, self.touched, self.pressed = [], {}, [], False
+            self.seen, self.layout, self.touched, self.pressed, self.last_tcp = [], {}, [], False, None
         out = [(step, predicates) for step, seen in frame.timed_percepts() for predicates in self._cue(seen)]
         if self.progress:
             out += [(frame.steps, predicates) for predicates in self._progress(frame)]
@@ -115,7 +116,9 @@ class SequenceWriter:
                 self.layout.setdefault(colour, np.asarray(point, dtype=np.float64))
         g = self.gains
         tcp = as_numpy(frame.obs["extra"]["tcp_pose"]).reshape(-1)[:3].astype(np.float64)
-        static = float(np.abs(as_numpy(frame.obs["agent"]["qvel"]).reshape(-1)[:7]).max()) <= g.static_tol
+        moved = np.inf if self.last_tcp is None else np.linalg.norm(tcp - self.last_tcp) / max(frame.steps, 1)
+        self.last_tcp = tcp
+        static = moved <= g.still_step
         if len(self.layout) <= self.shown_at_once or not static:  # the cue or the delay, or the arm moving
             return []
         done: list[Predicates] = []
