@@ -40,6 +40,7 @@ def test_a_run_of_no_memory_condition_shows_the_published_rows_alone():
                             "obs_mode": "rgb", "metric": "success_once", "policy_inputs": ["rgb"], "episodes": 1,
                             "seed_set": "dev", "seeds": [5000], "controller": "learned", "replan_every": None,
                             "conditions": ["none", "wrong"]},
+               "privileged_upper_bound": False,
                "tasks": {"RememberColor9-VLA-v0": {"split": "short", "memory_type": "Object", "replan_every": 4,
                                                    "controller": {"reads": "cameras"},
                                                    "conditions": {"none": cell, "wrong": cell}}}}
@@ -71,9 +72,10 @@ def test_a_controller_that_reads_the_simulator_is_a_privileged_upper_bound_kept_
     assert "scripted controller, a privileged upper bound" in report.splitlines()[0]
     assert "Policy inputs:" not in report and "not a protocol entry" in report
     assert "## Published figures beside ours" not in report and "sb3-memret, scripted controller" not in report
-    del content["privileged_upper_bound"]  # a results file from before the flag: told by what its controller reads
-    assert "Policy inputs:" not in render_report(content)
+    del content["privileged_upper_bound"]  # a results file from before the flag: every controller then read more
     content["tasks"]["RememberColor9-VLA-v0"]["controller"] = {"reads": "cameras and proprioception"}
+    assert "Policy inputs:" not in render_report(content)  # (a camera policy's joint velocities, beyond the 7-D)
+    content["privileged_upper_bound"] = False  # a controller on the harness's inputs alone
     assert "- Policy inputs: rgb, proprio, instruction" in render_report(content)
 
 

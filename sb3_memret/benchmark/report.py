@@ -67,12 +67,10 @@ def _by_cue(tasks: Mapping[str, Any], conditions: list[str]) -> list[str]:
 
 
 def privileged_upper_bound(content: Mapping[str, Any]) -> bool:
-    """Whether a run's controller reads the simulator beyond the protocol's inputs (``results.json`` says so; a file
-    written before it did names a scripted controller by what it reads)."""
-    if "privileged_upper_bound" in content:
-        return bool(content["privileged_upper_bound"])
-    return any("simulated object detector" in t.get("controller", {}).get("reads", "")
-               for t in content["tasks"].values())
+    """Whether a run's controller reads the simulator beyond the protocol's inputs (``results.json`` says so). A file
+    written before it did is one: every controller then read more than the harness gives (the scripted experts'
+    detector, the camera controllers' joint positions and velocities), and its writers the privileged view."""
+    return bool(content.get("privileged_upper_bound", True))
 
 
 def render_report(content: Mapping[str, Any]) -> str:
