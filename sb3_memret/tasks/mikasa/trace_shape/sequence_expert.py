@@ -60,9 +60,9 @@ class PressGains:
 
     press_height: float = 0.012  # the TCP over the cap's top (MIKASA counts a press once it is within 2.5 cm)
     near_side: float = 0.03  # press this far nearer the arm than the cap's centre (MIKASA: within 6.5 cm) ...
-    reach: float = 0.795  # ... and no farther from the arm's base than this: the TCP pointing down reached 0.805 m
+    reach: float = 0.805  # ... and no farther from the arm's base than this: the TCP pointing down reached 0.805 m
     release_rise: float = 0.06  # having let the cube go, rise this high over it before heading for the button
-    command_reach: float = 0.80  # no step commands the TCP farther from the arm's base (an unsolvable target freezes
+    command_reach: float = 0.81  # no step commands the TCP farther from the arm's base (an unsolvable target freezes
     # the arm where it is: ManiSkill's pd_ee_delta_pose keeps the joints when its IK fails; 500 steps lost that way)
 
 
