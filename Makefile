@@ -125,7 +125,8 @@ controller-mikasa: install renderer
 
 # The one camera controller across twenty MIKASA tasks (`--controller learned` on each; finetune --tasks): every
 # short-split task whose success is touching the object a fact names, and SeqOfColors3, whose prompt also says which
-# cubes were touched (progress as memory); the prompt tells the tasks apart. Wider camera heads, the object pointer.
+# cubes were touched (progress as memory); the prompt tells the tasks apart. Wider camera heads, the object pointer,
+# and the harness's 7-D proprioception alone (the recipe's state: harness), so its benchmark rows are a protocol entry.
 # Data in resumable chunks of 50 (scripts/record_task_demos.sh: decision frames, the cameras rendering only there; a
 # rerun records only the missing chunks; keep the counts multiples of 50): $(MULTITASK_EPISODES) expert episodes of each
 # touch task, then $(MULTITASK_ONPOLICY) more played by the task's own camera controller (`learned-task`) where one
