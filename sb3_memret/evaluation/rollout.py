@@ -52,12 +52,14 @@ class FactSchedule(Protocol):
 
 @dataclass
 class ConditionFacts(FactSchedule):
-    """A fixed prompt condition's facts, the same at every decision: oracle, wrong, or none; then, for a task with
-    progress as memory, what the robot has done so far, from the simulator (``Task.progress_facts``)."""
+    """A fixed prompt condition's facts, the same at every decision: oracle, wrong, or none (a task whose facts
+    follow the robot's work words them from the latest frame, ``Task.facts_now``); then, for a task with progress as
+    memory, what the robot has done so far, from the simulator (``Task.progress_facts``)."""
 
     task: Task
     condition: str
     _episode: Episode | None = None
+    _frame: EnvFrame | None = None
     _progress: list[str] = field(default_factory=list)
     t: int = 0  # control steps into the episode: a task's facts may carry a time (``Task.facts_at``)
 
@@ -65,15 +67,17 @@ class ConditionFacts(FactSchedule):
         check_fixed_condition(self.condition)
 
     def start(self, frame: EnvFrame, episode: Episode) -> None:
-        self._episode, self.t = episode, 0
+        self._episode, self._frame, self.t = episode, frame, 0
         self._progress = self.task.progress_facts(frame)
 
     def observe(self, frame: EnvFrame) -> None:
         self.t += frame.steps
+        self._frame = frame
         self._progress = self.task.progress_facts(frame)
 
     def facts(self, decision: int) -> Sequence[str]:
-        facts = [] if self.condition == "none" else self.task.facts_at(self.condition, self._episode, self.t)
+        facts = [] if self.condition == "none" else self.task.facts_now(self.condition, self._episode, self._frame,
+                                                                        self.t)
         return [*facts, *self._progress]
 
 

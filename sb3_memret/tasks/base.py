@@ -256,6 +256,11 @@ class Task(ABC):
             raise ValueError(f"condition {condition!r} has no facts of its own; expected 'oracle' or 'wrong'")
         return self.oracle_facts(episode) if condition == "oracle" else self.wrong_facts(episode)
 
+    def facts_now(self, condition: str, episode: Episode, frame: EnvFrame, t: int) -> list[str]:
+        """The oracle's or the wrong condition's facts at ``frame``, ``t`` control steps into ``episode``: ``facts_at``'s,
+        unless the facts follow what the robot has done (BatteriesChecker's checklist: the batteries it has checked)."""
+        return self.facts_at(condition, episode, t)
+
     def progress_facts(self, frame: EnvFrame) -> list[str]:
         """What the robot has done by ``frame``, worded as this task's progress writer words it, from the
         simulator's state (privileged). Every fixed condition (oracle, wrong, none) carries it, so a controller that
