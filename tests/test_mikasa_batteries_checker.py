@@ -1,0 +1,169 @@
+"""MIKASA BatteriesChecker: the checklist's wording and parse, the writer's readers on rendered frames, the conditions'
+facts, the zoo sections, and a real-sim episode where the expert completes check-confirm cycles. Development seeds
+(5000+) only."""
+
+import numpy as np
+import pytest
+
+from mikasa_support import MIKASA_MISSING
+
+pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
+
+from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E402
+from sb3_memret.tasks import check_task_name, make_task, task_names  # noqa: E402
+from sb3_memret.tasks.base import EnvFrame  # noqa: E402
+from sb3_memret.tasks.mikasa.batteries_checker.checklist import (  # noqa: E402
+    checklist_fact, checklist_value, parse_checklist, stated_checklist,
+)
+from sb3_memret.tasks.mikasa.batteries_checker.task import (  # noqa: E402
+    EASY_INSTRUCTION, HARD_INSTRUCTION, PROMPT_TEMPLATE, VARIANTS,
+)
+from sb3_memret.tasks.mikasa.batteries_checker.writer import (  # noqa: E402
+    CheckPercept, ChecklistWriter, lamp_lit, read_batteries, read_button,
+)
+from sb3_memret.tasks.mikasa.core.cue_task import DEV_SEED  # noqa: E402
+
+EASY = "BatteriesCheckerEasy-3-VLA-v0"
+
+
+def test_the_ids_are_mikasas_and_hard_is_refused_with_its_reason():
+    import gymnasium as gym
+    from mikasa_robo_suite.vla.memory_envs import batteries_checker_hard_vla as hard
+
+    assert set(VARIANTS) <= set(task_names())
+    for name, variant in VARIANTS.items():
+        assert variant.steps == gym.spec(name).max_episode_steps
+        if variant.hard:
+            with pytest.raises(ValueError, match="cannot yet take a battery back out"):
+                check_task_name(name)
+            continue
+        task = make_task(name)
+        assert task.max_control_steps == variant.steps and task.replan_every == 4 and task.perceives_every_step
+    assert HARD_INSTRUCTION == hard.BatteriesCheckerVLABaseEnv.LANGUAGE_INSTRUCTION.lower()
+    assert EASY_INSTRUCTION.startswith("find all working batteries by inserting")
+    from sb3_memret.tasks.mikasa.batteries_checker.task import BatteriesCheckerTask
+
+    with pytest.raises(ValueError, match="unknown BatteriesChecker task"):
+        BatteriesCheckerTask("BatteriesCheckerEasy-9-VLA-v0")
+
+
+def test_one_fact_carries_the_whole_checklist_and_parses_back():
+    checks = {3: True, 1: False}
+    assert checklist_value(checks) == "slot 1 dead and slot 3 working"
+    fact = checklist_fact(checks)
+    assert fact == "the battery check found slot 1 dead and slot 3 working."
+    parsed = parse_prompt(build_prompt(EASY_INSTRUCTION, [fact], PROMPT_TEMPLATE), PROMPT_TEMPLATE)
+    assert stated_checklist(parsed) == {1: False, 3: True} == parse_checklist(checklist_value(checks))
+    decoy = parse_prompt(f"{EASY_INSTRUCTION} the fuse check found slot 2 working.", PROMPT_TEMPLATE)
+    assert stated_checklist(decoy) == {2: True}  # a decoy misleads the expert as a wrong fact would
+    assert stated_checklist(parse_prompt(EASY_INSTRUCTION, PROMPT_TEMPLATE)) == {}
+    with pytest.raises(ValueError, match="empty checklist"):
+        checklist_value({})
+    with pytest.raises(ValueError, match="slots are whole numbers from 1"):
+        checklist_value({0: True})
+    with pytest.raises(ValueError, match="not a checklist"):
+        parse_checklist("slot one dead")
+    with pytest.raises(ValueError, match="matches no trained template"):
+        build_prompt(EASY_INSTRUCTION, ["the battery check found slot 1 empty."], PROMPT_TEMPLATE)
+
+
+def test_the_conditions_word_mikasas_counters_at_each_decision():
+    task = make_task(EASY)
+    frame = EnvFrame({}, {"checked": (), "working": (2,)}, None, False)
+    episode = task.episode(frame)
+    assert episode.group == "2"
+    assert task.facts_now("oracle", episode, frame, 0) == task.oracle_facts(episode) == []
+    assert task.facts_now("wrong", episode, frame, 0) == task.wrong_facts(episode) == [
+        "the battery check found slot 1 working and slot 2 dead and slot 3 working."]
+    later = EnvFrame({}, {"checked": (1, 2), "working": (2,)}, None, False)
+    assert task.facts_now("oracle", episode, later, 90) == ["the battery check found slot 1 dead and slot 2 working."]
+    assert task.facts_now("wrong", episode, later, 90) == ["the battery check found slot 3 working."]
+
+
+def test_every_variant_has_a_zoo_section_naming_it():
+    """Every section names its task; the runnable ones parse (a refused task's is refused with the task's reason)."""
+    from pathlib import Path
+
+    import yaml
+
+    from sb3_memret.training.config import load_config
+
+    zoo = Path(__file__).resolve().parents[1] / "zoo_configs" / "memret_ppo_mikasa.yml"
+    sections = yaml.safe_load(zoo.read_text())
+    for name, variant in VARIANTS.items():
+        assert sections[name]["env_kwargs"]["task"] == name and sections[name]["env_kwargs"]["k"] == 1
+        if not variant.hard:
+            assert load_config(zoo, name).env_kwargs["task"] == name
+
+
+def _percept(tcp, gap, lit=False, button=(0.0, 0.25)):
+    return CheckPercept(tcp, gap, lit, ((0.01, -0.08), (-0.04, -0.08), (-0.09, -0.08)), button)
+
+
+def test_the_writer_follows_pick_test_and_press_and_ignores_a_press_without_a_test():
+    writer = ChecklistWriter(3, hard=False)
+    above_button, on_button = (0.0, 0.25, 0.2), (0.0, 0.25, 0.075)
+    steps = [_percept(above_button, 0.04), _percept(on_button, 0.0), _percept(above_button, 0.0),  # a bare press
+             _percept((-0.04, -0.08, 0.04), 0.04), _percept((-0.04, -0.08, 0.04), 0.017),  # battery 2 picked
+             _percept((0.16, 0.02, 0.07), 0.017), _percept((0.16, 0.02, 0.07), 0.04, lit=True),  # tested: lit
+             _percept(above_button, 0.0), _percept(on_button, 0.0)]  # confirmed
+    frame = EnvFrame({}, None, None, False, percepts=steps)
+    assert writer.read(frame) == [(8, {("checked", "battery check"): "slot 2 working"})]
+
+
+@pytest.fixture(scope="module")
+def played():
+    """One expert episode of Easy-3 at a development seed under the written condition, with every base-camera
+    frame and MIKASA's lamp and counters at each step."""
+    from sb3_memret.common.obs_trees import to_numpy
+
+    task = make_task(EASY)
+    env = task.make_env(**task.env_kwargs(False, "cpu"))
+    expert = task.expert()
+    obs, info = env.reset(seed=DEV_SEED)
+    expert.reset([DEV_SEED])
+    writer, frames, lit, checked, success, facts = task.writer(), [], [], [], False, []
+    frame = task.frames(env, obs, info, reset=True)[0]
+    frame.percepts = [task.perceive(env, obs)]
+
+    def written(frame):
+        return [checklist_fact(parse_checklist(value)) for _, predicates in writer.read(frame)
+                for value in predicates.values()]
+
+    facts += written(frame)
+    for _ in range(260):
+        prompt = build_prompt(task.instruction_text, facts[-1:], task.prompt_template)
+        chunk = expert.act(obs, [prompt])[0][:task.replan_every]
+        percepts = []
+        for action in chunk:
+            obs, _, terminated, truncated, info = env.step(action)
+            frames.append(to_numpy(obs)["sensor_data"]["base_camera"]["rgb"][0])
+            lit.append(bool(env.unwrapped.lamp_bulb_on.pose.p[0, 2] < 10))
+            checked.append(int(info["checked_count"][0]))
+            percepts.append(task.perceive(env, obs))
+            success |= bool(info["success"][0])
+        frame = task.frames(env, obs, info)[0]
+        frame.steps, frame.percepts = len(chunk), percepts
+        facts += written(frame)
+        if success or bool(terminated) or bool(truncated):
+            break
+    base = env.unwrapped
+    truth = {"slots": base.tray_slot_positions[0, :3, :2].numpy(), "button": base.button_xy[0].numpy(),
+             "working": tuple(int(s) + 1 for s in np.flatnonzero(base.working_mask[0, :3].numpy()))}
+    env.close()
+    return {"frames": frames, "lit": lit, "checked": checked, "success": success, "facts": facts, **truth}
+
+
+@pytest.mark.slow
+def test_the_readers_see_the_slots_the_button_and_the_lamp_as_mikasa_has_them(played):
+    first = played["frames"][0]
+    assert np.abs(read_batteries(first) - played["slots"]).max() < 0.006
+    assert np.linalg.norm(read_button(first) - played["button"]) < 0.005
+    assert [lamp_lit(rgb) for rgb in played["frames"]] == played["lit"] and any(played["lit"])
+
+
+@pytest.mark.slow
+def test_the_expert_completes_check_confirm_cycles_on_the_writers_checklist(played):
+    assert played["success"] and played["checked"][-1] == 3  # every cycle confirmed, on the written facts alone
+    final = parse_checklist(played["facts"][-1].removeprefix("the battery check found ").removesuffix("."))
+    assert final == {slot: slot in played["working"] for slot in (1, 2, 3)}
