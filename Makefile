@@ -123,24 +123,29 @@ controller-mikasa: install renderer
 		$(MIKASA_SHIPPED)/
 	[ $(MIKASA_RECIPE) -ef $(MIKASA_SHIPPED)/recipe.yml ] || cp $(MIKASA_RECIPE) $(MIKASA_SHIPPED)/recipe.yml
 
-# The one camera controller across twenty MIKASA tasks (`--controller learned` on each; finetune --tasks): every
-# short-split task whose success is touching the object a fact names, and SeqOfColors3, whose prompt also says which
-# cubes were touched (progress as memory); the prompt tells the tasks apart. Wider camera heads, the object pointer,
+# The one camera controller across the MIKASA tasks the scripted experts run (`--controller learned` on each; finetune
+# --tasks): every short-split task whose success is touching the object a fact names, the others the experts run
+# (MULTITASK_MORE_TASKS), and SeqOfColors3, whose prompt also says which cubes were touched (progress as memory); the
+# prompt tells the tasks apart. Wider camera heads, the object pointer,
 # and the harness's 7-D proprioception alone (the recipe's state: harness), so its benchmark rows are a protocol entry.
 # Data in resumable chunks of 50 (scripts/record_task_demos.sh: decision frames, the cameras rendering only there; a
 # rerun records only the missing chunks; keep the counts multiples of 50): $(MULTITASK_EPISODES) expert episodes of each
-# touch task, then $(MULTITASK_ONPOLICY) more played by the task's own camera controller (`learned-task`) where one
+# task, then $(MULTITASK_ONPOLICY) more played by the task's own camera controller (`learned-task`) where one
 # ships, the expert labelling; a first policy on them; a DAgger round of $(MULTITASK_DAGGER) episodes of each played by
 # the first policy; $(MULTITASK_EXTRA) more expert episodes of the tasks the first policies left below 90%
 # (MULTITASK_EXTRA_TASKS); $(MULTITASK_PROGRESS) expert episodes of the progress tasks, ended after
 # $(MULTITASK_PROGRESS_STEPS) steps; the shipped policy on all of it. On an idle 2-core CPU a chunk takes about 75 s
 # (SeqOfColors3's 10 minutes) and the finetunes 2-5 steps/s after the frozen trunk's features (kept for later
-# finetunes): about 7 hours in all. The shipped checkpoint was built in stages, with the same final training on
-# 450-800 episodes a task and 200 of SeqOfColors3 (lab/2026-11-30-one-camera-controller-across-twenty-tasks-the-added lists each task's data).
+# finetunes): about 7 hours in all for the twenty tasks the shipped checkpoint serves, which was built in stages,
+# with the same final training on 450-800 episodes a task and 200 of SeqOfColors3 (lab/2026-11-30-one-camera-controller-across-twenty-tasks-the-added lists each task's data).
 MULTITASK_TOUCH_TASKS ?= RememberColor3-VLA-v0,RememberShape3-VLA-v0,RememberColor5-VLA-v0,TakeItBack-VLA-v0,RememberShape5-VLA-v0,FindImposterColor3-VLA-v0,RememberShapeAndColor3x2-VLA-v0,RememberColor9-VLA-v0,FindImposterShape3-VLA-v0,RememberShapeAndColor3x3-VLA-v0,FindImposterColor5-VLA-v0,RememberShape9-VLA-v0,FindImposterShapeAndColor3x2-VLA-v0,RememberShapeAndColor5x3-VLA-v0,FindImposterColor9-VLA-v0,FindImposterShape5-VLA-v0,FindImposterShapeAndColor3x3-VLA-v0,FindImposterShape9-VLA-v0,FindImposterShapeAndColor5x3-VLA-v0
 MULTITASK_EXTRA_TASKS ?= RememberShape5-VLA-v0,RememberShapeAndColor3x2-VLA-v0,RememberColor9-VLA-v0,FindImposterShape3-VLA-v0,RememberShapeAndColor3x3-VLA-v0,RememberShape9-VLA-v0,FindImposterShapeAndColor3x2-VLA-v0,RememberShapeAndColor5x3-VLA-v0,FindImposterColor9-VLA-v0,FindImposterShape5-VLA-v0,FindImposterShapeAndColor3x3-VLA-v0,FindImposterShape9-VLA-v0,FindImposterShapeAndColor5x3-VLA-v0
+# the short tasks whose success is not a touch (intercept, rotate, count and press, gather, act on time): expert
+# episodes and the DAgger round as the touch tasks', no on-policy stage (no camera controller of their own ships)
+MULTITASK_MORE_TASKS ?= InterceptSlow-VLA-v0,InterceptMedium-VLA-v0,InterceptFast-VLA-v0,InterceptGrabSlow-VLA-v0,InterceptGrabMedium-VLA-v0,InterceptGrabFast-VLA-v0,RotateLenientPos-VLA-v0,RotateLenientPosNeg-VLA-v0,RotateStrictPos-VLA-v0,RotateStrictPosNeg-VLA-v0,BlinkCountButtonPressEasy-VLA-v0,BlinkCountButtonPressMedium-VLA-v0,GatherAndRecall1-VLA-v0,TimedTransferEasy-VLA-v0
 MULTITASK_PROGRESS_TASKS ?= SeqOfColors3-VLA-v0
-MULTITASK_TASKS = $(MULTITASK_TOUCH_TASKS)$(if $(MULTITASK_PROGRESS_TASKS),$(comma)$(MULTITASK_PROGRESS_TASKS))
+MULTITASK_EXPERT_TASKS = $(MULTITASK_TOUCH_TASKS)$(if $(MULTITASK_MORE_TASKS),$(comma)$(MULTITASK_MORE_TASKS))
+MULTITASK_TASKS = $(MULTITASK_EXPERT_TASKS)$(if $(MULTITASK_PROGRESS_TASKS),$(comma)$(MULTITASK_PROGRESS_TASKS))
 MULTITASK_EPISODES ?= 200
 MULTITASK_ONPOLICY ?= 100
 MULTITASK_STEPS ?= 5000
@@ -152,8 +157,9 @@ MULTITASK_PROGRESS_STEPS ?= 160
 MULTITASK_RUN = $(STAGE1)-multitask
 SHIPPED_MULTITASK := sb3_memret/controllers/checkpoints/mikasa-multitask-camera
 touch_tasks = $(subst $(comma), ,$(MULTITASK_TOUCH_TASKS))
+expert_tasks = $(subst $(comma), ,$(MULTITASK_EXPERT_TASKS))
 controller-multitask: install renderer
-	scripts/record_task_demos.sh $(MULTITASK_RUN)/demos $(MULTITASK_EPISODES) $(touch_tasks)
+	scripts/record_task_demos.sh $(MULTITASK_RUN)/demos $(MULTITASK_EPISODES) $(expert_tasks)
 	for task in $(touch_tasks); do \
 		own=$$($(PY) -c "from sb3_memret.controllers.shipped import SHIPPED; print('learned-task' if ('$$task', 'learned-task') in SHIPPED else '')") && \
 		LEARNER=$$own scripts/record_task_demos.sh $(MULTITASK_RUN)/demos \
@@ -161,10 +167,10 @@ controller-multitask: install renderer
 	done
 	for policy in $(MULTITASK_RUN)/policy-first $(MULTITASK_RUN)/policy; do \
 		[ -f $$policy/training_state.pt ] || rm -rf $$policy; done  # an unfinished finetune resumes
-	scripts/finetune_task_demos.sh $(MULTITASK_RUN)/demos $(MULTITASK_RUN)/policy-first $(MULTITASK_TOUCH_TASKS) \
+	scripts/finetune_task_demos.sh $(MULTITASK_RUN)/demos $(MULTITASK_RUN)/policy-first $(MULTITASK_EXPERT_TASKS) \
 		--config $(MULTITASK_RECIPE) --set training.steps=$(MULTITASK_STEPS)
 	LEARNER=learned:$(MULTITASK_RUN)/policy-first SEED=$$((100000 + $(MULTITASK_EPISODES) + $(MULTITASK_ONPOLICY))) \
-		scripts/record_task_demos.sh $(MULTITASK_RUN)/dagger $(MULTITASK_DAGGER) $(touch_tasks)
+		scripts/record_task_demos.sh $(MULTITASK_RUN)/dagger $(MULTITASK_DAGGER) $(expert_tasks)
 	SEED=$$((100000 + $(MULTITASK_EPISODES) + $(MULTITASK_ONPOLICY) + $(MULTITASK_DAGGER))) scripts/record_task_demos.sh \
 		$(MULTITASK_RUN)/extra $(MULTITASK_EXTRA) $(subst $(comma), ,$(MULTITASK_EXTRA_TASKS))
 	$(if $(MULTITASK_PROGRESS_TASKS),MAX_STEPS=$(MULTITASK_PROGRESS_STEPS) scripts/record_task_demos.sh \

@@ -319,9 +319,11 @@ CUBE_NAMES = tuple(f"cube_{c}_{axis}" for c in CUBES for axis in "xyz") + tuple(
 def test_a_pointer_groups_the_perceived_entries_per_object_or_says_why_not():
     assert perceived_objects(CUBE_NAMES) == (tuple(f"cube_{c}" for c in CUBES), ("x", "y", "z", "visible"))
     camera = {**SMALL, "image_features": tuple(IMAGE_KEYS), "pointer": True}
-    with pytest.raises(ValueError, match="'opening_1' is not"):
+    with pytest.raises(ValueError, match=r"two or more perceived objects.*got \['target'\] of 11"):
         LearnedPolicyConfig(**camera, state_names=PROPRIO_NAMES, state_dim=len(PROPRIO_NAMES),
-                            perceived_names=STATE_NAMES[len(PROPRIO_NAMES):])  # the drawer's entries name no objects
+                            perceived_names=STATE_NAMES[len(PROPRIO_NAMES):])  # the drawer's detection: one object
+    with_yaw = (*CUBE_NAMES, "peg_yaw")  # a task's entry that is no object's field: left out of the pointer
+    assert perceived_objects(with_yaw) == perceived_objects(CUBE_NAMES)
     unflagged = CUBE_NAMES[:-1]  # lime has no visibility flag, as TakeItBack's cube beside RememberColor3's: the
     assert perceived_objects(unflagged)[1] == ("x", "y", "z")  # pointer hands the fields every object has
     assert LearnedPolicyConfig(**camera, perceived_names=unflagged).pointer_fields == 3

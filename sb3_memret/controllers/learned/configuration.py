@@ -137,16 +137,16 @@ def perceived_objects(names: tuple[str, ...]) -> tuple[tuple[str, ...], tuple[st
     """(objects, fields) of perceived entries named ``<object>_<field>`` (fields from POINTER_FIELDS): MIKASA's
     ``cube_red_x`` ... ``cube_teal_visible``. The fields are those every object has, which must include its
     position: a policy across tasks whose objects differ in a flag (TakeItBack's cube has no ``visible``) points
-    with the position alone. A ValueError names what does not fit."""
+    with the position alone. Entries of no such name (Rotate's ``peg_yaw``) are left out of the pointer; the action
+    head reads their estimates all the same. A ValueError names what does not fit."""
     objects: dict[str, set[str]] = {}
     for name in names:
         obj, _, field_name = name.rpartition("_")
-        if not obj or field_name not in POINTER_FIELDS:
-            raise ValueError(f"pointer needs perceived entries named <object>_<field> with a field in "
-                             f"{list(POINTER_FIELDS)}; {name!r} is not")
-        objects.setdefault(obj, set()).add(field_name)
+        if obj and field_name in POINTER_FIELDS:
+            objects.setdefault(obj, set()).add(field_name)
     if len(objects) < 2:
-        raise ValueError(f"pointer needs two or more perceived objects; got {sorted(objects)}")
+        raise ValueError(f"pointer needs two or more perceived objects, entries named <object>_<field> with a field "
+                         f"in {list(POINTER_FIELDS)}; got {sorted(objects)} of {len(names)} perceived entries")
     unplaced = {obj: sorted(set(POSITION_FIELDS) - have) for obj, have in objects.items() if
                 not set(POSITION_FIELDS) <= have}
     if unplaced:
