@@ -342,14 +342,15 @@ def test_a_condition_added_to_a_run_folder_keeps_its_table(tmp_path):
     assert widened(first, tmp_path) is first  # nothing to add
 
 
-def test_a_task_without_an_implementation_is_refused_with_its_reason():
+def test_a_task_its_expert_cannot_play_is_refused_with_its_reason():
     from sb3_memret.benchmark.runner import plan
 
     run = plan(Protocol(seed_set="dev", episodes=1), ["none"],
                env_ids=["BatteriesCheckerHard-6-VLA-v0", "BatteriesCheckerEasy-3-VLA-v0"])
-    assert run.refused["BatteriesCheckerHard-6-VLA-v0"] == "no sb3-memret task implements it yet"
-    assert run.refused["BatteriesCheckerEasy-3-VLA-v0"] == "no sb3-memret task implements it yet"
-    assert run.units(set()) == []
+    assert run.refused["BatteriesCheckerHard-6-VLA-v0"].startswith(
+        "its scripted expert cannot yet take a battery back out of MIKASA's socket")
+    assert "BatteriesCheckerEasy-3-VLA-v0" not in run.refused
+    assert [unit.env_id for unit in run.units(set())] == ["BatteriesCheckerEasy-3-VLA-v0"]
 
 
 def test_the_agent_renders_only_what_it_reads_and_every_outcome_stays_the_same():

@@ -208,7 +208,7 @@ def test_the_benchmarks_recall_states_the_presses_after_what_the_learner_retriev
                               keep_scores=lambda entries, ages, timescale: np.ones(len(entries)),
                               retrieve=lambda observation: np.array([0]))
     task = make_task(SPEC)
-    schedule = RecalledFacts(task, learner, task.prompt_template, encoder, seed=0)
+    schedule = RecalledFacts(task, learner, task.prompt_template, encoder, np.random.default_rng(0))
     start = EnvFrame({}, {"blinks": 3}, None, False, steps=0, percepts=_percepts([0.13]))
     schedule.start(start, task.episode(start))
     decoy = schedule.memory.bank.entries[0].text

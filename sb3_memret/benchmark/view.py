@@ -30,6 +30,8 @@ ARM_JOINTS = 7  # the Panda's arm joints before its two fingers in ``agent/qpos`
 class HarnessObservation(dict):
     """A layout the harness's inputs fill: reading an entry they do not give raises, naming what they give."""
 
+    keeps_kind = True  # ``obs_trees`` copies keep it a HarnessObservation
+
     def __missing__(self, key: str) -> Any:
         raise KeyError(f"{key!r} is not in the benchmark's policy-side view: MIKASA's harness gives a policy its two "
                        f"cameras, the 7-D proprioception {list(HARNESS_PROPRIO_NAMES)} and the instruction; "

@@ -9,9 +9,9 @@ import numpy as np
 
 
 def _mapping(tree: Mapping[str, Any], items: dict[str, Any]) -> dict[str, Any]:
-    """``items`` as a mapping of ``tree``'s own kind where that is a dict subclass (one that refuses missing keys by
-    name, as the benchmark's policy-side view), else a dict."""
-    return type(tree)(items) if isinstance(tree, dict) and type(tree) is not dict else items
+    """``items`` as a mapping of ``tree``'s own kind where that kind asks to be kept (``keeps_kind``: the benchmark's
+    policy-side view, which refuses a missing key by naming what the harness gives), else a dict."""
+    return type(tree)(items) if getattr(type(tree), "keeps_kind", False) else items
 
 
 def to_numpy(tree: Any) -> Any:
