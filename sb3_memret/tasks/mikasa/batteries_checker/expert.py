@@ -10,8 +10,8 @@ from slot 1 at every cycle: a check made is forgotten once its cycle ends.
 Within one cycle it keeps the cycle's stage (per env): nothing in sight tells a battery picked from its slot from one
 already tested and snapped back (Easy), nor a battery taken out of the socket from one about to go in. A cycle:
 
-- ``pick``: come down over the target battery (the lowest slot the checklist leaves out) with the fingers open about
-  4 cm, close them at its centre;
+- ``pick``: come down over the target battery (the lowest slot the checklist leaves out) with the fingers open 3 cm,
+  close them at its centre;
 - ``insert``: lift it clear, carry it over the socket, lower it in and open: MIKASA seats it once it is let go within
   1 cm of the socket's centre and lights the lamp for a working one;
 - Hard only, ``extract`` and ``return``: grasp it in the socket, carry it back over its slot, lower it in and open
@@ -38,9 +38,10 @@ from sb3_memret.tasks.mikasa.core.carry_expert import GRIP_CLOSED, REACH_X
 from sb3_memret.tasks.mikasa.core.touch_expert import CONTROL_DT, ScriptedTouchController, TouchGains, tcp_velocity
 
 STAGES = ("pick", "insert", "extract", "return", "press", "lift")
-# the gripper command that opens the fingers about 4 cm (each finger at 2 cm of MIKASA's -1 cm..4 cm range): a 2 cm
-# battery fits with 1 cm to spare, and the fingers stay clear of the neighbouring slots 5 cm away
-GRIP_PICK = 0.2
+# the gripper command that opens the fingers 3 cm apart (each at 1.5 cm of MIKASA's -1 cm..4 cm range): a 2 cm
+# battery fits with 5 mm to spare each side. Opened 4 cm, a finger's outer face came down on the next row's battery
+# 5 cm away and tipped it over or dragged it up (BatteriesChecker-6's two rows): MIKASA then counted it not home
+GRIP_PICK = 0.0
 
 
 @dataclass(frozen=True)
