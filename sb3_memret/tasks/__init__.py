@@ -151,9 +151,7 @@ for _env_id in ("TraceShapeSeqEasy-VLA-v0", "TraceShapeSeqMedium-VLA-v0", "Trace
 
 __all__ = ["DEFAULT_TASK", "EnvFrame", "Episode", "Predicates", "Task", "Writer", "check_task_name",
            "make_task", "register_task", "task_in", "task_names"]
-for _env_id in ("BatteriesCheckerEasy-3-VLA-v0", "BatteriesCheckerEasy-6-VLA-v0"):  # the lamp's bulb
+for _env_id in ("BatteriesCheckerEasy-3-VLA-v0", "BatteriesCheckerEasy-6-VLA-v0",  # the lamp's bulb
+                "BatteriesCheckerHard-3-VLA-v0", "BatteriesCheckerHard-6-VLA-v0"):
     register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.batteries_checker.task", "BatteriesCheckerTask", _env_id),
                   lambda: importlib.import_module("sb3_memret.tasks.mikasa.core.lamp_asset").ensure_lamp_asset())
-for _env_id in ("BatteriesCheckerHard-3-VLA-v0", "BatteriesCheckerHard-6-VLA-v0"):
-    register_task(_env_id, _lazy("sb3_memret.tasks.mikasa.batteries_checker.task", "BatteriesCheckerTask", _env_id),
-                  lambda: importlib.import_module("sb3_memret.tasks.mikasa.batteries_checker.task").HARD_REFUSED)

@@ -14,8 +14,9 @@ already tested and snapped back (Easy), nor a battery taken out of the socket fr
   close them at its centre;
 - ``insert``: lift it clear, carry it over the socket, lower it in and open: MIKASA seats it once it is let go within
   1 cm of the socket's centre and lights the lamp for a working one;
-- Hard only, ``extract`` and ``return``: grasp it in the socket, carry it back over its slot, lower it in and open
-  (MIKASA counts it home within 2.3 cm); Easy's env snaps it home itself;
+- Hard only, ``extract``, ``return`` and ``leave``: grasp it in the socket once it has come to rest, carry it back
+  over its slot, lower it in and open (MIKASA counts it home within 2.3 cm), rise straight up with the fingers open;
+  Easy's env snaps it home itself;
 - ``press``: the fingers closed, come down over the button until the TCP is ``press_height`` over the cap's top
   (MIKASA counts a press with the TCP within 7.5 cm of its axis and 2.5 cm over the cap), then ``lift`` it clear:
   the cycle ends, and the next starts from the prompt's checklist.
@@ -37,7 +38,7 @@ from sb3_memret.tasks.mikasa.batteries_checker.checklist import stated_checklist
 from sb3_memret.tasks.mikasa.core.carry_expert import GRIP_CLOSED, REACH_X
 from sb3_memret.tasks.mikasa.core.touch_expert import CONTROL_DT, ScriptedTouchController, TouchGains, tcp_velocity
 
-STAGES = ("pick", "insert", "extract", "return", "press", "lift")
+STAGES = ("pick", "insert", "extract", "return", "leave", "press", "lift")
 # the gripper command that opens the fingers 3 cm apart (each at 1.5 cm of MIKASA's -1 cm..4 cm range): a 2 cm
 # battery fits with 5 mm to spare each side. Opened 4 cm, a finger's outer face came down on the next row's battery
 # 5 cm away and tipped it over or dragged it up (BatteriesChecker-6's two rows): MIKASA then counted it not home
@@ -58,15 +59,21 @@ class CheckGains:
     near: float = 0.03  # the carried battery this close (xy) to where it goes: come over it at ``approach`` ...
     approach: float = 0.035  # ... this far over its seat's centre height (its bottom clear of the socket's walls)
     over_tol: float = 0.004  # ... and lower it once its xy is this close to the seat ...
-    lower_tol: float = 0.008  # ... going on down while it stays this close ...
+    lower_tol: float = 0.005  # ... going on down while it stays this close ...
     seat_above: float = 0.005  # ... to this far over the seat's centre height
-    release_tol: float = 0.006  # let go once its xy is this close (MIKASA seats it within 1 cm) ...
+    release_tol: float = 0.003  # let go once its xy is this close (MIKASA seats it within 1 cm; 5 mm off, it caught the
+    # socket's wall and leaned over, too far off centre to grasp again) ...
     drop_above: float = 0.04  # ... and its centre this far over the socket's: it drops into the socket's hole, and
     # MIKASA seats it as it falls (within 2.5 cm of the seat's height); lowered further it jams on the walls' edge ...
+    hard_drop_above: float = 0.015  # Hard: let go only once it is this far over, down in the hole with the fingers
+    # round it: MIKASA's seating moves it 1 cm into the socket's floor, and one dropped from 4 cm was flung out and over
     set_above: float = 0.01  # ... or over its slot's, where it stands on the table again
-    seated: float = 0.012  # a battery let go this close (xy) to the socket's centre is in it
+    seated: float = 0.012  # a battery let go this close (xy) to the socket's centre ...
+    seated_z: float = 0.02  # ... and down to this over the socket's top is in it (it rests 11 mm over, on the floor)
     home: float = 0.015  # ... or to its slot: it is home
-    clear_height: float = 0.13  # rise straight up to this TCP height before moving sideways from low down
+    at_rest: float = 0.002  # a battery let go that moved less than this since the last decision has come to rest
+    clear_height: float = 0.13  # rise straight up to this TCP height before moving sideways from low down (and,
+    cleared: float = 0.03  # Hard, from a battery set home: to this much below it before closing the fingers)
     press_height: float = 0.012  # the TCP over the cap's top at the press (MIKASA: within 2.5 cm) ...
     pressed_seen: float = 0.02  # ... counted pressed once this low within press_xy of the cap's axis
     press_xy: float = 0.03
@@ -80,6 +87,7 @@ class Cycle:
 
     battery: int | None = None
     stage: str = "pick"
+    seen: np.ndarray | None = None  # where the battery was at the last decision
 
 
 class CheckGoal(NamedTuple):
@@ -142,7 +150,7 @@ class BatteryCheckController(ScriptedTouchController):
         checklist names every battery."""
         for _ in range(2):  # a cycle that ends here hands over to the next at once
             if cycle.battery is None:
-                cycle.battery, cycle.stage = self._next_battery(parsed, len(batteries)), "pick"
+                cycle.battery, cycle.stage, cycle.seen = self._next_battery(parsed, len(batteries)), "pick", None
             if cycle.battery is None:
                 return None
             goal = self._goal(cycle, pos, gap, batteries, slots, socket, cap)
@@ -163,20 +171,23 @@ class BatteryCheckController(ScriptedTouchController):
         c, k = self.check, cycle.battery
         battery = batteries[k]
         held = c.held_gap[0] <= gap <= c.held_gap[1] and np.linalg.norm(battery - pos) <= c.held_reach
-        in_socket = np.linalg.norm(battery[:2] - socket[:2]) <= c.seated
+        in_socket = np.linalg.norm(battery[:2] - socket[:2]) <= c.seated and battery[2] <= socket[2] + c.seated_z
         home = np.linalg.norm(battery[:2] - slots[k, :2]) <= c.home
-        away = np.linalg.norm(battery[:2] - pos[:2]) > c.held_reach  # the hand has left it
+        moving = cycle.seen is not None and np.linalg.norm(battery - cycle.seen) > c.at_rest
+        cycle.seen = battery.copy()
         if cycle.stage in ("pick", "extract") and held:
             cycle.stage = "insert" if cycle.stage == "pick" else "return"
-        elif cycle.stage in ("insert", "return") and not held and not away:
-            return CheckGoal(pos.copy(), GRIP_PICK, rise_first=False)  # just let go: the env has yet to seat it
-        elif cycle.stage == "insert" and not held:
-            if self.hard and in_socket:
+        elif cycle.stage in ("insert", "return") and not held:
+            if moving:  # just let go: wait until it comes to rest (Easy's env snaps it home from the socket)
+                return CheckGoal(pos.copy(), GRIP_PICK, rise_first=False)
+            if cycle.stage == "insert" and self.hard and in_socket:
                 cycle.stage = "extract"
-            else:  # Easy: seated, the env snaps it back home; else it was dropped: pick it up where it lies
-                cycle.stage = "press" if not self.hard and home and away else "pick"
-        elif cycle.stage == "return" and not held:
-            cycle.stage = "press" if home else "pick"
+            elif home and (cycle.stage == "return" or not self.hard):  # Easy's seated and snapped home, Hard's back
+                cycle.stage = "leave" if cycle.stage == "return" else "press"
+            else:  # dropped on the way: pick it up where it lies
+                cycle.stage = "pick"
+        elif cycle.stage == "leave" and pos[2] >= c.clear_height - c.cleared:
+            cycle.stage = "press"
         elif cycle.stage == "press" and np.linalg.norm(pos[:2] - cap[:2]) <= c.press_xy \
                 and pos[2] <= cap[2] + c.pressed_seen:
             cycle.stage = "lift"
@@ -190,7 +201,7 @@ class BatteryCheckController(ScriptedTouchController):
             hand = pos - battery  # the battery sits off the TCP in the fingers: steer the battery
             off = float(np.linalg.norm(battery[:2] - seat[:2]))
             low = battery[2] < seat[2] + c.approach - c.over_tol  # on its way down into the seat
-            release = c.drop_above if cycle.stage == "insert" else c.set_above
+            release = c.set_above if cycle.stage == "return" else c.hard_drop_above if self.hard else c.drop_above
             if off <= c.release_tol and battery[2] <= seat[2] + release:
                 return CheckGoal(pos.copy(), GRIP_PICK, rise_first=False)
             if off <= (c.lower_tol if low else c.over_tol):
@@ -198,6 +209,8 @@ class BatteryCheckController(ScriptedTouchController):
             else:  # come over the seat from above; off it low down, rise clear of its walls first
                 height = seat[2] + c.approach if off <= c.near else c.carry_height
             return CheckGoal(np.array([seat[0], seat[1], height]) + hand, GRIP_CLOSED, rise_first=off > c.near)
+        if cycle.stage == "leave":  # straight up, the fingers open: closed low down they would take it along again
+            return CheckGoal(np.array([pos[0], pos[1], c.clear_height]), GRIP_PICK, rise_first=False)
         if cycle.stage == "press":
             return CheckGoal(cap + (0.0, 0.0, c.press_height), GRIP_CLOSED, funnel=True)
         return CheckGoal(cap + (0.0, 0.0, c.lift_height), GRIP_CLOSED, rise_first=False)

@@ -69,13 +69,6 @@ PROMPT_TEMPLATE = PromptTemplate(instructions=(EASY_INSTRUCTION, HARD_INSTRUCTIO
                                  fields=((FIELD, CHECKLIST_PATTERN),))
 
 
-# why the Hard variants are refused (``register_task``'s ``unavailable``): the task, writer and expert handle the
-# return, but the expert's grasp of a battery seated in the socket fails
-HARD_REFUSED = ("its scripted expert cannot yet take a battery back out of MIKASA's socket (the fingers close on the "
-                "3 cm that stand out of it and lose it; 0 of 1 development episodes checked a battery), so no "
-                "condition's figure would measure memory")
-
-
 class BatteryVariant(NamedTuple):
     """A MIKASA variant: the batteries in play, whether they must be carried back, the episode's control steps."""
 
@@ -208,5 +201,5 @@ class BatteriesCheckerTask(MikasaCueTask):
         return tuple(f"slot{slot}" for slot in range(1, self.variant.batteries + 1))
 
 
-__all__ = ["BatteriesCheckerTask", "BatteryVariant", "EASY_INSTRUCTION", "HARD_INSTRUCTION", "HARD_REFUSED", "PROMPT_TEMPLATE",
+__all__ = ["BatteriesCheckerTask", "BatteryVariant", "EASY_INSTRUCTION", "HARD_INSTRUCTION", "PROMPT_TEMPLATE",
            "VARIANTS"]
