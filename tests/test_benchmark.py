@@ -290,7 +290,8 @@ def test_recall_retrieves_from_the_writers_bank_in_the_harness(tmp_path):
 
 def test_the_shipped_learner_serves_recall_on_every_short_task_that_runs_here(tmp_path, monkeypatch):
     """Without --learners, recall plays the learner across the short split shipped in the package: every task of the
-    split that runs here has it (its bank settings from the shipped run config); a missing one says how to rebuild."""
+    split that runs here has it (its bank settings from the shipped run config), and so do their -Long variants; a
+    missing one says how to rebuild."""
     from sb3_memret.benchmark import learners as learners_module
     from sb3_memret.benchmark.agent import MemoryLearner
     from sb3_memret.benchmark.runner import learner_tasks, plan, split_tasks
@@ -304,8 +305,13 @@ def test_the_shipped_learner_serves_recall_on_every_short_task_that_runs_here(tm
     assert all("was not trained on it" in why for why in run.refused_conditions.values())  # a ShellGame with its mug
     learner = MemoryLearner(path, "scripted", "BlinkCountButtonPressEasy-VLA-v0")
     assert learner.settings["capacity"] == 6 and learner.settings["k"] == 1
-    with pytest.raises(ValueError, match="not trained on 'RememberColor3-Long-VLA-v0'"):
-        MemoryLearner(path, "scripted", "RememberColor3-Long-VLA-v0")
+    long = MemoryLearner(path, "scripted", "RememberColor3-Long-VLA-v0")  # a -Long variant: its short task's bank
+    assert long.settings == MemoryLearner(path, "scripted", "RememberColor3-VLA-v0").settings
+    with pytest.raises(ValueError, match="not trained on 'BlinkCountButtonPressHard-Long-VLA-v0'"):
+        MemoryLearner(path, "scripted", "BlinkCountButtonPressHard-Long-VLA-v0")  # its short task is medium's
+    medium = plan(Protocol(seed_set="dev", episodes=1), ["recall"], split="medium", learners=path)
+    assert {env_id for env_id in medium.learner_digests} == {
+        env_id for env_id in split_tasks("medium")[0] if env_id.startswith("Remember") and env_id.endswith("-Long-VLA-v0")}
 
     monkeypatch.setattr(learners_module, "SHIPPED_LEARNER", tmp_path / "gone" / "final_model.zip")
     result = CliRunner().invoke(main, ["benchmark", "mikasa", "--tasks", "TakeItBack-VLA-v0", "--conditions", "recall",

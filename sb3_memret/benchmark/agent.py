@@ -54,6 +54,16 @@ def check_conditions(conditions: Sequence[str]) -> list[str]:
     return list(dict.fromkeys(conditions))
 
 
+def learned_as(env_id: str, trained_on: Sequence[str]) -> str | None:
+    """The task among a learner's ``trained_on`` that serves ``env_id``: itself, or for a -Long variant its short
+    task (the bank holds the same facts, worded alike, under the same instruction; only the delay before they are
+    needed grows, which is what the -Long row measures); None when neither was trained."""
+    if env_id in trained_on:
+        return env_id
+    short = env_id.replace("-Long-VLA-v0", "-VLA-v0")
+    return short if env_id.endswith("-Long-VLA-v0") and short in trained_on else None
+
+
 class MemoryLearner:
     """A trained memory learner (``sb3-memret train recall``'s model) and the bank settings of its run (for a
     learner across tasks, those ``task`` played with)."""
@@ -68,9 +78,11 @@ class MemoryLearner:
         self.settings = eval_env_kwargs(self.model, self.path, "recall", controller, "cpu")
         if "tasks" in self.settings:  # a learner across tasks: the settings ``task`` played with
             per_task = task_env_kwargs(self.settings)
-            if task not in per_task:
-                raise ValueError(f"{self.path}: a learner across tasks {list(per_task)}, not trained on {task!r}")
-            self.settings = per_task[task]
+            served = learned_as(task, list(per_task)) if task is not None else None
+            if served is None:
+                raise ValueError(f"{self.path}: a learner across tasks {list(per_task)}, not trained on {task!r} "
+                                 "nor on the short task of a -Long variant")
+            self.settings = per_task[served]
         if self.settings.get("observe_potential"):
             raise ValueError(f"{self.path}: a learner whose critic observes the shaping potential reads simulator "
                              "state at run time; the benchmark's agent may read cameras and proprioception only")
@@ -261,4 +273,5 @@ def stated_instruction(env: gym.Env) -> Any:
     return env.unwrapped.get_info()["language_instruction"]
 
 
-__all__ = ["CONDITIONS", "MemoryAgent", "MemoryLearner", "RecalledFacts", "check_conditions", "stated_instruction"]
+__all__ = ["CONDITIONS", "MemoryAgent", "MemoryLearner", "RecalledFacts", "check_conditions", "learned_as",
+           "stated_instruction"]

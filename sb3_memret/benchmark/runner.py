@@ -21,7 +21,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
-from sb3_memret.benchmark.agent import CONDITIONS, check_conditions
+from sb3_memret.benchmark.agent import CONDITIONS, check_conditions, learned_as
 from sb3_memret.benchmark.manifest import episode_seeds, select_tasks
 from sb3_memret.benchmark.mikasa_results import write_mikasa_results
 
@@ -201,7 +201,8 @@ def learner_path(learners: Path | None, env_id: str) -> Path | None:
     """Where the memory learner of ``env_id`` lies in a learners folder: ``DIR/<env id>/final_model.zip``; for a
     -Long variant without one of its own, its short task's (``DIR/RememberColor3-VLA-v0/``): the bank holds the same
     facts, only the delay before they are needed grows, which is what its row measures. ``learners`` may also be
-    one model file, a learner across tasks (``train recall --tasks``), which serves every task."""
+    one model file, a learner across tasks (``train recall --tasks``), which serves every task it was trained on and
+    their -Long variants (``agent.learned_as``)."""
     if learners is None:
         return None
     if Path(learners).is_file():
@@ -270,7 +271,7 @@ def plan(protocol: Protocol, conditions: Iterable[str], split: str | None = None
             result.refused_conditions[row.env_id, "recall"] = (
                 f"no trained memory learner: expected {path}" if path is not None else
                 "no learners folder given (--learners DIR, with DIR/<env id>/final_model.zip)")
-        elif "recall" in result.conditions and trained_on is not None and row.env_id not in trained_on:
+        elif "recall" in result.conditions and trained_on is not None and learned_as(row.env_id, trained_on) is None:
             result.refused_conditions[row.env_id, "recall"] = f"the learner across tasks {path} was not trained on it"
         elif "recall" in result.conditions:
             result.learner_digests[row.env_id] = hashlib.sha256(path.read_bytes()).hexdigest()
