@@ -57,12 +57,13 @@ class CheckGains:
     held_reach: float = 0.025  # ... with its centre this close to the TCP: it is in hand
     carry_height: float = 0.13  # the battery's centre while carried (its bottom 7 cm over the others' tops)
     near: float = 0.03  # the carried battery this close (xy) to where it goes: come over it at ``approach`` ...
-    approach: float = 0.035  # ... this far over its seat's centre height (its bottom clear of the socket's walls)
+    approach: float = 0.05  # ... this far over its seat's centre height (its bottom 2 cm clear of the socket's walls: coming
+    # down fast it overshoots by up to 7 mm, and 5 mm clear, a battery still 9 mm off caught the wall and tilted in hand)
     over_tol: float = 0.004  # ... and lower it once its xy is this close to the seat ...
-    lower_tol: float = 0.005  # ... going on down while it stays this close ...
+    lower_tol: float = 0.008  # ... going on down while it stays this close, at most ``lower_step`` a decision (a
+    lower_step: float = 0.015  # descent from the carry height straight to the seat swung it 8 mm off) ...
     seat_above: float = 0.005  # ... to this far over the seat's centre height
-    release_tol: float = 0.003  # let go once its xy is this close (MIKASA seats it within 1 cm; 5 mm off, it caught the
-    # socket's wall and leaned over, too far off centre to grasp again) ...
+    release_tol: float = 0.006  # let go once its xy is this close (MIKASA seats it within 1 cm) ...
     drop_above: float = 0.04  # ... and its centre this far over the socket's: it drops into the socket's hole, and
     # MIKASA seats it as it falls (within 2.5 cm of the seat's height); lowered further it jams on the walls' edge ...
     hard_drop_above: float = 0.015  # Hard: let go only once it is this far over, down in the hole with the fingers
@@ -199,13 +200,13 @@ class BatteryCheckController(ScriptedTouchController):
         if cycle.stage in ("insert", "return"):
             seat = socket if cycle.stage == "insert" else slots[k]
             hand = pos - battery  # the battery sits off the TCP in the fingers: steer the battery
-            off = float(np.linalg.norm(battery[:2] - seat[:2]))
-            low = battery[2] < seat[2] + c.approach - c.over_tol  # on its way down into the seat
+            off, over = float(np.linalg.norm(battery[:2] - seat[:2])), float(battery[2] - seat[2])
             release = c.set_above if cycle.stage == "return" else c.hard_drop_above if self.hard else c.drop_above
-            if off <= c.release_tol and battery[2] <= seat[2] + release:
+            if off <= c.release_tol and over <= release:
                 return CheckGoal(pos.copy(), GRIP_PICK, rise_first=False)
-            if off <= (c.lower_tol if low else c.over_tol):
-                height = seat[2] + c.seat_above
+            low = over < c.approach - c.over_tol  # on its way down into the seat
+            if off <= (c.lower_tol if low else c.over_tol) and over <= c.approach + c.over_tol:
+                height = seat[2] + max(c.seat_above, over - c.lower_step)  # down a step, centred again at each
             else:  # come over the seat from above; off it low down, rise clear of its walls first
                 height = seat[2] + c.approach if off <= c.near else c.carry_height
             return CheckGoal(np.array([seat[0], seat[1], height]) + hand, GRIP_CLOSED, rise_first=off > c.near)
