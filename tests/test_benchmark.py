@@ -83,7 +83,8 @@ def test_results_count_current_episodes_and_keep_refusals():
     content = results(run, records)
     a = content["tasks"]["A-VLA-v0"]["conditions"]
     assert a["oracle"] == {"episodes": 2, "seeds": [5000, 5001], "successes": [True, False], "success": 0.5,
-                           "returns": [1.0, 0.0], "episode_lengths": [10, 10], "complete": True}
+                           "returns": [1.0, 0.0], "episode_lengths": [10, 10], "seconds": [None, None],
+                           "complete": True}
     assert a["none"]["episodes"] == 1 and not a["none"]["complete"]  # the stale episode does not count
     assert content["tasks"]["B-VLA-v0"]["conditions"]["oracle"]["error"] == "RuntimeError: boom"
     assert content["tasks"]["C-VLA-v0"]["refused"] == "needs an asset"
@@ -98,6 +99,19 @@ def test_results_count_current_episodes_and_keep_refusals():
     assert "| oracle | 1/3 | 50.0% | 16.7% |" in report  # only A played all of its oracle episodes
     assert "| C-VLA-v0 | needs an asset |" in report and "B-VLA-v0 (oracle) | RuntimeError: boom" in report
     assert "not all of the protocol's episodes played yet" in report  # the footnote of A's partial cell
+    assert "## Cost" not in report  # episodes logged before they were timed
+
+
+def test_the_report_says_what_each_task_cost_to_play():
+    run = _plan(episodes=4)
+    records = [_record("A-VLA-v0", "oracle", 5000 + i, True, seconds=2.0) for i in range(2)]  # 10 steps in 2 s
+    records += [_record("A-VLA-v0", "none", 5000 + i, False, seconds=1.0) for i in range(4)]
+    records += [_record("B-VLA-v0", "oracle", 5000, True)]  # untimed: no row
+    content = results(run, records)
+    assert content["tasks"]["A-VLA-v0"]["conditions"]["oracle"]["seconds"] == [2.0, 2.0]
+    report = render_report(content)
+    # 6 episodes, 8 s, 60 steps; cells: 4 episodes x 2 s + 4 x 1 s = 12 s = 0.2 worker-minutes
+    assert "| A-VLA-v0 | 6 | 1.3 | 8 | 0.2 |" in report and "| B-VLA-v0 | 1 |" not in report
 
 
 def test_code_digests_name_the_code_that_acts():
@@ -348,13 +362,15 @@ def test_a_condition_added_to_a_run_folder_keeps_its_table(tmp_path):
     assert widened(first, tmp_path) is first  # nothing to add
 
 
-def test_a_task_its_expert_cannot_play_is_refused_with_its_reason():
+def test_a_task_that_cannot_run_here_is_refused_with_its_reason(monkeypatch):
+    from sb3_memret import tasks
     from sb3_memret.benchmark.runner import plan
 
+    why = "its scripted expert cannot yet take a battery back out of MIKASA's socket"
+    monkeypatch.setitem(tasks._UNAVAILABLE, "BatteriesCheckerHard-6-VLA-v0", lambda: why)
     run = plan(Protocol(seed_set="dev", episodes=1), ["none"],
                env_ids=["BatteriesCheckerHard-6-VLA-v0", "BatteriesCheckerEasy-3-VLA-v0"])
-    assert run.refused["BatteriesCheckerHard-6-VLA-v0"].startswith(
-        "its scripted expert cannot yet take a battery back out of MIKASA's socket")
+    assert run.refused["BatteriesCheckerHard-6-VLA-v0"].startswith(why)
     assert "BatteriesCheckerEasy-3-VLA-v0" not in run.refused
     assert [unit.env_id for unit in run.units(set())] == ["BatteriesCheckerEasy-3-VLA-v0"]
 

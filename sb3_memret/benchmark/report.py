@@ -66,6 +66,30 @@ def _by_cue(tasks: Mapping[str, Any], conditions: list[str]) -> list[str]:
             "| task | cue | " + " | ".join(conditions) + " |", "|---|---|" + "---|" * len(conditions), *rows]
 
 
+def _cost(tasks: Mapping[str, Any], episodes: int) -> list[str]:
+    """What each task cost to play: seconds per episode in its worker, control steps a second, and its cells'
+    worker-minutes (each condition's mean episode times the protocol's episodes). Tasks whose episodes were logged
+    before timing was are left out."""
+    rows = []
+    for env_id, t in tasks.items():
+        timed = [(steps, sec) for cell in t.get("conditions", {}).values()
+                 for steps, sec in zip(cell.get("episode_lengths", []), cell.get("seconds", [])) if sec is not None]
+        if not timed:
+            continue
+        per_cell = [[sec for sec in cell.get("seconds", []) if sec is not None] for cell in t["conditions"].values()]
+        minutes = sum(episodes * sum(secs) / len(secs) / 60 for secs in per_cell if secs)
+        steps, seconds = sum(st for st, _ in timed), sum(sec for _, sec in timed)
+        rows.append(f"| {env_id} | {len(timed)} | {seconds / len(timed):.1f} | {steps / seconds:.0f} | "
+                    f"{minutes:.1f} |")
+    if not rows:
+        return []
+    return ["", "## Cost", "",
+            "Wall time of each episode in its worker process (the workers share the CPU with whatever else ran); a "
+            "task's cells: each condition's mean episode times the episodes a cell plays.", "",
+            "| task | episodes timed | seconds per episode | control steps per second | its cells, worker-minutes |",
+            "|---|---|---|---|---|", *rows]
+
+
 def privileged_upper_bound(content: Mapping[str, Any]) -> bool:
     """Whether a run's controller reads the simulator beyond the protocol's inputs (``results.json`` says so). A file
     written before it did is one: every controller then read more than the harness gives (the scripted experts'
@@ -142,6 +166,7 @@ def render_report(content: Mapping[str, Any]) -> str:
         lines += published_section({env_id: _cell(t["conditions"].get(best)) if best else ""
                                     for env_id, t in tasks.items() if "conditions" in t}, protocol["controller"],
                                    best)
+    lines += _cost(tasks, protocol["episodes"])
     refused = [(env_id, t["refused"]) for env_id, t in tasks.items() if "refused" in t]
     refused += [(f"{env_id} ({c})", cell.get("refused") or cell.get("error"))
                 for env_id, t in tasks.items() for c, cell in t.get("conditions", {}).items()

@@ -15,6 +15,7 @@ import hashlib
 import inspect
 import json
 import sys
+import time
 import traceback
 from collections import defaultdict
 from dataclasses import asdict, dataclass, field
@@ -322,14 +323,16 @@ class _Worker:
         try:
             agent = self.agent(unit.env_id, unit.condition)
             agent.begin(self.protocol.seeds().index(unit.seed))  # its place in the run, not the episode's seed
+            start = time.perf_counter()
             result = harness.play_episode(self.env, agent, unit.seed)
+            seconds = time.perf_counter() - start
         except Exception as err:  # recorded with the task, which the report then refuses
             error = f"{type(err).__name__}: {err}".splitlines()[0]
             self.failed[unit.env_id, unit.condition] = error
             return {**asdict(unit), "error": error, "traceback": traceback.format_exc()}
         return {**asdict(unit), "success": bool(result.success_once), "return": float(result.episode_return),
-                "steps": int(result.n_steps), "prompt": agent.prompts[-1] if agent.prompts else None,
-                "cue": cue_label(agent.episode)}
+                "steps": int(result.n_steps), "seconds": round(seconds, 3),
+                "prompt": agent.prompts[-1] if agent.prompts else None, "cue": cue_label(agent.episode)}
 
 
 def cue_label(episode: Any) -> str | None:
@@ -457,6 +460,7 @@ def results(run: Plan, records: Iterable[dict[str, Any]]) -> dict[str, Any]:
                                     "successes": [r["success"] for r in played],
                                     "returns": [r.get("return") for r in played],
                                     "episode_lengths": [r.get("steps") for r in played],
+                                    "seconds": [r.get("seconds") for r in played],  # wall, in its worker
                                     "success": sum(r["success"] for r in played) / len(played) if played else None,
                                     "complete": len(played) == len(seeds)}
             cues = [r.get("cue") for r in played]
