@@ -201,3 +201,35 @@ def test_the_expert_checks_every_battery_without_disturbing_the_others(env_id):
     env.close()
     assert result.success_once and int(base.checked_count[0]) == task.variant.batteries
     assert moved.max() < 0.003, f"batteries moved (m) while another was checked: {np.round(moved, 4)}"
+
+
+def test_other_checks_are_of_the_moment_and_the_batteries_checklist_of_the_episode():
+    """The stores comparison on Easy-6 (``memret_ppo_timescales_batteries*.yml``): event decoys worded as the
+    reset's, passing the prompt check; the checklist in the episode's store, every other check in the moment's; the
+    stores and the one bank hold the same slots."""
+    from pathlib import Path
+
+    from sb3_memret.memory.schema import MemoryEntry, MemoryType
+    from sb3_memret.memory.seeding import SeedingConfig
+    from sb3_memret.tasks.mikasa.batteries_checker.checklist import CHECK_ENTITY, CHECK_RELATION
+    from sb3_memret.training.config import load_config
+
+    env_id = "BatteriesCheckerEasy-6-VLA-v0"
+    task, seeding, rng = make_task(env_id), SeedingConfig(), np.random.default_rng(0)
+    events = [task.event_decoy(rng, 40 + 8 * i, seeding) for i in range(30)]
+    assert [e.timestamp for e in events] == [40 + 8 * i for i in range(30)]
+    decoys = task.seed_memories(None, None, rng, SeedingConfig(location_decoys=5))
+    things = {e.entity.removesuffix(" check") for e in events + decoys}
+    assert things <= set(seeding.vocabulary) - {"battery"} and "battery" in seeding.vocabulary  # never the fact's own
+    with pytest.raises(ValueError, match="other than the battery"):
+        task.seed_memories(None, None, rng, SeedingConfig(location_decoys=2, vocabulary=("battery", "key")))
+    assert all(set(parse_checklist(e.value)) <= set(range(1, 7)) for e in events) and len({e.text for e in events}) > 10
+    prompt = build_prompt(EASY_INSTRUCTION, [events[0].text], PROMPT_TEMPLATE)
+    assert stated_checklist(parse_prompt(prompt, PROMPT_TEMPLATE)) == parse_checklist(events[0].value)
+    checklist = MemoryEntry.create(MemoryType.OTHER, CHECK_ENTITY, CHECK_RELATION, "slot 1 dead", 12)
+    assert {task.timescale(e) for e in events + decoys} == {"now"} and task.timescale(checklist) == "episode"
+    zoo = Path(__file__).resolve().parents[1] / "zoo_configs"
+    stores = load_config(zoo / "memret_ppo_timescales_batteries.yml", env_id).env_kwargs
+    one_bank = load_config(zoo / "memret_ppo_timescales_batteries_one_bank.yml", env_id).env_kwargs
+    assert sum(store["capacity"] for store in stores["stores"]) == one_bank["capacity"]
+    assert {k: v for k, v in stores.items() if k != "stores"} == {k: v for k, v in one_bank.items() if k != "capacity"}

@@ -153,9 +153,32 @@ class BatteriesCheckerTask(MikasaCueTask):
                       facts: bool = True) -> list[MemoryEntry]:
         """``seeding.location_decoys`` checklists of other things' checks (``the fuse check found slot 2 working.``);
         the batteries' own comes only from what the writer saw."""
-        vocab = sorted(set(seeding.vocabulary))
+        words = self._decoy_words(seeding, seeding.location_decoys)
         return [MemoryEntry.create(MemoryType.OTHER, f"{word} check", CHECK_RELATION, self._random_checklist(rng), 0)
-                for word in rng.choice(vocab, size=seeding.location_decoys, replace=False)]
+                for word in rng.choice(words, size=seeding.location_decoys, replace=False)]
+
+    @staticmethod
+    def _decoy_words(seeding: SeedingConfig, need: int) -> list[str]:
+        """The things whose checks are decoys: the vocabulary but the battery (``the battery check found ...`` is the
+        fact itself, however it is filled in)."""
+        words = sorted(set(seeding.vocabulary) - {CHECK_ENTITY.removesuffix(" check")})
+        if len(words) < need:
+            raise ValueError(f"{need} checklist decoys need {need} things other than the battery in the decoy "
+                             f"vocabulary, got {sorted(set(seeding.vocabulary))}")
+        return words
+
+    def event_decoy(self, rng: np.random.Generator, now: int, seeding: SeedingConfig) -> MemoryEntry:
+        """Another thing's check seen in passing (``the fuse check found slot 2 working.``), worded as the reset's
+        decoys are."""
+        word = str(rng.choice(self._decoy_words(seeding, 1)))
+        return MemoryEntry.create(MemoryType.OTHER, f"{word} check", CHECK_RELATION, self._random_checklist(rng), now)
+
+    def timescale(self, entry: MemoryEntry) -> str:
+        """The batteries' checklist holds for the episode; another thing's check (a decoy, an event) only at the
+        moment."""
+        if entry.type == MemoryType.OTHER and entry.entity != CHECK_ENTITY:
+            return "now"
+        return super().timescale(entry)
 
     def _random_checklist(self, rng: np.random.Generator) -> str:
         n = self.variant.batteries
