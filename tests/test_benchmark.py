@@ -5,6 +5,7 @@ from __future__ import annotations
 
 import hashlib
 import json
+import os
 import sys
 from collections import Counter
 from collections.abc import Mapping
@@ -156,6 +157,23 @@ def test_a_run_folder_resumes_only_under_its_protocol(tmp_path):
         f.write('{"env_id": "A-VLA')  # a line cut off by an interruption
     assert [r["seed"] for r in folder.episodes()] == [1]
     assert "Traceback" in (tmp_path / "errors.log").read_text()
+
+
+def test_one_benchmark_at_a_time_plays_a_folder(tmp_path):
+    """A second benchmark on a folder being played is refused naming the first (it would play every pending
+    episode again beside it); the folder is free again once the first ends."""
+    import subprocess
+
+    with RunFolder(tmp_path).playing():
+        with pytest.raises(ValueError, match=rf"being played by another benchmark \(process {os.getpid()}\)"):
+            with RunFolder(tmp_path).playing():
+                pass
+        other = subprocess.run([sys.executable, "-c", "from pathlib import Path; from sb3_memret.benchmark.runner "
+                                f"import RunFolder\nwith RunFolder(Path({str(tmp_path)!r})).playing(): pass"],
+                               capture_output=True, text=True)
+        assert other.returncode != 0 and "being played by another benchmark" in other.stderr
+    with RunFolder(tmp_path).playing():
+        pass
 
 
 def test_the_command_refuses_bad_options_in_one_line(tmp_path):

@@ -14,10 +14,12 @@ import ast
 import hashlib
 import inspect
 import json
+import os
 import sys
 import time
 import traceback
 from collections import defaultdict
+from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
@@ -27,6 +29,7 @@ from sb3_memret.benchmark.manifest import episode_seeds, select_tasks
 from sb3_memret.benchmark.mikasa_results import write_mikasa_results
 
 EPISODES_FILE, RESULTS_FILE, PROTOCOL_FILE, ERRORS_FILE = "episodes.jsonl", "results.json", "protocol.json", "errors.log"
+LOCK_FILE = ".lock"  # held by the benchmark playing the folder
 LEARNER_FILE = "final_model.zip"
 WORKER_REPLACEMENTS = 3  # pools a table starts again after an episode worker died, before it stops with a resume hint
 
@@ -399,6 +402,30 @@ class RunFolder:
         else:
             path.write_text(json.dumps(mine, indent=2) + "\n")
 
+    @contextmanager
+    def playing(self) -> Iterator[None]:
+        """Hold the folder for one benchmark at a time (``DIR/.lock``, released when the process ends however it
+        ends): a second one on the same folder would play every pending episode again beside it."""
+        import fcntl
+
+        self.out.mkdir(parents=True, exist_ok=True)
+        with (self.out / LOCK_FILE).open("a+") as f:
+            try:
+                fcntl.flock(f, fcntl.LOCK_EX | fcntl.LOCK_NB)
+            except BlockingIOError:
+                f.seek(0)
+                holder = f.read().strip() or "another process"
+                raise ValueError(f"{self.out} is being played by another benchmark ({holder}); wait for it to end, "
+                                 "or choose another --out") from None
+            f.seek(0)
+            f.truncate()
+            f.write(f"process {os.getpid()}\n")
+            f.flush()
+            try:
+                yield
+            finally:
+                fcntl.flock(f, fcntl.LOCK_UN)
+
     def episodes(self) -> list[dict[str, Any]]:
         """Every logged episode outcome (a line cut off by an interruption is skipped)."""
         path = self.out / EPISODES_FILE
@@ -532,8 +559,15 @@ def run_benchmark(run: Plan, out: Path, learners: Path | None = None, workers: i
     results."""
     folder = RunFolder(out)
     folder.check_protocol(run.protocol)
+    with folder.playing():
+        return _play_run(run, folder, learners, workers, on_progress, on_task_done)
+
+
+def _play_run(run: Plan, folder: RunFolder, learners: Path | None, workers: int,
+              on_progress: Callable[[int, int], None] | None,
+              on_task_done: Callable[[dict[str, Any]], None] | None) -> dict[str, Any]:
     records = folder.episodes()
-    shown = widened(run, out)
+    shown = widened(run, folder.out)
     pending = run.units(done_units(run, records))
     left = defaultdict(int)
     for unit in pending:
