@@ -12,8 +12,8 @@ PYTHON ?= $(firstword $(foreach p,python3.12 $(wildcard $(HOME)/.pyenv/versions/
 
 $(VENV)/.installed: setup.cfg pyproject.toml constraints.txt
 	@test -n "$(PYTHON)" || { echo "error: no Python 3.12 found; install one (e.g. pyenv install 3.12) or pass PYTHON=/path/to/python3.12" >&2; exit 1; }
-	rm -rf $(VENV)
-	$(PYTHON) -m venv $(VENV)
+	# an existing environment is updated in place: removing it would break every job running from it
+	[ -x $(PY) ] || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --upgrade pip
 	# torch 2.11.0 from the package index: the same build runs on the CPU and on CUDA 13 GPUs
 	$(PY) -m pip install --quiet -c constraints.txt torch==2.11.0 -e ".[test,openpi,ray,tune]"
