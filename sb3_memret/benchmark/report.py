@@ -4,6 +4,7 @@ Generated from the results file alone, so every figure in it is one the run prod
 
 from __future__ import annotations
 
+import statistics
 from collections import defaultdict
 from pathlib import Path
 from typing import Any, Mapping
@@ -67,25 +68,25 @@ def _by_cue(tasks: Mapping[str, Any], conditions: list[str]) -> list[str]:
 
 
 def _cost(tasks: Mapping[str, Any], episodes: int) -> list[str]:
-    """What each task cost to play: seconds per episode in its worker, control steps a second, and its cells'
-    worker-minutes (each condition's mean episode times the protocol's episodes). Tasks whose episodes were logged
-    before timing was are left out."""
+    """What each task cost to play: the median episode's seconds in its worker and control steps a second, and its
+    cells' worker-minutes (each condition's median episode times the protocol's episodes). Medians, so that an episode
+    a paused or swapping worker held up does not stand for the rest. Episodes logged before timing are left out."""
     rows = []
     for env_id, t in tasks.items():
-        timed = [(steps, sec) for cell in t.get("conditions", {}).values()
-                 for steps, sec in zip(cell.get("episode_lengths", []), cell.get("seconds", [])) if sec is not None]
+        per_cell = [[(steps, sec) for steps, sec in zip(cell.get("episode_lengths", []), cell.get("seconds", []))
+                     if sec is not None] for cell in t.get("conditions", {}).values()]
+        timed = [pair for cell in per_cell for pair in cell]
         if not timed:
             continue
-        per_cell = [[sec for sec in cell.get("seconds", []) if sec is not None] for cell in t["conditions"].values()]
-        minutes = sum(episodes * sum(secs) / len(secs) / 60 for secs in per_cell if secs)
-        steps, seconds = sum(st for st, _ in timed), sum(sec for _, sec in timed)
-        rows.append(f"| {env_id} | {len(timed)} | {seconds / len(timed):.1f} | {steps / seconds:.0f} | "
-                    f"{minutes:.1f} |")
+        minutes = sum(episodes * statistics.median(sec for _, sec in cell) / 60 for cell in per_cell if cell)
+        rows.append(f"| {env_id} | {len(timed)} | {statistics.median(sec for _, sec in timed):.1f} | "
+                    f"{statistics.median(steps / sec for steps, sec in timed):.0f} | {minutes:.1f} |")
     if not rows:
         return []
     return ["", "## Cost", "",
-            "Wall time of each episode in its worker process (the workers share the CPU with whatever else ran); a "
-            "task's cells: each condition's mean episode times the episodes a cell plays.", "",
+            "Wall time of each episode in its worker process (the workers share the CPU with whatever else ran), the "
+            "median over the episodes timed; a task's cells: each condition's median episode times the episodes a "
+            "cell plays.", "",
             "| task | episodes timed | seconds per episode | control steps per second | its cells, worker-minutes |",
             "|---|---|---|---|---|", *rows]
 
