@@ -57,8 +57,9 @@ class CheckGains:
     held_reach: float = 0.025  # ... with its centre this close to the TCP: it is in hand
     carry_height: float = 0.13  # the battery's centre while carried (its bottom 7 cm over the others' tops)
     near: float = 0.03  # the carried battery this close (xy) to where it goes: come over it at ``approach`` ...
-    approach: float = 0.05  # ... this far over its seat's centre height (its bottom 2 cm clear of the socket's walls: coming
-    # down fast it overshoots by up to 7 mm, and 5 mm clear, a battery still 9 mm off caught the wall and tilted in hand)
+    approach: float = 0.05  # ... this far over its seat's centre height (its bottom 2 cm clear of the socket's
+    # walls: coming down fast it overshoots by up to 7 mm, and 5 mm clear, a battery still 9 mm off caught the wall
+    # and tilted in hand)
     over_tol: float = 0.004  # ... and lower it once its xy is this close to the seat ...
     lower_tol: float = 0.008  # ... going on down while it stays this close, at most ``lower_step`` a decision (a
     lower_step: float = 0.015  # descent from the carry height straight to the seat swung it 8 mm off) ...
@@ -67,7 +68,8 @@ class CheckGains:
     drop_above: float = 0.04  # ... and its centre this far over the socket's: it drops into the socket's hole, and
     # MIKASA seats it as it falls (within 2.5 cm of the seat's height); lowered further it jams on the walls' edge ...
     hard_drop_above: float = 0.02  # Hard: let go only once it is this far over, down in the hole with the fingers
-    # round it: MIKASA's seating moves it 1 cm into the socket's floor, and one dropped from 4 cm was flung out and over;
+    # round it: MIKASA's seating moves it 1 cm into the socket's floor, and one dropped from 4 cm was flung out and
+    # over;
     hard_release_tol: float = 0.008  # there, this close (xy) is close enough (one 7 mm off stuck on the wall's face,
     # 1.6 cm over the seat, held and pushed down to the episode's end)
     set_above: float = 0.01  # ... or over its slot's, where it stands on the table again
@@ -113,8 +115,8 @@ class BatteryCheckController(ScriptedTouchController):
 
     def __init__(self, prompt_template: PromptTemplate, hard: bool, chunk_len: int = 8,
                  gains: TouchGains | None = None, check: CheckGains | None = None):
-        super().__init__(chunk_len, gains or TouchGains(max_step=0.025, arrive_tol=0.002, max_x=REACH_X), vocabulary=(), field="checklist", prompt_template=prompt_template,
-                         key="battery")
+        super().__init__(chunk_len, gains or TouchGains(max_step=0.025, arrive_tol=0.002, max_x=REACH_X),
+                         vocabulary=(), field="checklist", prompt_template=prompt_template, key="battery")
         self.hard, self.check = hard, check or CheckGains()
         self.cycles: list[Cycle] = []
 
