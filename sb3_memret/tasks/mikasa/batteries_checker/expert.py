@@ -11,9 +11,10 @@ Within one cycle it keeps the cycle's stage (per env): nothing in sight tells a 
 already tested and snapped back (Easy), nor a battery taken out of the socket from one about to go in. A cycle:
 
 - ``pick``: come down over the target battery (the lowest slot the checklist leaves out) with the fingers open 3 cm,
-  close them at its centre;
-- ``insert``: lift it clear, carry it over the socket, lower it in and open: MIKASA seats it once it is let go within
-  1 cm of the socket's centre and lights the lamp for a working one;
+  close them once the TCP is measured at its centre;
+- ``insert``: lift it clear, carry it over the socket, come over it 5 cm up, lower it 1.5 cm a decision and open
+  (Hard: down in the socket's hole): MIKASA seats it once it is let go within 1 cm of the socket's centre and lights
+  the lamp for a working one; a battery let go is waited for until it comes to rest;
 - Hard only, ``extract``, ``return`` and ``leave``: grasp it in the socket once it has come to rest, carry it back
   over its slot, lower it in and open (MIKASA counts it home within 2.3 cm), rise straight up with the fingers open;
   Easy's env snaps it home itself;
