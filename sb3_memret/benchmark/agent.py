@@ -54,14 +54,19 @@ def check_conditions(conditions: Sequence[str]) -> list[str]:
     return list(dict.fromkeys(conditions))
 
 
+def short_variant(env_id: str) -> str | None:
+    """A -Long variant's short task (``RememberColor3-Long-VLA-v0`` -> ``RememberColor3-VLA-v0``), else None."""
+    return env_id.replace("-Long-VLA-v0", "-VLA-v0") if env_id.endswith("-Long-VLA-v0") else None
+
+
 def learned_as(env_id: str, trained_on: Sequence[str]) -> str | None:
     """The task among a learner's ``trained_on`` that serves ``env_id``: itself, or for a -Long variant its short
     task (the bank holds the same facts, worded alike, under the same instruction; only the delay before they are
     needed grows, which is what the -Long row measures); None when neither was trained."""
     if env_id in trained_on:
         return env_id
-    short = env_id.replace("-Long-VLA-v0", "-VLA-v0")
-    return short if env_id.endswith("-Long-VLA-v0") and short in trained_on else None
+    short = short_variant(env_id)
+    return short if short in trained_on else None
 
 
 class MemoryLearner:
@@ -274,4 +279,4 @@ def stated_instruction(env: gym.Env) -> Any:
 
 
 __all__ = ["CONDITIONS", "MemoryAgent", "MemoryLearner", "RecalledFacts", "check_conditions", "learned_as",
-           "stated_instruction"]
+           "short_variant", "stated_instruction"]

@@ -24,7 +24,7 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
-from sb3_memret.benchmark.agent import CONDITIONS, check_conditions, learned_as
+from sb3_memret.benchmark.agent import CONDITIONS, check_conditions, learned_as, short_variant
 from sb3_memret.benchmark.manifest import episode_seeds, select_tasks
 from sb3_memret.benchmark.mikasa_results import write_mikasa_results
 
@@ -211,9 +211,9 @@ def learner_path(learners: Path | None, env_id: str) -> Path | None:
         return None
     if Path(learners).is_file():
         return Path(learners)
-    own = Path(learners) / env_id / LEARNER_FILE
-    short = Path(learners) / env_id.replace("-Long-VLA-v0", "-VLA-v0") / LEARNER_FILE
-    return short if env_id.endswith("-Long-VLA-v0") and not own.is_file() and short.is_file() else own
+    own, short = Path(learners) / env_id / LEARNER_FILE, short_variant(env_id)
+    short_path = None if short is None else Path(learners) / short / LEARNER_FILE
+    return short_path if short_path is not None and not own.is_file() and short_path.is_file() else own
 
 
 def learner_tasks(path: Path) -> list[str] | None:
