@@ -32,6 +32,7 @@ from stable_baselines3.common.vec_env.base_vec_env import VecEnvIndices, VecEnvS
 
 from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers import FrozenController
+from sb3_memret.controllers.pacing import replan_interval
 from sb3_memret.envs.configs import DecisionConfig, MemoryConfig, PhysicsConfig, check_mode, split_env_kwargs
 from sb3_memret.envs.recall_memory import EpisodeMemory, observation_space
 from sb3_memret.memory.bank import importance_scorer
@@ -113,7 +114,7 @@ class RecallVecEnv(VecEnv):
                              "the reward its env pays at each step after success is needed to value the cut-off steps")
         self.max_control_steps = decisions.max_control_steps or self.task.max_control_steps
         self.controller = make_controller(controller, self.task) if isinstance(controller, str) else controller
-        self.replan_every = self.task.replan_interval(decisions.replan_every, self.controller.spec.chunk_len)
+        self.replan_every = replan_interval(self.task, decisions.replan_every, self.controller)
         self.replans_per_decision, self.retrieve_on_write = decisions.replans_per_decision, decisions.retrieve_on_write
         task_kwargs = {**task_env_kwargs(self.controller, physics.render_backend, self.task), **physics.task_kwargs}
         self.encoder = encoder or MiniLMEncoder()

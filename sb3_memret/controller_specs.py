@@ -12,6 +12,9 @@ Accepted values (``CONTROLLER_SPECS``):
   naming the target (``make controller-objects``).
 - ``learned:/PATH/TO/CHECKPOINT[?device=DEV]``: a checkpoint ``sb3-memret finetune`` wrote.
 - ``scripted``: the scripted expert (CPU); it obeys its prompt by construction.
+- ``scripted-camera``: the scripted expert on what MIKASA's harness gives a policy alone (the objects read from the
+  base camera with its shipped calibration, the hand's motion from its pose): a protocol entry, where ``scripted``
+  (a simulated object detector) is a privileged upper bound; the tasks whose expert has one (``camera_expert``).
 - ``openpi://HOST:PORT[?timeout=S&attempts=N&chunk_len=H]``: π0.5 served by openpi
   (needs the ``openpi`` extra); ``timeout`` bounds each inference in seconds.
 - ``lerobot:/PATH/TO/CHECKPOINT[?adapter=PATH&tokenizer=PATH&device=DEV]``: lerobot's PI05Policy
@@ -37,6 +40,7 @@ CONTROLLER_SPECS = (
     "learned-objects",
     "learned:/PATH/TO/CHECKPOINT[?device=DEV]",
     "scripted",
+    "scripted-camera",
     "openpi://HOST:PORT[?timeout=S&attempts=N&chunk_len=H]",
     "lerobot:/PATH/TO/CHECKPOINT[?adapter=PATH&tokenizer=PATH&device=DEV]",
 )
@@ -51,6 +55,14 @@ def make_controller(spec: str, task: str | Task) -> FrozenController:
     controllers."""
     if spec == "scripted":
         return make_task(task).expert()
+    if spec == "scripted-camera":
+        the_task = make_task(task)
+        camera_expert = getattr(the_task, "camera_expert", None)
+        if camera_expert is None:
+            raise ValueError(f"task {the_task.name!r} has no expert on the cameras alone (scripted-camera): the "
+                             "colour-cue tasks (Seq-, Chain-, BunchOfColors) have one; use 'scripted' for its "
+                             "expert on a simulated detector (a privileged upper bound)")
+        return camera_expert()
     if spec in SHIPPED_NAMES:
         from sb3_memret.controllers.learned import LearnedController
         from sb3_memret.controllers.shipped import default_checkpoint
@@ -62,7 +74,7 @@ def make_controller(spec: str, task: str | Task) -> FrozenController:
 
         path, _, query = spec.removeprefix("learned:").partition("?")
         if not path:
-            raise ValueError(f"malformed learned controller {spec!r}; expected 'learned' or {CONTROLLER_SPECS[3]!r}")
+            raise ValueError(f"malformed learned controller {spec!r}; expected 'learned' or {_form('learned:')!r}")
         return LearnedController(path, make_task(task), **_options(spec, query, LEARNED_OPTIONS))
     if spec.startswith("openpi:"):
         host, port, options = parse_openpi_spec(spec)
@@ -80,9 +92,14 @@ def make_controller(spec: str, task: str | Task) -> FrozenController:
     raise ValueError(f"unknown controller {spec!r}; expected one of {list(CONTROLLER_SPECS)}")
 
 
+def _form(prefix: str) -> str:
+    """The accepted form (``CONTROLLER_SPECS``) that begins with ``prefix``."""
+    return next(form for form in CONTROLLER_SPECS if form.startswith(prefix))
+
+
 def parse_openpi_spec(spec: str) -> tuple[str, int, dict[str, Any]]:
     """``openpi://HOST:PORT[?k=v...]`` -> (host, port, options), or a ValueError naming the problem."""
-    form = CONTROLLER_SPECS[5]
+    form = _form('openpi:')
     parts = urlsplit(spec)
     try:
         port = parts.port
@@ -97,7 +114,7 @@ def parse_lerobot_spec(spec: str) -> tuple[str, dict[str, Any]]:
     """``lerobot:PATH[?k=v...]`` -> (checkpoint path, options), or a ValueError naming the problem."""
     path, _, query = spec.removeprefix("lerobot:").partition("?")
     if not path:
-        raise ValueError(f"malformed lerobot controller {spec!r}; expected {CONTROLLER_SPECS[6]!r}")
+        raise ValueError(f"malformed lerobot controller {spec!r}; expected {_form('lerobot:')!r}")
     return path, _options(spec, query, LEROBOT_OPTIONS)
 
 

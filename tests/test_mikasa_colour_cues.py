@@ -76,13 +76,13 @@ def test_a_bunch_writer_writes_every_item_at_once_in_palette_order_and_ignores_a
 
 def test_a_bunch_on_its_arc_is_not_taken_for_the_layout_the_touches_are_read_against():
     """The cue's three cubes stand on an arc, not where they will stand: a TCP at one of them is no touch."""
-    writer = SequenceWriter(3, progress=True, together=True)
+    writer = SequenceWriter(3, progress=True, together=True, read_layout=lambda seen: seen)  # the "image": a layout
     arc = {"red": np.array([0.1, -0.2]), "lime": np.array([0.15, 0.0]), "teal": np.array([0.1, 0.2])}
-    obs = {"extra": {"tcp_pose": np.array([[0.1, -0.2, 0.045, 0, 1, 0, 0]])}, "agent": {"qvel": np.zeros((1, 9))}}
-    out = writer.read(EnvFrame(obs, {"seen_cubes": arc}, None, False, steps=0, percepts=[("red", "lime", "teal")]))
+    obs = {"extra": {"tcp_pose": np.array([[0.1, -0.2, 0.045, 0, 1, 0, 0]])}, "sensor_data": {"base_camera": {"rgb": arc}}}
+    out = writer.read(EnvFrame(obs, {}, None, False, steps=0, percepts=[("red", "lime", "teal")]))
     assert [p for _, p in out] == [{("cue", "first cue cube"): "red", ("cue", "second cue cube"): "lime",
                                     ("cue", "third cue cube"): "teal"}]
-    assert writer.layout == {} and writer.relations["touched"] == (MemoryType.TASK_PROGRESS, "was")
+    assert writer.layout.places == {} and writer.relations["touched"] == (MemoryType.TASK_PROGRESS, "was")
 
 
 @pytest.fixture(scope="module")

@@ -71,13 +71,19 @@ def _layout() -> dict[str, np.ndarray]:
 
 
 def _frame(tcp, steps: int = 4, seen=None, percepts=()) -> EnvFrame:
-    obs = {"extra": {"tcp_pose": np.array([[*tcp, 0, 1, 0, 0]])}}  # the hand's pose alone, as the harness gives it
-    return EnvFrame(obs, {"seen_cubes": _layout() if seen is None else seen}, None, False, steps=steps,
-                    percepts=list(percepts))
+    """The hand's pose, as the harness gives it, and for the base camera's "image" the layout it shows (the writers
+    under test read it with ``read_layout=_seen``)."""
+    obs = {"extra": {"tcp_pose": np.array([[*tcp, 0, 1, 0, 0]])},
+           "sensor_data": {"base_camera": {"rgb": _layout() if seen is None else seen}}}
+    return EnvFrame(obs, {}, None, False, steps=steps, percepts=list(percepts))
+
+
+def _seen(layout):
+    return layout
 
 
 def test_the_writer_writes_each_touch_and_the_press_once_from_what_it_saw():
-    writer, layout = SequenceWriter(3, progress=True), _layout()
+    writer, layout = SequenceWriter(3, progress=True, read_layout=_seen), _layout()
     assert writer.relations["touched"] == writer.relations["pressed"] == (MemoryType.TASK_PROGRESS, "was")
     red = (*layout["red"], 0.045)
     cue_only = {"red": np.array([0.0, 0.0])}  # the cue at the table centre: never where the red cube will stand
@@ -94,8 +100,8 @@ def test_the_writer_writes_each_touch_and_the_press_once_from_what_it_saw():
     assert writer.read(_frame((*button, 0.07))) == [(4, {("pressed", "button"): "pressed"})]
     assert writer.read(_frame((*button, 0.07), steps=0, seen={})) == []  # a new episode starts afresh
     assert writer.read(_frame(red, seen={"red": layout["red"]})) == []  # one cube in sight is the cue's
-    with pytest.raises(ValueError, match="seen_cubes"):
-        writer.read(EnvFrame({}, None, None, False, steps=4))
+    with pytest.raises(ValueError, match="sensor_data/base_camera/rgb"):
+        writer.read(EnvFrame({"extra": {}}, None, None, False, steps=4))
 
 
 def test_progress_facts_are_worded_for_the_prompt_and_read_back_by_the_stateless_expert():

@@ -37,6 +37,7 @@ import numpy as np
 from sb3_memret.benchmark.guard import SimulatorGuard, benchmark_reads
 from sb3_memret.benchmark.view import PrivilegedView, policy_view
 from sb3_memret.controllers.base import FrozenController
+from sb3_memret.controllers.pacing import replan_interval
 from sb3_memret.controllers.prompts import build_prompt
 from sb3_memret.tasks.base import EnvFrame, Episode, Task
 
@@ -150,7 +151,7 @@ class MemoryAgent:
                  learner: MemoryLearner | None = None, encoder: Any = None, render_every_step: bool = False,
                  seed: int = 0):
         check_conditions([condition])
-        replan_every = task.replan_interval(replan_every, controller.spec.chunk_len)
+        replan_every = replan_interval(task, replan_every, controller)
         if condition == "recall" and learner is None:
             raise ValueError("the recall condition needs a trained memory learner")
         self.task, self.controller, self.condition = task, controller, condition

@@ -27,6 +27,7 @@ from typing import Any, Callable, Iterable, Iterator
 from sb3_memret.benchmark.agent import CONDITIONS, check_conditions, learned_as, short_variant
 from sb3_memret.benchmark.manifest import episode_seeds, select_tasks
 from sb3_memret.benchmark.mikasa_results import write_mikasa_results
+from sb3_memret.controllers.pacing import replan_interval
 
 EPISODES_FILE, RESULTS_FILE, PROTOCOL_FILE, ERRORS_FILE = "episodes.jsonl", "results.json", "protocol.json", "errors.log"
 LOCK_FILE = ".lock"  # held by the benchmark playing the folder
@@ -268,7 +269,7 @@ def plan(protocol: Protocol, conditions: Iterable[str], split: str | None = None
             continue
         result.controllers[row.env_id] = controller_record(protocol.controller, controller)
         result.task_digests[row.env_id] = task_digest(task)
-        result.replan_every[row.env_id] = task.replan_interval(protocol.replan_every, controller.spec.chunk_len)
+        result.replan_every[row.env_id] = replan_interval(task, protocol.replan_every, controller)
         path = learner_path(learners, row.env_id)
         trained_on = learner_tasks(path) if path is not None and path.is_file() else None
         if "recall" in result.conditions and (path is None or not path.is_file()):

@@ -14,6 +14,7 @@ from typing import Any, Callable, Mapping, Sequence
 
 from sb3_memret.controller_specs import make_controller
 from sb3_memret.controllers.base import FrozenController
+from sb3_memret.controllers.pacing import replan_interval
 from sb3_memret.tasks.base import EnvFrame
 from sb3_memret.physics.backends import ResetRequest
 from sb3_memret.physics import make_physics
@@ -65,7 +66,7 @@ def run_jobs(
         return []
     task = make_task(task)
     controller = make_controller(controller, task) if isinstance(controller, str) else controller
-    executed_steps = [task.replan_interval(job.replan_every, controller.spec.chunk_len) for job in jobs]
+    executed_steps = [replan_interval(task, job.replan_every, controller) for job in jobs]
     for job in jobs:
         if job.check_prompt:
             parse_prompt(job.prompt, controller.spec.prompt_template)

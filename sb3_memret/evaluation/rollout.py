@@ -8,6 +8,7 @@ from typing import Any, Callable, Iterable, Mapping, Protocol, Sequence
 import numpy as np
 
 from sb3_memret.controllers.base import FrozenController
+from sb3_memret.controllers.pacing import replan_interval
 from sb3_memret.memory.schema import Key, MemoryType
 from sb3_memret.memory.writer import EventCompiler
 from sb3_memret.common.obs_trees import stack_obs
@@ -141,7 +142,7 @@ def play_episode(
     schedule is one prompt text for every decision, as given (with ``check_prompt=False``, wording the controller was
     never trained on: the ablations'). Success is the task's (once per episode). ``check_prompt=False`` waives the
     prompt contract (``FrozenController.act``)."""
-    replan_every = runner.task.replan_interval(replan_every, controller.spec.chunk_len)
+    replan_every = replan_interval(runner.task, replan_every, controller)
     return _play(runner, controller, seed, schedule, replan_every, reset_options, check_prompt)
 
 
@@ -179,7 +180,7 @@ def play_task_episodes(
     reset_options: Mapping[str, Any] | None = None,
 ) -> list[EpisodeResult]:
     """One episode of ``task`` per seed (``play_episode``), in one env of the task made for ``controller``."""
-    replan_every = task.replan_interval(replan_every, controller.spec.chunk_len)
+    replan_every = replan_interval(task, replan_every, controller)
     runner = TaskRunner(task_env_kwargs(controller, render_backend or task.default_render_backend, task),
                         task.max_control_steps, task)
     results = []

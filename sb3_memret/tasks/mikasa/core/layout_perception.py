@@ -10,9 +10,13 @@ top face and camera-facing side both showing), and the button placed from their 
 
 from __future__ import annotations
 
+from typing import Any, Callable, Mapping
+
 import numpy as np
 from scipy import ndimage
 
+from sb3_memret.controllers.base import as_numpy
+from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC
 from sb3_memret.tasks.mikasa.core.perception import COLOUR_NAMES, MIN_BLOB_PIXELS, REFERENCE_SIZE, _palette, cube_mask
 
 LAYOUT_PLANE_Z = 0.02  # the height a cube's seen pixels are cast onto (its centre's, for 4 cm cubes)
@@ -70,6 +74,50 @@ def read_cube_layout(rgb: np.ndarray, intrinsic: np.ndarray, extrinsic: np.ndarr
     return {colour: point for colour, point in zip(named, points) if np.isfinite(point).all()}
 
 
+def base_camera_layout(rgb: Any, n_colours: int = len(COLOUR_NAMES)) -> dict[str, np.ndarray]:
+    """``read_cube_layout`` of one base-camera frame ((H, W, 3), or a batch of one) with the camera's shipped
+    calibration: what a policy reads from the harness's image alone."""
+    frame = np.asarray(as_numpy(rgb))
+    if frame.ndim == 4 and len(frame) == 1:
+        frame = frame[0]
+    return read_cube_layout(frame, BASE_CAMERA_INTRINSIC, BASE_CAMERA_EXTRINSIC, n_colours)
+
+
+class CubeLayout:
+    """Where each cube stands this episode, as the base camera showed it: each colour's (x, y) at its first sighting
+    in a frame that shows more cubes than a cue does (``shown_at_once``: one for a sequence, the bunch for a bunch),
+    so never where a cue showed it. The cubes stand still once out, so a placed colour is not read again, and once
+    every colour is placed no frame is read at all (the image reader is the costly part). ``read`` turns one frame
+    into colour -> (x, y) (``base_camera_layout`` by default). One layout serves one env; ``reset`` starts an
+    episode."""
+
+    def __init__(self, shown_at_once: int, n_colours: int = len(COLOUR_NAMES),
+                 read: Callable[[Any], Mapping[str, np.ndarray]] | None = None):
+        if not 1 <= shown_at_once < n_colours <= len(COLOUR_NAMES):
+            raise ValueError(f"need 1 <= shown_at_once < n_colours <= {len(COLOUR_NAMES)}, got shown_at_once="
+                             f"{shown_at_once}, n_colours={n_colours}")
+        self.shown_at_once, self.n_colours = shown_at_once, n_colours
+        self.read = read or (lambda rgb: base_camera_layout(rgb, n_colours))
+        self.places: dict[str, np.ndarray] = {}
+
+    def reset(self) -> None:
+        self.places = {}
+
+    @property
+    def complete(self) -> bool:
+        return len(self.places) == self.n_colours
+
+    def see(self, rgb: Any) -> None:
+        """Place the colours one frame shows for the first time (nothing while it shows a cue's few cubes, or once
+        every colour is placed)."""
+        if self.complete:
+            return
+        seen = self.read(rgb)
+        if len(seen) > self.shown_at_once:
+            for colour, point in seen.items():
+                self.places.setdefault(colour, np.asarray(point, dtype=np.float64))
+
+
 def read_cue_set(rgb: np.ndarray, n_colours: int) -> tuple[str, ...] | None:
     """The colours of a cue shown together (BunchOfColors' arc): every cube the frame shows, left to right in the
     image; None when it shows none, or all ``n_colours`` (the cubes are out: no cue shows them all)."""
@@ -79,4 +127,5 @@ def read_cue_set(rgb: np.ndarray, n_colours: int) -> tuple[str, ...] | None:
     return tuple(sorted(named, key=lambda colour: named[colour][1]))
 
 
-__all__ = ["LAYOUT_PLANE_Z", "LAYOUT_VOTE_SHARE", "name_blobs", "read_cube_layout", "read_cue_set", "table_points"]
+__all__ = ["CubeLayout", "LAYOUT_PLANE_Z", "LAYOUT_VOTE_SHARE", "base_camera_layout", "name_blobs", "read_cube_layout",
+           "read_cue_set", "table_points"]

@@ -155,30 +155,41 @@ class SequenceTouchController(ScriptedTouchController):
         plans = [ordered_colours(p, self.vocabulary, self.field) for p in parsed]
         if not any(plans):
             return chunks
-        extra = obs["extra"]
-        tcp = as_numpy(extra["tcp_pose"]).astype(np.float64)
-        cubes = as_numpy(extra["cube_positions"]).astype(np.float64)
-        visible = as_numpy(extra["cube_visible"]).astype(bool)
-        button = as_numpy(extra["button_position"]).astype(np.float64)
-        qvel = as_numpy(obs["agent"]["qvel"]).astype(np.float64)
-        velocity = tcp_velocity(as_numpy(obs["agent"]["qpos"]), qvel)
+        tcp = as_numpy(obs["extra"]["tcp_pose"]).astype(np.float64)
+        cubes, visible, button = self._detections(obs)
+        steps, static = self._motion(obs, tcp)
         for i, plan in enumerate(plans):
             if not plan:
                 continue  # no colour it knows: hold still
-            progress = self.progress[i] if self.stateful else prompt_progress(parsed[i], self.vocabulary)
-            goal = self._goal(progress, plan, tcp[i, :3], cubes[i], visible[i], button[i], qvel[i])
+            progress = self.progress[i] if self.progress_from == "observation" else \
+                prompt_progress(parsed[i], self.vocabulary)
+            goal = self._goal(progress, plan, tcp[i, :3], cubes[i], visible[i], button[i], bool(static[i]))
             if goal is not None:
-                chunks[i] = self._chunk(tcp[i], velocity[i] * CONTROL_DT, goal)
+                chunks[i] = self._chunk(tcp[i], steps[i], goal)
         return chunks
 
+    def _detections(self, obs: Obs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """Each cube's position (B, n, 3) and whether it is in sight (B, n), and the button's base centre (B, 3):
+        the detector's (``SeqControllerObservation``)."""
+        extra = obs["extra"]
+        return (as_numpy(extra["cube_positions"]).astype(np.float64), as_numpy(extra["cube_visible"]).astype(bool),
+                as_numpy(extra["button_position"]).astype(np.float64))
+
+    def _motion(self, obs: Obs, tcp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The TCP's motion over one control step at the observation (B, 3), and whether the arm is static (B,):
+        from the joints' velocities through the arm's Jacobian; static as MIKASA means it, every joint slower than
+        ``static_tol``."""
+        qvel = as_numpy(obs["agent"]["qvel"]).astype(np.float64)
+        static = np.abs(qvel[:, :7]).max(axis=1) <= self.seq.static_tol
+        return tcp_velocity(as_numpy(obs["agent"]["qpos"]), qvel) * CONTROL_DT, static
+
     def _goal(self, progress: Progress, plan: list[str], pos: np.ndarray, cubes: np.ndarray, visible: np.ndarray,
-              button: np.ndarray, qvel: np.ndarray) -> Goal | None:
+              button: np.ndarray, static: bool) -> Goal | None:
         """Record what this observation shows was done (with progress from observation), then where to head (None:
         hold still)."""
-        s, observed = self.seq, self.stateful
+        s, observed = self.seq, self.progress_from == "observation"
         if not visible.all():  # the cue (one cube, or a bunch on an arc) or the delay: the cubes are not out yet
             return Goal(np.asarray(self.gains.ready, dtype=np.float64), funnel=False)
-        static = bool(np.abs(qvel[:7]).max() <= s.static_tol)
         for index in np.flatnonzero(visible) if observed else ():
             name = self.vocabulary[index]
             touch_point = cubes[index] + (0.0, 0.0, CUBE_TOUCH_OFFSET)

@@ -58,9 +58,8 @@ from sb3_memret.memory.schema import MemoryEntry, MemoryType
 from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.tasks.base import EnvFrame, Episode
 from sb3_memret.tasks.mikasa.core import demo_layout
-from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC
 from sb3_memret.tasks.mikasa.core.cue_task import MikasaCueTask
-from sb3_memret.tasks.mikasa.core.layout_perception import read_cube_layout, read_cue_set
+from sb3_memret.tasks.mikasa.core.layout_perception import read_cue_set
 from sb3_memret.tasks.mikasa.core.perception import (COLOUR_NAMES, ControllerObservation, read_cue_colour,
                                                      stack_positions)
 from sb3_memret.tasks.mikasa.core.sequence_expert import PRESSED_FACT, TOUCHED_FACT, SequenceTouchController
@@ -138,7 +137,7 @@ class SeqOfColorsTask(MikasaCueTask):
         self.noop_before_manipulation = False
         self.instruction_text = self.variant.instruction
         self.template = prompt_template(self.variant.instruction, progress)
-        self.frames_read_images = progress  # the cube layout the progress writer reads
+        self.frames_read_images = progress  # the progress writer reads the cube layout from the decisions' images
         if progress:
             self.wordings = PROGRESS_WORDINGS
 
@@ -177,13 +176,10 @@ class SeqOfColorsTask(MikasaCueTask):
             states.append({"colours": in_palette_order(colours) if self.variant.together else colours,
                            length_key: int(lengths[i])})
         if self.progress:
-            rgb = obs["sensor_data"]["base_camera"]["rgb"]
             touched = self._touched(base, n)
             # a press begun (MIKASA's pending one) or counted: the writer writes it at the press's bottom too
             pressed = as_numpy(base.pending_press).reshape(-1) | (as_numpy(base.button_press_count).reshape(-1) > 0)
             for i, state in enumerate(states):
-                # what the base camera shows of the cubes, read with its shipped calibration (the writer's)
-                state["seen_cubes"] = read_cube_layout(rgb[i], BASE_CAMERA_INTRINSIC, BASE_CAMERA_EXTRINSIC, N_COLOURS)
                 # what MIKASA counted done (privileged: the fixed conditions' progress facts)
                 state["touched"] = touched[i]
                 state["pressed"] = bool(pressed[i])
@@ -246,6 +242,17 @@ class SeqOfColorsTask(MikasaCueTask):
     def expert(self) -> SequenceTouchController:
         return sequence_expert(progress_from="prompt" if self.progress else "observation",
                                instruction=self.instruction_text)
+
+    def camera_expert(self) -> "CameraSequenceController":
+        """The expert on the harness's inputs alone (``--controller scripted-camera``): the cubes and the button read
+        from the base camera, the hand's motion from its pose, what was done from the prompt's progress facts."""
+        from sb3_memret.tasks.mikasa.seq_of_colors.camera_expert import CameraSequenceController
+
+        if not self.progress:
+            raise ValueError(f"{self.name}'s camera expert learns what it has done from its prompt's progress facts; "
+                             "SeqOfColorsTask(progress=False) words none")
+        shown_at_once = self.n_items if self.variant.together else 1
+        return CameraSequenceController(self.template, shown_at_once, paced_every=self.replan_every)
 
     def demo_features(self, with_images: bool) -> dict[str, dict[str, Any]]:
         return demo_layout.with_state_extra(super().demo_features(with_images), "button")

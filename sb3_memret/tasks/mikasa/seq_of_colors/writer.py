@@ -7,22 +7,22 @@ by side and retention decides about each.
 
 Progress (``the red cube was touched.``, ``the button was pressed.``) is read from the base camera's cube layout and
 the hand's pose (what MIKASA's harness gives a policy): the layout is each colour's first sighting in a frame showing
-more cubes than the cue shows at once (so never the cue's: it shows one cube at the table centre, or the bunch on an
-arc), a touch the TCP still (under 1 mm per control step since the writer's last frame) within 1.8 cm of the point
+more cubes than the cue shows at once (``CubeLayout``: never the cue's place, which shows one cube at the table centre
+or the bunch on an arc; the camera is read only until every cube is placed), a touch the TCP still (under 1 mm per control step since the writer's last frame) within 1.8 cm of the point
 2.5 cm above a seen cube's centre (MIKASA: 2 cm, every joint under 0.2 rad/s), a press the TCP within 3 cm of the button's axis and 2 cm over its cap (MIKASA: 6.5 and
 2.5 cm), the button standing 4 cm from the seen cubes' mean toward the robot (MIKASA's placement).
 """
 
 from __future__ import annotations
 
-from typing import Mapping, Sequence
+from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
 from sb3_memret.controllers.base import as_numpy
 from sb3_memret.memory.schema import Key, MemoryType
 from sb3_memret.tasks.base import EnvFrame, Predicates
-from sb3_memret.tasks.mikasa.core.layout_perception import LAYOUT_PLANE_Z
+from sb3_memret.tasks.mikasa.core.layout_perception import LAYOUT_PLANE_Z, CubeLayout
 from sb3_memret.tasks.mikasa.core.perception import COLOUR_NAMES
 from sb3_memret.tasks.mikasa.core.sequence_expert import BUTTON_TOP_ABOVE_BASE, CUBE_TOUCH_OFFSET, ORDINALS, SequenceGains
 
@@ -50,6 +50,13 @@ def sequence_facts(colours: Sequence[str]) -> list[str]:
     return [CUE_FACT.format(ordinal=ORDINALS[k], colour=c) for k, c in enumerate(colours)]
 
 
+def button_place(places: Mapping[str, np.ndarray]) -> np.ndarray:
+    """The button's base centre (x, y, z) from the nine cubes' places: MIKASA stands it at their mean position,
+    ``BUTTON_TOWARD_ROBOT`` toward the robot."""
+    x, y = np.mean(list(places.values()), axis=0) - (BUTTON_TOWARD_ROBOT, 0.0)
+    return np.array([x, y, BUTTON_BASE_Z])
+
+
 def in_palette_order(colours: Sequence[str]) -> tuple[str, ...]:
     """A bunch's colours in the order its facts number them."""
     return tuple(sorted(colours, key=COLOUR_NAMES.index))
@@ -63,11 +70,12 @@ class SequenceWriter:
     read). One writer serves one env; the reset frame (``steps == 0``) starts its episode.
 
     With ``progress``, it also writes ``the {colour} cube was touched.`` and ``the button was pressed.`` at the end of
-    the chunk whose last frame shows them (the module docstring says how): those frames must carry the camera's cube
-    layout (``state["seen_cubes"]``) and the hand's pose (``extra/tcp_pose``)."""
+    the chunk whose last frame shows them (the module docstring says how): those frames must carry the base camera's
+    image (``sensor_data/base_camera/rgb``, until every cube is placed) and the hand's pose (``extra/tcp_pose``);
+    ``read_layout`` turns an image into colour -> table (x, y) (``base_camera_layout`` by default)."""
 
     def __init__(self, n_items: int = 3, progress: bool = False, gains: SequenceGains | None = None,
-                 together: bool = False):
+                 together: bool = False, read_layout: Callable[[Any], Mapping[str, np.ndarray]] | None = None):
         if not 1 <= n_items < N_COLOURS:
             raise ValueError(f"n_items must be in 1..{N_COLOURS - 1}, got {n_items}")
         self.n_items, self.progress, self.together = n_items, progress, together
@@ -78,14 +86,15 @@ class SequenceWriter:
             self.relations.update({TOUCHED: (MemoryType.TASK_PROGRESS, "was"),
                                    PRESSED: (MemoryType.TASK_PROGRESS, "was")})
         self.seen: list[str] = []
-        self.layout: dict[str, np.ndarray] = {}
+        self.layout = CubeLayout(self.shown_at_once, N_COLOURS, read_layout)
         self.touched: list[str] = []
         self.pressed = False
         self.last_tcp: np.ndarray | None = None  # the hand's position at the last frame read
 
     def read(self, frame: EnvFrame) -> list[tuple[int, Predicates]]:
         if frame.steps == 0:
-            self.seen, self.layout, self.touched, self.pressed, self.last_tcp = [], {}, [], False, None
+            self.seen, self.touched, self.pressed, self.last_tcp = [], [], False, None
+            self.layout.reset()
         out = [(step, predicates) for step, seen in frame.timed_percepts() for predicates in self._cue(seen)]
         if self.progress:
             out += [(frame.steps, predicates) for predicates in self._progress(frame)]
@@ -107,34 +116,35 @@ class SequenceWriter:
 
     def _progress(self, frame: EnvFrame) -> list[Predicates]:
         """What the frame shows was done, not written before: a touch of a seen cube, the press."""
-        if not isinstance(frame.state, Mapping) or "seen_cubes" not in frame.state:
-            raise ValueError("a progress writer reads frames carrying the camera's cube layout (state['seen_cubes'], "
-                             "from SeqOfColorsTask(progress=True).frames); this frame has none")
-        seen = frame.state["seen_cubes"]
-        if len(seen) > self.shown_at_once:  # the cubes are out (a cue shows fewer, and not where they will stand)
-            for colour, point in seen.items():
-                self.layout.setdefault(colour, np.asarray(point, dtype=np.float64))
+        if not self.layout.complete:
+            try:
+                rgb = frame.obs["sensor_data"]["base_camera"]["rgb"]
+            except (KeyError, TypeError):
+                raise ValueError("a progress writer reads the base camera's image (sensor_data/base_camera/rgb) until "
+                                 "it has placed every cube; this frame has none") from None
+            self.layout.see(rgb)
+        places = self.layout.places
         g = self.gains
         tcp = as_numpy(frame.obs["extra"]["tcp_pose"]).reshape(-1)[:3].astype(np.float64)
         moved = np.inf if self.last_tcp is None else np.linalg.norm(tcp - self.last_tcp) / max(frame.steps, 1)
         self.last_tcp = tcp
         static = moved <= g.still_step
-        if len(self.layout) <= self.shown_at_once or not static:  # the cue or the delay, or the arm moving
+        if not places or not static:  # the cue or the delay, or the arm moving
             return []
         done: list[Predicates] = []
-        for colour, (x, y) in self.layout.items():
+        for colour, (x, y) in places.items():
             touch_point = np.array([x, y, LAYOUT_PLANE_Z + CUBE_TOUCH_OFFSET])
             if colour not in self.touched and np.linalg.norm(tcp - touch_point) < g.touch_tol:
                 self.touched.append(colour)
                 done.append({(TOUCHED, f"{colour} cube"): TOUCHED})
-        if self.touched and not self.pressed and len(self.layout) == N_COLOURS:
-            button = np.mean(list(self.layout.values()), axis=0) - (BUTTON_TOWARD_ROBOT, 0.0)
-            top = BUTTON_BASE_Z + BUTTON_TOP_ABOVE_BASE
-            if np.linalg.norm(tcp[:2] - button) < g.press_xy and tcp[2] <= top + g.press_seen:
+        if self.touched and not self.pressed and self.layout.complete:
+            button = button_place(places)
+            top = button[2] + BUTTON_TOP_ABOVE_BASE
+            if np.linalg.norm(tcp[:2] - button[:2]) < g.press_xy and tcp[2] <= top + g.press_seen:
                 self.pressed = True
                 done.append({(PRESSED, "button"): PRESSED})
         return done
 
 
 __all__ = ["BUTTON_BASE_Z", "BUTTON_TOWARD_ROBOT", "CUE_ENTITY", "CUE_FACT", "N_COLOURS", "PRESSED", "PROGRESS_WORDINGS",
-           "SequenceWriter", "TOUCHED", "in_palette_order", "item_entity", "item_key", "sequence_facts"]
+           "SequenceWriter", "TOUCHED", "button_place", "in_palette_order", "item_entity", "item_key", "sequence_facts"]
