@@ -13,7 +13,9 @@ your own reuses:
 - for a task whose memory is several facts (the colour-cue tasks): ``SeqOfColorsTask`` (any of their 18 ids),
   ``SequenceWriter`` (one fact per cue item, and progress as memory), ``SequenceTouchController`` (touches the
   prompt's colours in their ordinal order, then presses the button), ``SeqControllerObservation`` (its view, with
-  the button), ``read_cube_layout`` and ``read_cue_set`` (where each cube stands, which colours a frame shows),
+  the button), ``CameraSequenceController`` (the same expert on the harness's inputs alone: ``scripted-camera``),
+  ``read_cube_layout``, ``CubeLayout`` and ``read_cue_set`` (where each cube stands, tracked over an episode, which
+  colours a frame shows),
   ``sequence_facts`` and ``item_key`` (the items' wording and memory keys), and ``PROGRESS_WORDINGS`` with
   ``TOUCHED_FACT`` and ``PRESSED_FACT`` (what has been done, worded).
 
@@ -41,6 +43,7 @@ _EXPORTS = {
     "SequenceTouchController": "core.sequence_expert", "TOUCHED_FACT": "core.sequence_expert",
     "PRESSED_FACT": "core.sequence_expert",
     "read_cube_layout": "core.layout_perception", "read_cue_set": "core.layout_perception",
+    "CubeLayout": "core.layout_perception", "CameraSequenceController": "seq_of_colors.camera_expert",
     "SeqOfColorsTask": "seq_of_colors.task", "SeqControllerObservation": "seq_of_colors.task",
     "SequenceWriter": "seq_of_colors.writer", "sequence_facts": "seq_of_colors.writer",
     "item_key": "seq_of_colors.writer", "PROGRESS_WORDINGS": "seq_of_colors.writer",
