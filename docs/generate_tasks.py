@@ -1,8 +1,8 @@
 """Write the table of registered tasks (``docs/task_list.md``, included by ``docs/tasks.md``) from the registry.
 
 Every name ``--task`` accepts, with the module that defines it, MIKASA-Robo-VLA's split, memory type and horizon for
-it (from the benchmark's manifest), its replan interval, the controller a command runs on it by default, and whether
-it can run on this machine. To fit the page's width the module is the link behind the task's name, MIKASA-Robo-VLA's
+it (from the benchmark's manifest), its replan interval, the controller a command runs on it by default (and
+``scripted-camera`` where its expert has a version on the cameras alone), and whether it can run on this machine. To fit the page's width the module is the link behind the task's name, MIKASA-Robo-VLA's
 three values share one column, and "here" is a word: a registered task that cannot run here, or whose module does
 not load, is marked with a number whose note, under the table, says why. Run by ``docs/conf.py``; ``python
 docs/generate_tasks.py OUT.md`` writes it alone.
@@ -53,8 +53,9 @@ def render() -> str:
             lines.append(f"| `{name}` | {mikasa} | | | "
                          f"no{note(f'does not load: {type(err).__name__}: {err}')} |")
             continue
+        also = " (also `scripted-camera`)" if hasattr(task, "camera_expert") else ""  # its expert on the cameras alone
         lines.append(f"| {_linked(name, type(task).__module__)} | {mikasa} | {task.replan_every} | "
-                     f"`{task.default_controller}` | yes |")
+                     f"`{task.default_controller}`{also} | yes |")
     text = "\n".join(lines) + "\n"
     if notes:
         text += "\n" + "".join(f"{k}. {' '.join(reason.split())}\n" for k, reason in enumerate(notes, 1))
