@@ -44,8 +44,8 @@ class CameraSequenceController(SequenceTouchController):
     """Touches the prompt's colours in order and presses the button, reading only the base camera's image and the
     hand's pose (the module docstring says how). ``shown_at_once``: the most cubes the task's cue shows at once (1
     for a sequence, the bunch's size for a bunch); ``paced_every``: the control steps executed between its calls
-    (``pacing.replan_interval`` refuses any other);
-    ``read_layout``: one image -> colour -> table (x, y) (the base camera's reader by default)."""
+    (``pacing.replan_interval`` refuses any other); ``read_layout``: one image -> colour -> table (x, y) (the base
+    camera's reader by default)."""
 
     def __init__(self, prompt_template: PromptTemplate, shown_at_once: int, paced_every: int, chunk_len: int = 8,
                  gains: TouchGains | None = None, sequence_gains: SequenceGains | None = None,
@@ -55,7 +55,7 @@ class CameraSequenceController(SequenceTouchController):
         if not 1 <= paced_every <= chunk_len:
             raise ValueError(f"paced_every must be in 1..{chunk_len} (the chunk's length), got {paced_every}")
         self.spec = dataclasses.replace(self.spec, needs_images=True, harness_inputs=True)
-        self.stateful = True  # its perception: the layout and the hand's last position (never the cue)
+        self.stateful = True  # its perception: the layout, the hand's last position and step (never the cue)
         self.shown_at_once, self.paced_every, self.read_layout = shown_at_once, paced_every, read_layout
         self.layouts: list[CubeLayout] = []
         # per env, from its last call: the TCP's position and estimated step, and the translations that then ran
