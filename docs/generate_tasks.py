@@ -2,10 +2,11 @@
 
 Every name ``--task`` accepts, with the module that defines it, MIKASA-Robo-VLA's split, memory type and horizon for
 it (from the benchmark's manifest), its replan interval, the controller a command runs on it by default (and
-``scripted-camera`` where its expert has a version on the cameras alone), and whether it can run on this machine. To fit the page's width the module is the link behind the task's name, MIKASA-Robo-VLA's
-three values share one column, and "here" is a word: a registered task that cannot run here, or whose module does
-not load, is marked with a number whose note, under the table, says why. Run by ``docs/conf.py``; ``python
-docs/generate_tasks.py OUT.md`` writes it alone.
+``scripted-camera`` where its expert has a version on the cameras alone), and whether it can run on this machine. To
+fit the page's width the module is the link behind the task's name, MIKASA-Robo-VLA's three values share one column,
+and "here" is a word: a registered task that cannot run here, or whose module does not load, is marked with a number
+whose note, under the table, says why. Run by ``docs/conf.py``; ``python docs/generate_tasks.py OUT.md`` writes it
+alone.
 """
 
 from __future__ import annotations

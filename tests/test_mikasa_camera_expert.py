@@ -15,7 +15,8 @@ from sb3_memret.tasks import make_task  # noqa: E402
 from sb3_memret.tasks.mikasa.core.layout_perception import LAYOUT_PLANE_Z, CubeLayout  # noqa: E402
 from sb3_memret.tasks.mikasa.core.perception import COLOUR_NAMES  # noqa: E402
 from sb3_memret.tasks.mikasa.seq_of_colors.camera_expert import CameraSequenceController  # noqa: E402
-from sb3_memret.tasks.mikasa.seq_of_colors.task import PROGRESS_PROMPT_TEMPLATE, INSTRUCTION, sequence_facts  # noqa: E402
+from sb3_memret.tasks.mikasa.seq_of_colors.task import (  # noqa: E402
+    INSTRUCTION, PROGRESS_PROMPT_TEMPLATE, sequence_facts)
 from sb3_memret.tasks.mikasa.seq_of_colors.writer import BUTTON_BASE_Z, BUTTON_TOWARD_ROBOT  # noqa: E402
 from sb3_memret.controllers.prompts import build_prompt  # noqa: E402
 

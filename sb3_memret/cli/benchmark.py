@@ -38,7 +38,9 @@ def benchmark() -> None:
 @click.option("--episodes", type=click.IntRange(min=1), default=50, show_default=True,
               help="Episodes per task and condition (the protocol's: 50).")
 @click.option("--controller", default="scripted", show_default=True,
-              help="The frozen controller (scripted: each task's expert; learned: its shipped camera controller).")
+              help="The frozen controller (scripted: each task's expert, a privileged upper bound; scripted-camera: "
+                   "the colour-cue tasks' expert on the harness's inputs alone; learned: its shipped camera "
+                   "controller).")
 @click.option("--conditions", callback=_conditions, default="none,oracle,wrong", show_default=True,
               metavar="C[,C...]", help=f"Prompt conditions, a comma list of {', '.join(CONDITIONS)}.")
 @click.option("--seeds", "seed_set", type=click.Choice(sorted(SEED_SETS)), default="dev", show_default=True,

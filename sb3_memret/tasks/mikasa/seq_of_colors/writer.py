@@ -8,9 +8,10 @@ by side and retention decides about each.
 Progress (``the red cube was touched.``, ``the button was pressed.``) is read from the base camera's cube layout and
 the hand's pose (what MIKASA's harness gives a policy): the layout is each colour's first sighting in a frame showing
 more cubes than the cue shows at once (``CubeLayout``: never the cue's place, which shows one cube at the table centre
-or the bunch on an arc; the camera is read only until every cube is placed), a touch the TCP still (under 1 mm per control step since the writer's last frame) within 1.8 cm of the point
-2.5 cm above a seen cube's centre (MIKASA: 2 cm, every joint under 0.2 rad/s), a press the TCP within 3 cm of the button's axis and 2 cm over its cap (MIKASA: 6.5 and
-2.5 cm), the button standing 4 cm from the seen cubes' mean toward the robot (MIKASA's placement).
+or the bunch on an arc; the camera is read only until every cube is placed), a touch the TCP still (under 1 mm per
+control step since the writer's last frame) within 1.8 cm of the point 2.5 cm above a seen cube's centre (MIKASA:
+2 cm, every joint under 0.2 rad/s), a press the TCP within 3 cm of the button's axis and 2 cm over its cap (MIKASA:
+6.5 and 2.5 cm), the button standing 4 cm from the seen cubes' mean toward the robot (MIKASA's placement).
 """
 
 from __future__ import annotations
@@ -147,4 +148,5 @@ class SequenceWriter:
 
 
 __all__ = ["BUTTON_BASE_Z", "BUTTON_TOWARD_ROBOT", "CUE_ENTITY", "CUE_FACT", "N_COLOURS", "PRESSED", "PROGRESS_WORDINGS",
-           "SequenceWriter", "TOUCHED", "button_place", "in_palette_order", "item_entity", "item_key", "sequence_facts"]
+           "SequenceWriter", "TOUCHED", "button_place", "in_palette_order", "item_entity", "item_key",
+           "sequence_facts"]
