@@ -28,6 +28,7 @@ def _linked(name: str, module: str) -> str:
 
 def render() -> str:
     from sb3_memret.tasks import check_task_name, make_task, task_names
+    from sb3_memret.tasks.mikasa.camera_experts import has_camera_expert
 
     manifest = _manifest()
     notes: list[str] = []  # why a task cannot run here, each reason once, numbered in order of first use
@@ -54,7 +55,7 @@ def render() -> str:
             lines.append(f"| `{name}` | {mikasa} | | | "
                          f"no{note(f'does not load: {type(err).__name__}: {err}')} |")
             continue
-        also = " (also `scripted-camera`)" if hasattr(task, "camera_expert") else ""  # its expert on the cameras alone
+        also = " (also `scripted-camera`)" if has_camera_expert(task) else ""  # its expert on the cameras alone
         lines.append(f"| {_linked(name, type(task).__module__)} | {mikasa} | {task.replan_every} | "
                      f"`{task.default_controller}`{also} | yes |")
     text = "\n".join(lines) + "\n"

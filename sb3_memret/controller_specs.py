@@ -14,7 +14,8 @@ Accepted values (``CONTROLLER_SPECS``):
 - ``scripted``: the scripted expert (CPU); it obeys its prompt by construction.
 - ``scripted-camera``: the scripted expert on what MIKASA's harness gives a policy alone (the objects read from the
   base camera with its shipped calibration, the hand's motion from its pose): a protocol entry, where ``scripted``
-  (a simulated object detector) is a privileged upper bound; the tasks whose expert has one (``camera_expert``).
+  (a simulated object detector) is a privileged upper bound; the tasks whose family has one
+  (``sb3_memret.tasks.mikasa.camera_experts``).
 - ``openpi://HOST:PORT[?timeout=S&attempts=N&chunk_len=H]``: π0.5 served by openpi
   (needs the ``openpi`` extra); ``timeout`` bounds each inference in seconds.
 - ``lerobot:/PATH/TO/CHECKPOINT[?adapter=PATH&tokenizer=PATH&device=DEV]``: lerobot's PI05Policy
@@ -56,13 +57,9 @@ def make_controller(spec: str, task: str | Task) -> FrozenController:
     if spec == "scripted":
         return make_task(task).expert()
     if spec == "scripted-camera":
-        the_task = make_task(task)
-        camera_expert = getattr(the_task, "camera_expert", None)
-        if camera_expert is None:
-            raise ValueError(f"task {the_task.name!r} has no expert on the cameras alone (scripted-camera): the "
-                             "colour-cue tasks (Seq-, Chain-, BunchOfColors) have one; use 'scripted' for its "
-                             "expert on a simulated detector (a privileged upper bound)")
-        return camera_expert()
+        from sb3_memret.tasks.mikasa.camera_experts import camera_expert
+
+        return camera_expert(make_task(task))
     if spec in SHIPPED_NAMES:
         from sb3_memret.controllers.learned import LearnedController
         from sb3_memret.controllers.shipped import default_checkpoint

@@ -82,7 +82,7 @@ def test_it_waits_until_the_camera_has_placed_every_cube_then_heads_for_the_firs
     chunk = controller.act(_obs(ready, ARC), [done])[0]
     assert chunk[0, 0] > 0.5 and abs(chunk[0, 1]) < 0.25 * chunk[0, 0]  # red done: to the button, 9 cm ahead (+x)
     controller.reset_envs([0], [1])
-    assert controller.layouts[0].places == {} and controller.sent[0] is None
+    assert controller.layouts[0].places == {} and controller.hand.sent[0] is None
 
 
 def test_its_motion_is_dead_reckoned_from_the_actions_that_ran_and_corrected_by_the_hand_and_it_refuses_another_pace():
@@ -91,18 +91,19 @@ def test_its_motion_is_dead_reckoned_from_the_actions_that_ran_and_corrected_by_
     controller = _controller(paced_every=4)
     controller.reset([0])
     here = np.array([0.0, 0.0, 0.2])
-    assert np.allclose(controller._step_now(0, here), 0)  # an episode's first call: no motion known
+    hand = controller.hand
+    assert np.allclose(hand.step_now(0, here), 0)  # an episode's first call: no motion known
     full = np.tile([1.0, 0.0, 0.0], (4, 1))  # four full actions along x, from rest
     steps = []
     for _ in range(4):
         steps.append(DRIVE_GAIN * POS_SCALE + COAST_GAIN * (steps[-1] if steps else 0.0))
-    controller.sent[0] = (here, np.zeros(3), full)
-    assert np.allclose(controller._step_now(0, here + [sum(steps), 0, 0]), [steps[-1], 0, 0])  # as the model said
-    assert np.allclose(controller._step_now(0, here + [sum(steps) - 0.02, 0, 0]), [steps[-1] - 0.005, 0, 0])
-    controller.sent[0] = (here, np.zeros(3), np.zeros((4, 3)))  # held still, yet the hand moved 4 cm and -2 cm
-    assert np.allclose(controller._step_now(0, here + [0.04, -0.02, 0]), [0.01, -0.005, 0])
+    hand.sent[0] = (here, np.zeros(3), full)
+    assert np.allclose(hand.step_now(0, here + [sum(steps), 0, 0]), [steps[-1], 0, 0])  # as the model said
+    assert np.allclose(hand.step_now(0, here + [sum(steps) - 0.02, 0, 0]), [steps[-1] - 0.005, 0, 0])
+    hand.sent[0] = (here, np.zeros(3), np.zeros((4, 3)))  # held still, yet the hand moved 4 cm and -2 cm
+    assert np.allclose(hand.step_now(0, here + [0.04, -0.02, 0]), [0.01, -0.005, 0])
     controller.act(_obs(here, {}), [build_prompt(INSTRUCTION, sequence_facts(("red",)), PROGRESS_PROMPT_TEMPLATE)])
-    before, step, ran = controller.sent[0]
+    before, step, ran = hand.sent[0]
     assert np.allclose(before, here) and ran.shape == (4, 3)  # what ran of this chunk is kept for the next call
     task = make_task("SeqOfColors3-VLA-v0")
     assert replan_interval(task, None, controller) == 4
@@ -113,14 +114,15 @@ def test_its_motion_is_dead_reckoned_from_the_actions_that_ran_and_corrected_by_
 
 
 def test_scripted_camera_names_the_tasks_that_have_one():
-    assert isinstance(make_controller("scripted-camera", "BunchOfColors5-Long-VLA-v0"), CameraSequenceController)
-    assert make_controller("scripted-camera", "BunchOfColors5-VLA-v0").shown_at_once == 5
-    with pytest.raises(ValueError, match="has no expert on the cameras alone"):
-        make_controller("scripted-camera", "RememberColor3-VLA-v0")
+    from sb3_memret.tasks.mikasa.camera_experts import camera_expert
     from sb3_memret.tasks.mikasa.seq_of_colors.task import SeqOfColorsTask
 
+    assert isinstance(make_controller("scripted-camera", "BunchOfColors5-Long-VLA-v0"), CameraSequenceController)
+    assert make_controller("scripted-camera", "BunchOfColors5-VLA-v0").shown_at_once == 5
+    with pytest.raises(ValueError, match="has no expert on the cameras alone.*RememberColorTask, SeqOfColorsTask"):
+        make_controller("scripted-camera", "RememberShape3-VLA-v0")
     with pytest.raises(ValueError, match="words none"):
-        SeqOfColorsTask("SeqOfColors3-VLA-v0", progress=False).camera_expert()
+        camera_expert(SeqOfColorsTask("SeqOfColors3-VLA-v0", progress=False))
 
 
 @pytest.mark.slow

@@ -13,8 +13,8 @@ from sb3_memret.controllers.base import as_numpy  # noqa: E402
 from sb3_memret.memory.schema import MemoryType  # noqa: E402
 from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E402
 from sb3_memret.tasks import EnvFrame, make_task  # noqa: E402
-from sb3_memret.tasks.mikasa.core.layout_perception import read_cube_layout, table_points  # noqa: E402
-from sb3_memret.tasks.mikasa.core.perception import COLOUR_NAMES  # noqa: E402
+from sb3_memret.tasks.mikasa.core.layout_perception import name_blobs, read_cube_layout, table_points  # noqa: E402
+from sb3_memret.tasks.mikasa.core.perception import COLOUR_NAMES, _palette  # noqa: E402
 from sb3_memret.tasks.mikasa.seq_of_colors.task import (  # noqa: E402
     EPISODE_STEPS,
     INSTRUCTION,
@@ -43,6 +43,20 @@ def test_table_points_cast_pixels_onto_the_plane():
     assert np.isnan(table_points(np.array([[64.0, 64.0]]), intrinsic, extrinsic, plane_z=0.0)).all()
     with pytest.raises(ValueError, match="n_colours must be in 1..9"):
         read_cube_layout(np.zeros((8, 8, 3), np.uint8), intrinsic, extrinsic, 10)
+
+
+def test_cubes_touching_in_the_image_are_split_by_colour_and_a_shaded_face_does_not_split_a_cube():
+    shades, owner = _palette(9)
+    top = {COLOUR_NAMES[int(i)]: shades[2 * int(i)] for i in range(9)}  # each colour's top-face shade
+    rgb = np.zeros((128, 128, 3), np.uint8)  # the base camera's size: the pixel thresholds are set for it
+    rgb[10:15, 10:15], rgb[10:15, 15:20] = top["red"], top["lime"]  # two cubes side by side: one blob
+    rgb[30:35, 30:35], rgb[34, 30:34] = top["maroon"], top["red"]  # a maroon cube, four pixels shaded toward red
+    blobs = name_blobs(rgb, 9)
+    assert sorted(blobs) == ["lime", "maroon", "red"]
+    assert np.allclose(blobs["red"], [12.5, 12.5]) and np.allclose(blobs["lime"], [12.5, 17.5])
+    assert np.allclose(blobs["maroon"], [32.5, 32.5])
+    rgb[40:45, 40:45] = top["red"]  # red seen twice: not placed
+    assert "red" not in name_blobs(rgb, 9)
 
 
 @pytest.mark.parametrize("seed", [DEV_SEED, DEV_SEED + 1])  # 5001: a maroon cube whose faces vote 19 to 5 red

@@ -23,6 +23,9 @@ LAYOUT_PLANE_Z = 0.02  # the height a cube's seen pixels are cast onto (its cent
 # a blob's colour needs this share of its pixels' votes: off the table centre a cube's faces shade differently from
 # the cue's calibrated shades (a maroon cube on the arc: 19 of 24 pixels maroon, 5 red), so less than the cue's 0.8
 LAYOUT_VOTE_SHARE = 0.6
+# a blob of touching cubes is split by colour into parts of at least this many pixels at 128x128 (a cube shows about
+# 24; a face shaded toward another colour, up to 5)
+SPLIT_MIN_PIXELS = 8
 
 
 def table_points(pixels: np.ndarray, intrinsic: np.ndarray, extrinsic: np.ndarray, plane_z: float) -> np.ndarray:
@@ -40,14 +43,17 @@ def table_points(pixels: np.ndarray, intrinsic: np.ndarray, extrinsic: np.ndarra
 
 def name_blobs(rgb: np.ndarray, n_colours: int) -> dict[str, np.ndarray]:
     """Colour -> (row, col) pixel centre of every cube one frame (H, W, 3) shows, among the first ``n_colours``
-    colours; a blob whose pixels disagree on its colour, or a colour seen as two blobs, is left out."""
+    colours. A blob where more than one colour covers ``SPLIT_MIN_PIXELS`` is split into each colour's connected
+    parts (cubes touching in the image); a blob of one colour with a few pixels of others (a face shaded off) is
+    that colour's where it holds ``LAYOUT_VOTE_SHARE`` of the votes; a colour seen as two blobs is left out."""
     if not 1 <= n_colours <= len(COLOUR_NAMES):
         raise ValueError(f"n_colours must be in 1..{len(COLOUR_NAMES)}, got {n_colours}")
     rgb = np.asarray(rgb)
     if rgb.ndim != 3 or rgb.shape[-1] != 3:
         raise ValueError(f"expected one (H, W, 3) frame, got shape {rgb.shape}")
     labels, n_blobs = ndimage.label(cube_mask(rgb), structure=np.ones((3, 3)))
-    min_pixels = MIN_BLOB_PIXELS * np.prod(np.array(rgb.shape[:2]) / REFERENCE_SIZE)
+    scale = np.prod(np.array(rgb.shape[:2]) / REFERENCE_SIZE)
+    min_pixels, split_pixels = MIN_BLOB_PIXELS * scale, SPLIT_MIN_PIXELS * scale
     shades, owner = _palette(n_colours)
     found: dict[str, list[np.ndarray]] = {}
     for blob in range(1, n_blobs + 1):
@@ -55,8 +61,21 @@ def name_blobs(rgb: np.ndarray, n_colours: int) -> dict[str, np.ndarray]:
         if len(where) < min_pixels:
             continue
         pixels = rgb[labels == blob].astype(np.float32)
-        votes = np.bincount(owner[np.argmin(((pixels[:, None] - shades[None]) ** 2).sum(-1), axis=1)],
-                            minlength=n_colours)
+        owned = owner[np.argmin(((pixels[:, None] - shades[None]) ** 2).sum(-1), axis=1)]
+        votes = np.bincount(owned, minlength=n_colours)
+        cubes = np.flatnonzero(votes >= split_pixels)
+        if len(cubes) > 1:
+            # cubes of different colours touching in the image (nine on an arc, seen from across the table): each
+            # colour's own connected parts, where large enough to be a cube's
+            owners = np.full(labels.shape, -1)
+            owners[labels == blob] = owned
+            for colour in cubes:
+                parts, n_parts = ndimage.label(owners == colour, structure=np.ones((3, 3)))
+                for part in range(1, n_parts + 1):
+                    part_pixels = np.argwhere(parts == part)
+                    if len(part_pixels) >= split_pixels:
+                        found.setdefault(COLOUR_NAMES[colour], []).append(part_pixels.mean(axis=0) + 0.5)
+            continue
         best = int(votes.argmax())
         if votes[best] >= LAYOUT_VOTE_SHARE * votes.sum():
             found.setdefault(COLOUR_NAMES[best], []).append(where.mean(axis=0) + 0.5)
@@ -127,5 +146,5 @@ def read_cue_set(rgb: np.ndarray, n_colours: int) -> tuple[str, ...] | None:
     return tuple(sorted(named, key=lambda colour: named[colour][1]))
 
 
-__all__ = ["CubeLayout", "LAYOUT_PLANE_Z", "LAYOUT_VOTE_SHARE", "base_camera_layout", "name_blobs", "read_cube_layout",
+__all__ = ["CubeLayout", "LAYOUT_PLANE_Z", "LAYOUT_VOTE_SHARE", "SPLIT_MIN_PIXELS", "base_camera_layout", "name_blobs", "read_cube_layout",
            "read_cue_set", "table_points"]

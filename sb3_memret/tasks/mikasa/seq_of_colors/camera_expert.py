@@ -11,11 +11,8 @@ harness's inputs only (``ControllerSpec.harness_inputs``):
 - **the button**: MIKASA stands it at the cubes' mean, 4 cm toward the robot (``button_place``, as the writer places
   it);
 - **the hand's motion**: where the detector's version reads the joints' velocities, this one dead-reckons the TCP's
-  step with the arm model its chunks are planned with (``touch_expert``: each step ``0.243 * delta + 0.378 * the last
-  step``) over the actions of its last chunk that ran (``paced_every`` of them: every runner executes that many, and
-  refuses another interval), corrected by what the model missed of the hand's measured displacement, spread evenly
-  over those steps. (The displacement's plain mean lags a moving hand: on SeqOfColors3, development seed 5000, the
-  chunks then braked late and overshot the third cube by 2 cm at its height; MIKASA never counted its touch.)
+  step from the hand's pose and the actions that ran (``DeadReckonedHand``; it is run at the pace it declares,
+  ``paced_every``, and every runner refuses another).
 
 What has been done comes from its prompt's progress facts only (``progress_from="prompt"``): a touch or a press
 cannot be told from the hand's pose without the joints' speeds, so this controller is the stateless expert's, fed
@@ -33,10 +30,11 @@ import numpy as np
 
 from sb3_memret.controllers.base import Obs, as_numpy
 from sb3_memret.controllers.prompts import PromptTemplate
+from sb3_memret.tasks.mikasa.core.hand_motion import DeadReckonedHand
 from sb3_memret.tasks.mikasa.core.layout_perception import LAYOUT_PLANE_Z, CubeLayout
 from sb3_memret.tasks.mikasa.core.perception import COLOUR_NAMES
 from sb3_memret.tasks.mikasa.core.sequence_expert import SequenceGains, SequenceTouchController
-from sb3_memret.tasks.mikasa.core.touch_expert import COAST_GAIN, DRIVE_GAIN, POS_SCALE, TouchGains
+from sb3_memret.tasks.mikasa.core.touch_expert import TouchGains
 from sb3_memret.tasks.mikasa.seq_of_colors.writer import N_COLOURS, button_place
 
 
@@ -52,47 +50,30 @@ class CameraSequenceController(SequenceTouchController):
                  read_layout: Callable[[Any], Mapping[str, np.ndarray]] | None = None):
         super().__init__(prompt_template, chunk_len, gains, sequence_gains, COLOUR_NAMES[:N_COLOURS],
                          progress_from="prompt")
-        if not 1 <= paced_every <= chunk_len:
-            raise ValueError(f"paced_every must be in 1..{chunk_len} (the chunk's length), got {paced_every}")
+        self.hand = DeadReckonedHand(paced_every, chunk_len)
         self.spec = dataclasses.replace(self.spec, needs_images=True, harness_inputs=True)
         self.stateful = True  # its perception: the layout, the hand's last position and step (never the cue)
         self.shown_at_once, self.paced_every, self.read_layout = shown_at_once, paced_every, read_layout
         self.layouts: list[CubeLayout] = []
-        # per env, from its last call: the TCP's position and estimated step, and the translations that then ran
-        self.sent: list[tuple[np.ndarray, np.ndarray, np.ndarray] | None] = []
         self._steps = np.zeros((0, 3))
 
     def reset(self, seeds: Sequence[int]) -> None:
         super().reset(seeds)
         self.layouts = [CubeLayout(self.shown_at_once, N_COLOURS, self.read_layout) for _ in seeds]
-        self.sent = [None] * len(seeds)
+        self.hand.reset(len(seeds))
 
     def reset_envs(self, env_ids: Sequence[int], seeds: Sequence[int]) -> None:
         super().reset_envs(env_ids, seeds)
         for i in env_ids:
             self.layouts[i].reset()
-            self.sent[i] = None
+            self.hand.reset_env(i)
 
     def _act(self, obs: Obs, prompts: Sequence[str], parsed: Sequence[Any]) -> np.ndarray:
         tcp = as_numpy(obs["extra"]["tcp_pose"]).astype(np.float64)[:, :3]
-        self._steps = np.array([self._step_now(i, tcp[i]) for i in range(len(tcp))]).reshape(-1, 3)
+        self._steps = self.hand.steps(tcp)
         chunks = super()._act(obs, prompts, parsed)
-        self.sent = [(tcp[i], self._steps[i], chunks[i, : self.paced_every, :3].astype(np.float64))
-                     for i in range(len(tcp))]
+        self.hand.ran(tcp, self._steps, chunks)
         return chunks
-
-    def _step_now(self, i: int, tcp: np.ndarray) -> np.ndarray:
-        """Env ``i``'s TCP step now: the arm model run over the translations that ran since its last call, from the
-        step estimated then, plus the model's miss of the measured displacement spread over those steps (zero at an
-        episode's first call)."""
-        if self.sent[i] is None:
-            return np.zeros(3)
-        before, step, actions = self.sent[i]
-        predicted = np.zeros(3)
-        for action in actions:
-            step = DRIVE_GAIN * POS_SCALE * action + COAST_GAIN * step
-            predicted += step
-        return step + (tcp - before - predicted) / len(actions)
 
     def _detections(self, obs: Obs) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """The cubes the base camera has placed (at the height their seen pixels were cast to) and the button
@@ -111,7 +92,7 @@ class CameraSequenceController(SequenceTouchController):
         return cubes, visible, button
 
     def _motion(self, obs: Obs, tcp: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The TCP's step now (``_step_now``, estimated as this call began), and whether it is under the writer's
+        """The TCP's step now (``DeadReckonedHand``, estimated as this call began), and whether it is under the writer's
         ``still_step``."""
         return self._steps, np.linalg.norm(self._steps, axis=1) <= self.seq.still_step
 

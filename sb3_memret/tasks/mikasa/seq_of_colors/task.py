@@ -243,17 +243,6 @@ class SeqOfColorsTask(MikasaCueTask):
         return sequence_expert(progress_from="prompt" if self.progress else "observation",
                                instruction=self.instruction_text)
 
-    def camera_expert(self) -> "CameraSequenceController":
-        """The expert on the harness's inputs alone (``--controller scripted-camera``): the cubes and the button read
-        from the base camera, the hand's motion from its pose, what was done from the prompt's progress facts."""
-        from sb3_memret.tasks.mikasa.seq_of_colors.camera_expert import CameraSequenceController
-
-        if not self.progress:
-            raise ValueError(f"{self.name}'s camera expert learns what it has done from its prompt's progress facts; "
-                             "SeqOfColorsTask(progress=False) words none")
-        shown_at_once = self.n_items if self.variant.together else 1
-        return CameraSequenceController(self.template, shown_at_once, paced_every=self.replan_every)
-
     def demo_features(self, with_images: bool) -> dict[str, dict[str, Any]]:
         return demo_layout.with_state_extra(super().demo_features(with_images), "button")
 

@@ -1,0 +1,86 @@
+"""The experts on what MIKASA's harness gives a policy alone (``--controller scripted-camera``), per task family.
+
+A task's ``expert()`` reads a simulated detector and the arm's joints: a privileged upper bound. Where a family's
+objects can be read from the base camera with its shipped calibration, its camera expert plays the same motion on
+the harness's inputs (``ControllerSpec.harness_inputs``), and its tables are protocol entries. They are kept here,
+not on the task classes, so that a task's code (and the benchmark cells its digest keys) stays as it was played.
+``register_camera_expert`` adds one for a task class of your own.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import Callable
+
+from sb3_memret.controllers.base import FrozenController
+from sb3_memret.tasks.base import Task
+
+CameraExpertBuilder = Callable[[Task], FrozenController]
+_REGISTERED: dict[type, CameraExpertBuilder] = {}  # a user's own, by register_camera_expert
+
+
+def register_camera_expert(task_class: type, build: CameraExpertBuilder) -> None:
+    """Make ``build(task)`` the camera expert of ``task_class`` and its subclasses (a later registration of the same
+    class replaces it)."""
+    if not (isinstance(task_class, type) and issubclass(task_class, Task)):
+        raise TypeError(f"task_class must be a Task subclass, got {task_class!r}")
+    if not callable(build):
+        raise TypeError(f"build must be callable (task -> FrozenController), got {build!r}")
+    _REGISTERED[task_class] = build
+
+
+def _builders() -> dict[type, CameraExpertBuilder]:
+    """Task class -> camera expert builder: the package's own (their task modules import on first use: they import
+    MIKASA), then the registered ones."""
+    builders = {getattr(importlib.import_module(module), name): build for module, name, build in _SHIPPED}
+    return {**builders, **_REGISTERED}
+
+
+def _builder(task: Task) -> CameraExpertBuilder | None:
+    builders = _builders()
+    return next((builders[cls] for cls in type(task).__mro__ if cls in builders), None)
+
+
+def has_camera_expert(task: Task) -> bool:
+    """Whether ``task`` (or a base class of it) has a camera expert."""
+    return _builder(task) is not None
+
+
+def camera_expert(task: Task) -> FrozenController:
+    """``task``'s expert on the harness's inputs alone; a task without one is refused in a line naming those that
+    have one."""
+    build = _builder(task)
+    if build is None:
+        families = ", ".join(sorted(cls.__name__ for cls in _builders()))
+        raise ValueError(f"task {task.name!r} has no expert on the cameras alone (scripted-camera); the task classes "
+                         f"that have one: {families}; use 'scripted' for its expert on a simulated detector (a "
+                         "privileged upper bound)")
+    return build(task)
+
+
+def _colour_sequence(task: Task) -> FrozenController:
+    """The colour-cue tasks (Seq-, Chain-, BunchOfColors): cubes and button from the base camera, what was done from
+    the prompt's progress facts."""
+    from sb3_memret.tasks.mikasa.seq_of_colors.camera_expert import CameraSequenceController
+
+    if not task.progress:
+        raise ValueError(f"{task.name}'s camera expert learns what it has done from its prompt's progress facts; "
+                         "SeqOfColorsTask(progress=False) words none")
+    shown_at_once = task.n_items if task.variant.together else 1
+    return CameraSequenceController(task.template, shown_at_once, paced_every=task.replan_every)
+
+
+def _remember_colour(task: Task) -> FrozenController:
+    """RememberColor 3/5/9 and their -Long: the cubes from the base camera."""
+    from sb3_memret.tasks.mikasa.remember.camera_expert import CameraTouchController
+
+    return CameraTouchController(task.words, task.template, paced_every=task.replan_every, default=task.words[0],
+                                 wait_for_all=not task.noop_before_manipulation)
+
+
+_SHIPPED: tuple[tuple[str, str, CameraExpertBuilder], ...] = (
+    ("sb3_memret.tasks.mikasa.seq_of_colors.task", "SeqOfColorsTask", _colour_sequence),
+    ("sb3_memret.tasks.mikasa.remember.color", "RememberColorTask", _remember_colour),
+)
+
+__all__ = ["camera_expert", "has_camera_expert", "register_camera_expert"]
