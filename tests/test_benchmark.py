@@ -396,10 +396,12 @@ def test_a_task_that_cannot_run_here_is_refused_with_its_reason(monkeypatch):
 def test_the_agent_renders_only_what_it_reads_and_every_outcome_stays_the_same():
     """The same RememberColor3 episodes with the harness's every-step rendering and with the sensor gate: equal
     outcomes and prompts. The scripted controller reads no images, so under oracle only the reset renders; the
-    written condition's writer reads every step's."""
+    written condition's writer reads every step's; the camera expert reads its decisions' until its cubes are
+    placed."""
     from sb3_memret.benchmark import harness
     from sb3_memret.benchmark.agent import MemoryAgent
     from sb3_memret.tasks import make_task
+    from sb3_memret.tasks.mikasa.camera_experts import camera_expert
 
     task = make_task("RememberColor3-VLA-v0")
     env = harness.make_env(task.name)
@@ -423,12 +425,19 @@ def test_the_agent_renders_only_what_it_reads_and_every_outcome_stays_the_same()
                 agent.begin(0)
                 result = harness.play_episode(env, agent, 5001)
                 outcomes[key] = (result.success_once, result.episode_return, result.n_steps, agent.prompts)
+        key = ("camera", False)  # the expert on the cameras reads them at its decisions until it placed every cube
+        agent = MemoryAgent(task, camera_expert(task), "oracle", task.replan_every)
+        agent.bind(env)
+        agent.begin(0)
+        camera = harness.play_episode(env, agent, 5001)
     finally:
         env.close()
     for condition in ("oracle", "written"):
         assert outcomes[condition, True] == outcomes[condition, False]
     steps = outcomes["oracle", True][2]
     assert renders["oracle", True] == steps + 1 and renders["oracle", False] == 1
+    decisions = -(-camera.n_steps // task.replan_every)
+    assert camera.success_once and 1 < renders["camera", False] < 1 + decisions
     assert task.perception_window(env) == 6
     assert renders["written", False] == 1 + 5 and renders["written", True] == steps + 1
 

@@ -41,12 +41,14 @@ def test_it_waits_while_only_the_cue_shows_then_heads_for_the_cube_its_prompt_na
     ready = np.asarray(controller.gains.ready)
     chunk = controller.act(_obs(ready, {"blue": np.zeros(2)}), [colour_prompt("blue")])[0]  # the cue, alone
     assert np.abs(chunk[:, :3]).max() < 1e-6 and controller.layouts[0].places == {}  # never placed where a cue was
+    assert controller.reads_images()
     chunk = controller.act(_obs(ready, ROW), [colour_prompt("blue")])[0]
     assert chunk[0, 1] > 0.5  # towards blue, at y = +0.2
+    assert not controller.reads_images()  # every cube placed: the benchmark need not render for it
     chunk = controller.act(_obs(ready, {}), [colour_prompt(None)])[0]  # no fact: its guess, the first colour
     assert chunk[0, 1] < -0.5 and np.allclose(controller.layouts[0].places["red"], ROW["red"])
     controller.reset_envs([0], [1])
-    assert controller.layouts[0].places == {} and controller.hand.sent[0] is None
+    assert controller.layouts[0].places == {} and controller.hand.sent[0] is None and controller.reads_images()
 
 
 def test_where_no_wrapper_freezes_the_arm_it_waits_until_every_cube_is_placed():

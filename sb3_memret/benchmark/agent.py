@@ -263,12 +263,13 @@ class MemoryAgent:
             return self._privileged.observation(obs)
 
     def _reads_next_images(self) -> bool:
-        """Whether the next observation's images are read: by the controller at a decision; where the condition
-        writes facts, by the writer at every step of its task's perception window, or at decisions for a task that
-        does not perceive every step or whose frames read the images (``Task.frames_read_images``)."""
+        """Whether the next observation's images are read: by the controller at a decision, while it reads them
+        (``FrozenController.reads_images``); where the condition writes facts, by the writer at every step of its
+        task's perception window, or at decisions for a task that does not perceive every step or whose frames read
+        the images (``Task.frames_read_images``)."""
         decides = not self._queue
         frames_read = self.writes and (not self.task.perceives_every_step or self.task.frames_read_images)
-        return (decides and (self.controller.spec.needs_images or frames_read)) or self._perceives(self._steps)
+        return (decides and (self.controller.reads_images() or frames_read)) or self._perceives(self._steps)
 
 
 def stated_instruction(env: gym.Env) -> Any:

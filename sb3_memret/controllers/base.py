@@ -91,6 +91,11 @@ class FrozenController(ABC):
             raise RuntimeError(f"{type(self).__name__} returned chunks of shape {chunks.shape}, expected {expected}")
         return chunks
 
+    def reads_images(self) -> bool:
+        """Whether its next call reads the cameras' images: ``spec.needs_images``, unless its perception is complete
+        for the episodes under way (an expert that placed every object once); a runner may then skip rendering."""
+        return self.spec.needs_images
+
     def check_env(self, env: Any) -> None:
         """Refuse an env whose action convention or observations do not match this controller."""
         base = getattr(env, "unwrapped", env)

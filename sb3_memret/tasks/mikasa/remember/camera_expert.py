@@ -59,6 +59,10 @@ class CameraTouchController(ScriptedTouchController):
             self.layouts[i].reset()
             self.hand.reset_env(i)
 
+    def reads_images(self) -> bool:
+        """Until every env's layout is complete: the cubes stand still once out, and nothing else is read."""
+        return not self.layouts or not all(layout.complete for layout in self.layouts)
+
     def _act(self, obs: Obs, prompts: Sequence[str], parsed: Sequence[ParsedPrompt]) -> np.ndarray:
         if len(prompts) != self._batch:
             raise RuntimeError(f"reset() was called for {self._batch} envs but act() got {len(prompts)} prompts")

@@ -68,6 +68,10 @@ class CameraSequenceController(SequenceTouchController):
             self.layouts[i].reset()
             self.hand.reset_env(i)
 
+    def reads_images(self) -> bool:
+        """Until every env's layout is complete: the cubes stand still once out, and nothing else is read."""
+        return not self.layouts or not all(layout.complete for layout in self.layouts)
+
     def _act(self, obs: Obs, prompts: Sequence[str], parsed: Sequence[Any]) -> np.ndarray:
         tcp = as_numpy(obs["extra"]["tcp_pose"]).astype(np.float64)[:, :3]
         self._steps = self.hand.steps(tcp)
