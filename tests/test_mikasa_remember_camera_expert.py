@@ -13,7 +13,8 @@ from sb3_memret.controller_specs import make_controller  # noqa: E402
 from sb3_memret.controllers.base import as_numpy  # noqa: E402
 from sb3_memret.controllers.pacing import replan_interval  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
-from sb3_memret.tasks.mikasa.camera_experts import camera_expert, has_camera_expert, register_camera_expert  # noqa: E402
+from sb3_memret.tasks.mikasa.camera_experts import (  # noqa: E402
+    camera_expert, has_camera_expert, register_camera_expert)
 from sb3_memret.tasks.mikasa.core.layout_perception import LAYOUT_PLANE_Z, base_camera_layout  # noqa: E402
 from sb3_memret.tasks.mikasa.remember.camera_expert import CameraTouchController  # noqa: E402
 from sb3_memret.tasks.mikasa.remember.color import RememberColorTask  # noqa: E402

@@ -78,9 +78,21 @@ def _remember_colour(task: Task) -> FrozenController:
                                  wait_for_all=not task.noop_before_manipulation)
 
 
+def _blink_count(task: Task) -> FrozenController:
+    """BlinkCountButtonPress Easy/Medium/Hard and their -Long: the red button and the phase lamp from the base
+    camera, the presses made from the prompt's progress facts."""
+    from sb3_memret.tasks.mikasa.blink_count.camera_expert import CameraButtonPressController
+
+    if not task.progress:
+        raise ValueError(f"{task.name}'s camera expert learns the presses made from its prompt's progress facts; "
+                         "BlinkCountTask(progress=False) words none")
+    return CameraButtonPressController(task.template, paced_every=task.replan_every, default_count=1)
+
+
 _SHIPPED: tuple[tuple[str, str, CameraExpertBuilder], ...] = (
     ("sb3_memret.tasks.mikasa.seq_of_colors.task", "SeqOfColorsTask", _colour_sequence),
     ("sb3_memret.tasks.mikasa.remember.color", "RememberColorTask", _remember_colour),
+    ("sb3_memret.tasks.mikasa.blink_count.task", "BlinkCountTask", _blink_count),
 )
 
 __all__ = ["camera_expert", "has_camera_expert", "register_camera_expert"]
