@@ -2,7 +2,7 @@
 against N worker processes, in the same run, at development seeds.
 
     python scripts/bench_benchmark.py [--task RememberColor3-VLA-v0] [--controller scripted]
-        [--condition oracle] [--episodes 8] [--workers 1 2]
+        [--condition oracle] [--episodes 8] [--workers 1 2] [--rendering] [--threads] [--overhead]
 
 Each worker count plays the same ``--episodes`` episodes (seeds 5000 + i) end to end, start-up included, as a user
 waits for them (``play_units``: the worker processes are spawned, build the harness env and the agent, then
@@ -13,6 +13,10 @@ worker count changes how fast the table plays, never what it says.
 With ``--rendering`` it then plays the same episodes in this process twice, rendering the cameras after every
 control step (the harness's own way) and only for the observations the agent reads (``sensor_gate.SensorGate``, the
 benchmark's way), and prints each one's time, its ratio to every-step rendering and the outcomes, checked equal.
+
+With ``--threads`` it plays the same episodes in this process under torch's default intra-op threads and under
+one (the benchmark's own way, in one worker as in many), and prints each one's wall and CPU seconds and their
+ratios: beside other jobs, idle intra-op threads spin-wait after every small op and take the cores from physics.
 
 With ``--overhead`` it plays the same seeds in this process through the same harness env with the agent and with a
 policy that returns zero actions (no memory, no controller, no writer: the harness alone), and prints each one's
@@ -65,6 +69,22 @@ def play_rendering(task: str, controller: str, condition: str, episodes: int,
         env.close()
 
 
+def play_threads(task: str, controller: str, condition: str, episodes: int,
+                 threads: int | None) -> tuple[float, float, list[tuple[bool, int]]]:
+    """Wall and CPU seconds (this process's, its threads included) to play ``episodes`` development-seed episodes in
+    this process with ``threads`` torch intra-op threads (None: torch's default), and each (success, steps)."""
+    from sb3_memret.benchmark.runner import _Worker
+    from sb3_memret.common.workers import torch_threads
+
+    worker = _Worker(Protocol(seed_set="dev", episodes=episodes, controller=controller), None)
+    worker.agent(task, condition)  # the env and the agent built beforehand
+    with torch_threads(threads):
+        start, cpu = time.perf_counter(), time.process_time()
+        records = [worker.play(Unit(task, condition, DEV_SEED + i)) for i in range(episodes)]
+        seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
+    return seconds, cpu, [(record["success"], record["steps"]) for record in records]
+
+
 class ZeroPolicy:
     """The harness alone: a ``ChunkPolicy`` of zero actions, ``chunk_size`` at a call."""
 
@@ -106,6 +126,7 @@ def main() -> None:
     parser.add_argument("--episodes", type=int, default=8)
     parser.add_argument("--workers", type=int, nargs="+", default=[1, 2])
     parser.add_argument("--rendering", action="store_true", help="also compare every-step rendering with the gate")
+    parser.add_argument("--threads", action="store_true", help="also compare torch's default threads with one")
     parser.add_argument("--overhead", action="store_true", help="also compare the agent with zero actions")
     args = parser.parse_args()
 
@@ -140,6 +161,20 @@ def main() -> None:
         for name, seconds in (("every step (the harness's)", every), ("what the agent reads", read)):
             print(f"| {name} | {seconds:.1f} | {args.episodes / seconds:.3f} | {steps / seconds:.1f} | "
                   f"{every / seconds:.2f}x | {sum(s for s, _ in every_outcomes)}/{args.episodes} |")
+
+    if args.threads:
+        print("\n| torch threads (1 process) | seconds | CPU seconds | vs default, wall | vs default, CPU | success |")
+        print("|---|---|---|---|---|---|")
+        played = {}
+        for threads in (None, 1):
+            played[threads] = play_threads(args.task, args.controller, args.condition, args.episodes, threads)
+        if played[1][2] != played[None][2]:
+            raise SystemExit(f"one thread played other outcomes: {played[1][2]} vs {played[None][2]}")
+        (wall, cpu, outcomes) = played[None]
+        for threads, (seconds, cpu_seconds, _) in played.items():
+            name = f"default ({torch.get_num_threads()})" if threads is None else "one (the benchmark's)"
+            print(f"| {name} | {seconds:.1f} | {cpu_seconds:.1f} | {wall / seconds:.2f}x | {cpu / cpu_seconds:.2f}x | "
+                  f"{sum(s for s, _ in outcomes)}/{args.episodes} |")
 
     if args.overhead:
         print("\n| policy (1 process, the same harness env) | seconds | control steps | steps/s | vs zero actions |")

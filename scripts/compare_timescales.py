@@ -22,6 +22,7 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
+import torch
 from stable_baselines3 import PPO
 
 from sb3_memret.common.seeds import HELD_OUT_SEED
@@ -37,6 +38,7 @@ def play(model_path: Path, rule: str, episodes: int, controller: str, held_out: 
     held-out seeds, or where it has none (the drawer) at seeds drawn from the held-out seed: the same episodes for
     every run and rule."""
     model = PPO.load(model_path, device="cpu")
+    torch.set_num_threads(1)  # physics in this process: idle intra-op threads would spin-wait after every small op
     kwargs = with_retention(eval_env_kwargs(model, model_path, "recall", controller), rule)
     layout = "stores" if kwargs.get("stores") else "one bank"
     venv = make_recall_vec_env(1, kwargs)

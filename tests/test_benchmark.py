@@ -146,6 +146,30 @@ def test_a_code_digest_counts_imported_names_not_their_home(tmp_path, monkeypatc
     assert digest("import os.path as helper\n") != home
 
 
+def test_one_worker_plays_in_this_process_with_one_torch_thread(monkeypatch):
+    """As every pool worker does: beside other jobs, idle intra-op threads spin-wait after every small op (one
+    SeqOfColors5-Long episode took 2.8 times the CPU with two); the caller's setting comes back after."""
+    import torch
+
+    from sb3_memret.benchmark import runner
+
+    class Worker:
+        def __init__(self, protocol, learners):
+            pass
+
+        def play(self, unit):
+            return {"unit": unit, "threads": torch.get_num_threads()}
+
+    monkeypatch.setattr(runner, "_Worker", Worker)
+    before = torch.get_num_threads()
+    torch.set_num_threads(2)
+    try:
+        records = list(runner.play_units(["a", "b"], Protocol(seed_set="dev"), None, workers=1))
+        assert [r["threads"] for r in records] == [1, 1] and torch.get_num_threads() == 2
+    finally:
+        torch.set_num_threads(before)
+
+
 def test_a_run_folder_resumes_only_under_its_protocol(tmp_path):
     folder = RunFolder(tmp_path)
     folder.check_protocol(Protocol(episodes=3))

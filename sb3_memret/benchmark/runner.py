@@ -367,15 +367,18 @@ def _play(unit: Unit) -> dict[str, Any]:
 
 def play_units(units: list[Unit], protocol: Protocol, learners: Path | None, workers: int,
                replacements: int = WORKER_REPLACEMENTS) -> Iterator[dict[str, Any]]:
-    """Each unit's outcome as it lands: in this process for one worker, else in ``workers`` spawned processes
-    (each unit to the next free one; a task's units stay together in the queue, so envs are rebuilt rarely). A
+    """Each unit's outcome as it lands: in this process for one worker (with one torch thread: beside other jobs,
+    idle intra-op threads spin-wait after every op), else in ``workers`` spawned processes (each unit to the next
+    free one; a task's units stay together in the queue, so envs are rebuilt rarely). A
     worker that dies is replaced and the units that had not landed are played again, up to ``replacements`` times
     (``common.workers.replaying_pool``); landed units are never replayed."""
+    from sb3_memret.common.workers import replaying_pool, torch_threads
+
     if workers <= 1:
         worker = _Worker(protocol, learners)
-        yield from (worker.play(unit) for unit in units)
+        with torch_threads(1):  # as in every pool worker (scripts/bench_benchmark.py --threads)
+            yield from (worker.play(unit) for unit in units)
         return
-    from sb3_memret.common.workers import replaying_pool
 
     for _, record in replaying_pool(_play, units, workers, _init_worker, (protocol, learners), replacements,
                                     what="episodes"):
