@@ -12,7 +12,8 @@ your own reuses:
 - experts: ``ScriptedTouchController`` (touches the object its prompt's word names; ``TouchGains`` its motion);
 - experts on the harness's inputs alone (``scripted-camera``, ``camera_experts``): ``camera_expert(task)``,
   ``register_camera_expert`` (one for a task class of your own), ``CameraTouchController`` (RememberColor's),
-  ``CameraButtonPressController`` (BlinkCount's), ``DeadReckonedHand`` (the hand's motion from its pose);
+  ``CameraButtonPressController`` (BlinkCount's), ``CameraTimedTransferController`` (TimedTransfer's),
+  ``DeadReckonedHand`` (the hand's motion from its pose);
 - for a task whose memory is several facts (the colour-cue tasks): ``SeqOfColorsTask`` (any of their 18 ids),
   ``SequenceWriter`` (one fact per cue item, and progress as memory), ``SequenceTouchController`` (touches the
   prompt's colours in their ordinal order, then presses the button), ``SeqControllerObservation`` (its view, with
@@ -49,6 +50,7 @@ _EXPORTS = {
     "CubeLayout": "core.layout_perception", "CameraSequenceController": "seq_of_colors.camera_expert",
     "CameraTouchController": "remember.camera_expert", "DeadReckonedHand": "core.hand_motion",
     "CameraButtonPressController": "blink_count.camera_expert",
+    "CameraTimedTransferController": "timed_transfer.camera_expert",
     "camera_expert": "camera_experts", "register_camera_expert": "camera_experts",
     "SeqOfColorsTask": "seq_of_colors.task", "SeqControllerObservation": "seq_of_colors.task",
     "SequenceWriter": "seq_of_colors.writer", "sequence_facts": "seq_of_colors.writer",

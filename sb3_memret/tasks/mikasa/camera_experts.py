@@ -89,10 +89,19 @@ def _blink_count(task: Task) -> FrozenController:
     return CameraButtonPressController(task.template, paced_every=task.replan_every, default_count=1)
 
 
+def _timed_transfer(task: Task) -> FrozenController:
+    """TimedTransfer Easy/Medium/Hard and their -Long: the cube from the base camera, the red disc where MIKASA lays
+    it from the cube's disc, the grip from the gripper's opening."""
+    from sb3_memret.tasks.mikasa.timed_transfer.camera_expert import CameraTimedTransferController
+
+    return CameraTimedTransferController(task.template, paced_every=task.replan_every)
+
+
 _SHIPPED: tuple[tuple[str, str, CameraExpertBuilder], ...] = (
     ("sb3_memret.tasks.mikasa.seq_of_colors.task", "SeqOfColorsTask", _colour_sequence),
     ("sb3_memret.tasks.mikasa.remember.color", "RememberColorTask", _remember_colour),
     ("sb3_memret.tasks.mikasa.blink_count.task", "BlinkCountTask", _blink_count),
+    ("sb3_memret.tasks.mikasa.timed_transfer.task", "TimedTransferTask", _timed_transfer),
 )
 
 __all__ = ["camera_expert", "has_camera_expert", "register_camera_expert"]
