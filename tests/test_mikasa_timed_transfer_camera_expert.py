@@ -47,13 +47,13 @@ def test_it_grips_the_cube_it_saw_carries_it_at_its_grip_and_sets_it_down_when_d
     controller.act(_obs(at_cube, 0.04, None), [_prompt(task, 10)])  # the fingers closed on it: gripped
     lifted = at_cube + [0.0, 0.05, 0.06]
     controller.act(_obs(lifted, 0.04, None), [_prompt(task, 20)])
-    assert np.allclose(controller.cubes[0], lifted)  # carried at the grip's offset
+    assert np.allclose(controller.cube.places[0], lifted)  # carried at the grip's offset
     over_red = np.array([*(CUBE + RED_DISC_OFFSET[:2]), 0.09])
     hold = controller.act(_obs(over_red, 0.04, None), [_prompt(task, 50)])[0]
     down = controller.act(_obs(over_red, 0.04, None), [_prompt(task, 98)])[0]
     assert abs(hold[0, 2]) < 0.05 and down[0, 2] < -0.3  # held over the red disc until the count is due
     controller.act(_obs(over_red, 0.0, None), [_prompt(task, 99)])  # let go (the fingers shut on nothing)
-    assert controller.grips[0] is None and np.allclose(controller.cubes[0], over_red)
+    assert controller.cube.grips[0] is None and np.allclose(controller.cube.places[0], over_red)
     controller.reset_envs([0], [1])
     assert controller.starts == [None] and controller.reads_images()
 

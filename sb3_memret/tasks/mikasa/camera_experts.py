@@ -97,11 +97,21 @@ def _timed_transfer(task: Task) -> FrozenController:
     return CameraTimedTransferController(task.template, paced_every=task.replan_every)
 
 
+def _take_it_back(task: Task) -> FrozenController:
+    """TakeItBack: the cube and the red target from the base camera, the target's turn to purple, the grip from the
+    gripper opening."""
+    from sb3_memret.tasks.mikasa.take_it_back.camera_expert import CameraCarryBackController
+    from sb3_memret.tasks.mikasa.take_it_back.task import DEFAULT_SIDE, SIDE_CENTRES
+
+    return CameraCarryBackController(SIDE_CENTRES, DEFAULT_SIDE, task.template, paced_every=task.replan_every)
+
+
 _SHIPPED: tuple[tuple[str, str, CameraExpertBuilder], ...] = (
     ("sb3_memret.tasks.mikasa.seq_of_colors.task", "SeqOfColorsTask", _colour_sequence),
     ("sb3_memret.tasks.mikasa.remember.color", "RememberColorTask", _remember_colour),
     ("sb3_memret.tasks.mikasa.blink_count.task", "BlinkCountTask", _blink_count),
     ("sb3_memret.tasks.mikasa.timed_transfer.task", "TimedTransferTask", _timed_transfer),
+    ("sb3_memret.tasks.mikasa.take_it_back.task", "TakeItBackTask", _take_it_back),
 )
 
 __all__ = ["camera_expert", "has_camera_expert", "register_camera_expert"]

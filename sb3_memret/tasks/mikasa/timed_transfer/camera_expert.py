@@ -11,7 +11,7 @@ on the harness's inputs only (``ControllerSpec.harness_inputs``):
   cube rests on at the reset;
 - **the cube in hand**: the fingers' gap (the harness's gripper opening) closed on it within reach of where it was
   seen; from then on it is carried at the offset from the hand it was gripped at, and let go it stays where it was
-  last carried to;
+  last carried to (``HeldCube``);
 - **the hand's motion**: dead-reckoned from the hand's pose and the actions that ran (``DeadReckonedHand``, at the
   pace it declares, ``paced_every``).
 
@@ -32,6 +32,7 @@ from sb3_memret.controllers.prompts import ParsedPrompt, PromptTemplate
 from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC
 from sb3_memret.tasks.mikasa.core.carry_expert import CarryGains
 from sb3_memret.tasks.mikasa.core.hand_motion import DeadReckonedHand
+from sb3_memret.tasks.mikasa.core.held_object import HeldCube
 from sb3_memret.tasks.mikasa.core.layout_perception import table_points
 from sb3_memret.tasks.mikasa.core.perception import REFERENCE_SIZE
 from sb3_memret.tasks.mikasa.core.touch_expert import TouchGains
@@ -84,18 +85,19 @@ class CameraTimedTransferController(TimedTransferController):
         self.stateful = True  # its perception: the cube's place and grip, the hand's motion (never the count)
         self.paced_every, self.read_cube = paced_every, read_cube or base_camera_blue_cube
         self.starts: list[np.ndarray | None] = []  # each env's cube at the reset: the green disc's centre
-        self.cubes: list[np.ndarray | None] = []  # ... and where it is now, as far as it knows
-        self.grips: list[np.ndarray | None] = []  # ... and, while in hand, the hand's offset from it
+        self.cube = HeldCube(self.carry)  # ... and where it is now, as far as it knows
 
     def reset(self, seeds: Sequence[int]) -> None:
         super().reset(seeds)
-        self.starts, self.cubes, self.grips = [None] * len(seeds), [None] * len(seeds), [None] * len(seeds)
+        self.starts = [None] * len(seeds)
+        self.cube.reset(len(seeds))
         self.hand.reset(len(seeds))
 
     def reset_envs(self, env_ids: Sequence[int], seeds: Sequence[int]) -> None:
         super().reset_envs(env_ids, seeds)
         for i in env_ids:
-            self.starts[i] = self.cubes[i] = self.grips[i] = None
+            self.starts[i] = None
+            self.cube.reset_env(i)
             self.hand.reset_env(i)
 
     def reads_images(self) -> bool:
@@ -115,27 +117,15 @@ class CameraTimedTransferController(TimedTransferController):
                 seen = self.read_cube(rgb[i])
                 if seen is None:
                     continue  # the cube not yet in sight: hold still
-                self.starts[i] = self.cubes[i] = np.array([*seen, CUBE_CENTRE_Z])
-            cube = self._track(i, tcp[i, :3], float(gaps[i]))
+                self.starts[i] = np.array([*seen, CUBE_CENTRE_Z])
+                self.cube.see(i, self.starts[i])
+            cube = self.cube.track(i, tcp[i, :3], float(gaps[i]))
             red = self.starts[i] + RED_DISC_OFFSET
             red[2] = DISC_CENTRE_Z
             goal = self._goal(tcp[i, :3], cube, float(gaps[i]), red, self.due(p))
             chunks[i] = self._chunk(tcp[i], steps[i], goal)
         self.hand.ran(tcp[:, :3], steps, chunks)
         return chunks
-
-    def _track(self, i: int, tcp: np.ndarray, gap: float) -> np.ndarray:
-        """Env ``i``'s cube now: gripped (the fingers closed on it, the hand within reach of where it was) it moves
-        with the hand at the offset it was gripped at; let go, it stays where it was last carried to."""
-        c = self.carry
-        closed_on_it = c.held_gap[0] <= gap <= c.held_gap[1]
-        if not closed_on_it:
-            self.grips[i] = None
-        elif self.grips[i] is None and np.linalg.norm(tcp - self.cubes[i]) <= c.held_reach:
-            self.grips[i] = tcp - self.cubes[i]
-        if self.grips[i] is not None:
-            self.cubes[i] = tcp - self.grips[i]
-        return self.cubes[i]
 
 
 __all__ = ["CUBE_CENTRE_Z", "CameraTimedTransferController", "RED_DISC_OFFSET", "base_camera_blue_cube",
