@@ -13,8 +13,8 @@ your own reuses:
 - experts on the harness's inputs alone (``scripted-camera``, ``camera_experts``): ``camera_expert(task)``,
   ``register_camera_expert`` (one for a task class of your own), ``CameraTouchController`` (RememberColor's),
   ``CameraButtonPressController`` (BlinkCount's), ``CameraTimedTransferController`` (TimedTransfer's),
-  ``CameraCarryBackController`` (TakeItBack's), ``DeadReckonedHand`` (the hand's motion from its pose),
-  ``HeldCube`` (a carried cube, followed by its grip);
+  ``CameraCarryBackController`` (TakeItBack's), ``CameraImposterController`` (FindImposterColor's),
+  ``DeadReckonedHand`` (the hand's motion from its pose), ``HeldCube`` (a carried cube, followed by its grip);
 - for a task whose memory is several facts (the colour-cue tasks): ``SeqOfColorsTask`` (any of their 18 ids),
   ``SequenceWriter`` (one fact per cue item, and progress as memory), ``SequenceTouchController`` (touches the
   prompt's colours in their ordinal order, then presses the button), ``SeqControllerObservation`` (its view, with
@@ -53,6 +53,7 @@ _EXPORTS = {
     "CameraButtonPressController": "blink_count.camera_expert",
     "CameraTimedTransferController": "timed_transfer.camera_expert",
     "CameraCarryBackController": "take_it_back.camera_expert", "HeldCube": "core.held_object",
+    "CameraImposterController": "find_imposter.camera_expert",
     "camera_expert": "camera_experts", "register_camera_expert": "camera_experts",
     "SeqOfColorsTask": "seq_of_colors.task", "SeqControllerObservation": "seq_of_colors.task",
     "SequenceWriter": "seq_of_colors.writer", "sequence_facts": "seq_of_colors.writer",

@@ -106,12 +106,20 @@ def _take_it_back(task: Task) -> FrozenController:
     return CameraCarryBackController(SIDE_CENTRES, DEFAULT_SIDE, task.template, paced_every=task.replan_every)
 
 
+def _imposter_colour(task: Task) -> FrozenController:
+    """FindImposterColor 3/5/9: the cubes from the base camera, the imposter chosen as the detector's expert does."""
+    from sb3_memret.tasks.mikasa.find_imposter.camera_expert import CameraImposterController
+
+    return CameraImposterController(task.expert(), paced_every=task.replan_every)
+
+
 _SHIPPED: tuple[tuple[str, str, CameraExpertBuilder], ...] = (
     ("sb3_memret.tasks.mikasa.seq_of_colors.task", "SeqOfColorsTask", _colour_sequence),
     ("sb3_memret.tasks.mikasa.remember.color", "RememberColorTask", _remember_colour),
     ("sb3_memret.tasks.mikasa.blink_count.task", "BlinkCountTask", _blink_count),
     ("sb3_memret.tasks.mikasa.timed_transfer.task", "TimedTransferTask", _timed_transfer),
     ("sb3_memret.tasks.mikasa.take_it_back.task", "TakeItBackTask", _take_it_back),
+    ("sb3_memret.tasks.mikasa.find_imposter.task", "FindImposterColorTask", _imposter_colour),
 )
 
 __all__ = ["camera_expert", "has_camera_expert", "register_camera_expert"]

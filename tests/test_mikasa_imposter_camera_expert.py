@@ -1,0 +1,53 @@
+"""FindImposterColor's touch expert on the harness's inputs alone (``scripted-camera``): it places the cubes only
+once more than the cue's are out, touches the colour its prompt does not name, and plays a development episode
+through MIKASA's harness as a protocol entry."""
+
+import numpy as np
+import pytest
+
+from mikasa_support import MIKASA_MISSING
+
+pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
+
+from sb3_memret.controller_specs import make_controller  # noqa: E402
+from sb3_memret.controllers.prompts import build_prompt  # noqa: E402
+from sb3_memret.tasks import make_task  # noqa: E402
+from sb3_memret.tasks.base import Episode  # noqa: E402
+from sb3_memret.tasks.mikasa.find_imposter.camera_expert import CameraImposterController  # noqa: E402
+
+TASK = "FindImposterColor3-VLA-v0"
+ROW = {"red": np.array([0.0, -0.2]), "lime": np.array([0.0, 0.0]), "blue": np.array([0.0, 0.2])}
+
+
+def _obs(tcp, seen):
+    return {"extra": {"tcp_pose": np.array([[*tcp, 0, 1, 0, 0]])}, "sensor_data": {"base_camera": {"rgb": [seen]}}}
+
+
+def test_it_waits_through_the_cue_s_cubes_then_touches_the_colour_its_prompt_does_not_name():
+    task = make_task(TASK)
+    controller = make_controller("scripted-camera", TASK)
+    assert isinstance(controller, CameraImposterController) and controller.spec.harness_inputs
+    assert controller.shown_at_once == 2 and controller.wait_for_all
+    controller.read_layout = lambda seen: seen
+    controller.reset([0])
+    prompt = build_prompt(task.instruction_text, task.oracle_facts(Episode("shown cubes", "blue", ())),
+                          task.prompt_template)  # red and lime were shown: blue is the imposter
+    ready = np.asarray(controller.gains.ready)
+    cue = {"red": np.array([0.0, 0.2]), "lime": np.array([0.0, -0.2])}  # the cue's two, at other places
+    chunk = controller.act(_obs(ready, cue), [prompt])[0]
+    assert np.abs(chunk[:, :3]).max() < 1e-6 and controller.layouts[0].places == {}  # the cue places nothing
+    chunk = controller.act(_obs(ready, ROW), [prompt])[0]
+    assert chunk[0, 1] > 0.5  # to blue, at y = +0.2
+
+
+@pytest.mark.slow
+def test_through_the_harness_it_touches_the_imposter_as_a_protocol_entry(tmp_path):
+    """FindImposterColor3 at a development seed: the oracle's set and the writer's (written) each take it to
+    success, reading only the harness's observation."""
+    from sb3_memret.benchmark import runner
+
+    protocol = runner.Protocol(seed_set="dev", episodes=1, controller="scripted-camera")
+    results = runner.run_benchmark(runner.plan(protocol, ["oracle", "written"], env_ids=[TASK]), tmp_path, workers=1)
+    assert results["privileged_upper_bound"] is False
+    cells = results["tasks"][TASK]["conditions"]
+    assert cells["oracle"]["successes"] == cells["written"]["successes"] == [True], cells
