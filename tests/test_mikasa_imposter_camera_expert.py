@@ -51,3 +51,29 @@ def test_through_the_harness_it_touches_the_imposter_as_a_protocol_entry(tmp_pat
     assert results["privileged_upper_bound"] is False
     cells = results["tasks"][TASK]["conditions"]
     assert cells["oracle"]["successes"] == cells["written"]["successes"] == [True], cells
+
+
+@pytest.mark.parametrize("task_id", ["FindImposterShape5-VLA-v0"])
+def test_objects_of_several_shapes_are_placed_by_the_writer_s_reader_within_a_centimetre_and_a_half(task_id):
+    from sb3_memret.controllers.base import as_numpy
+    from sb3_memret.tasks.mikasa.find_imposter.camera_expert import imposter_places
+    from sb3_memret.tasks.mikasa.find_imposter.perception import task_exemplars
+
+    task = make_task(task_id)
+    read = imposter_places(task.words, [task.candidate(w) for w in task.words], task_exemplars(task_id))
+    env = task.make_env(obs_mode="rgb")
+    try:
+        obs, _ = env.reset(seed=5000)
+        places = {}
+        for _ in range(12):  # the cue (1-5 steps) and the delay (1-5): all five are out by then
+            obs, *_ = env.step(np.zeros(env.action_space.shape))
+            places = read(obs["sensor_data"]["base_camera"]["rgb"])
+            if places:
+                break
+        actors = env.unwrapped.shape_actors
+        truth = {task.words[i]: as_numpy(actors[i].pose.p).reshape(-1)[:2] for i in range(task.n_words)}
+        assert sorted(places) == sorted(task.words)
+        errors = {w: float(np.linalg.norm(p - truth[w])) for w, p in places.items()}
+        assert max(errors.values()) < 0.015, errors
+    finally:
+        env.close()

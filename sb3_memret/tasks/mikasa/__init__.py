@@ -13,7 +13,7 @@ your own reuses:
 - experts on the harness's inputs alone (``scripted-camera``, ``camera_experts``): ``camera_expert(task)``,
   ``register_camera_expert`` (one for a task class of your own), ``CameraTouchController`` (RememberColor's),
   ``CameraButtonPressController`` (BlinkCount's), ``CameraTimedTransferController`` (TimedTransfer's),
-  ``CameraCarryBackController`` (TakeItBack's), ``CameraImposterController`` (FindImposterColor's),
+  ``CameraCarryBackController`` (TakeItBack's), ``CameraImposterController`` (FindImposter's),
   ``DeadReckonedHand`` (the hand's motion from its pose), ``HeldCube`` (a carried cube, followed by its grip);
 - for a task whose memory is several facts (the colour-cue tasks): ``SeqOfColorsTask`` (any of their 18 ids),
   ``SequenceWriter`` (one fact per cue item, and progress as memory), ``SequenceTouchController`` (touches the

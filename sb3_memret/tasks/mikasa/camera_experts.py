@@ -106,11 +106,17 @@ def _take_it_back(task: Task) -> FrozenController:
     return CameraCarryBackController(SIDE_CENTRES, DEFAULT_SIDE, task.template, paced_every=task.replan_every)
 
 
-def _imposter_colour(task: Task) -> FrozenController:
-    """FindImposterColor 3/5/9: the cubes from the base camera, the imposter chosen as the detector's expert does."""
-    from sb3_memret.tasks.mikasa.find_imposter.camera_expert import CameraImposterController
+def _imposter(task: Task) -> FrozenController:
+    """FindImposter Color, Shape and ShapeAndColor: every object placed from the frame that shows them all (cubes by
+    colour, as RememberColor's; objects of several shapes by the writer's reader); the imposter chosen as the
+    detector's expert does."""
+    from sb3_memret.tasks.mikasa.find_imposter.camera_expert import CameraImposterController, imposter_places
+    from sb3_memret.tasks.mikasa.find_imposter.perception import task_exemplars
 
-    return CameraImposterController(task.expert(), paced_every=task.replan_every)
+    places = None
+    if task.reads_shapes:
+        places = imposter_places(task.words, [task.candidate(w) for w in task.words], task_exemplars(task.name))
+    return CameraImposterController(task.expert(), places, paced_every=task.replan_every)
 
 
 _SHIPPED: tuple[tuple[str, str, CameraExpertBuilder], ...] = (
@@ -119,7 +125,7 @@ _SHIPPED: tuple[tuple[str, str, CameraExpertBuilder], ...] = (
     ("sb3_memret.tasks.mikasa.blink_count.task", "BlinkCountTask", _blink_count),
     ("sb3_memret.tasks.mikasa.timed_transfer.task", "TimedTransferTask", _timed_transfer),
     ("sb3_memret.tasks.mikasa.take_it_back.task", "TakeItBackTask", _take_it_back),
-    ("sb3_memret.tasks.mikasa.find_imposter.task", "FindImposterColorTask", _imposter_colour),
+    ("sb3_memret.tasks.mikasa.find_imposter.task", "FindImposterTask", _imposter),
 )
 
 __all__ = ["camera_expert", "has_camera_expert", "register_camera_expert"]

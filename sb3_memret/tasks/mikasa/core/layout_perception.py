@@ -107,13 +107,14 @@ class CubeLayout:
     in a frame that shows more cubes than a cue does (``shown_at_once``: one for a sequence, the bunch for a bunch),
     so never where a cue showed it. The cubes stand still once out, so a placed colour is not read again, and once
     every colour is placed no frame is read at all (the image reader is the costly part). ``read`` turns one frame
-    into colour -> (x, y) (``base_camera_layout`` by default). One layout serves one env; ``reset`` starts an
-    episode."""
+    into colour -> (x, y) (``base_camera_layout`` by default; another reader may name objects by other words, as
+    many as ``n_colours``). One layout serves one env; ``reset`` starts an episode."""
 
     def __init__(self, shown_at_once: int, n_colours: int = len(COLOUR_NAMES),
                  read: Callable[[Any], Mapping[str, np.ndarray]] | None = None):
-        if not 1 <= shown_at_once < n_colours <= len(COLOUR_NAMES):
-            raise ValueError(f"need 1 <= shown_at_once < n_colours <= {len(COLOUR_NAMES)}, got shown_at_once="
+        most = len(COLOUR_NAMES) if read is None else n_colours  # the default reader names colours only
+        if not 1 <= shown_at_once < n_colours <= most:
+            raise ValueError(f"need 1 <= shown_at_once < n_colours <= {most}, got shown_at_once="
                              f"{shown_at_once}, n_colours={n_colours}")
         self.shown_at_once, self.n_colours = shown_at_once, n_colours
         self.read = read or (lambda rgb: base_camera_layout(rgb, n_colours))
