@@ -26,19 +26,27 @@ from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE
 from sb3_memret.tasks.mikasa.core.carry_expert import REACH_X
 from sb3_memret.tasks.mikasa.core.layout_perception import LAYOUT_PLANE_Z, table_points
 from sb3_memret.tasks.mikasa.core.touch_expert import TouchGains
-from sb3_memret.tasks.mikasa.find_imposter.perception import ShapeExemplars, assign_shown
+from sb3_memret.tasks.mikasa.core.perception import COLOUR_NAMES
+from sb3_memret.tasks.mikasa.find_imposter.perception import ShapeExemplars, assign_shown, objects_in_view
 from sb3_memret.tasks.mikasa.find_imposter.task import ImposterTouchController
 from sb3_memret.tasks.mikasa.remember.camera_expert import CameraTouchController
 
 
 def imposter_places(words: Sequence[str], candidates: Sequence[tuple[str | None, str | None]],
                     exemplars: ShapeExemplars | None) -> Callable[[Any], Mapping[str, np.ndarray]]:
-    """A reader of one base-camera frame: word -> table (x, y) of every object, when the frame shows all of them
+    """A reader of one base-camera frame: word -> table (x, y) of every object, when the frame shows all of them apart
     (``words[i]`` is ``candidates[i]``, as ``assign_shown`` takes them); else nothing."""
+
+    n_colours = 1 + max(COLOUR_NAMES.index(colour or "blue") for colour, _ in candidates)
 
     def read(rgb: Any) -> dict[str, np.ndarray]:
         frame = np.asarray(as_numpy(rgb))
-        assigned = assign_shown(frame[0] if frame.ndim == 4 else frame, candidates, len(candidates), exemplars)
+        frame = frame[0] if frame.ndim == 4 else frame
+        # as many objects apart in view, before any is cut in two: ``assign_shown`` cuts the largest while fewer are
+        # in view than it is asked for, so the cue's N - 1 would read as N
+        if len(objects_in_view(frame, n_colours)) < len(candidates):
+            return {}
+        assigned = assign_shown(frame, candidates, len(candidates), exemplars)
         if assigned is None:
             return {}
         centres = np.array([np.argwhere(seen.mask).mean(axis=0) + 0.5 for seen, _ in assigned])
