@@ -2,7 +2,7 @@
 with more than the cue's one cube out (zero actions, the arm at its initial pose), the colours placed and each one's
 error in centimetres.
 
-    .venv/bin/python lab/2026-12-05-four-more-families-on-the-cameras/layout_probe.py --task RememberColor9-VLA-v0
+    .venv/bin/python lab/2026-12-05-five-more-families-on-the-cameras/layout_probe.py --task RememberColor9-VLA-v0
 """
 
 from __future__ import annotations
