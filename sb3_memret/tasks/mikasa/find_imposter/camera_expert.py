@@ -24,7 +24,7 @@ from sb3_memret.controllers.base import as_numpy
 from sb3_memret.controllers.prompts import ParsedPrompt
 from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC
 from sb3_memret.tasks.mikasa.core.carry_expert import REACH_X
-from sb3_memret.tasks.mikasa.core.layout_perception import LAYOUT_PLANE_Z, table_points
+from sb3_memret.tasks.mikasa.core.layout_perception import LAYOUT_PLANE_Z, CubeLayout, table_points
 from sb3_memret.tasks.mikasa.core.touch_expert import TouchGains
 from sb3_memret.tasks.mikasa.core.perception import COLOUR_NAMES
 from sb3_memret.tasks.mikasa.find_imposter.perception import ShapeExemplars, assign_shown, objects_in_view
@@ -67,8 +67,13 @@ class CameraImposterController(CameraTouchController):
                  read_places: Callable[[Any], Mapping[str, np.ndarray]] | None, paced_every: int, chunk_len: int = 8):
         super().__init__(chooser.vocabulary, chooser.spec.prompt_template, paced_every, chunk_len,
                          gains=TouchGains(max_x=REACH_X), default=chooser.default, wait_for_all=True,
-                         shown_at_once=len(chooser.vocabulary) - 1, read_layout=read_places)
+                         read_layout=read_places)
         self.chooser = chooser
+        self.shown_at_once = len(chooser.vocabulary) - 1  # the cue shows every object but the imposter
+
+    def reset(self, seeds: Sequence[int]) -> None:
+        super().reset(seeds)
+        self.layouts = [CubeLayout(self.shown_at_once, len(self.vocabulary), self.read_layout) for _ in seeds]
 
     def _chosen(self, parsed: Sequence[ParsedPrompt]) -> list[str | None]:
         return self.chooser._chosen(parsed)

@@ -34,24 +34,23 @@ from sb3_memret.tasks.mikasa.core.touch_expert import ScriptedTouchController, T
 class CameraTouchController(ScriptedTouchController):
     """Touches the cube of the colour its prompt names, reading only the base camera's image and the hand's pose (the
     module docstring says how). ``colours``: the cubes in play (MIKASA's order); ``paced_every``: the control steps
-    executed between its calls; ``shown_at_once``: the most cubes the cue shows (a frame with more places them);
-    ``read_layout``: one image -> colour -> table (x, y) (the base camera's reader by default)."""
+    executed between its calls; ``read_layout``: one image -> colour -> table (x, y) (the base camera's reader by
+    default)."""
 
     def __init__(self, colours: Sequence[str], prompt_template: PromptTemplate, paced_every: int,
                  chunk_len: int = 8, gains: TouchGains | None = None, default: str | None = None,
-                 wait_for_all: bool = False, shown_at_once: int = 1,
-                 read_layout: Callable[[Any], Mapping[str, np.ndarray]] | None = None):
+                 wait_for_all: bool = False, read_layout: Callable[[Any], Mapping[str, np.ndarray]] | None = None):
         super().__init__(chunk_len, gains, vocabulary=colours, field="colour", prompt_template=prompt_template,
                          default=default, wait_for_all=wait_for_all)
         self.hand = DeadReckonedHand(paced_every, chunk_len)
         self.spec = dataclasses.replace(self.spec, needs_images=True, harness_inputs=True)
         self.stateful = True  # its perception: the layout, the hand's last position and step (never the cue)
-        self.paced_every, self.shown_at_once, self.read_layout = paced_every, shown_at_once, read_layout
+        self.paced_every, self.read_layout = paced_every, read_layout
         self.layouts: list[CubeLayout] = []
 
     def reset(self, seeds: Sequence[int]) -> None:
         super().reset(seeds)
-        self.layouts = [CubeLayout(self.shown_at_once, len(self.vocabulary), self.read_layout) for _ in seeds]
+        self.layouts = [CubeLayout(1, len(self.vocabulary), self.read_layout) for _ in seeds]
         self.hand.reset(len(seeds))
 
     def reset_envs(self, env_ids: Sequence[int], seeds: Sequence[int]) -> None:
