@@ -7,7 +7,8 @@ inputs only (``ControllerSpec.harness_inputs``):
 - **where the cubes stand**: read from the base camera's image with its shipped calibration (``CubeLayout``: each
   colour's first sighting in a frame that shows more than the cue's one cube, cast onto the table). At RememberColor9's
   development seeds 5000-5009 all nine cubes were placed at every seed, 0.03-0.52 cm from the simulator's, once
-  touching cubes were split by colour (``name_blobs``); before, two to four of the nine went unplaced at 6 seeds;
+  touching cubes were split by colour (``name_blobs``); before, two to four of the nine went unplaced at 4 of the
+  first 5 seeds;
 - **the hand's motion**: dead-reckoned from the hand's pose and the actions that ran (``DeadReckonedHand``, at the
   pace it declares, ``paced_every``; every runner refuses another).
 
