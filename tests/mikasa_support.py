@@ -20,3 +20,13 @@ def leaked_keys(tree, forbidden, prefix=""):
             out += [path] if any(bad in path for bad in forbidden) else []
             out += leaked_keys(v, forbidden, path)
     return out
+
+
+def camera_expert_cells(env_id, out):
+    """Play ``env_id``'s first development episode under oracle and written with ``scripted-camera`` through
+    MIKASA's harness (the simulator guard on), into ``out``: the run's results and the task's cells."""
+    from sb3_memret.benchmark import runner
+
+    protocol = runner.Protocol(seed_set="dev", episodes=1, controller="scripted-camera")
+    results = runner.run_benchmark(runner.plan(protocol, ["oracle", "written"], env_ids=[env_id]), out, workers=1)
+    return results, results["tasks"][env_id]["conditions"]

@@ -5,7 +5,7 @@ protocol entry."""
 import numpy as np
 import pytest
 
-from mikasa_support import MIKASA_MISSING
+from mikasa_support import MIKASA_MISSING, camera_expert_cells
 
 pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
@@ -84,12 +84,6 @@ def test_scripted_camera_builds_it_for_every_variant_with_progress():
 def test_through_the_harness_it_presses_the_count_as_a_protocol_entry(tmp_path):
     """BlinkCountButtonPressEasy at a development seed: the oracle's facts (with MIKASA's press counter) and the
     writers' alone (written) each take it to success, reading only the harness's observation."""
-    from sb3_memret.benchmark import runner
-
-    protocol = runner.Protocol(seed_set="dev", episodes=1, controller="scripted-camera")
-    env_id = "BlinkCountButtonPressEasy-VLA-v0"
-    results = runner.run_benchmark(runner.plan(protocol, ["oracle", "written"], env_ids=[env_id]), tmp_path,
-                                   workers=1)
+    results, cells = camera_expert_cells("BlinkCountButtonPressEasy-VLA-v0", tmp_path)
     assert results["privileged_upper_bound"] is False
-    cells = results["tasks"][env_id]["conditions"]
     assert cells["oracle"]["successes"] == cells["written"]["successes"] == [True], cells

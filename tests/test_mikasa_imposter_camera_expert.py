@@ -5,7 +5,7 @@ through MIKASA's harness as a protocol entry."""
 import numpy as np
 import pytest
 
-from mikasa_support import MIKASA_MISSING
+from mikasa_support import MIKASA_MISSING, camera_expert_cells
 
 pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
@@ -44,12 +44,8 @@ def test_it_waits_through_the_cue_s_cubes_then_touches_the_colour_its_prompt_doe
 def test_through_the_harness_it_touches_the_imposter_as_a_protocol_entry(tmp_path):
     """FindImposterColor3 at a development seed: the oracle's set and the writer's (written) each take it to
     success, reading only the harness's observation."""
-    from sb3_memret.benchmark import runner
-
-    protocol = runner.Protocol(seed_set="dev", episodes=1, controller="scripted-camera")
-    results = runner.run_benchmark(runner.plan(protocol, ["oracle", "written"], env_ids=[TASK]), tmp_path, workers=1)
+    results, cells = camera_expert_cells(TASK, tmp_path)
     assert results["privileged_upper_bound"] is False
-    cells = results["tasks"][TASK]["conditions"]
     assert cells["oracle"]["successes"] == cells["written"]["successes"] == [True], cells
 
 

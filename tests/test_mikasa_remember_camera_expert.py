@@ -5,7 +5,7 @@ harness as a protocol entry."""
 import numpy as np
 import pytest
 
-from mikasa_support import MIKASA_MISSING
+from mikasa_support import MIKASA_MISSING, camera_expert_cells
 
 pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
@@ -113,11 +113,6 @@ def test_the_nine_cubes_are_placed_from_the_base_camera_within_a_centimetre(seed
 def test_through_the_harness_it_touches_the_cue_s_cube_as_a_protocol_entry(tmp_path):
     """RememberColor3 at a development seed: the oracle's fact and the writer's (written) each take it to success,
     reading only the harness's observation (the guard refuses any other read while the agent acts)."""
-    from sb3_memret.benchmark import runner
-
-    protocol = runner.Protocol(seed_set="dev", episodes=1, controller="scripted-camera")
-    results = runner.run_benchmark(runner.plan(protocol, ["oracle", "written"], env_ids=["RememberColor3-VLA-v0"]),
-                                   tmp_path, workers=1)
+    results, cells = camera_expert_cells("RememberColor3-VLA-v0", tmp_path)
     assert results["privileged_upper_bound"] is False
-    cells = results["tasks"]["RememberColor3-VLA-v0"]["conditions"]
     assert cells["oracle"]["successes"] == cells["written"]["successes"] == [True], cells

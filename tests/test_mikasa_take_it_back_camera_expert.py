@@ -4,7 +4,7 @@ its turn to purple read from the base camera, and an episode through MIKASA's ha
 import numpy as np
 import pytest
 
-from mikasa_support import MIKASA_MISSING
+from mikasa_support import MIKASA_MISSING, camera_expert_cells
 
 pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
@@ -75,10 +75,6 @@ def test_it_takes_the_cube_to_the_target_then_back_to_the_start_its_prompt_names
 def test_through_the_harness_it_takes_the_cube_back_as_a_protocol_entry(tmp_path):
     """TakeItBack at a development seed: the oracle's start and the writer's (written) each take it to success,
     reading only the harness's observation."""
-    from sb3_memret.benchmark import runner
-
-    protocol = runner.Protocol(seed_set="dev", episodes=1, controller="scripted-camera")
-    results = runner.run_benchmark(runner.plan(protocol, ["oracle", "written"], env_ids=[TASK]), tmp_path, workers=1)
+    results, cells = camera_expert_cells(TASK, tmp_path)
     assert results["privileged_upper_bound"] is False
-    cells = results["tasks"][TASK]["conditions"]
     assert cells["oracle"]["successes"] == cells["written"]["successes"] == [True], cells
