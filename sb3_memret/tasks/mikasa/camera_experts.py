@@ -106,6 +106,24 @@ def _take_it_back(task: Task) -> FrozenController:
     return CameraCarryBackController(SIDE_CENTRES, DEFAULT_SIDE, task.template, paced_every=task.replan_every)
 
 
+def _rotate(task: Task) -> FrozenController:
+    """Rotate Lenient and Strict: the peg from the base camera at every call, in hand once gripped; the wrist's angle
+    from the hand's pose."""
+    from sb3_memret.tasks.mikasa.rotate.camera_expert import CameraPegTurnController
+    from sb3_memret.tasks.mikasa.rotate.task import DEFAULT_START_DEG
+
+    return CameraPegTurnController(task.template, task.strategy, DEFAULT_START_DEG, paced_every=task.replan_every)
+
+
+def _intercept(task: Task) -> FrozenController:
+    """Intercept and InterceptGrab: the ball from the base camera at every call (where its last sighting and the
+    prompt's velocity put it while unseen), the target from the first frame, the grip from the gripper opening."""
+    from sb3_memret.tasks.mikasa.intercept.camera_expert import CameraInterceptController
+
+    return CameraInterceptController(task.template, task.default_speed, carry=task.variant.carry,
+                                     paced_every=task.replan_every)
+
+
 def _imposter(task: Task) -> FrozenController:
     """FindImposter Color, Shape and ShapeAndColor: every object placed from the frame that shows them all (cubes by
     colour, as RememberColor's; objects of several shapes by the writer's reader); the imposter chosen as the
@@ -126,6 +144,8 @@ _SHIPPED: tuple[tuple[str, str, CameraExpertBuilder], ...] = (
     ("sb3_memret.tasks.mikasa.timed_transfer.task", "TimedTransferTask", _timed_transfer),
     ("sb3_memret.tasks.mikasa.take_it_back.task", "TakeItBackTask", _take_it_back),
     ("sb3_memret.tasks.mikasa.find_imposter.task", "FindImposterTask", _imposter),
+    ("sb3_memret.tasks.mikasa.rotate.task", "RotateTask", _rotate),
+    ("sb3_memret.tasks.mikasa.intercept.task", "InterceptTask", _intercept),
 )
 
 __all__ = ["camera_expert", "has_camera_expert", "register_camera_expert"]

@@ -1,0 +1,219 @@
+"""Rotate's peg-turning expert on what MIKASA's harness gives a policy alone: a protocol entry, not an upper bound.
+
+``PegTurnController`` reads the peg's centre and axis from a simulated detector and the arm's joints (their
+velocities, the wrist's angle), so its rows are a privileged upper bound. ``CameraPegTurnController`` is the same plan
+and motion on the harness's inputs only (``ControllerSpec.harness_inputs``):
+
+- **the peg**: its top face in the base camera at every call, cast onto the face's plane through the shipped
+  calibration (``peg_on_table``, the writer's reader). A frame that shows ``WHOLE_FRACTION`` of the face it showed at
+  first sight gives its centre and axis. While the hand pushes, it hides the end it pushes: a frame that still shows
+  a strip of the face's full width at least ``MIN_STRIP`` long gives the axis (its angle reads within 2 degrees), and
+  the strip's end away from the hand is the peg's far end, so the centre is half the peg's length in from it. A frame
+  that shows less (a thin or short strip, cut across by the fingers, read up to 21 degrees off) is not read, and the
+  last reading stands;
+- **the peg in hand** (Strict's grasp): turned with the hand, at the angle it had against the hand when gripped, its
+  centre under the hand (``PegInHand``);
+- **the wrist's angle** (the grasp must leave the last joint room for the turn): dead-reckoned from the hand's pose
+  (``WristEstimate``): pointing down, the hand's yaw is the base joint's angle minus the wrist's, plus a constant
+  fixed at the reset, where the wrist starts at the Panda's rest angle;
+- **the hand's motion**: dead-reckoned from the hand's pose and the actions that ran (``DeadReckonedHand``).
+
+The rotation comes from its prompt's instruction and the start from its prompt's fact, as for the detector's version.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import Any, Callable, Sequence
+
+import numpy as np
+from scipy.spatial.transform import Rotation
+
+from sb3_memret.controllers.base import Obs, as_numpy
+from sb3_memret.controllers.prompts import ParsedPrompt, PromptTemplate
+from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC
+from sb3_memret.tasks.mikasa.core.hand_motion import DeadReckonedHand
+from sb3_memret.tasks.mikasa.core.layout_perception import table_points
+from sb3_memret.tasks.mikasa.rotate.expert import (
+    GRIP_CLOSED, PEG_HALF_LENGTH, PegTurnController, TurnGains, hand_yaw, remaining_turn, wrap,
+)
+from sb3_memret.tasks.mikasa.rotate.task import PEG_TOP_Z, peg_on_table, peg_top_mask
+
+PEG_CENTRE_Z = PEG_TOP_Z / 2  # the peg lies on the table
+WHOLE_FRACTION = 0.85  # a frame showing this share of the top face's pixels at first sight shows the whole peg
+MIN_STRIP = 0.1  # m: a part of the 24 cm top face this long ...
+MIN_DENSITY = 0.75  # ... with this share of the whole face's pixels per metre (its full width) gives the peg's axis
+EDGE = 0.002  # m: a sighting's ends sit this far in from the face's (pixel centres; the whole face reads 23.6 cm)
+ARM_BASE_XY = (-0.615, 0.0)  # where MIKASA mounts the arm (every task: ``set_root_pose``)
+REST_WRIST = np.pi / 4  # the Panda's rest angle of its last joint; MIKASA's reset adds at most a few hundredths
+
+
+@dataclasses.dataclass
+class PegSighting:
+    """One reading of the peg from the base camera: the centre (x, y) of the top face it shows, its axis's angle
+    (radians in [0, pi)), how many top-face pixels it came from, and the (2, 2) ends (x, y) of the strip they span."""
+
+    centre: np.ndarray
+    yaw: float
+    pixels: int
+    ends: np.ndarray
+
+    @property
+    def length(self) -> float:
+        return float(np.linalg.norm(self.ends[1] - self.ends[0]))
+
+    @property
+    def density(self) -> float:
+        return self.pixels / max(self.length, 1e-9)
+
+
+def read_peg(rgb: Any) -> PegSighting | None:
+    """The peg in one base-camera frame (H, W, 3) through the shipped calibration; None when out of sight."""
+    frame = np.asarray(as_numpy(rgb))
+    seen = peg_on_table(frame, BASE_CAMERA_INTRINSIC, BASE_CAMERA_EXTRINSIC)
+    if seen is None:
+        return None
+    mask = peg_top_mask(frame)
+    points = table_points(np.argwhere(mask) + 0.5, BASE_CAMERA_INTRINSIC, BASE_CAMERA_EXTRINSIC, PEG_TOP_Z)
+    centre, yaw = np.asarray(seen[0], dtype=np.float64), float(np.radians(seen[1]))
+    axis = np.array([np.cos(yaw), np.sin(yaw)])
+    along = (points - centre) @ axis
+    return PegSighting(centre, yaw, int(mask.sum()), centre + np.outer([along.min(), along.max()], axis))
+
+
+class WristEstimate:
+    """Each env's last-joint angle from the hand's pose alone. Pointing down, the hand's yaw is the base joint's angle
+    (the arm's plane through the TCP) minus the wrist's plus a constant; the constant is fixed at an episode's first
+    call, where the wrist is at the Panda's rest angle."""
+
+    def __init__(self) -> None:
+        self.offsets: list[float | None] = []
+        self.yaws: list[float] = []
+
+    def reset(self, n_envs: int) -> None:
+        self.offsets, self.yaws = [None] * n_envs, [0.0] * n_envs
+
+    def reset_env(self, i: int) -> None:
+        self.offsets[i] = None
+
+    def angle(self, i: int, tcp: np.ndarray) -> float:
+        """Env ``i``'s wrist angle (radians) from its TCP pose (x, y, z, qw, qx, qy, qz); the hand's yaw is unwrapped
+        from call to call, so a turn past +-180 degrees keeps counting."""
+        base = float(np.arctan2(tcp[1] - ARM_BASE_XY[1], tcp[0] - ARM_BASE_XY[0]))
+        yaw = hand_yaw(Rotation.from_quat(tcp[[4, 5, 6, 3]]))
+        if self.offsets[i] is None:
+            self.offsets[i], self.yaws[i] = REST_WRIST - base + yaw, yaw
+        self.yaws[i] += float(wrap(yaw - self.yaws[i], 2 * np.pi))
+        return base - self.yaws[i] + self.offsets[i]
+
+
+class PegInHand:
+    """Each env's peg while gripped: its angle against the hand's, fixed at the grip; ``None`` while not held."""
+
+    def __init__(self) -> None:
+        self.offsets: list[float | None] = []
+
+    def reset(self, n_envs: int) -> None:
+        self.offsets = [None] * n_envs
+
+    def reset_env(self, i: int) -> None:
+        self.offsets[i] = None
+
+    def track(self, i: int, gripped: bool, near: bool, hand: float, yaw: float) -> float | None:
+        """The peg's axis angle now (radians in [0, pi)) while held: gripped (the fingers' gap on the peg's width)
+        and either already held or with the hand at the peg last seen, the grip fixed from ``yaw`` at the first held
+        call; None (and the grip forgotten) otherwise. Once held, the peg goes where the hand goes, seen or not."""
+        if not gripped or (self.offsets[i] is None and not near):
+            self.offsets[i] = None
+            return None
+        if self.offsets[i] is None:
+            self.offsets[i] = float(wrap(yaw - hand))
+        return float((hand + self.offsets[i]) % np.pi)
+
+
+class CameraPegTurnController(PegTurnController):
+    """Turns the peg to ``start + rotation`` as ``PegTurnController`` does, reading only the base camera's image, the
+    hand's pose and the gripper's opening (the module docstring says how). ``paced_every``: the control steps
+    executed between its calls; ``read``: image -> a ``PegSighting`` or None (the base camera's reader by default)."""
+
+    def __init__(self, prompt_template: PromptTemplate, strategy: str, default_start_deg: float, paced_every: int,
+                 chunk_len: int = 8, gains: TurnGains | None = None,
+                 read: Callable[[Any], PegSighting | None] = read_peg):
+        super().__init__(prompt_template, strategy, default_start_deg, chunk_len, gains)
+        self.spec = dataclasses.replace(self.spec, needs_images=True, harness_inputs=True)
+        self.stateful = True  # its perception: the peg, its grip, the wrist, the hand's motion (never the goal)
+        self.paced_every, self.read = paced_every, read
+        self.hand = DeadReckonedHand(paced_every, chunk_len)
+        self.wrist = WristEstimate()
+        self.in_hand = PegInHand()
+        self.pegs: list[PegSighting | None] = []  # each env's peg as it now reads it
+        self.wholes: list[PegSighting | None] = []  # ... and its fullest sighting of the whole face
+
+    def reset(self, seeds: Sequence[int]) -> None:
+        super().reset(seeds)
+        self.pegs, self.wholes = [None] * len(seeds), [None] * len(seeds)
+        for part in (self.hand, self.wrist, self.in_hand):
+            part.reset(len(seeds))
+
+    def reset_envs(self, env_ids: Sequence[int], seeds: Sequence[int]) -> None:
+        super().reset_envs(env_ids, seeds)
+        for i in env_ids:
+            self.pegs[i], self.wholes[i] = None, None
+            for part in (self.hand, self.wrist, self.in_hand):
+                part.reset_env(i)
+
+    def reads_images(self) -> bool:
+        """Always: the peg moves as it is turned."""
+        return True
+
+    def _see(self, i: int, rgb: Any, hand: np.ndarray) -> None:
+        """Env ``i``'s peg from one frame, the hand at ``hand`` (x, y): the whole face sets it, a strip of the face's
+        width its axis and its far end (the module docstring says why)."""
+        seen, whole = self.read(rgb), self.wholes[i]
+        if seen is None:
+            return
+        if whole is None or seen.pixels >= WHOLE_FRACTION * whole.pixels:
+            self.wholes[i] = seen if whole is None or seen.pixels > whole.pixels else whole
+            self.pegs[i] = seen
+        elif seen.length >= MIN_STRIP and seen.density >= MIN_DENSITY * whole.density:
+            far, near = sorted(seen.ends, key=lambda end: -float(np.linalg.norm(end - hand)))
+            inward = (near - far) / max(float(np.linalg.norm(near - far)), 1e-9)
+            centre = far + (PEG_HALF_LENGTH - EDGE) * inward
+            self.pegs[i] = PegSighting(centre, seen.yaw, seen.pixels, np.stack([far, centre + (centre - far)]))
+
+    def _act(self, obs: Obs, prompts: Sequence[str], parsed: Sequence[ParsedPrompt]) -> np.ndarray:
+        if len(prompts) != self._batch:
+            raise RuntimeError(f"reset() was called for {self._batch} envs but act() got {len(prompts)} prompts")
+        g = self.gains
+        tcp = as_numpy(obs["extra"]["tcp_pose"]).astype(np.float64)
+        gaps = as_numpy(obs["agent"]["qpos"]).astype(np.float64)[:, 7:9].sum(axis=1)
+        steps = self.hand.steps(tcp[:, :3])
+        rgb = obs["sensor_data"]["base_camera"]["rgb"]
+        chunks = np.zeros((len(prompts), self.spec.chunk_len, self.spec.action_dim))
+        chunks[:, :, -1] = GRIP_CLOSED
+        for i, p in enumerate(parsed):
+            wrist = self.wrist.angle(i, tcp[i])
+            self._see(i, rgb[i], tcp[i, :2])
+            peg = self.pegs[i]
+            if peg is None:
+                continue  # the peg not yet in sight: hold still
+            centre, yaw = np.array([*peg.centre, PEG_CENTRE_Z]), peg.yaw
+            hand = hand_yaw(Rotation.from_quat(tcp[i, [4, 5, 6, 3]]))
+            gripped = self.strategy == "grasp" and g.held_gap[0] <= gaps[i] <= g.held_gap[1]
+            near = np.linalg.norm(tcp[i, :2] - centre[:2]) <= g.held_reach
+            in_hand = self.in_hand.track(i, gripped, bool(near), hand, yaw)
+            if in_hand is not None:
+                centre, yaw = np.array([*tcp[i, :2], tcp[i, 2]]), in_hand
+            rotation, start = self.goal_of(p)
+            left = remaining_turn(start + rotation, yaw, rotation)
+            if abs(left) <= g.done:
+                continue  # there: hold still
+            joints = np.full(9, np.nan)
+            joints[6], joints[7], joints[8] = wrist, gaps[i] / 2, gaps[i] / 2
+            plan = self._grasp_plan if self.strategy == "grasp" else self._push_plan
+            chunks[i] = self._chunk(tcp[i], steps[i], plan(tcp[i], centre, yaw, left, joints))
+        self.hand.ran(tcp[:, :3], steps, chunks)
+        return chunks
+
+
+__all__ = ["CameraPegTurnController", "PegInHand", "PegSighting", "WristEstimate", "read_peg"]

@@ -1,0 +1,112 @@
+"""Rotate's peg-turning expert on the harness's inputs alone (``scripted-camera``): the peg read from the base camera
+(whole, or the strip the hand leaves in sight), the peg in hand, the wrist dead-reckoned, and an episode through
+MIKASA's harness as a protocol entry."""
+
+import numpy as np
+import pytest
+from scipy.spatial.transform import Rotation
+
+from mikasa_support import MIKASA_MISSING, camera_expert_cells
+
+pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
+
+from sb3_memret.controller_specs import make_controller  # noqa: E402
+from sb3_memret.controllers.base import as_numpy  # noqa: E402
+from sb3_memret.controllers.prompts import build_prompt  # noqa: E402
+from sb3_memret.tasks import make_task  # noqa: E402
+from sb3_memret.tasks.mikasa.rotate.camera_expert import (  # noqa: E402
+    REST_WRIST, CameraPegTurnController, PegInHand, PegSighting, WristEstimate, read_peg)
+from sb3_memret.tasks.mikasa.rotate.expert import wrap  # noqa: E402
+from sb3_memret.tasks.mikasa.rotate.task import CUE_FACT, LENIENT_INSTRUCTION, peg_yaw  # noqa: E402
+
+TASK = "RotateLenientPos-VLA-v0"
+
+
+def test_the_peg_is_read_whole_from_the_base_camera():
+    env = make_task(TASK).make_env(obs_mode="rgb")
+    try:
+        for seed in range(5000, 5005):
+            obs, _ = env.reset(seed=seed)
+            seen = read_peg(as_numpy(obs["sensor_data"]["base_camera"]["rgb"])[0])
+            peg = env.unwrapped.peg
+            yaw = float(as_numpy(peg_yaw(peg.pose.q)).reshape(-1)[0])
+            assert abs(float(wrap(seen.yaw - yaw))) < np.radians(1.5)
+            assert np.linalg.norm(seen.centre - as_numpy(peg.pose.p).reshape(-1)[:2]) < 0.02
+            assert 0.23 < seen.length < 0.24  # the 24 cm face, to the pixel centres at its ends
+    finally:
+        env.close()
+
+
+def _tcp(x, y, yaw, z=0.1):
+    """A TCP pose (x, y, z, qw, qx, qy, qz) pointing down, the hand turned ``yaw`` about the vertical."""
+    q = (Rotation.from_rotvec([0, 0, yaw]) * Rotation.from_euler("x", np.pi)).as_quat()
+    return np.array([x, y, z, q[3], q[0], q[1], q[2]])
+
+
+def test_the_wrist_turns_against_the_hand_and_with_the_arm():
+    wrist = WristEstimate()
+    wrist.reset(1)
+    assert wrist.angle(0, _tcp(0.0, 0.0, 0.3)) == pytest.approx(REST_WRIST)
+    assert wrist.angle(0, _tcp(0.0, 0.0, 0.8)) == pytest.approx(REST_WRIST - 0.5)  # the hand turned, not the arm
+    turned_arm = np.arctan2(0.2, 0.615)
+    assert wrist.angle(0, _tcp(0.0, 0.2, 0.8 + turned_arm)) == pytest.approx(REST_WRIST - 0.5)  # both turned
+    for yaw in (2.0, 3.0, 4.0):  # past +-180 degrees the hand's yaw keeps counting
+        angle = wrist.angle(0, _tcp(0.0, 0.2, yaw + turned_arm))
+    assert angle == pytest.approx(REST_WRIST - 3.7)
+    wrist.reset_env(0)
+    assert wrist.angle(0, _tcp(0.1, 0.0, -1.0)) == pytest.approx(REST_WRIST)
+
+
+def test_a_gripped_peg_turns_with_the_hand_until_let_go():
+    hand = PegInHand()
+    hand.reset(1)
+    assert hand.track(0, True, False, 0.2, 1.0) is None  # gripped, but not at the peg last seen
+    assert hand.track(0, True, True, 0.2, 1.0) == pytest.approx(1.0)
+    assert hand.track(0, True, False, 0.7, 1.0) == pytest.approx(1.5)  # carried away from where it lay: still held
+    assert hand.track(0, False, True, 0.7, 1.0) is None and hand.offsets == [None]
+
+
+def _sighting(centre, yaw, pixels, half_length):
+    axis = np.array([np.cos(yaw), np.sin(yaw)])
+    centre = np.asarray(centre, dtype=float)
+    return PegSighting(centre, yaw, pixels, np.stack([centre - half_length * axis, centre + half_length * axis]))
+
+
+def _obs(tcp, seen, gap=0.0):
+    """The hand's pose and fingers as the harness gives them; the "image" is the sighting for the stand-in reader."""
+    return {"extra": {"tcp_pose": tcp[None]}, "agent": {"qpos": np.array([[*[np.nan] * 7, gap / 2, gap / 2]])},
+            "sensor_data": {"base_camera": {"rgb": [seen]}}}
+
+
+def test_a_strip_of_the_face_gives_the_axis_and_the_far_end_a_thin_one_nothing():
+    controller = CameraPegTurnController(make_task(TASK).template, "push", 0, paced_every=4, read=lambda s: s)
+    assert controller.spec.harness_inputs and controller.spec.needs_images and controller.stateful
+    controller.reset([0])
+    prompt = build_prompt(LENIENT_INSTRUCTION.format(angle_deg=40), [CUE_FACT.format(start_deg=0)],
+                          controller.spec.prompt_template)
+    assert np.all(controller.act(_obs(_tcp(0.3, 0.0, 0.0), None), [prompt])[0, :, :6] == 0)  # no peg yet: still
+    controller.act(_obs(_tcp(0.3, 0.0, 0.0), _sighting([0.0, 0.0], 0.0, 100, 0.118)), [prompt])
+    # the hand over the +x end, the peg turned 0.2 rad about its -x end: the strip from that end, full width
+    far = np.array([-0.118, 0.0])
+    axis = np.array([np.cos(0.2), np.sin(0.2)])
+    strip = PegSighting(far + 0.06 * axis, 0.2, 50, np.stack([far, far + 0.12 * axis]))
+    controller.act(_obs(_tcp(0.1, 0.02, 0.0, z=0.02), strip), [prompt])
+    peg = controller.pegs[0]
+    assert peg.yaw == pytest.approx(0.2) and np.allclose(peg.centre, far + 0.118 * axis)
+    thin = PegSighting(far + 0.06 * axis, 0.6, 20, np.stack([far, far + 0.12 * axis]))
+    controller.act(_obs(_tcp(0.1, 0.02, 0.0, z=0.02), thin), [prompt])
+    assert controller.pegs[0] is peg
+    controller.reset_envs([0], [1])
+    assert controller.pegs == [None] and controller.wholes == [None]
+    assert isinstance(make_controller("scripted-camera", TASK), CameraPegTurnController)
+    assert make_controller("scripted-camera", "RotateStrictPos-VLA-v0").strategy == "grasp"
+
+
+@pytest.mark.slow
+@pytest.mark.parametrize("env_id", [TASK, "RotateStrictPos-VLA-v0"])
+def test_through_the_harness_it_turns_the_peg_as_a_protocol_entry(env_id, tmp_path):
+    """Rotate at a development seed, pushed (Lenient) and turned in hand (Strict): the oracle's start and the
+    writer's (written) each turn the peg to success, reading only the harness's observation."""
+    results, cells = camera_expert_cells(env_id, tmp_path)
+    assert results["privileged_upper_bound"] is False
+    assert cells["oracle"]["successes"] == cells["written"]["successes"] == [True], cells
