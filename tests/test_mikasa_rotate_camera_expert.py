@@ -57,13 +57,15 @@ def test_the_wrist_turns_against_the_hand_and_with_the_arm():
     assert wrist.angle(0, _tcp(0.1, 0.0, -1.0)) == pytest.approx(REST_WRIST)
 
 
-def test_a_gripped_peg_turns_with_the_hand_until_let_go():
+def test_a_gripped_peg_turns_with_the_hand_until_let_go_and_a_fresh_reading_refixes_it():
     hand = PegInHand()
     hand.reset(1)
-    assert hand.track(0, True, False, 0.2, 1.0) is None  # gripped, but not at the peg last seen
-    assert hand.track(0, True, True, 0.2, 1.0) == pytest.approx(1.0)
-    assert hand.track(0, True, False, 0.7, 1.0) == pytest.approx(1.5)  # carried away from where it lay: still held
-    assert hand.track(0, False, True, 0.7, 1.0) is None and hand.offsets == [None]
+    assert hand.track(0, True, False, 0.2, 1.0, fresh=True) is None  # gripped, but not at the peg last seen
+    assert hand.track(0, True, True, 0.2, 1.0, fresh=True) == pytest.approx(1.0)
+    assert hand.track(0, True, False, 0.7, 1.0, fresh=False) == pytest.approx(1.5)  # carried off unseen: turned
+    assert hand.track(0, True, False, 0.7, 1.45, fresh=True) == pytest.approx(1.45)  # seen: the reading stands ...
+    assert hand.track(0, True, False, 0.8, 1.45, fresh=False) == pytest.approx(1.55)  # ... and is the new fix
+    assert hand.track(0, False, True, 0.7, 1.0, fresh=True) is None and hand.offsets == [None]
 
 
 def _sighting(centre, yaw, pixels, half_length):
@@ -78,7 +80,7 @@ def _obs(tcp, seen, gap=0.0):
             "sensor_data": {"base_camera": {"rgb": [seen]}}}
 
 
-def test_a_strip_of_the_face_gives_the_axis_and_the_far_end_a_thin_one_nothing():
+def test_a_strip_of_the_face_gives_the_axis_and_the_far_end_both_ends_the_centre_a_thin_strip_nothing():
     controller = CameraPegTurnController(make_task(TASK).template, "push", 0, paced_every=4, read=lambda s: s)
     assert controller.spec.harness_inputs and controller.spec.needs_images and controller.stateful
     controller.reset([0])
@@ -96,6 +98,9 @@ def test_a_strip_of_the_face_gives_the_axis_and_the_far_end_a_thin_one_nothing()
     thin = PegSighting(far + 0.06 * axis, 0.6, 20, np.stack([far, far + 0.12 * axis]))
     controller.act(_obs(_tcp(0.1, 0.02, 0.0, z=0.02), thin), [prompt])
     assert controller.pegs[0] is peg
+    ends = np.stack([far, far + 0.236 * axis])  # both ends in sight, the fingers over the middle
+    controller.act(_obs(_tcp(0.0, 0.0, 0.0, z=0.05), PegSighting(ends.mean(axis=0) + 0.01, 0.2, 60, ends)), [prompt])
+    assert np.allclose(controller.pegs[0].centre, ends.mean(axis=0))
     controller.reset_envs([0], [1])
     assert controller.pegs == [None] and controller.wholes == [None]
     assert isinstance(make_controller("scripted-camera", TASK), CameraPegTurnController)

@@ -78,6 +78,16 @@ def _remember_colour(task: Task) -> FrozenController:
                                  wait_for_all=not task.noop_before_manipulation)
 
 
+def _remember_shape(task: Task) -> FrozenController:
+    """RememberShape 3/5/9, RememberShapeAndColor 3x2/3x3/5x3 and their -Long: the objects from the base camera,
+    named by FindImposter's reader against the exemplars of the FindImposter task with the same objects."""
+    from sb3_memret.tasks.mikasa.remember.shape_camera_expert import CameraShapeTouchController, shape_places
+
+    return CameraShapeTouchController(task.words, task.template, task.field, paced_every=task.replan_every,
+                                      read_layout=shape_places(task.name, task.words), default=task.words[0],
+                                      wait_for_all=not task.noop_before_manipulation)
+
+
 def _blink_count(task: Task) -> FrozenController:
     """BlinkCountButtonPress Easy/Medium/Hard and their -Long: the red button and the phase lamp from the base
     camera, the presses made from the prompt's progress facts."""
@@ -140,6 +150,8 @@ def _imposter(task: Task) -> FrozenController:
 _SHIPPED: tuple[tuple[str, str, CameraExpertBuilder], ...] = (
     ("sb3_memret.tasks.mikasa.seq_of_colors.task", "SeqOfColorsTask", _colour_sequence),
     ("sb3_memret.tasks.mikasa.remember.color", "RememberColorTask", _remember_colour),
+    ("sb3_memret.tasks.mikasa.remember.shape", "RememberShapeTask", _remember_shape),
+    ("sb3_memret.tasks.mikasa.remember.shape_and_color", "RememberShapeAndColorTask", _remember_shape),
     ("sb3_memret.tasks.mikasa.blink_count.task", "BlinkCountTask", _blink_count),
     ("sb3_memret.tasks.mikasa.timed_transfer.task", "TimedTransferTask", _timed_transfer),
     ("sb3_memret.tasks.mikasa.take_it_back.task", "TakeItBackTask", _take_it_back),

@@ -6,13 +6,14 @@ and motion on the harness's inputs only (``ControllerSpec.harness_inputs``):
 
 - **the peg**: its top face in the base camera at every call, cast onto the face's plane through the shipped
   calibration (``peg_on_table``, the writer's reader). A frame that shows ``WHOLE_FRACTION`` of the face it showed at
-  first sight gives its centre and axis. While the hand pushes, it hides the end it pushes: a frame that still shows
+  first sight gives its centre and axis, and so does one that shows both its ends (the fingers over its middle: the
+  centre is between the ends). While the hand pushes, it hides the end it pushes: a frame that still shows
   a strip of the face's full width at least ``MIN_STRIP`` long gives the axis (its angle reads within 2 degrees), and
   the strip's end away from the hand is the peg's far end, so the centre is half the peg's length in from it. A frame
   that shows less (a thin or short strip, cut across by the fingers, read up to 21 degrees off) is not read, and the
   last reading stands;
-- **the peg in hand** (Strict's grasp): turned with the hand, at the angle it had against the hand when gripped, its
-  centre under the hand (``PegInHand``);
+- **the peg in hand** (Strict's grasp): its centre under the hand; its angle read as above where the frame shows it,
+  else turned with the hand from its last reading (``PegInHand``);
 - **the wrist's angle** (the grasp must leave the last joint room for the turn): dead-reckoned from the hand's pose
   (``WristEstimate``): pointing down, the hand's yaw is the base joint's angle minus the wrist's, plus a constant
   fixed at the reset, where the wrist starts at the Panda's rest angle;
@@ -119,14 +120,16 @@ class PegInHand:
     def reset_env(self, i: int) -> None:
         self.offsets[i] = None
 
-    def track(self, i: int, gripped: bool, near: bool, hand: float, yaw: float) -> float | None:
+    def track(self, i: int, gripped: bool, near: bool, hand: float, yaw: float, fresh: bool) -> float | None:
         """The peg's axis angle now (radians in [0, pi)) while held: gripped (the fingers' gap on the peg's width)
-        and either already held or with the hand at the peg last seen, the grip fixed from ``yaw`` at the first held
-        call; None (and the grip forgotten) otherwise. Once held, the peg goes where the hand goes, seen or not."""
+        and either already held or with the hand at the peg last seen; None (and the grip forgotten) otherwise.
+        ``yaw``: the peg's angle as last read, ``fresh`` when read from this call's frame: then it stands, and fixes
+        the peg's angle against the hand (fingers closing on it turn it a few degrees); else the peg turns with the
+        hand from its last fix, seen or not."""
         if not gripped or (self.offsets[i] is None and not near):
             self.offsets[i] = None
             return None
-        if self.offsets[i] is None:
+        if fresh or self.offsets[i] is None:
             self.offsets[i] = float(wrap(yaw - hand))
         return float((hand + self.offsets[i]) % np.pi)
 
@@ -166,20 +169,26 @@ class CameraPegTurnController(PegTurnController):
         """Always: the peg moves as it is turned."""
         return True
 
-    def _see(self, i: int, rgb: Any, hand: np.ndarray) -> None:
+    def _see(self, i: int, rgb: Any, hand: np.ndarray) -> bool:
         """Env ``i``'s peg from one frame, the hand at ``hand`` (x, y): the whole face sets it, a strip of the face's
-        width its axis and its far end (the module docstring says why)."""
+        width its axis and its far end (the module docstring says why). Whether the frame was read."""
         seen, whole = self.read(rgb), self.wholes[i]
         if seen is None:
-            return
+            return False
         if whole is None or seen.pixels >= WHOLE_FRACTION * whole.pixels:
             self.wholes[i] = seen if whole is None or seen.pixels > whole.pixels else whole
             self.pegs[i] = seen
-        elif seen.length >= MIN_STRIP and seen.density >= MIN_DENSITY * whole.density:
+            return True
+        if seen.length >= WHOLE_FRACTION * whole.length:  # both ends in sight, the hand over its middle
+            self.pegs[i] = PegSighting(seen.ends.mean(axis=0), seen.yaw, seen.pixels, seen.ends)
+            return True
+        if seen.length >= MIN_STRIP and seen.density >= MIN_DENSITY * whole.density:
             far, near = sorted(seen.ends, key=lambda end: -float(np.linalg.norm(end - hand)))
             inward = (near - far) / max(float(np.linalg.norm(near - far)), 1e-9)
             centre = far + (PEG_HALF_LENGTH - EDGE) * inward
             self.pegs[i] = PegSighting(centre, seen.yaw, seen.pixels, np.stack([far, centre + (centre - far)]))
+            return True
+        return False
 
     def _act(self, obs: Obs, prompts: Sequence[str], parsed: Sequence[ParsedPrompt]) -> np.ndarray:
         if len(prompts) != self._batch:
@@ -193,7 +202,7 @@ class CameraPegTurnController(PegTurnController):
         chunks[:, :, -1] = GRIP_CLOSED
         for i, p in enumerate(parsed):
             wrist = self.wrist.angle(i, tcp[i])
-            self._see(i, rgb[i], tcp[i, :2])
+            fresh = self._see(i, rgb[i], tcp[i, :2])
             peg = self.pegs[i]
             if peg is None:
                 continue  # the peg not yet in sight: hold still
@@ -201,7 +210,7 @@ class CameraPegTurnController(PegTurnController):
             hand = hand_yaw(Rotation.from_quat(tcp[i, [4, 5, 6, 3]]))
             gripped = self.strategy == "grasp" and g.held_gap[0] <= gaps[i] <= g.held_gap[1]
             near = np.linalg.norm(tcp[i, :2] - centre[:2]) <= g.held_reach
-            in_hand = self.in_hand.track(i, gripped, bool(near), hand, yaw)
+            in_hand = self.in_hand.track(i, gripped, bool(near), hand, yaw, fresh)
             if in_hand is not None:
                 centre, yaw = np.array([*tcp[i, :2], tcp[i, 2]]), in_hand
             rotation, start = self.goal_of(p)
