@@ -134,6 +134,21 @@ def _intercept(task: Task) -> FrozenController:
                                      paced_every=task.replan_every)
 
 
+def _trace_shape(task: Task) -> FrozenController:
+    """TraceShape Easy/Medium/Hard: the green cube from the base camera, then in hand."""
+    from sb3_memret.tasks.mikasa.trace_shape.camera_expert import CameraTraceShapeController
+
+    return CameraTraceShapeController(task.template, paced_every=task.replan_every)
+
+
+def _trace_sequence(task: Task) -> FrozenController:
+    """TraceShapeSeq Easy/Medium/Hard: the green cube and the button's cap from the base camera, the paths traced
+    from the prompt's progress facts."""
+    from sb3_memret.tasks.mikasa.trace_shape.camera_expert import CameraTraceSequenceController
+
+    return CameraTraceSequenceController(task.template, paced_every=task.replan_every)
+
+
 def _imposter(task: Task) -> FrozenController:
     """FindImposter Color, Shape and ShapeAndColor: every object placed from the frame that shows them all (cubes by
     colour, as RememberColor's; objects of several shapes by the writer's reader); the imposter chosen as the
@@ -158,6 +173,8 @@ _SHIPPED: tuple[tuple[str, str, CameraExpertBuilder], ...] = (
     ("sb3_memret.tasks.mikasa.find_imposter.task", "FindImposterTask", _imposter),
     ("sb3_memret.tasks.mikasa.rotate.task", "RotateTask", _rotate),
     ("sb3_memret.tasks.mikasa.intercept.task", "InterceptTask", _intercept),
+    ("sb3_memret.tasks.mikasa.trace_shape.task", "TraceShapeTask", _trace_shape),
+    ("sb3_memret.tasks.mikasa.trace_shape.sequence", "TraceShapeSeqTask", _trace_sequence),
 )
 
 __all__ = ["camera_expert", "has_camera_expert", "register_camera_expert"]
