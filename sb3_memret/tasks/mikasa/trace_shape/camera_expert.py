@@ -112,6 +112,8 @@ class _CameraTracing:
     def _cube_now(self, i: int, rgb: Any, tcp: np.ndarray, gap: float) -> np.ndarray | None:
         """Env ``i``'s cube now: carried while gripped; else read again wherever it stands clear of the hand, or
         wherever it fell to once let go in the air (``_looks_again``). None while not seen, or fallen out of sight."""
+        if self.cube.places[i] is not None:
+            self.cube.track(i, tcp, gap)  # the grip as the fingers are now: a cube that slipped out is let go
         if self._looks_again(i, tcp):
             seen = self.read_cube(rgb)
             if seen is not None:
