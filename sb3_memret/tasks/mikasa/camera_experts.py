@@ -149,6 +149,15 @@ def _trace_sequence(task: Task) -> FrozenController:
     return CameraTraceSequenceController(task.template, paced_every=task.replan_every)
 
 
+def _gather(task: Task) -> FrozenController:
+    """GatherAndRecall 1/3/5/7/9: the cubes and the buttons from the base camera's first frame, the disc where MIKASA
+    lays it from the buttons, the cubes carried by the grip."""
+    from sb3_memret.tasks.mikasa.gather_and_recall.camera_expert import CameraGatherPressController
+
+    return CameraGatherPressController(task.template, task.words, default=task.words[0], n_cubes=task.n_cubes,
+                                       paced_every=task.replan_every)
+
+
 def _imposter(task: Task) -> FrozenController:
     """FindImposter Color, Shape and ShapeAndColor: every object placed from the frame that shows them all (cubes by
     colour, as RememberColor's; objects of several shapes by the writer's reader); the imposter chosen as the
@@ -174,6 +183,7 @@ _SHIPPED: tuple[tuple[str, str, CameraExpertBuilder], ...] = (
     ("sb3_memret.tasks.mikasa.rotate.task", "RotateTask", _rotate),
     ("sb3_memret.tasks.mikasa.intercept.task", "InterceptTask", _intercept),
     ("sb3_memret.tasks.mikasa.trace_shape.task", "TraceShapeTask", _trace_shape),
+    ("sb3_memret.tasks.mikasa.gather_and_recall.task", "GatherAndRecallTask", _gather),
     ("sb3_memret.tasks.mikasa.trace_shape.sequence", "TraceShapeSeqTask", _trace_sequence),
 )
 
