@@ -20,7 +20,6 @@ The colour to press comes from its prompt alone, as for the detector's version.
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any, Callable, NamedTuple, Sequence
 
 import numpy as np
@@ -30,7 +29,7 @@ from sb3_memret.controllers.base import Obs, as_numpy
 from sb3_memret.controllers.prompts import ParsedPrompt, PromptTemplate
 from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC
 from sb3_memret.tasks.mikasa.core.carry_expert import CarryGains
-from sb3_memret.tasks.mikasa.core.hand_motion import DeadReckonedHand
+from sb3_memret.tasks.mikasa.core.harness_expert import HarnessExpert
 from sb3_memret.tasks.mikasa.core.layout_perception import table_points
 from sb3_memret.tasks.mikasa.core.perception import REFERENCE_SIZE
 from sb3_memret.tasks.mikasa.gather_and_recall.expert import GatherGains, GatherPressController
@@ -119,7 +118,7 @@ class HeldCubes:
         return self.places.copy()
 
 
-class CameraGatherPressController(GatherPressController):
+class CameraGatherPressController(HarnessExpert, GatherPressController):
     """Puts every cube on the disc, then presses the button of its prompt's colour, reading only the base camera's
     image, the hand's pose and the gripper's opening (the module docstring says how). ``n_cubes``: the task's;
     ``paced_every``: the control steps executed between its calls; ``read``: image -> a ``Layout`` or None."""
@@ -128,36 +127,25 @@ class CameraGatherPressController(GatherPressController):
                  paced_every: int, chunk_len: int = 8, carry: CarryGains | None = None,
                  gather: GatherGains | None = None, read: Callable[[Any], Layout | None] | None = None):
         super().__init__(prompt_template, vocabulary, default, chunk_len, carry=carry, gather=gather)
-        self.spec = dataclasses.replace(self.spec, needs_images=True, harness_inputs=True)
-        self.stateful = True  # its perception: the layout, the cubes carried, the hand's motion (never the colour)
-        self.n_cubes, self.paced_every = n_cubes, paced_every
+        self._on_harness(paced_every, chunk_len)
+        self.n_cubes = n_cubes
         self.read = read or (lambda rgb: read_layout(rgb, n_cubes, self.vocabulary))
-        self.hand = DeadReckonedHand(paced_every, chunk_len)
         self.layouts: list[Layout | None] = []
         self.cubes: list[HeldCubes | None] = []
 
-    def reset(self, seeds: Sequence[int]) -> None:
-        super().reset(seeds)
-        self.layouts, self.cubes = [None] * len(seeds), [None] * len(seeds)
-        self.hand.reset(len(seeds))
+    def _forget(self, n_envs: int) -> None:
+        self.layouts, self.cubes = [None] * n_envs, [None] * n_envs
 
-    def reset_envs(self, env_ids: Sequence[int], seeds: Sequence[int]) -> None:
-        super().reset_envs(env_ids, seeds)
-        for i in env_ids:
-            self.layouts[i] = self.cubes[i] = None
-            self.hand.reset_env(i)
+    def _forget_env(self, i: int) -> None:
+        self.layouts[i] = self.cubes[i] = None
 
     def reads_images(self) -> bool:
         """Until every env has read its layout: the hand then carries what it knows."""
         return not self.layouts or any(layout is None for layout in self.layouts)
 
     def _act(self, obs: Obs, prompts: Sequence[str], parsed: Sequence[ParsedPrompt]) -> np.ndarray:
-        if len(prompts) != self._batch:
-            raise RuntimeError(f"reset() was called for {self._batch} envs but act() got {len(prompts)} prompts")
-        tcp = as_numpy(obs["extra"]["tcp_pose"]).astype(np.float64)
-        gaps = as_numpy(obs["agent"]["qpos"]).astype(np.float64)[:, 7:9].sum(axis=1)
-        steps = self.hand.steps(tcp[:, :3])
-        rgb = obs["sensor_data"]["base_camera"]["rgb"]
+        inputs = self._harness_inputs(obs, len(prompts))
+        tcp, gaps, steps, rgb = inputs
         chunks = np.zeros((len(prompts), self.spec.chunk_len, self.spec.action_dim))
         for i, p in enumerate(parsed):
             if self.layouts[i] is None:
@@ -169,8 +157,7 @@ class CameraGatherPressController(GatherPressController):
             cubes = self.cubes[i].track(tcp[i, :3], float(gaps[i]))
             button = layout.buttons[self.vocabulary.index(self.colour_of(p))]
             chunks[i] = self._chunk(tcp[i], steps[i], self._goal(tcp[i, :3], cubes, float(gaps[i]), layout.disc, button))
-        self.hand.ran(tcp[:, :3], steps, chunks)
-        return chunks
+        return self._ran(inputs, chunks)
 
 
 __all__ = ["CameraGatherPressController", "HeldCubes", "Layout", "read_layout"]

@@ -20,7 +20,6 @@ The ball's velocity comes from its prompt alone, as for the detector's version.
 
 from __future__ import annotations
 
-import dataclasses
 from typing import Any, Callable, Sequence
 
 import numpy as np
@@ -28,7 +27,7 @@ import numpy as np
 from sb3_memret.controllers.base import Obs, as_numpy
 from sb3_memret.controllers.prompts import ParsedPrompt, PromptTemplate
 from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC
-from sb3_memret.tasks.mikasa.core.hand_motion import DeadReckonedHand
+from sb3_memret.tasks.mikasa.core.harness_expert import HarnessExpert
 from sb3_memret.tasks.mikasa.core.layout_perception import table_points
 from sb3_memret.tasks.mikasa.core.perception import REFERENCE_SIZE
 from sb3_memret.tasks.mikasa.core.touch_expert import CONTROL_DT
@@ -95,7 +94,7 @@ class HeldBall:
         self.since = [since + steps for since in self.since]
 
 
-class CameraInterceptController(InterceptController):
+class CameraInterceptController(HarnessExpert, InterceptController):
     """Catches the ball at the velocity its prompt states and, for Intercept, carries it onto the target, reading
     only the base camera's image, the hand's pose and the gripper's opening (the module docstring says how).
     ``paced_every``: the control steps executed between its calls; ``read_ball`` and ``read_target``: image -> a
@@ -106,38 +105,27 @@ class CameraInterceptController(InterceptController):
                  read_ball: Callable[[Any], np.ndarray | None] = read_ball,
                  read_target: Callable[[Any], np.ndarray | None] = read_target):
         super().__init__(prompt_template, default_speed, carry, chunk_len, gains)
-        self.spec = dataclasses.replace(self.spec, needs_images=True, harness_inputs=True)
-        self.stateful = True  # its perception: the ball, the target, the hand's motion (never the velocity)
-        self.paced_every, self.read_ball, self.read_target = paced_every, read_ball, read_target
-        self.hand = DeadReckonedHand(paced_every, chunk_len)
+        self._on_harness(paced_every, chunk_len)
+        self.read_ball, self.read_target = read_ball, read_target
         self.ball = HeldBall(self.gains)
         self.targets: list[np.ndarray | None] = []
 
-    def reset(self, seeds: Sequence[int]) -> None:
-        super().reset(seeds)
-        self.ball.reset(len(seeds))
-        self.hand.reset(len(seeds))
-        self.targets = [None] * len(seeds)
+    def _forget(self, n_envs: int) -> None:
+        self.ball.reset(n_envs)
+        self.targets = [None] * n_envs
 
-    def reset_envs(self, env_ids: Sequence[int], seeds: Sequence[int]) -> None:
-        super().reset_envs(env_ids, seeds)
-        for i in env_ids:
-            self.ball.reset_env(i)
-            self.hand.reset_env(i)
-            self.targets[i] = None
+    def _forget_env(self, i: int) -> None:
+        self.ball.reset_env(i)
+        self.targets[i] = None
 
     def reads_images(self) -> bool:
         """Always: the ball rolls until it is caught."""
         return True
 
     def _act(self, obs: Obs, prompts: Sequence[str], parsed: Sequence[ParsedPrompt]) -> np.ndarray:
-        if len(prompts) != self._batch:
-            raise RuntimeError(f"reset() was called for {self._batch} envs but act() got {len(prompts)} prompts")
         g = self.gains
-        tcp = as_numpy(obs["extra"]["tcp_pose"]).astype(np.float64)
-        gaps = as_numpy(obs["agent"]["qpos"]).astype(np.float64)[:, 7:9].sum(axis=1)
-        steps = self.hand.steps(tcp[:, :3])
-        rgb = obs["sensor_data"]["base_camera"]["rgb"]
+        inputs = self._harness_inputs(obs, len(prompts))
+        tcp, gaps, steps, rgb = inputs
         chunks = np.zeros((len(prompts), self.spec.chunk_len, self.spec.action_dim))
         for i, p in enumerate(parsed):
             self.ball.see(i, self.read_ball(rgb[i]))
@@ -154,8 +142,7 @@ class CameraInterceptController(InterceptController):
             else:
                 chunks[i] = self._catch(tcp[i], steps[i], ball, velocity)
         self.ball.ran(self.paced_every)
-        self.hand.ran(tcp[:, :3], steps, chunks)
-        return chunks
+        return self._ran(inputs, chunks)
 
 
 __all__ = ["CameraInterceptController", "HeldBall", "read_ball", "read_target"]

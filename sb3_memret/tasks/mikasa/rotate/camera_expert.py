@@ -33,7 +33,7 @@ from scipy.spatial.transform import Rotation
 from sb3_memret.controllers.base import Obs, as_numpy
 from sb3_memret.controllers.prompts import ParsedPrompt, PromptTemplate
 from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC
-from sb3_memret.tasks.mikasa.core.hand_motion import DeadReckonedHand
+from sb3_memret.tasks.mikasa.core.harness_expert import HarnessExpert
 from sb3_memret.tasks.mikasa.core.layout_perception import table_points
 from sb3_memret.tasks.mikasa.rotate.expert import (
     GRIP_CLOSED, PEG_HALF_LENGTH, PegTurnController, TurnGains, hand_yaw, remaining_turn, wrap,
@@ -134,7 +134,7 @@ class PegInHand:
         return float((hand + self.offsets[i]) % np.pi)
 
 
-class CameraPegTurnController(PegTurnController):
+class CameraPegTurnController(HarnessExpert, PegTurnController):
     """Turns the peg to ``start + rotation`` as ``PegTurnController`` does, reading only the base camera's image, the
     hand's pose and the gripper's opening (the module docstring says how). ``paced_every``: the control steps
     executed between its calls; ``read``: image -> a ``PegSighting`` or None (the base camera's reader by default)."""
@@ -143,27 +143,22 @@ class CameraPegTurnController(PegTurnController):
                  chunk_len: int = 8, gains: TurnGains | None = None,
                  read: Callable[[Any], PegSighting | None] = read_peg):
         super().__init__(prompt_template, strategy, default_start_deg, chunk_len, gains)
-        self.spec = dataclasses.replace(self.spec, needs_images=True, harness_inputs=True)
-        self.stateful = True  # its perception: the peg, its grip, the wrist, the hand's motion (never the goal)
-        self.paced_every, self.read = paced_every, read
-        self.hand = DeadReckonedHand(paced_every, chunk_len)
+        self._on_harness(paced_every, chunk_len)
+        self.read = read
         self.wrist = WristEstimate()
         self.in_hand = PegInHand()
         self.pegs: list[PegSighting | None] = []  # each env's peg as it now reads it
         self.wholes: list[PegSighting | None] = []  # ... and its fullest sighting of the whole face
 
-    def reset(self, seeds: Sequence[int]) -> None:
-        super().reset(seeds)
-        self.pegs, self.wholes = [None] * len(seeds), [None] * len(seeds)
-        for part in (self.hand, self.wrist, self.in_hand):
-            part.reset(len(seeds))
+    def _forget(self, n_envs: int) -> None:
+        self.pegs, self.wholes = [None] * n_envs, [None] * n_envs
+        self.wrist.reset(n_envs)
+        self.in_hand.reset(n_envs)
 
-    def reset_envs(self, env_ids: Sequence[int], seeds: Sequence[int]) -> None:
-        super().reset_envs(env_ids, seeds)
-        for i in env_ids:
-            self.pegs[i], self.wholes[i] = None, None
-            for part in (self.hand, self.wrist, self.in_hand):
-                part.reset_env(i)
+    def _forget_env(self, i: int) -> None:
+        self.pegs[i], self.wholes[i] = None, None
+        self.wrist.reset_env(i)
+        self.in_hand.reset_env(i)
 
     def reads_images(self) -> bool:
         """Always: the peg moves as it is turned."""
@@ -191,13 +186,9 @@ class CameraPegTurnController(PegTurnController):
         return False
 
     def _act(self, obs: Obs, prompts: Sequence[str], parsed: Sequence[ParsedPrompt]) -> np.ndarray:
-        if len(prompts) != self._batch:
-            raise RuntimeError(f"reset() was called for {self._batch} envs but act() got {len(prompts)} prompts")
         g = self.gains
-        tcp = as_numpy(obs["extra"]["tcp_pose"]).astype(np.float64)
-        gaps = as_numpy(obs["agent"]["qpos"]).astype(np.float64)[:, 7:9].sum(axis=1)
-        steps = self.hand.steps(tcp[:, :3])
-        rgb = obs["sensor_data"]["base_camera"]["rgb"]
+        inputs = self._harness_inputs(obs, len(prompts))
+        tcp, gaps, steps, rgb = inputs
         chunks = np.zeros((len(prompts), self.spec.chunk_len, self.spec.action_dim))
         chunks[:, :, -1] = GRIP_CLOSED
         for i, p in enumerate(parsed):
@@ -221,8 +212,7 @@ class CameraPegTurnController(PegTurnController):
             joints[6], joints[7], joints[8] = wrist, gaps[i] / 2, gaps[i] / 2
             plan = self._grasp_plan if self.strategy == "grasp" else self._push_plan
             chunks[i] = self._chunk(tcp[i], steps[i], plan(tcp[i], centre, yaw, left, joints))
-        self.hand.ran(tcp[:, :3], steps, chunks)
-        return chunks
+        return self._ran(inputs, chunks)
 
 
 __all__ = ["CameraPegTurnController", "PegInHand", "PegSighting", "WristEstimate", "read_peg"]

@@ -31,7 +31,7 @@ from sb3_memret.controllers.base import Obs, as_numpy
 from sb3_memret.controllers.prompts import ParsedPrompt, PromptTemplate
 from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC
 from sb3_memret.tasks.mikasa.core.carry_expert import CarryGains
-from sb3_memret.tasks.mikasa.core.hand_motion import DeadReckonedHand
+from sb3_memret.tasks.mikasa.core.harness_expert import HarnessExpert
 from sb3_memret.tasks.mikasa.core.held_object import HeldCube
 from sb3_memret.tasks.mikasa.core.layout_perception import table_points
 from sb3_memret.tasks.mikasa.core.perception import REFERENCE_SIZE
@@ -83,31 +83,21 @@ def read_button_cap(rgb: Any) -> np.ndarray | None:
     return _cast(labels == np.bincount(labels.ravel())[1:].argmax() + 1, CAP_CENTRE_Z, MIN_PIXELS["cap"])
 
 
-class _CameraTracing:
-    """What both camera tracers keep per env: the cube (seen once, then carried), the hand's motion."""
+class _CameraTracing(HarnessExpert):
+    """What both camera tracers keep per env beyond the hand: the cube (seen, then carried, read again where it
+    stands or fell)."""
 
     def _setup(self, paced_every: int, chunk_len: int, read_cube: Callable[[Any], np.ndarray | None]) -> None:
-        self.spec = dataclasses.replace(self.spec, needs_images=True, harness_inputs=True)
-        self.stateful = True  # its perception: the cube (and button), the hand's motion (never the path)
-        self.paced_every, self.read_cube = paced_every, read_cube
-        self.hand = DeadReckonedHand(paced_every, chunk_len)
+        self._on_harness(paced_every, chunk_len)
+        self.read_cube = read_cube
         grip = dataclasses.replace(CarryGains(), held_gap=self.trace.held_gap, held_reach=self.trace.held_reach)
         self.cube = HeldCube(grip)
 
-    def _reset_perception(self, n_envs: int) -> None:
+    def _forget(self, n_envs: int) -> None:
         self.cube.reset(n_envs)
-        self.hand.reset(n_envs)
 
-    def _reset_env_perception(self, i: int) -> None:
+    def _forget_env(self, i: int) -> None:
         self.cube.reset_env(i)
-        self.hand.reset_env(i)
-
-    def _inputs(self, obs: Obs, n_prompts: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, Any]:
-        if n_prompts != self._batch:
-            raise RuntimeError(f"reset() was called for {self._batch} envs but act() got {n_prompts} prompts")
-        tcp = as_numpy(obs["extra"]["tcp_pose"]).astype(np.float64)
-        gaps = as_numpy(obs["agent"]["qpos"]).astype(np.float64)[:, 7:9].sum(axis=1)
-        return tcp, gaps, self.hand.steps(tcp[:, :3]), obs["sensor_data"]["base_camera"]["rgb"]
 
     def _cube_now(self, i: int, rgb: Any, tcp: np.ndarray, gap: float) -> np.ndarray | None:
         """Env ``i``'s cube now: carried while gripped; else read again wherever it stands clear of the hand, or
@@ -156,17 +146,9 @@ class CameraTraceShapeController(_CameraTracing, TraceShapeController):
         super().__init__(prompt_template, chunk_len, trace=trace)
         self._setup(paced_every, chunk_len, read_cube)
 
-    def reset(self, seeds: Sequence[int]) -> None:
-        super().reset(seeds)
-        self._reset_perception(len(seeds))
-
-    def reset_envs(self, env_ids: Sequence[int], seeds: Sequence[int]) -> None:
-        super().reset_envs(env_ids, seeds)
-        for i in env_ids:
-            self._reset_env_perception(i)
-
     def _act(self, obs: Obs, prompts: Sequence[str], parsed: Sequence[ParsedPrompt]) -> np.ndarray:
-        tcp, gaps, steps, rgb = self._inputs(obs, len(prompts))
+        inputs = self._harness_inputs(obs, len(prompts))
+        tcp, gaps, steps, rgb = inputs
         chunks = np.zeros((len(prompts), self.spec.chunk_len, self.spec.action_dim))
         for i, p in enumerate(parsed):
             cube = self._cube_now(i, rgb[i], tcp[i, :3], float(gaps[i]))
@@ -174,8 +156,7 @@ class CameraTraceShapeController(_CameraTracing, TraceShapeController):
                 chunks[i] = self._look(i, tcp[i], steps[i])
             else:
                 chunks[i] = self._chunk(tcp[i], steps[i], self._goal(tcp[i, :3], cube, float(gaps[i]), path_of(p)))
-        self.hand.ran(tcp[:, :3], steps, chunks)
-        return chunks
+        return self._ran(inputs, chunks)
 
 
 class CameraTraceSequenceController(_CameraTracing, TraceSequenceController):
@@ -191,23 +172,21 @@ class CameraTraceSequenceController(_CameraTracing, TraceSequenceController):
         self.read_button = read_button
         self.buttons: list[np.ndarray | None] = []
 
-    def reset(self, seeds: Sequence[int]) -> None:
-        super().reset(seeds)
-        self._reset_perception(len(seeds))
-        self.buttons = [None] * len(seeds)
+    def _forget(self, n_envs: int) -> None:
+        super()._forget(n_envs)
+        self.buttons = [None] * n_envs
 
-    def reset_envs(self, env_ids: Sequence[int], seeds: Sequence[int]) -> None:
-        super().reset_envs(env_ids, seeds)
-        for i in env_ids:
-            self._reset_env_perception(i)
-            self.buttons[i] = None
+    def _forget_env(self, i: int) -> None:
+        super()._forget_env(i)
+        self.buttons[i] = None
 
     def reads_images(self) -> bool:
         """While some env's cube is not in hand or its button is not yet seen."""
         return super().reads_images() or any(place is None for place in self.buttons)
 
     def _act(self, obs: Obs, prompts: Sequence[str], parsed: Sequence[ParsedPrompt]) -> np.ndarray:
-        tcp, gaps, steps, rgb = self._inputs(obs, len(prompts))
+        inputs = self._harness_inputs(obs, len(prompts))
+        tcp, gaps, steps, rgb = inputs
         chunks = np.zeros((len(prompts), self.spec.chunk_len, self.spec.action_dim))
         for i, p in enumerate(parsed):
             if self.buttons[i] is None:
@@ -225,8 +204,7 @@ class CameraTraceSequenceController(_CameraTracing, TraceSequenceController):
             else:
                 goal = self._goal(tcp[i, :3], cube, float(gaps[i]), None if paths is None else paths[done])
             chunks[i] = self._chunk(tcp[i], steps[i], goal)
-        self.hand.ran(tcp[:, :3], steps, chunks)
-        return chunks
+        return self._ran(inputs, chunks)
 
 
 __all__ = ["CameraTraceSequenceController", "CameraTraceShapeController", "read_button_cap", "read_green_cube"]
