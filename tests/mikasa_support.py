@@ -1,4 +1,7 @@
-"""What the MIKASA test modules share: the skip reason when the package is missing, and the leak check."""
+"""What the MIKASA test modules share: the skip reason when the package is missing, the leak check, a camera expert's
+observation and its harness episodes."""
+
+import numpy as np
 
 #: the first of the development seeds (5000 + i: ``Task.development_seeds``) that the tests over many episodes play,
 #: the suite's budget; MIKASA's evaluation seeds (4242424242 + i) are its test set, which no test plays
@@ -20,6 +23,16 @@ def leaked_keys(tree, forbidden, prefix=""):
             out += [path] if any(bad in path for bad in forbidden) else []
             out += leaked_keys(v, forbidden, path)
     return out
+
+
+def harness_obs(tcp, gap, seen):
+    """One env's observation as the policy-side view gives a camera expert: the TCP's pose (a position, pointing
+    down, or a 7-D pose), the fingers ``gap`` apart, and for the base camera's "image" whatever the test's stand-in
+    reader takes."""
+    tcp = np.asarray(tcp, dtype=np.float64)
+    pose = tcp if tcp.size == 7 else np.array([*tcp, 0, 1, 0, 0])
+    return {"extra": {"tcp_pose": pose[None]}, "agent": {"qpos": np.array([[*[np.nan] * 7, gap / 2, gap / 2]])},
+            "sensor_data": {"base_camera": {"rgb": [seen]}}}
 
 
 def camera_expert_cells(env_id, out):

@@ -5,7 +5,7 @@ MIKASA's harness as a protocol entry."""
 import numpy as np
 import pytest
 
-from mikasa_support import MIKASA_MISSING, camera_expert_cells
+from mikasa_support import MIKASA_MISSING, camera_expert_cells, harness_obs as _obs
 
 pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
@@ -59,18 +59,13 @@ def test_it_gathers_from_what_it_read_and_presses_its_prompts_colour():
     controller.reset([0])
     prompt = build_prompt(task.instruction_text, [task.cue_fact.format(colour="blue")], task.template)
 
-    def obs(tcp, gap, seen):
-        return {"extra": {"tcp_pose": np.array([[*tcp, 0, 1, 0, 0]])},
-                "agent": {"qpos": np.array([[*[np.nan] * 7, gap / 2, gap / 2]])},
-                "sensor_data": {"base_camera": {"rgb": [seen]}}}
-
-    assert np.all(controller.act(obs([0.0, 0.0, 0.3], 0.08, None), [prompt]) == 0)  # nothing read yet: still
-    chunk = controller.act(obs([0.0, 0.0, 0.3], 0.08, layout), [prompt])[0]
+    assert np.all(controller.act(_obs([0.0, 0.0, 0.3], 0.08, None), [prompt]) == 0)  # nothing read yet: still
+    chunk = controller.act(_obs([0.0, 0.0, 0.3], 0.08, layout), [prompt])[0]
     assert chunk[0, 1] < -0.5 and not controller.reads_images()  # to the cube, at -y
-    controller.act(obs([-0.1, -0.26, 0.02], 0.04, None), [prompt])  # gripped
-    controller.act(obs([0.02, 0.12, 0.026], 0.04, None), [prompt])  # carried onto the disc
-    controller.act(obs([0.02, 0.12, 0.026], 0.08, None), [prompt])  # let go there
-    chunk = controller.act(obs([0.02, 0.12, 0.15], 0.08, None), [prompt])[0]
+    controller.act(_obs([-0.1, -0.26, 0.02], 0.04, None), [prompt])  # gripped
+    controller.act(_obs([0.02, 0.12, 0.026], 0.04, None), [prompt])  # carried onto the disc
+    controller.act(_obs([0.02, 0.12, 0.026], 0.08, None), [prompt])  # let go there
+    chunk = controller.act(_obs([0.02, 0.12, 0.15], 0.08, None), [prompt])[0]
     assert chunk[0, 0] < -0.5 and chunk[0, 1] > 0.5  # to the blue button, nearer the robot and to its left
     controller.reset_envs([0], [1])
     assert controller.layouts == [None] and controller.reads_images()

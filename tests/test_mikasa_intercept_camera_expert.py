@@ -5,7 +5,7 @@ protocol entry."""
 import numpy as np
 import pytest
 
-from mikasa_support import MIKASA_MISSING, camera_expert_cells
+from mikasa_support import MIKASA_MISSING, camera_expert_cells, harness_obs as _obs
 
 pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
@@ -56,13 +56,6 @@ def test_an_unseen_ball_rolls_on_from_its_last_sighting_and_a_held_one_goes_with
     assert ball.where(0, away, 0.08, velocity) is not None and ball.held == [False]  # let go
     ball.reset_env(0)
     assert ball.seen == [None] and ball.since == [0]
-
-
-def _obs(tcp, gap, seen):
-    """The hand's pose and fingers as the harness gives them; the "image" is (ball, target) for the stand-ins."""
-    return {"extra": {"tcp_pose": np.array([[*tcp, 0, 1, 0, 0]])},
-            "agent": {"qpos": np.array([[*[np.nan] * 7, gap / 2, gap / 2]])},
-            "sensor_data": {"base_camera": {"rgb": [seen]}}}
 
 
 def test_it_waits_for_the_ball_chases_it_and_carries_it_onto_the_target():

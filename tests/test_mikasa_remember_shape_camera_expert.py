@@ -5,7 +5,7 @@ MIKASA's harness as a protocol entry."""
 import numpy as np
 import pytest
 
-from mikasa_support import MIKASA_MISSING, camera_expert_cells
+from mikasa_support import MIKASA_MISSING, camera_expert_cells, harness_obs
 
 pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
@@ -57,10 +57,7 @@ def test_it_heads_for_the_object_its_prompt_names_once_all_are_placed():
     assert controller.spec.harness_inputs and controller.field == "shape"
     controller.reset([0])
     prompt = build_prompt(task.instruction_text, [task.cue_fact.format(shape="cylinder")], task.template)
-    obs = {"extra": {"tcp_pose": np.array([[0.0, 0.0, 0.2, 0, 1, 0, 0]])},
-           "agent": {"qpos": np.array([[*[np.nan] * 7, 0.04, 0.04]])},
-           "sensor_data": {"base_camera": {"rgb": [layout]}}}
-    chunk = controller.act(obs, [prompt])[0]
+    chunk = controller.act(harness_obs([0.0, 0.0, 0.2], 0.08, layout), [prompt])[0]
     assert chunk[0, 1] > 0.5  # toward the cylinder, at +y
     assert isinstance(make_controller("scripted-camera", "RememberShapeAndColor3x3-VLA-v0"),
                       CameraShapeTouchController)

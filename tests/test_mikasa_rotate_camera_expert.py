@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 from scipy.spatial.transform import Rotation
 
-from mikasa_support import MIKASA_MISSING, camera_expert_cells
+from mikasa_support import MIKASA_MISSING, camera_expert_cells, harness_obs as _obs
 
 pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
@@ -74,32 +74,26 @@ def _sighting(centre, yaw, pixels, half_length):
     return PegSighting(centre, yaw, pixels, np.stack([centre - half_length * axis, centre + half_length * axis]))
 
 
-def _obs(tcp, seen, gap=0.0):
-    """The hand's pose and fingers as the harness gives them; the "image" is the sighting for the stand-in reader."""
-    return {"extra": {"tcp_pose": tcp[None]}, "agent": {"qpos": np.array([[*[np.nan] * 7, gap / 2, gap / 2]])},
-            "sensor_data": {"base_camera": {"rgb": [seen]}}}
-
-
 def test_a_strip_of_the_face_gives_the_axis_and_the_far_end_both_ends_the_centre_a_thin_strip_nothing():
     controller = CameraPegTurnController(make_task(TASK).template, "push", 0, paced_every=4, read=lambda s: s)
     assert controller.spec.harness_inputs and controller.spec.needs_images and controller.stateful
     controller.reset([0])
     prompt = build_prompt(LENIENT_INSTRUCTION.format(angle_deg=40), [CUE_FACT.format(start_deg=0)],
                           controller.spec.prompt_template)
-    assert np.all(controller.act(_obs(_tcp(0.3, 0.0, 0.0), None), [prompt])[0, :, :6] == 0)  # no peg yet: still
-    controller.act(_obs(_tcp(0.3, 0.0, 0.0), _sighting([0.0, 0.0], 0.0, 100, 0.118)), [prompt])
+    assert np.all(controller.act(_obs(_tcp(0.3, 0.0, 0.0), 0.0, None), [prompt])[0, :, :6] == 0)  # no peg yet: still
+    controller.act(_obs(_tcp(0.3, 0.0, 0.0), 0.0, _sighting([0.0, 0.0], 0.0, 100, 0.118)), [prompt])
     # the hand over the +x end, the peg turned 0.2 rad about its -x end: the strip from that end, full width
     far = np.array([-0.118, 0.0])
     axis = np.array([np.cos(0.2), np.sin(0.2)])
     strip = PegSighting(far + 0.06 * axis, 0.2, 50, np.stack([far, far + 0.12 * axis]))
-    controller.act(_obs(_tcp(0.1, 0.02, 0.0, z=0.02), strip), [prompt])
+    controller.act(_obs(_tcp(0.1, 0.02, 0.0, z=0.02), 0.0, strip), [prompt])
     peg = controller.pegs[0]
     assert peg.yaw == pytest.approx(0.2) and np.allclose(peg.centre, far + 0.118 * axis)
     thin = PegSighting(far + 0.06 * axis, 0.6, 20, np.stack([far, far + 0.12 * axis]))
-    controller.act(_obs(_tcp(0.1, 0.02, 0.0, z=0.02), thin), [prompt])
+    controller.act(_obs(_tcp(0.1, 0.02, 0.0, z=0.02), 0.0, thin), [prompt])
     assert controller.pegs[0] is peg
     ends = np.stack([far, far + 0.236 * axis])  # both ends in sight, the fingers over the middle
-    controller.act(_obs(_tcp(0.0, 0.0, 0.0, z=0.05), PegSighting(ends.mean(axis=0) + 0.01, 0.2, 60, ends)), [prompt])
+    controller.act(_obs(_tcp(0.0, 0.0, 0.0, z=0.05), 0.0, PegSighting(ends.mean(axis=0) + 0.01, 0.2, 60, ends)), [prompt])
     assert np.allclose(controller.pegs[0].centre, ends.mean(axis=0))
     controller.reset_envs([0], [1])
     assert controller.pegs == [None] and controller.wholes == [None]

@@ -4,7 +4,7 @@ its turn to purple read from the base camera, and an episode through MIKASA's ha
 import numpy as np
 import pytest
 
-from mikasa_support import MIKASA_MISSING, camera_expert_cells
+from mikasa_support import MIKASA_MISSING, camera_expert_cells, harness_obs as _obs
 
 pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
@@ -41,14 +41,6 @@ def test_the_cube_the_target_and_its_turn_are_read_from_the_base_camera():
         assert purple_target_seen(rgb) and read_red_target(rgb) is None
     finally:
         env.close()
-
-
-def _obs(tcp, gap, seen):
-    """The hand's pose and fingers as the harness gives them; the "image" is (cube, target, turned) for the
-    stand-in readers."""
-    return {"extra": {"tcp_pose": np.array([[*tcp, 0, 1, 0, 0]])},
-            "agent": {"qpos": np.array([[*[np.nan] * 7, gap / 2, gap / 2]])},
-            "sensor_data": {"base_camera": {"rgb": [seen]}}}
 
 
 def test_it_takes_the_cube_to_the_target_then_back_to_the_start_its_prompt_names():

@@ -5,7 +5,7 @@ entry."""
 import numpy as np
 import pytest
 
-from mikasa_support import MIKASA_MISSING, camera_expert_cells
+from mikasa_support import MIKASA_MISSING, camera_expert_cells, harness_obs as _obs
 
 pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
@@ -18,14 +18,6 @@ from sb3_memret.tasks.mikasa.timed_transfer.camera_expert import (  # noqa: E402
 
 TASK = "TimedTransferEasy-VLA-v0"
 CUBE = np.array([-0.1, -0.1])  # where the stand-in reader sees the cube
-
-
-def _obs(tcp, gap, seen):
-    """The hand's pose and the fingers (their joint positions: half the gap each) as the harness gives them; the
-    "image" is what the stand-in reader sees."""
-    return {"extra": {"tcp_pose": np.array([[*tcp, 0, 1, 0, 0]])},
-            "agent": {"qpos": np.array([[*[np.nan] * 7, gap / 2, gap / 2]])},
-            "sensor_data": {"base_camera": {"rgb": [seen]}}}
 
 
 def _prompt(task, count: int | None) -> str:

@@ -5,7 +5,7 @@ MIKASA's harness as a protocol entry."""
 import numpy as np
 import pytest
 
-from mikasa_support import MIKASA_MISSING, camera_expert_cells
+from mikasa_support import MIKASA_MISSING, camera_expert_cells, harness_obs as _obs
 
 pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 
@@ -37,13 +37,6 @@ def test_a_lit_green_is_not_the_cube():
     assert read_green_cube(frame) is None
     frame[60:64, 60:64] = (90, 177, 90)
     assert read_green_cube(frame) is not None
-
-
-def _obs(tcp, gap, seen):
-    """The hand's pose and fingers as the harness gives them; the "image" is what the stand-in readers return."""
-    return {"extra": {"tcp_pose": np.array([[*tcp, 0, 1, 0, 0]])},
-            "agent": {"qpos": np.array([[*[np.nan] * 7, gap / 2, gap / 2]])},
-            "sensor_data": {"base_camera": {"rgb": [seen]}}}
 
 
 def test_a_cube_that_fell_from_the_fingers_is_looked_for_and_read_again_where_it_lies():
