@@ -27,8 +27,11 @@ def test_each_remember_task_reads_its_objects_with_the_imposter_task_of_the_same
     assert candidates("RememberShapeAndColor5x3-VLA-v0", ["red t shape"]) == [("red", "t shape")]
 
 
-@pytest.mark.parametrize("env_id", ["RememberShape3-VLA-v0", "RememberShapeAndColor3x2-VLA-v0"])
-def test_the_objects_are_placed_and_named_from_the_base_camera(env_id):
+@pytest.mark.parametrize("env_id, within", [("RememberShape3-VLA-v0", 0.015), ("RememberShapeAndColor3x2-VLA-v0", 0.015),
+                                            ("RememberShape9-VLA-v0", 0.035)])
+def test_the_objects_are_placed_and_named_from_the_base_camera(env_id, within):
+    """RememberShape9 at seed 5000: no frame shows its nine apart (FindImposter's reader places none), so touching
+    ones are cut apart; MIKASA counts a touch within 5 cm."""
     task = make_task(env_id)
     read = shape_places(env_id, task.words)
     env = task.make_env(obs_mode="rgb")
@@ -44,7 +47,7 @@ def test_the_objects_are_placed_and_named_from_the_base_camera(env_id):
         actors = [base.shape_actors[i] for i in sorted(base.shape_actors)]
         assert sorted(places) == sorted(task.words)
         for word, actor in zip(task.words, actors):
-            assert np.linalg.norm(places[word] - as_numpy(actor.pose.p).reshape(-1)[:2]) < 0.015, word
+            assert np.linalg.norm(places[word] - as_numpy(actor.pose.p).reshape(-1)[:2]) < within, word
     finally:
         env.close()
 

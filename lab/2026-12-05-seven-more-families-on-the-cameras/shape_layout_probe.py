@@ -1,10 +1,11 @@
-"""Where the base camera places RememberShape's (and RememberShapeAndColor's) objects at the choice, read by
-FindImposter's shape reader (``imposter_places``) against the FindImposter task's shipped exemplars of the same
-objects: each development seed's first frame with all N apart (zero actions), the objects named and each one's error
-in centimetres against the simulator.
+"""Where the base camera places RememberShape's (and RememberShapeAndColor's) objects at the choice, against the
+FindImposter task's shipped exemplars of the same objects: each development seed's first frame the reader reads
+(zero actions), the objects named and each one's error in centimetres against the simulator. ``--reader imposter``:
+FindImposter's (``imposter_places``: only a frame that shows all N apart); ``--reader remember``: the shipped one
+(``remember_places``: any frame with more than the cue's one object, touching objects cut apart).
 
-    .venv/bin/python lab/2026-12-05-remember-shape-on-the-cameras/shape_layout_probe.py --task RememberShape5-VLA-v0 \
-        --exemplars FindImposterShape5-VLA-v0
+    .venv/bin/python lab/2026-12-05-seven-more-families-on-the-cameras/shape_layout_probe.py \
+        --task RememberShape9-VLA-v0 --reader remember --seeds 20
 """
 
 from __future__ import annotations
@@ -17,21 +18,24 @@ from sb3_memret.controllers.base import as_numpy
 from sb3_memret.tasks import make_task
 from sb3_memret.tasks.mikasa.find_imposter.camera_expert import imposter_places
 from sb3_memret.tasks.mikasa.find_imposter.perception import task_exemplars
+from sb3_memret.tasks.mikasa.remember.shape_camera_expert import candidates, exemplars_for, shape_places
 
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--task", default="RememberShape5-VLA-v0")
-    parser.add_argument("--exemplars", default="FindImposterShape5-VLA-v0")
+    parser.add_argument("--reader", choices=("imposter", "remember"), default="remember")
     parser.add_argument("--seeds", type=int, default=10, help="development seeds 5000 + i")
     parser.add_argument("--steps", type=int, default=25)
     args = parser.parse_args()
     task = make_task(args.task)
-    imposter = make_task(args.exemplars)
     words = list(task.words)
-    read = imposter_places(words, [imposter.candidate(w) for w in words], task_exemplars(args.exemplars))
+    if args.reader == "remember":
+        read = shape_places(args.task, words)
+    else:
+        read = imposter_places(words, candidates(args.task, words), task_exemplars(exemplars_for(args.task)))
     env = task.make_env(obs_mode="rgb")
-    worst, placed_all, wrong = 0.0, 0, 0
+    worst, placed_all, wrong = 0.0, 0, 0  # wrong: objects placed over 3 cm off (named for another)
     for seed in range(5000, 5000 + args.seeds):
         obs, _ = env.reset(seed=seed)
         places = {}
