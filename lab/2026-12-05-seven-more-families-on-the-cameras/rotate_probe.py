@@ -1,7 +1,8 @@
 """The camera Rotate expert's estimates against the simulator along oracle episodes at development seeds: per call,
 the peg's axis and centre as it reads them, the wrist's angle as it dead-reckons it, and the episode's outcome.
 
-    .venv/bin/python lab/2026-12-05-rotate-on-the-cameras/rotate_probe.py --task RotateStrictPos-VLA-v0 --seeds 4
+    .venv/bin/python lab/2026-12-05-seven-more-families-on-the-cameras/rotate_probe.py \
+        --task RotateStrictPos-VLA-v0 --seeds 4
 """
 
 from __future__ import annotations
