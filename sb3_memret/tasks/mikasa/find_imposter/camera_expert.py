@@ -67,21 +67,34 @@ def imposter_places(words: Sequence[str], candidates: Sequence[tuple[str | None,
     near_place = [(rows + 0.5 - row) ** 2 + (cols + 0.5 - col) ** 2 <= OCCUPIED_RADIUS ** 2 for row, col in places]
 
     def read(rgb: Any) -> dict[str, np.ndarray]:
-        frame = np.asarray(as_numpy(rgb))
-        frame = frame[0] if frame.ndim == 4 else frame
-        if frame.shape[:2] != (REFERENCE_SIZE, REFERENCE_SIZE):
-            raise ValueError(f"expected one {REFERENCE_SIZE}x{REFERENCE_SIZE} base-camera frame, got shape {frame.shape}")
+        frame = one_frame(rgb)
         mask = cube_mask(frame)
         if not all(mask[near].any() for near in near_place):
             return {}
-        assigned = assign_shown(frame, candidates, len(candidates), exemplars)
-        if assigned is None:
-            return {}
-        centres = np.array([np.argwhere(seen.mask).mean(axis=0) + 0.5 for seen, _ in assigned])
-        points = table_points(centres, BASE_CAMERA_INTRINSIC, BASE_CAMERA_EXTRINSIC, LAYOUT_PLANE_Z)
-        return {words[j]: point for (_, j), point in zip(assigned, points) if np.isfinite(point).all()}
+        return named_places(frame, words, candidates, exemplars)
 
     return read
+
+
+def one_frame(rgb: Any) -> np.ndarray:
+    """One base-camera frame (H, W, 3) from an image or a batch of one; a ValueError for another size."""
+    frame = np.asarray(as_numpy(rgb))
+    frame = frame[0] if frame.ndim == 4 else frame
+    if frame.shape[:2] != (REFERENCE_SIZE, REFERENCE_SIZE):
+        raise ValueError(f"expected one {REFERENCE_SIZE}x{REFERENCE_SIZE} base-camera frame, got shape {frame.shape}")
+    return frame
+
+
+def named_places(frame: np.ndarray, words: Sequence[str], candidates: Sequence[tuple[str | None, str | None]],
+                 exemplars: ShapeExemplars) -> dict[str, np.ndarray]:
+    """word -> table (x, y) of every object in one frame as ``assign_shown`` names them (touching ones cut apart),
+    cast onto the table with the shipped calibration; nothing unless it names all ``len(candidates)``."""
+    assigned = assign_shown(frame, candidates, len(candidates), exemplars)
+    if assigned is None:
+        return {}
+    centres = np.array([np.argwhere(seen.mask).mean(axis=0) + 0.5 for seen, _ in assigned])
+    points = table_points(centres, BASE_CAMERA_INTRINSIC, BASE_CAMERA_EXTRINSIC, LAYOUT_PLANE_Z)
+    return {words[j]: point for (_, j), point in zip(assigned, points) if np.isfinite(point).all()}
 
 
 class CameraImposterController(CameraTouchController):
@@ -107,4 +120,5 @@ class CameraImposterController(CameraTouchController):
         return self.chooser._chosen(parsed)
 
 
-__all__ = ["CameraImposterController", "OCCUPIED_RADIUS", "exemplar_places", "imposter_places"]
+__all__ = ["CameraImposterController", "OCCUPIED_RADIUS", "exemplar_places", "imposter_places", "named_places",
+           "one_frame"]

@@ -31,14 +31,11 @@ from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
 
-from sb3_memret.controllers.base import as_numpy
 from sb3_memret.controllers.prompts import PromptTemplate
-from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC
-from sb3_memret.tasks.mikasa.core.layout_perception import LAYOUT_PLANE_Z, table_points
 from sb3_memret.tasks.mikasa.core.perception import COLOUR_NAMES
 from sb3_memret.tasks.mikasa.core.touch_expert import TouchGains
-from sb3_memret.tasks.mikasa.find_imposter.perception import (
-    ShapeExemplars, assign_shown, objects_in_view, task_exemplars)
+from sb3_memret.tasks.mikasa.find_imposter.camera_expert import named_places, one_frame
+from sb3_memret.tasks.mikasa.find_imposter.perception import ShapeExemplars, objects_in_view, task_exemplars
 from sb3_memret.tasks.mikasa.remember.camera_expert import CameraTouchController
 
 _REMEMBER_ID = re.compile(r"^Remember(Shape|ShapeAndColor)([0-9x]+)(?:-Long)?-VLA-v0$")
@@ -75,16 +72,8 @@ def remember_places(words: Sequence[str], candidates: Sequence[tuple[str | None,
     n_colours = 1 + max(COLOUR_NAMES.index(colour or "blue") for colour, _ in candidates)
 
     def read(rgb: Any) -> dict[str, np.ndarray]:
-        frame = np.asarray(as_numpy(rgb))
-        frame = frame[0] if frame.ndim == 4 else frame
-        if len(objects_in_view(frame, n_colours)) < 2:
-            return {}
-        assigned = assign_shown(frame, candidates, len(candidates), exemplars)
-        if assigned is None:
-            return {}
-        centres = np.array([np.argwhere(seen.mask).mean(axis=0) + 0.5 for seen, _ in assigned])
-        points = table_points(centres, BASE_CAMERA_INTRINSIC, BASE_CAMERA_EXTRINSIC, LAYOUT_PLANE_Z)
-        return {words[j]: point for (_, j), point in zip(assigned, points) if np.isfinite(point).all()}
+        frame = one_frame(rgb)
+        return named_places(frame, words, candidates, exemplars) if len(objects_in_view(frame, n_colours)) >= 2 else {}
 
     return read
 
