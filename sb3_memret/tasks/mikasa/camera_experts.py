@@ -5,6 +5,22 @@ objects can be read from the base camera with its shipped calibration, its camer
 the harness's inputs (``ControllerSpec.harness_inputs``), and its tables are protocol entries. They are kept here,
 not on the task classes, so that a task's code (and the benchmark cells its digest keys) stays as it was played.
 ``register_camera_expert`` adds one for a task class of your own.
+
+The shipped ones, and what each reads from the base camera (its module's docstring says how, and how well):
+
+- Seq-, Chain-, BunchOfColors: the cubes by colour, the button; what was done from its prompt's progress facts;
+- RememberColor: the cubes by colour; RememberShape, RememberShapeAndColor: the objects named against FindImposter's
+  exemplars of the same objects;
+- FindImposter: cubes by colour, or objects named against the task's exemplars once every place is filled;
+- BlinkCountButtonPress: the red button's cap, the phase lamp; TimedTransfer: the cube; TakeItBack: the cube, the
+  target and its turn to purple;
+- Rotate: the peg at every call (whole, both ends, or a strip beside the hand); Intercept: the ball at every call,
+  the target;
+- TraceShape, TraceShapeSeq: the green cube (again where it fell), the button's cap; GatherAndRecall: the cubes, the
+  buttons, the disc laid from them.
+
+Every one dead-reckons the hand's motion from its pose (the harness gives no joint velocities) and follows what it
+carries by the grip. BatteriesChecker has none yet.
 """
 
 from __future__ import annotations
