@@ -28,6 +28,24 @@ LAYOUT_VOTE_SHARE = 0.6
 SPLIT_MIN_PIXELS = 8
 
 
+def rgb_frame(rgb: Any) -> np.ndarray:
+    """One (H, W, 3) camera frame as signed integers (so channel differences do not wrap); a ValueError otherwise."""
+    frame = np.asarray(as_numpy(rgb)).astype(np.int16)
+    if frame.ndim != 3 or frame.shape[-1] != 3:
+        raise ValueError(f"expected one (H, W, 3) frame, got shape {frame.shape}")
+    return frame
+
+
+def cast_mask(mask: np.ndarray, plane_z: float, least: float) -> np.ndarray | None:
+    """Where the mean pixel of ``mask`` (H, W) meets the plane ``z = plane_z``, through the base camera's shipped
+    calibration; None with fewer than ``least`` pixels (counted at 128x128)."""
+    if mask.sum() < least * np.prod(np.array(mask.shape) / REFERENCE_SIZE):
+        return None
+    point = table_points((np.argwhere(mask).mean(axis=0) + 0.5)[None], BASE_CAMERA_INTRINSIC,
+                         BASE_CAMERA_EXTRINSIC, plane_z)[0]
+    return point if np.isfinite(point).all() else None
+
+
 def table_points(pixels: np.ndarray, intrinsic: np.ndarray, extrinsic: np.ndarray, plane_z: float) -> np.ndarray:
     """World (x, y) where the camera rays through ``pixels`` ((N, 2) row, col, pixel centres at +0.5) meet the plane
     ``z = plane_z``; ``intrinsic`` is OpenCV's 3x3, ``extrinsic`` world-to-camera 3x4. NaN for a ray parallel to it."""
@@ -147,5 +165,5 @@ def read_cue_set(rgb: np.ndarray, n_colours: int) -> tuple[str, ...] | None:
     return tuple(sorted(named, key=lambda colour: named[colour][1]))
 
 
-__all__ = ["CubeLayout", "LAYOUT_PLANE_Z", "LAYOUT_VOTE_SHARE", "SPLIT_MIN_PIXELS", "base_camera_layout", "name_blobs", "read_cube_layout",
+__all__ = ["CubeLayout", "LAYOUT_PLANE_Z", "LAYOUT_VOTE_SHARE", "SPLIT_MIN_PIXELS", "base_camera_layout", "cast_mask", "name_blobs", "read_cube_layout", "rgb_frame",
            "read_cue_set", "table_points"]

@@ -39,16 +39,20 @@ def exemplar_places(exemplars: ShapeExemplars, n_places: int) -> np.ndarray:
     """The (n_places, 2) image centres (row, col) of the places MIKASA stands a task's objects at: its exemplars'
     centres grouped within ``NEAR_PLACE`` pixels, the ``n_places`` largest groups' means (a few odd exemplars, of
     objects cut apart in calibration, make groups of one or two)."""
-    groups: list[list[np.ndarray]] = []
+    sums: list[np.ndarray] = []  # each group's summed centres ...
+    counts: list[int] = []  # ... and its size
     for centre in np.asarray(exemplars.centres, dtype=np.float64):
-        near = next((g for g in groups if np.linalg.norm(np.mean(g, axis=0) - centre) <= NEAR_PLACE), None)
+        near = next((g for g in range(len(sums)) if np.linalg.norm(sums[g] / counts[g] - centre) <= NEAR_PLACE), None)
         if near is None:
-            groups.append([centre])
+            sums.append(centre.copy())
+            counts.append(1)
         else:
-            near.append(centre)
-    if len(groups) < n_places:
-        raise ValueError(f"the exemplars show {len(groups)} places; the task stands {n_places} objects")
-    return np.array([np.mean(g, axis=0) for g in sorted(groups, key=len, reverse=True)[:n_places]])
+            sums[near] += centre
+            counts[near] += 1
+    if len(sums) < n_places:
+        raise ValueError(f"the exemplars show {len(sums)} places; the task stands {n_places} objects")
+    largest = np.argsort(counts, kind="stable")[::-1][:n_places]
+    return np.array([sums[g] / counts[g] for g in largest])
 
 
 def imposter_places(words: Sequence[str], candidates: Sequence[tuple[str | None, str | None]],

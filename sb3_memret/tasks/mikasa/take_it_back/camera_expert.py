@@ -27,11 +27,10 @@ import numpy as np
 
 from sb3_memret.controllers.base import Obs, as_numpy
 from sb3_memret.controllers.prompts import ParsedPrompt, PromptTemplate
-from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC
 from sb3_memret.tasks.mikasa.core.carry_expert import GRIP_CLOSED, CarryBackController, CarryGains
 from sb3_memret.tasks.mikasa.core.hand_motion import DeadReckonedHand
 from sb3_memret.tasks.mikasa.core.held_object import HeldCube
-from sb3_memret.tasks.mikasa.core.layout_perception import table_points
+from sb3_memret.tasks.mikasa.core.layout_perception import cast_mask, rgb_frame
 from sb3_memret.tasks.mikasa.core.perception import REFERENCE_SIZE
 from sb3_memret.tasks.mikasa.core.touch_expert import TouchGains
 
@@ -40,41 +39,25 @@ TARGET_Z = 0.001  # the targets' height
 MIN_PIXELS = {"cube": 6, "target": 40, "purple": 40}  # at 128x128: the cube's top shows 11-16, a target about 200
 
 
-def _cast(mask: np.ndarray, plane_z: float, least: float) -> np.ndarray | None:
-    """Where the pixels of ``mask`` (H, W) meet the plane ``z = plane_z``, through the base camera's shipped
-    calibration; None with fewer than ``least`` pixels (at 128x128)."""
-    if mask.sum() < least * np.prod(np.array(mask.shape) / REFERENCE_SIZE):
-        return None
-    point = table_points((np.argwhere(mask).mean(axis=0) + 0.5)[None], BASE_CAMERA_INTRINSIC,
-                         BASE_CAMERA_EXTRINSIC, plane_z)[0]
-    return point if np.isfinite(point).all() else None
-
-
-def _frame(rgb: Any) -> np.ndarray:
-    frame = np.asarray(as_numpy(rgb)).astype(np.int16)
-    if frame.ndim != 3 or frame.shape[-1] != 3:
-        raise ValueError(f"expected one (H, W, 3) frame, got shape {frame.shape}")
-    return frame
-
-
 def read_cube_top(rgb: Any) -> np.ndarray | None:
     """The cube's table (x, y) from one base-camera frame: its top face (bright green, about (4, 231, 4)), cast onto
     that face's plane; None when not in sight."""
-    frame = _frame(rgb)
-    return _cast((frame[..., 1] >= 200) & (frame[..., 0] <= 60) & (frame[..., 2] <= 60), CUBE_TOP_Z, MIN_PIXELS["cube"])
+    frame = rgb_frame(rgb)
+    return cast_mask((frame[..., 1] >= 200) & (frame[..., 0] <= 60) & (frame[..., 2] <= 60), CUBE_TOP_Z,
+                     MIN_PIXELS["cube"])
 
 
 def read_red_target(rgb: Any) -> np.ndarray | None:
     """The red target's table (x, y) from one base-camera frame: its rings' red (about (204, 71, 76); the wood's
     green channel is above 100), cast onto the table; None when not in sight."""
-    frame = _frame(rgb)
-    return _cast((frame[..., 0] >= 150) & (frame[..., 1] <= 80) & (frame[..., 2] <= 80), TARGET_Z,
+    frame = rgb_frame(rgb)
+    return cast_mask((frame[..., 0] >= 150) & (frame[..., 1] <= 80) & (frame[..., 2] <= 80), TARGET_Z,
                  MIN_PIXELS["target"])
 
 
 def purple_target_seen(rgb: Any) -> bool:
     """Whether one base-camera frame shows the purple target (about (180, 3, 212)) that replaces the red one."""
-    frame = _frame(rgb)
+    frame = rgb_frame(rgb)
     mask = (frame[..., 0] >= 120) & (frame[..., 2] >= 150) & (frame[..., 1] <= 60)
     return bool(mask.sum() >= MIN_PIXELS["purple"] * np.prod(np.array(mask.shape) / REFERENCE_SIZE))
 

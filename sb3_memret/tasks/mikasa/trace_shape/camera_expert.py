@@ -27,14 +27,12 @@ from typing import Any, Callable, Sequence
 import numpy as np
 from scipy import ndimage
 
-from sb3_memret.controllers.base import Obs, as_numpy
+from sb3_memret.controllers.base import Obs
 from sb3_memret.controllers.prompts import ParsedPrompt, PromptTemplate
-from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC
 from sb3_memret.tasks.mikasa.core.carry_expert import CarryGains
 from sb3_memret.tasks.mikasa.core.harness_expert import HarnessExpert
 from sb3_memret.tasks.mikasa.core.held_object import HeldCube
-from sb3_memret.tasks.mikasa.core.layout_perception import table_points
-from sb3_memret.tasks.mikasa.core.perception import REFERENCE_SIZE
+from sb3_memret.tasks.mikasa.core.layout_perception import cast_mask, rgb_frame
 from sb3_memret.tasks.mikasa.trace_shape.expert import TraceGains, TraceGoal, TraceShapeController, path_of
 from sb3_memret.tasks.mikasa.trace_shape.sequence_expert import (
     PressGains, TraceSequenceController, paths_done, sequence_of)
@@ -47,40 +45,25 @@ FALLEN_ABOVE = 0.01  # m: a cube let go this far over the table fell: read where
 LOOK_POINT = (-0.05, 0.0, 0.3)  # ... from the hand up here (about the reset's), the arm out of the camera's way
 
 
-def _frame(rgb: Any) -> np.ndarray:
-    frame = np.asarray(as_numpy(rgb)).astype(np.int16)
-    if frame.ndim != 3 or frame.shape[-1] != 3:
-        raise ValueError(f"expected one (H, W, 3) frame, got shape {frame.shape}")
-    return frame
-
-
-def _cast(mask: np.ndarray, plane_z: float, least: float) -> np.ndarray | None:
-    if mask.sum() < least * np.prod(np.array(mask.shape) / REFERENCE_SIZE):
-        return None
-    point = table_points((np.argwhere(mask).mean(axis=0) + 0.5)[None], BASE_CAMERA_INTRINSIC,
-                         BASE_CAMERA_EXTRINSIC, plane_z)[0]
-    return point if np.isfinite(point).all() else None
-
-
 def read_green_cube(rgb: Any) -> np.ndarray | None:
     """The green cube's table (x, y) from one base-camera frame; None when not in sight. Its green is lit, not
     emissive: red and blue stay near half its green, where the lamp's lit green has them near 0."""
-    frame = _frame(rgb)
+    frame = rgb_frame(rgb)
     red, green, blue = frame[..., 0], frame[..., 1], frame[..., 2]
     mask = (green >= 120) & (green <= 230) & (green - red >= 60) & (green - blue >= 60) & (red >= 50) & (blue >= 50)
-    return _cast(mask, CUBE_CENTRE_Z, MIN_PIXELS["cube"])
+    return cast_mask(mask, CUBE_CENTRE_Z, MIN_PIXELS["cube"])
 
 
 def read_button_cap(rgb: Any) -> np.ndarray | None:
     """The button cap's table (x, y) from one base-camera frame: the largest patch of its pink (the red cube's
     shades are darker); None when not in sight."""
-    frame = _frame(rgb)
+    frame = rgb_frame(rgb)
     red, green, blue = frame[..., 0], frame[..., 1], frame[..., 2]
     labels, n_patches = ndimage.label((red >= 190) & (green >= 115) & (green <= 160) & (np.abs(green - blue) <= 12),
                                       structure=np.ones((3, 3)))
     if n_patches == 0:
         return None
-    return _cast(labels == np.bincount(labels.ravel())[1:].argmax() + 1, CAP_CENTRE_Z, MIN_PIXELS["cap"])
+    return cast_mask(labels == np.bincount(labels.ravel())[1:].argmax() + 1, CAP_CENTRE_Z, MIN_PIXELS["cap"])
 
 
 class _CameraTracing(HarnessExpert):
