@@ -120,7 +120,7 @@ def test_scripted_camera_names_the_tasks_that_have_one():
     assert isinstance(make_controller("scripted-camera", "BunchOfColors5-Long-VLA-v0"), CameraSequenceController)
     assert make_controller("scripted-camera", "BunchOfColors5-VLA-v0").shown_at_once == 5
     with pytest.raises(ValueError, match="has no expert on the cameras alone.*RememberColorTask.*SeqOfColorsTask"):
-        make_controller("scripted-camera", "BatteriesCheckerEasy-3-VLA-v0")
+        make_controller("scripted-camera", "drawer")
     with pytest.raises(ValueError, match="words none"):
         camera_expert(SeqOfColorsTask("SeqOfColors3-VLA-v0", progress=False))
 

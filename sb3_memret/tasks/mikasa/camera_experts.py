@@ -17,10 +17,12 @@ The shipped ones, and what each reads from the base camera (its module's docstri
 - Rotate: the peg at every call (whole, both ends, or a strip beside the hand); Intercept: the ball at every call,
   the target;
 - TraceShape, TraceShapeSeq: the green cube (again where it fell), the button's cap; GatherAndRecall: the cubes, the
-  buttons, the disc laid from them.
+  buttons, the disc laid from them;
+- BatteriesChecker: the batteries standing in the tray, the socket and the button laid from it; a battery let go is
+  read again once at rest.
 
 Every one dead-reckons the hand's motion from its pose (the harness gives no joint velocities) and follows what it
-carries by the grip. BatteriesChecker has none yet.
+carries by the grip.
 """
 
 from __future__ import annotations
@@ -187,6 +189,15 @@ def _imposter(task: Task) -> FrozenController:
     return CameraImposterController(task.expert(), places, paced_every=task.replan_every)
 
 
+def _batteries(task: Task) -> FrozenController:
+    """BatteriesChecker Easy and Hard: the tray's batteries from the base camera's first frame, the socket and the
+    button where MIKASA lays them from the tray, a battery let go read again once at rest."""
+    from sb3_memret.tasks.mikasa.batteries_checker.camera_expert import CameraBatteryCheckController
+
+    return CameraBatteryCheckController(task.template, task.variant.hard, task.variant.batteries,
+                                        paced_every=task.replan_every)
+
+
 _SHIPPED: tuple[tuple[str, str, CameraExpertBuilder], ...] = (
     ("sb3_memret.tasks.mikasa.seq_of_colors.task", "SeqOfColorsTask", _colour_sequence),
     ("sb3_memret.tasks.mikasa.remember.color", "RememberColorTask", _remember_colour),
@@ -201,6 +212,7 @@ _SHIPPED: tuple[tuple[str, str, CameraExpertBuilder], ...] = (
     ("sb3_memret.tasks.mikasa.trace_shape.task", "TraceShapeTask", _trace_shape),
     ("sb3_memret.tasks.mikasa.gather_and_recall.task", "GatherAndRecallTask", _gather),
     ("sb3_memret.tasks.mikasa.trace_shape.sequence", "TraceShapeSeqTask", _trace_sequence),
+    ("sb3_memret.tasks.mikasa.batteries_checker.task", "BatteriesCheckerTask", _batteries),
 )
 
 __all__ = ["camera_expert", "has_camera_expert", "register_camera_expert"]
