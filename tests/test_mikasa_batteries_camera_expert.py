@@ -58,12 +58,15 @@ def test_a_battery_let_go_is_unsettled_until_two_readings_agree_and_others_expla
     assert seen.unsettled is None and not readings
     seen.track(SLOTS[1] + [0, 0, 0.005], 0.016, None)  # taken again, let go by the socket: read in it, then beside it
     seen.track(SOCKET + [0, 0, 0.02], 0.016, None)
-    readings += [np.array([SOCKET[:2] + [0.008, 0]])] * 2 + [np.array([SOCKET[:2] + [0.03, 0]])] * 2
+    readings += [np.array([SOCKET[:2] + [0.02, 0]])] * 2 + [np.array([SOCKET[:2] + [0.05, 0]])] * 4
     seen.track(SOCKET + [0, 0, 0.02], 0.03, None)
     assert np.allclose(seen.track(SOCKET + [0, 0, 0.02], 0.03, None)[1], SOCKET + [0, 0, 0.011])  # seated
     seen.track(SOCKET + [0, 0, 0.005], 0.016, None)
     seen.track(SOCKET + [0, 0, 0.005], 0.03, None)
-    assert np.allclose(seen.track(SOCKET + [0, 0, 0.005], 0.03, None)[1], [*(SOCKET[:2] + [0.03, 0]), 0.03])
+    seen.track(SOCKET + [0, 0, 0.005], 0.03, None)  # a top away from every seat, read from low down: not taken
+    assert seen.unsettled == 1 and seen.reading is None
+    seen.track(SOCKET + [0, 0, 0.3], 0.03, None)  # read from the look height: taken
+    assert np.allclose(seen.track(SOCKET + [0, 0, 0.3], 0.03, None)[1], [*(SOCKET[:2] + [0.05, 0]), 0.03])
     assert not readings
 
     lost = SeenBatteries(CameraCheckGains(unseen_calls=2), SLOTS, SOCKET, lambda rgb: SLOTS[[1, 2], :2])

@@ -39,7 +39,7 @@ def benchmark() -> None:
               help="Episodes per task and condition (the protocol's: 50).")
 @click.option("--controller", default="scripted", show_default=True,
               help="The frozen controller (scripted: each task's expert, a privileged upper bound; scripted-camera: "
-                   "the expert on the harness's inputs alone, for every family but BatteriesChecker's (the tasks "
+                   "the expert on the harness's inputs alone, for every MIKASA family (the tasks "
                    "sb3_memret.tasks.mikasa.camera_experts lists); learned: its shipped camera controller).")
 @click.option("--conditions", callback=_conditions, default="none,oracle,wrong", show_default=True,
               metavar="C[,C...]", help=f"Prompt conditions, a comma list of {', '.join(CONDITIONS)}.")
