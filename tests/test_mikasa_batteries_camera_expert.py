@@ -27,7 +27,7 @@ def test_the_slots_socket_and_button_are_read_and_laid_from_the_base_camera(env_
     env = task.make_env(obs_mode="rgb")
     n = task.variant.batteries
     try:
-        for seed in (5000, 5004):
+        for seed in (5000, 5004, 5014):  # at 5014 (Easy-3) two tops touch in the picture
             obs, _ = env.reset(seed=seed)
             layout = read_tray(as_numpy(obs["sensor_data"]["base_camera"]["rgb"])[0], n)
             base = env.unwrapped
@@ -96,13 +96,14 @@ def test_it_checks_the_first_battery_its_checklist_leaves_out_and_rises_out_of_v
     chunk = controller.act(_obs(SOCKET + [0, 0, 0.045], 0.03, None), [prompt])[0]  # let go over the socket
     assert controller.batteries[0].unsettled == 1 and np.abs(chunk[0, :3]).max() < 0.1  # still, looking for it
     chunk = controller.act(_obs(SOCKET + [0, 0, 0.045], 0.03, None), [prompt])[0]
-    assert chunk[0, 2] > 0.5 and abs(chunk[0, 0]) < 0.1  # unseen twice: up, to look from over the tray
+    far = controller.check.far_action  # the socket beyond far_x: short actions
+    assert chunk[0, 2] > 0.8 * far and abs(chunk[0, 0]) < 0.05  # unseen twice: up, to look from over the tray
     tops[-1] = SLOTS[:, :2]
     controller.act(_obs(SOCKET + [0, 0, 0.2], 0.03, None), [prompt])
     chunk = controller.act(_obs(SOCKET + [0, 0, 0.2], 0.03, None), [prompt])[0]  # seen home twice: settled
     assert controller.batteries[0].unsettled is None
     chunk = controller.act(_obs(SOCKET + [0, 0, 0.2], 0.03, None), [prompt])[0]
-    assert controller.cycles[0].stage == "press" and chunk[0, 0] < -0.5 and chunk[0, 1] > 0.5  # to the button
+    assert controller.cycles[0].stage == "press" and chunk[0, 0] < -far / 3 and chunk[0, 1] > far / 3  # to the button
     controller.reset_envs([0], [1])
     assert controller.layouts == [None] and controller.batteries == [None]
     assert isinstance(make_controller("scripted-camera", "BatteriesCheckerHard-6-VLA-v0"),

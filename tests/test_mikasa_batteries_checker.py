@@ -233,3 +233,56 @@ def test_other_checks_are_of_the_moment_and_the_batteries_checklist_of_the_episo
     one_bank = load_config(zoo / "memret_ppo_timescales_batteries_one_bank.yml", env_id).env_kwargs
     assert sum(store["capacity"] for store in stores["stores"]) == one_bank["capacity"]
     assert {k: v for k, v in stores.items() if k != "stores"} == {k: v for k, v in one_bank.items() if k != "capacity"}
+
+
+def test_the_pick_comes_down_its_funnel_and_rises_straight_only_from_below_it():
+    """On its way down a battery's funnel, far sideways and below the clear height, the hand keeps coming down the
+    funnel (turning back up to the clear height there swung it onto the battery's top); from below the funnel (by
+    the button or the socket) it rises straight onto the funnel first; other goals rise to the clear height."""
+    from sb3_memret.tasks.mikasa.batteries_checker.expert import GRIP_PICK, BatteryCheckController, CheckGoal
+
+    expert = BatteryCheckController(PROMPT_TEMPLATE, hard=False)
+    g, c = expert.gains, expert.check
+    grasp = np.array([-0.13, -0.056, 0.035])
+    pick = CheckGoal(grasp, GRIP_PICK, funnel=True)
+    in_funnel = grasp + (0.011, 0.038, g.funnel_slope * 0.04 + 0.01)  # 4 cm sideways, over the funnel, under 11 cm
+    assert in_funnel[2] < c.clear_height - 0.02
+    waypoint = expert._waypoint(in_funnel, pick)
+    assert np.allclose(waypoint[:2], grasp[:2]) and waypoint[2] < in_funnel[2]
+    below = grasp + (0.0, 0.2, 0.0)  # 20 cm sideways at the grasp height: straight up onto the funnel's top
+    assert np.allclose(expert._waypoint(below, pick), [*below[:2], grasp[2] + g.hover_height])
+    carry = CheckGoal(grasp + (0.0, 0.2, 0.0), GRIP_PICK)
+    assert np.allclose(expert._waypoint(in_funnel, carry), [*in_funnel[:2], c.clear_height])
+    look = CheckGoal(grasp + (0.0, 0.2, 0.3), GRIP_PICK)  # a goal high up: straight up to the clear height only
+    assert np.allclose(expert._waypoint(in_funnel, look), [*in_funnel[:2], c.clear_height])
+    near = grasp + (0.01, 0.0, 0.0)  # within reach sideways: straight down the funnel, no rising
+    assert np.allclose(expert._waypoint(near, pick), [*grasp[:2], grasp[2] + g.funnel_slope * 0.01])
+
+
+def test_two_tops_that_touch_in_the_picture_are_split_when_the_count_is_known():
+    """Development seed 5014 (Easy-3): two tops of one row show as one blob of 12 pixels; told three batteries stand,
+    the reader splits it across its long axis, and a blob one top can make is never split."""
+    frame = np.zeros((128, 128, 3), np.uint8)
+    green = [(64, 56), (64, 57), (65, 56), (65, 57), (66, 56), (66, 57), (67, 56), (68, 55), (68, 56), (69, 56),
+             (69, 57), (70, 56), (72, 55), (72, 56), (73, 55), (73, 56), (74, 56)]  # its first frame's green pixels
+    for r, c in green:
+        frame[r, c] = (40, 200, 60)
+    assert len(read_batteries(frame)) == 2
+    three = read_batteries(frame, 3)
+    assert len(three) == 3 and np.all(np.diff(three[:, 0]) < -0.03)  # one row, 5 cm apart, from the camera's side
+    assert np.ptp(three[:, 1]) < 0.01
+    assert len(read_batteries(frame, 4)) == 3  # no blob left that two tops could make
+
+
+def test_near_the_arms_reach_each_action_asks_for_a_pose_within_reach():
+    """Beyond ``far_x`` (the socket's side) the chunk's translations are at most ``far_action``: a full action's IK
+    target there is out of reach and the arm drops it; elsewhere the chunk runs at full speed."""
+    from sb3_memret.tasks.mikasa.batteries_checker.expert import GRIP_PICK, BatteryCheckController, CheckGoal
+
+    expert = BatteryCheckController(PROMPT_TEMPLATE, hard=False)
+    c, down = expert.check, [0.0, 1.0, 0.0, 0.0]  # (qw, qx, qy, qz): pointing down
+    for x, limit in ((c.far_x + 0.04, c.far_action), (c.far_x - 0.1, 1.0)):
+        tcp = np.array([x, 0.0, 0.15, *down])
+        chunk = expert._chunk(tcp, np.array([0.0, 0.0, 0.02]), CheckGoal(tcp[:3] + (0.0, 0.0, -0.1), GRIP_PICK))
+        norms = np.linalg.norm(chunk[:, :3], axis=1)
+        assert norms.max() <= limit + 1e-9 and (x < c.far_x) == (norms.max() > c.far_action)

@@ -10,7 +10,8 @@ cycles on the harness's inputs only (``ControllerSpec.harness_inputs``):
   about the tray's centre, so the readings' mean offset from that grid places the tray, and from it the socket
   (20 cm beyond the tray) and the button (24 cm to its left), as MIKASA lays them. At development seeds 5000-5009
   (BatteriesCheckerEasy-6) a battery was read within 0.5 cm of its slot and the socket laid within 0.3 cm of its
-  seat;
+  seat. Two batteries of a row, 5 cm apart along the camera's line of sight, can show their tops as one blob: the
+  reader, told how many stand, splits it (``read_batteries``'s ``count``);
 - **the batteries** (``SeenBatteries``): each stands at its slot until the fingers close on it (the hand within
   reach of it); then it is carried at its offset from the hand. Let go, where it went is not known until the camera
   shows it again (Easy's env snaps a tested battery home; Hard's stands in the socket or where it was set down): it
@@ -64,16 +65,16 @@ class BatteryLayout(NamedTuple):
     tray: np.ndarray
 
 
-def read_tops(rgb: Any) -> np.ndarray:
+def read_tops(rgb: Any, count: int | None = None) -> np.ndarray:
     """The (n, 2) table points of the standing batteries' tops one base-camera frame (H, W, 3) shows, in MIKASA's
-    slot order (the writer's reader)."""
-    return read_batteries(np.asarray(as_numpy(rgb)))
+    slot order (the writer's reader; ``count``: the batteries in play, two tops that touch in the picture split)."""
+    return read_batteries(np.asarray(as_numpy(rgb)), count)
 
 
 def read_tray(rgb: Any, n_batteries: int) -> BatteryLayout | None:
     """The slots, socket and button from one base-camera frame (H, W, 3); None unless it shows exactly
     ``n_batteries`` standing batteries."""
-    tops = read_tops(rgb)
+    tops = read_tops(rgb, n_batteries)
     if len(tops) != n_batteries:
         return None
     index = np.arange(n_batteries)
@@ -172,16 +173,17 @@ class CameraBatteryCheckController(HarnessExpert, BatteryCheckController):
     """Checks, one cycle at a time, each battery its prompt's checklist does not name, reading only the base camera's
     image, the hand's pose and the gripper's opening (the module docstring says how). ``n_batteries``: the task's;
     ``paced_every``: the control steps executed between its calls; ``read``: image -> a ``BatteryLayout`` or None;
-    ``tops``: image -> the standing batteries' (n, 2) tops."""
+    ``tops``: image -> the standing batteries' (n, 2) tops (by default ``read_tops`` expecting all of them)."""
 
     def __init__(self, prompt_template: PromptTemplate, hard: bool, n_batteries: int, paced_every: int,
                  chunk_len: int = 8, gains: TouchGains | None = None, check: CameraCheckGains | None = None,
                  read: Callable[[Any], BatteryLayout | None] | None = None,
-                 tops: Callable[[Any], np.ndarray] = read_tops):
+                 tops: Callable[[Any], np.ndarray] | None = None):
         super().__init__(prompt_template, hard, chunk_len, gains, check or CameraCheckGains())
         self._on_harness(paced_every, chunk_len)
         self.n_batteries = n_batteries
-        self.read, self.tops = read or (lambda rgb: read_tray(rgb, n_batteries)), tops
+        self.read = read or (lambda rgb: read_tray(rgb, n_batteries))
+        self.tops = tops or (lambda rgb: read_tops(rgb, n_batteries))
         self.layouts: list[BatteryLayout | None] = []
         self.batteries: list[SeenBatteries | None] = []
 

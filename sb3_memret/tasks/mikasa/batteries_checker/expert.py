@@ -85,6 +85,13 @@ class CheckGains:
     press_xy: float = 0.03
     lift_height: float = 0.08  # after the press the TCP rises to this over the cap's top; the cycle ends once
     lifted: float = 0.06  # it is this high over it
+    reach_tol: float = 0.003  # the hand this close to its reach (``TouchGains.max_x``) and still, over the socket:
+    reach_drop_above: float = 0.06  # let go from up to this over it (at development seed 5022, Easy-3, the socket
+    # 19 cm out, the hand came no lower than 5.5 cm over it)
+    far_x: float = 0.12  # the TCP beyond this x (the socket's side, at the arm's reach) ...
+    far_action: float = 0.3  # ... commands translations of at most this (the IK target 3 cm away): a full action
+    # there asks for a pose 10 cm away, out of reach, which pd_ee_delta_pose's IK fails to solve and drops, and the
+    # arm stood still over the socket for up to 60 decisions (development seed 5007, Easy-3)
 
 
 @dataclass
@@ -211,7 +218,9 @@ class BatteryCheckController(ScriptedTouchController):
             off, over = float(np.linalg.norm(battery[:2] - seat[:2])), float(battery[2] - seat[2])
             into_socket = self.hard and cycle.stage == "insert"
             release = c.set_above if cycle.stage == "return" else c.hard_drop_above if self.hard else c.drop_above
-            if off <= (c.hard_release_tol if into_socket else c.release_tol) and over <= release:
+            at_reach = pos[0] >= self.gains.max_x - c.reach_tol and not moving  # can come no lower (nor nearer)
+            if off <= (c.hard_release_tol if into_socket else c.release_tol) and \
+                    over <= (max(release, c.reach_drop_above) if at_reach else release):
                 return CheckGoal(pos.copy(), GRIP_PICK, rise_first=False)
             low = over < c.approach - c.over_tol  # on its way down into the seat
             if off <= (c.lower_tol if low else c.over_tol) and over <= c.approach + c.over_tol:
@@ -226,19 +235,31 @@ class BatteryCheckController(ScriptedTouchController):
         return CheckGoal(cap + (0.0, 0.0, c.lift_height), GRIP_CLOSED, rise_first=False)
 
     def _waypoint(self, pos: np.ndarray, goal: Any) -> np.ndarray:
-        """The goal's point; from low down and far sideways, straight up first; coming down onto a battery or the
-        button, never below a funnel over it."""
-        point = np.asarray(goal.point, dtype=np.float64)
+        """The goal's point; from low down and far sideways, straight up to the clear height first; coming down onto a
+        battery or the button, never below a funnel over it, and from below the funnel straight up onto it (rising to
+        the clear height instead, the hand on its way down the funnel, 4 cm sideways, turned back up, and the chunk's
+        rise-then-dive swung it 2.5 cm off and onto the battery's top)."""
+        g, point = self.gains, np.asarray(goal.point, dtype=np.float64)
         sideways = float(np.linalg.norm(point[:2] - pos[:2]))
-        if goal.rise_first and sideways > self.check.near and pos[2] < self.check.clear_height - 0.02:
-            return np.array([pos[0], pos[1], max(self.check.clear_height, point[2])])
+        funnel = point[2] + min(g.hover_height, g.funnel_slope * sideways)
+        rise_to = funnel if goal.funnel else self.check.clear_height  # not the goal's height: straight up over the
+        # socket at the arm's reach (x 19 cm), the hand stopped at 18 cm (development seed 5019, Easy-3)
+        if goal.rise_first and sideways > self.check.near and pos[2] < rise_to - 0.02:
+            return np.array([pos[0], pos[1], rise_to])
         if goal.funnel:
-            g = self.gains
-            return point + (0.0, 0.0, min(g.hover_height, g.funnel_slope * sideways))
+            return np.array([point[0], point[1], funnel])
         return point
 
     def _grip(self, pos: np.ndarray, goal: Any) -> float:
         return GRIP_CLOSED if goal.close else goal.grip
+
+    def _chunk(self, tcp_pose: np.ndarray, step: np.ndarray, goal: Any) -> np.ndarray:
+        """The planned chunk, its translations shortened near the arm's reach (``CheckGains.far_x``)."""
+        chunk = super()._chunk(tcp_pose, step, goal)
+        if tcp_pose[0] > self.check.far_x:
+            norms = np.linalg.norm(chunk[:, :3], axis=1, keepdims=True)
+            chunk[:, :3] *= np.minimum(1.0, self.check.far_action / np.maximum(norms, 1e-9))
+        return chunk
 
 
 __all__ = ["BatteryCheckController", "CheckGains", "CheckGoal", "Cycle", "GRIP_PICK", "STAGES"]

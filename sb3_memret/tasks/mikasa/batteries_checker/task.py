@@ -132,7 +132,7 @@ class BatteriesCheckerTask(MikasaCueTask):
         gap = float(as_numpy(obs["agent"]["qpos"]).reshape(-1)[7:9].sum())
         button = read_button(rgb)
         return CheckPercept(tuple(float(v) for v in tcp), gap, lamp_lit(rgb),
-                            tuple(tuple(float(v) for v in xy) for xy in read_batteries(rgb)),
+                            tuple(tuple(float(v) for v in xy) for xy in read_batteries(rgb, self.variant.batteries)),
                             None if button is None else (float(button[0]), float(button[1])))
 
     def perception_window(self, env: gym.Env) -> int | None:

@@ -36,7 +36,8 @@ from sb3_memret.tasks.mikasa.core.layout_perception import table_points
 REFERENCE_PIXELS = 128 * 128  # the blob sizes below are measured at 128x128
 BATTERY_TOP_Z = 0.06  # a standing battery's top (MIKASA: 6 cm tall, on the table)
 BATTERY_SEEN_Z = 0.05  # its seen pixels (top face and camera-facing side) cast best onto this plane
-MIN_BATTERY_PIXELS = 2  # a battery's top covers 3-6 pixels
+MIN_BATTERY_PIXELS = 2  # a battery's top covers 3-6 pixels ...
+MERGED_PIXELS = 9  # ... so a blob this large may be two tops
 ROW_GAP = 0.026  # batteries whose y differ by less than this stand in one row (MIKASA's rows: 5.2 cm apart)
 CAP_RGB = (209, 157, 157)  # the button cap's top face as the base camera renders it
 CAP_TOL = 16
@@ -46,10 +47,20 @@ MIN_LIT_PIXELS = 30  # the lit bulb: one blob of 80-84 pure white pixels
 
 
 def _blobs(mask: np.ndarray, min_pixels: float) -> list[np.ndarray]:
-    """The pixel centres (row, col) of the 8-connected blobs of ``mask`` with at least ``min_pixels`` pixels."""
+    """The (k, 2) pixel coordinates (row, col) of each 8-connected blob of ``mask`` with at least ``min_pixels``."""
     labels, n = ndimage.label(mask, structure=np.ones((3, 3)))
-    return [where.mean(axis=0) + 0.5 for blob in range(1, n + 1)
-            if len(where := np.argwhere(labels == blob)) >= min_pixels]
+    return [where for blob in range(1, n + 1) if len(where := np.argwhere(labels == blob)) >= min_pixels]
+
+
+def _split_in_two(pixels: np.ndarray) -> list[np.ndarray]:
+    """One blob's (k, 2) pixels as two: cut across its long axis where the two halves' spread is least (two tops
+    that touch in the picture)."""
+    centred = pixels - pixels.mean(axis=0)
+    along = centred @ np.linalg.svd(centred, full_matrices=False)[2][0]
+    order = np.argsort(along)
+    ranked = along[order]
+    cut = min(range(1, len(ranked)), key=lambda i: ranked[:i].var() * i + ranked[i:].var() * (len(ranked) - i))
+    return [pixels[order[:cut]], pixels[order[cut:]]]
 
 
 def _check_frame(rgb: np.ndarray) -> np.ndarray:
@@ -59,16 +70,23 @@ def _check_frame(rgb: np.ndarray) -> np.ndarray:
     return rgb.astype(np.int16)
 
 
-def read_batteries(rgb: np.ndarray) -> np.ndarray:
+def read_batteries(rgb: np.ndarray, count: int | None = None) -> np.ndarray:
     """The table (x, y) of every standing battery one base-camera frame (H, W, 3) shows, in MIKASA's slot order
-    (rows by y, each row by x from the camera's side): (n, 2)."""
+    (rows by y, each row by x from the camera's side): (n, 2). With ``count`` (the batteries known to stand), a blob
+    too large for one top is split in two, the largest first, while fewer are found: two batteries of one row,
+    5 cm apart along the camera's line of sight, show their tops touching at some tray positions (development seeds
+    5014 and 5015, BatteriesCheckerEasy-3)."""
     rgb = _check_frame(rgb)
     green = (rgb[..., 1] >= rgb[..., 0] + 40) & (rgb[..., 1] >= rgb[..., 2] + 30)
     scale = rgb.shape[0] * rgb.shape[1] / REFERENCE_PIXELS
-    centres = _blobs(green, MIN_BATTERY_PIXELS * scale)
-    if not centres:
+    blobs = _blobs(green, MIN_BATTERY_PIXELS * scale)
+    while count is not None and len(blobs) < count and blobs and max(map(len, blobs)) >= MERGED_PIXELS * scale:
+        largest = blobs.pop(max(range(len(blobs)), key=lambda i: len(blobs[i])))
+        blobs += _split_in_two(largest)
+    if not blobs:
         return np.zeros((0, 2))
-    points = table_points(np.array(centres), BASE_CAMERA_INTRINSIC, BASE_CAMERA_EXTRINSIC, BATTERY_SEEN_Z)
+    centres = np.array([pixels.mean(axis=0) + 0.5 for pixels in blobs])
+    points = table_points(centres, BASE_CAMERA_INTRINSIC, BASE_CAMERA_EXTRINSIC, BATTERY_SEEN_Z)
     rows = np.floor((points[:, 1] - points[:, 1].min()) / ROW_GAP + 0.5)
     return points[np.lexsort((-points[:, 0], rows))]
 
