@@ -286,3 +286,24 @@ def test_near_the_arms_reach_each_action_asks_for_a_pose_within_reach():
         chunk = expert._chunk(tcp, np.array([0.0, 0.0, 0.02]), CheckGoal(tcp[:3] + (0.0, 0.0, -0.1), GRIP_PICK))
         norms = np.linalg.norm(chunk[:, :3], axis=1)
         assert norms.max() <= limit + 1e-9 and (x < c.far_x) == (norms.max() > c.far_action)
+
+
+def test_over_a_socket_at_the_arms_reach_it_lets_go_from_as_low_as_it_came():
+    """Held still over the socket, 5.5 cm up: within reach it lowers on; at its reach (the hand at ``max_x``, the
+    socket 19 cm out) it can come no lower and lets go from there."""
+    from sb3_memret.tasks.mikasa.batteries_checker.expert import GRIP_PICK, BatteryCheckController, Cycle
+
+    expert = BatteryCheckController(PROMPT_TEMPLATE, hard=False)
+    c, reach = expert.check, expert.gains.max_x
+    slots = np.array([[-0.05, -0.1, 0.03], [-0.10, -0.1, 0.03], [-0.15, -0.1, 0.03]])
+    cap = np.array([-0.1, 0.14, 0.058])
+    for socket_x, lets_go in ((reach - 0.04, False), (reach, True)):
+        socket = np.array([socket_x, -0.05, 0.03])
+        battery = socket + (0.0, 0.0, 0.055)
+        hand = battery + (0.0, 0.0, 0.006)
+        cycle = Cycle(battery=0, stage="insert", seen=battery.copy())  # held, and as it was at the last decision
+        batteries = np.vstack([battery, slots[1:]])
+        goal = expert._goal(cycle, hand, 0.016, batteries, slots, socket, cap)
+        assert (goal.grip == GRIP_PICK) == lets_go
+        if not lets_go:
+            assert goal.point[2] < hand[2] and goal.point[2] > socket[2] + c.drop_above  # down a step
