@@ -61,6 +61,43 @@ def test_a_cube_that_fell_from_the_fingers_is_looked_for_and_read_again_where_it
     assert isinstance(make_controller("scripted-camera", "TraceShapeSeqEasy-VLA-v0"), CameraTraceSequenceController)
 
 
+def _circle_prompt(task):
+    fact = task.cue_fact.format(entity="red cube", shape="circle", cx=-100, cy=0, sx=-100, sy=50)
+    return build_prompt(task.instruction_text, [fact], task.template)
+
+
+def test_a_cube_just_gripped_is_lifted_straight_up_before_the_trace_sets_off_sideways():
+    """Setting off sideways once the chunk's prediction had risen jerked the cube out of the fingers a few cm over
+    the table: the lift is measured before the pursuit starts."""
+    task = make_task("TraceShapeEasy-VLA-v0")
+    controller = CameraTraceShapeController(task.template, paced_every=4, read_cube=lambda seen: seen)
+    controller.reset([0])
+    prompt = _circle_prompt(task)
+    lift = controller.act(_obs([-0.2, 0.0, CUBE_CENTRE_Z], 0.04, np.array([-0.2, 0.0])), [prompt])[0]
+    assert controller.cube.grips[0] is not None
+    assert np.abs(lift[:, :2]).max() < 0.05 and lift[:, 2].max() > 0.3 and (lift[:, 6] < 0).all()  # up, closed
+    carried = controller.act(_obs([-0.2, 0.0, controller.trace.carry_z], 0.04, None), [prompt])[0]
+    assert np.abs(carried[:, :2]).max() > 0.2 and (carried[:, 6] < 0).all()  # round the path, still closed
+
+
+def test_fingers_that_closed_on_nothing_lose_the_cube_and_it_is_looked_for_again():
+    """A cube jerked out of the fingers drops beside the place it was gripped: the fingers then close there on
+    nothing (gap 0), and the hand rises out of the camera's way until the cube is read again."""
+    task = make_task("TraceShapeEasy-VLA-v0")
+    controller = CameraTraceShapeController(task.template, paced_every=4, read_cube=lambda seen: seen)
+    controller.reset([0])
+    prompt = _circle_prompt(task)
+    controller.act(_obs([-0.2, 0.0, 0.05], 0.08, np.array([-0.2, 0.0])), [prompt])  # seen, the hand over it
+    assert not controller.lost[0]
+    rise = controller.act(_obs([-0.2, 0.0, CUBE_CENTRE_Z], 0.0, None), [prompt])[0]  # closed on nothing, hidden
+    assert controller.lost[0] and controller.reads_images() and rise[:, 2].sum() > 2
+    grasp = controller.act(_obs([-0.2, 0.0, 0.25], 0.0, np.array([-0.16, 0.03])), [prompt])[0]
+    assert not controller.lost[0] and np.allclose(controller.cube.places[0], [-0.16, 0.03, CUBE_CENTRE_Z])
+    assert (grasp[:, 6] > 0).all()  # open, on the way to it
+    controller.reset_envs([0], [1])
+    assert controller.lost == [False]
+
+
 @pytest.mark.slow
 def test_through_the_harness_it_traces_the_path_as_a_protocol_entry(tmp_path):
     """TraceShapeEasy at a development seed (one of whose cubes slips from the fingers and is grasped again): the

@@ -9,9 +9,10 @@ play the same plan and motion on the harness's inputs only (``ControllerSpec.har
   onto the plane of the cube's centre through the shipped calibration (``read_green_cube``: within 0.5 cm at
   development seeds 5000-5009 of both families, where the same pixels cast onto the top face's plane sat 1.4-2.4 cm
   toward the camera), carried by the hand while gripped (``HeldCube``, with the tracing grip's gap and reach), and
-  read again wherever it stands clear of the hand or fell to (a cube slips from the fingers now and then: the
-  detector's expert grasps it again where it lies, and so does this one, lifting the hand out of the camera's way
-  first where the arm hides it);
+  read again wherever it stands clear of the hand or fell to, or once the fingers closed on nothing where it was
+  placed (a cube slips from the fingers now and then: the detector's expert grasps it again where it lies, and so
+  does this one, lifting the hand out of the camera's way first where the arm hides it). A cube just gripped is
+  lifted straight to the carry height, measured, before the trace sets off sideways;
 - **the button** (TraceShapeSeq): its cap's pink (about (208, 136, 136)), the largest such patch, cast onto the
   plane of the cap's centre (``read_button_cap``: within 0.8 cm of it, where MIKASA counts a press within 6.5 cm);
 - **the hand's motion**: dead-reckoned from the hand's pose and the actions that ran (``DeadReckonedHand``).
@@ -75,40 +76,55 @@ class _CameraTracing(HarnessExpert):
         self.read_cube = read_cube
         grip = dataclasses.replace(CarryGains(), held_gap=self.trace.held_gap, held_reach=self.trace.held_reach)
         self.cube = HeldCube(grip)
+        self.lost: list[bool] = []
 
     def _forget(self, n_envs: int) -> None:
         self.cube.reset(n_envs)
+        self.lost = [False] * n_envs
 
     def _forget_env(self, i: int) -> None:
         self.cube.reset_env(i)
+        self.lost[i] = False
+
+    def _goal(self, pos: np.ndarray, cube: np.ndarray, gap: float, path: Any) -> TraceGoal:
+        """The detector's expert's goal, except that a cube just gripped is lifted straight to the carry height
+        before the pursuit sets off sideways: measured, not predicted (a chunk that set off once its prediction had
+        risen jerked the cube out of the fingers at 2-5 cm over the table)."""
+        goal = super()._goal(pos, cube, gap, path)
+        if goal.mode == "trace" and cube[2] < self.trace.carry_z - self.carry.lift_first:
+            return TraceGoal(np.array([cube[0], cube[1], self.trace.carry_z]) + goal.hand, "hold")
+        return goal
 
     def _cube_now(self, i: int, rgb: Any, tcp: np.ndarray, gap: float) -> np.ndarray | None:
         """Env ``i``'s cube now: carried while gripped; else read again wherever it stands clear of the hand, or
         wherever it fell to once let go in the air (``_looks_again``). None while not seen, or fallen out of sight."""
         if self.cube.places[i] is not None:
             self.cube.track(i, tcp, gap)  # the grip as the fingers are now: a cube that slipped out is let go
+            if self.cube.grips[i] is None and gap < self.trace.held_gap[0]:
+                self.lost[i] = True  # the fingers closed on nothing: the cube is not where it was placed
         if self._looks_again(i, tcp):
             seen = self.read_cube(rgb)
             if seen is not None:
                 self.cube.places[i] = np.array([*seen, CUBE_CENTRE_Z])
+                self.lost[i] = False
         place = self.cube.places[i]
-        if place is None or (self.cube.grips[i] is None and place[2] > CUBE_CENTRE_Z + FALLEN_ABOVE):
+        if place is None or self.lost[i] or (self.cube.grips[i] is None and place[2] > CUBE_CENTRE_Z + FALLEN_ABOVE):
             return None
         return self.cube.track(i, tcp, gap)
 
     def _look(self, i: int, tcp: np.ndarray, step: np.ndarray) -> np.ndarray:
-        """A chunk for env ``i`` without a cube to act on: still until first seen; after it fell out of sight (the
-        arm between it and the camera), up to ``LOOK_POINT``, the arm clear of the table."""
+        """A chunk for env ``i`` without a cube to act on: still until first seen; after it fell out of sight or was
+        lost from the fingers (the arm between it and the camera), up to ``LOOK_POINT``, the arm clear of the table."""
         if self.cube.places[i] is None:
             return np.zeros((self.spec.chunk_len, self.spec.action_dim))
         return self._chunk(tcp, step, TraceGoal(np.asarray(LOOK_POINT), "hold"))
 
     def _looks_again(self, i: int, tcp: np.ndarray) -> bool:
-        """Whether env ``i``'s cube is read from this frame: not yet seen; or not gripped and either clear of the
-        hand (``CLEAR_OF_HAND`` sideways: the fingers hide part of it when nearer) or last carried off the table (it
-        slipped from the fingers and fell)."""
+        """Whether env ``i``'s cube is read from this frame: not yet seen, or lost (the fingers closed where it was
+        placed and found nothing); or not gripped and either clear of the hand (``CLEAR_OF_HAND`` sideways: the
+        fingers hide part of it when nearer) or last carried off the table (it slipped from the fingers and fell)."""
         place = self.cube.places[i]
-        if place is None:
+        if place is None or self.lost[i]:
             return True
         if self.cube.grips[i] is not None:
             return False
