@@ -16,8 +16,8 @@ from sb3_memret.controllers.prompts import build_prompt  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
 from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC  # noqa: E402
 from sb3_memret.tasks.mikasa.rotate.camera_expert import (  # noqa: E402
-    REST_WRIST, CameraPegTurnController, PegInHand, PegSighting, WristEstimate, read_peg)
-from sb3_memret.tasks.mikasa.rotate.expert import wrap  # noqa: E402
+    REST_WRIST, CameraPegTurnController, PegInHand, PegSighting, WristEstimate, pushed_peg, read_peg)
+from sb3_memret.tasks.mikasa.rotate.expert import PEG_HALF_WIDTH, TurnGains, wrap  # noqa: E402
 from sb3_memret.tasks.mikasa.rotate.task import (  # noqa: E402
     CUE_FACT, LENIENT_INSTRUCTION, peg_on_table, peg_top_mask, peg_yaw)
 
@@ -121,7 +121,7 @@ def test_a_strip_of_the_face_gives_the_axis_and_the_far_end_both_ends_the_centre
     peg = controller.pegs[0]
     assert peg.yaw == pytest.approx(0.2) and np.allclose(peg.centre, far + 0.118 * axis)
     thin = PegSighting(far + 0.06 * axis, 0.6, 20, np.stack([far, far + 0.12 * axis]))
-    controller.act(_obs(_tcp(0.1, 0.02, 0.0, z=0.02), 0.0, thin), [prompt])
+    controller.act(_obs(_tcp(0.1, 0.02, 0.0, z=0.06), 0.0, thin), [prompt])  # (the hand up: pushing nothing)
     assert controller.pegs[0] is peg
     ends = np.stack([far, far + 0.236 * axis])  # both ends in sight, the fingers over the middle
     controller.act(_obs(_tcp(0.0, 0.0, 0.0, z=0.05), 0.0, PegSighting(ends.mean(axis=0) + 0.01, 0.2, 60, ends)), [prompt])
@@ -130,6 +130,31 @@ def test_a_strip_of_the_face_gives_the_axis_and_the_far_end_both_ends_the_centre
     assert controller.pegs == [None] and controller.wholes == [None]
     assert isinstance(make_controller("scripted-camera", TASK), CameraPegTurnController)
     assert make_controller("scripted-camera", "RotateStrictPos-VLA-v0").strategy == "grasp"
+
+
+def test_fingers_that_would_stand_inside_a_peg_read_before_have_pushed_it_on():
+    """The arm hides the peg it pushes: the last reading is pushed on by the depth the closed fingers would stand
+    inside it, turned the way the lever arm says and slid by the rest."""
+    gains = TurnGains()
+    peg = PegSighting(np.zeros(2), 0.0, 100, np.array([[-0.118, 0.0], [0.118, 0.0]]))
+    depth = PEG_HALF_WIDTH + gains.finger - 0.02
+    ccw = pushed_peg(peg, np.array([0.1, -0.02]), gains)  # the +x end pushed towards +y
+    assert ccw.yaw == pytest.approx(gains.turn_per_metre * depth)
+    assert ccw.centre[0] == pytest.approx(0.0) and 0 < ccw.centre[1] < depth
+    cw = pushed_peg(peg, np.array([-0.1, -0.02]), gains)  # the -x end pushed towards +y
+    assert wrap(cw.yaw) == pytest.approx(-gains.turn_per_metre * depth)
+    assert pushed_peg(peg, np.array([0.1, -0.05]), gains) is peg  # behind its face, not touching
+    assert pushed_peg(peg, np.array([0.15, -0.01]), gains) is peg  # beyond its end
+
+    controller = CameraPegTurnController(make_task(TASK).template, "push", 0, paced_every=4, read=lambda s: s)
+    controller.reset([0])
+    prompt = build_prompt(LENIENT_INSTRUCTION.format(angle_deg=40), [CUE_FACT.format(start_deg=0)],
+                          controller.spec.prompt_template)
+    controller.act(_obs(_tcp(0.3, 0.0, 0.0), 0.0, peg), [prompt])
+    controller.act(_obs(_tcp(0.1, -0.02, 0.0, z=0.08), 0.0, None), [prompt])  # hidden, the hand over it
+    assert controller.pegs[0] is peg
+    controller.act(_obs(_tcp(0.1, -0.02, 0.0, z=0.02), 0.0, None), [prompt])  # hidden, the fingers down in it
+    assert controller.pegs[0].yaw == pytest.approx(ccw.yaw)
 
 
 @pytest.mark.slow

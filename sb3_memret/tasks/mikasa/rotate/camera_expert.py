@@ -13,7 +13,8 @@ and motion on the harness's inputs only (``ControllerSpec.harness_inputs``):
   a strip of the face's full width at least ``MIN_STRIP`` long gives the axis (its angle reads within 2 degrees), and
   the strip's end away from the hand is the peg's far end, so the centre is half the peg's length in from it. A frame
   that shows less (a thin or short strip, cut across by the fingers, read up to 21 degrees off) is not read, and the
-  last reading stands;
+  last reading stands, pushed on where the closed fingers now stand inside it (``pushed_peg``: the arm can hide the
+  whole peg for several calls of a push);
 - **the peg in hand** (Strict's grasp): its centre under the hand; its angle read as above where the frame shows it,
   else turned with the hand from its last reading (``PegInHand``);
 - **the wrist's angle** (the grasp must leave the last joint room for the turn): dead-reckoned from the hand's pose
@@ -39,7 +40,7 @@ from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE
 from sb3_memret.tasks.mikasa.core.harness_expert import HarnessExpert
 from sb3_memret.tasks.mikasa.core.layout_perception import table_points
 from sb3_memret.tasks.mikasa.rotate.expert import (
-    GRIP_CLOSED, PEG_HALF_LENGTH, PegTurnController, TurnGains, hand_yaw, remaining_turn, wrap,
+    GRIP_CLOSED, PEG_HALF_LENGTH, PEG_HALF_WIDTH, PegTurnController, TurnGains, hand_yaw, remaining_turn, wrap,
 )
 from sb3_memret.tasks.mikasa.rotate.task import PEG_TOP_Z, peg_on_table, peg_top_mask
 
@@ -86,6 +87,26 @@ def read_peg(rgb: Any) -> PegSighting | None:
     axis = np.array([np.cos(yaw), np.sin(yaw)])
     along = (points - centre) @ axis
     return PegSighting(centre, yaw, int(mask.sum()), centre + np.outer([along.min(), along.max()], axis))
+
+
+def pushed_peg(peg: PegSighting, hand: np.ndarray, gains: TurnGains) -> PegSighting:
+    """The peg as the closed fingers at ``hand`` (x, y) must have pushed it since ``peg`` was read: fingers cannot
+    stand inside it, so where they would, the face they touch has gone on by that depth. The push turns the peg
+    ``gains.turn_per_metre`` per metre about its centre, the way the lever arm says, and slides it by the rest of
+    the depth; fingers outside its face leave it as read."""
+    axis = np.array([np.cos(peg.yaw), np.sin(peg.yaw)])
+    normal = np.array([-axis[1], axis[0]])
+    along, across = float((hand - peg.centre) @ axis), float((hand - peg.centre) @ normal)
+    depth = PEG_HALF_WIDTH + gains.finger - abs(across)
+    if depth <= 0 or abs(along) > PEG_HALF_LENGTH:
+        return peg
+    side = 1.0 if across >= 0 else -1.0  # the fingers stand on this side of the axis and press towards the other
+    turn = -side * float(np.sign(along)) * gains.turn_per_metre * depth  # (the +axis end pushed along +normal: +)
+    slide = max(depth - abs(turn * along), 0.0)  # what the turn leaves of the depth at the fingers
+    centre = peg.centre - side * slide * normal
+    yaw = float((peg.yaw + turn) % np.pi)
+    ends = centre + np.outer([-PEG_HALF_LENGTH + EDGE, PEG_HALF_LENGTH - EDGE], [np.cos(yaw), np.sin(yaw)])
+    return PegSighting(centre, yaw, peg.pixels, ends)
 
 
 class WristEstimate:
@@ -200,6 +221,8 @@ class CameraPegTurnController(HarnessExpert, PegTurnController):
         for i, p in enumerate(parsed):
             wrist = self.wrist.angle(i, tcp[i])
             fresh = self._see(i, rgb[i], tcp[i, :2])
+            if not fresh and self.strategy == "push" and self.pegs[i] is not None and tcp[i, 2] < g.push_z + 0.02:
+                self.pegs[i] = pushed_peg(self.pegs[i], tcp[i, :2], g)  # the arm hides the peg it pushes
             peg = self.pegs[i]
             if peg is None:
                 continue  # the peg not yet in sight: hold still
@@ -221,4 +244,4 @@ class CameraPegTurnController(HarnessExpert, PegTurnController):
         return self._ran(inputs, chunks)
 
 
-__all__ = ["CameraPegTurnController", "PegInHand", "PegSighting", "WristEstimate", "read_peg"]
+__all__ = ["CameraPegTurnController", "PegInHand", "PegSighting", "WristEstimate", "pushed_peg", "read_peg"]
