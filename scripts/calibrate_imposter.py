@@ -12,7 +12,14 @@ own reader (``FindImposterTask.read_cue``) and scores it against the segmentatio
 (the set of N - 1 shown), frames read as no set (objects merged or one out of sight), frames read wrong; and per
 word, the share of the objects shown that the reader named right (``assign_shown``).
 
+``calibrate-remember`` does the same for RememberShape's and RememberShapeAndColor's camera expert from each
+episode's choice frame (the first with two or more of the task's objects in view, zero actions), its objects found
+and cut apart as that expert's reader finds them (``objects_in_view`` with the task's count), each named by the
+object that owns at least ``OWNED`` of its pixels, into ``sb3_memret/tasks/mikasa/assets/remember_exemplars/``: the
+choice lays out objects where FindImposter's cue does not, and neighbours that touch there are seen cut apart.
+
     .venv/bin/python scripts/calibrate_imposter.py calibrate [--episodes 200] [--seed 6000]
+    .venv/bin/python scripts/calibrate_imposter.py calibrate-remember [--episodes 200] [--seed 6000]
     .venv/bin/python scripts/calibrate_imposter.py evaluate [--episodes 60] [--seed 5000] [--tasks ...]
 """
 
@@ -27,10 +34,16 @@ SHAPE_TASKS = ("FindImposterShape3-VLA-v0", "FindImposterShape5-VLA-v0", "FindIm
                "FindImposterShapeAndColor3x2-VLA-v0", "FindImposterShapeAndColor3x3-VLA-v0",
                "FindImposterShapeAndColor5x3-VLA-v0")
 ALL_TASKS = ("FindImposterColor3-VLA-v0", "FindImposterColor5-VLA-v0", "FindImposterColor9-VLA-v0") + SHAPE_TASKS
+REMEMBER_TASKS = ("RememberShape3-VLA-v0", "RememberShape5-VLA-v0", "RememberShape9-VLA-v0",
+                  "RememberShapeAndColor3x2-VLA-v0", "RememberShapeAndColor3x3-VLA-v0",
+                  "RememberShapeAndColor5x3-VLA-v0")
+OWNED = 0.8  # a cut object is named by the object owning this share of its pixels (else skipped)
+CHOICE_WITHIN = 40  # control steps: the choice shows by then at every seed (the cue and delay take 5-10)
 
 
-def cue_frames(task, seeds):
-    """(rgb, object index per pixel (-1: none)) of each seed's reset frame, from the raw env with segmentation."""
+def cue_frames(task, seeds, choice: bool = False):
+    """(rgb, object index per pixel (-1: none)) of each seed's reset frame, from the raw env with segmentation; with
+    ``choice``, of its first frame (zero actions) that shows two or more of the task's objects instead."""
     import gymnasium as gym
 
     from sb3_memret.common.rendering import use_cpu_renderer
@@ -46,20 +59,28 @@ def cue_frames(task, seeds):
     try:
         for seed in seeds:
             obs, _ = env.reset(seed=int(seed))
-            camera = obs["sensor_data"]["base_camera"]
-            seg = camera["segmentation"][0, ..., 0].numpy()
-            owner = np.full(seg.shape, -1)
-            for scene_id, k in ids.items():
-                owner[seg == scene_id] = k
-            yield camera["rgb"][0].numpy(), owner
+            for _ in range(CHOICE_WITHIN if choice else 1):
+                camera = obs["sensor_data"]["base_camera"]
+                seg = camera["segmentation"][0, ..., 0].numpy()
+                owner = np.full(seg.shape, -1)
+                for scene_id, k in ids.items():
+                    owner[seg == scene_id] = k
+                if not choice or len(set(np.unique(owner).tolist()) - {-1}) >= 2:
+                    yield camera["rgb"][0].numpy(), owner
+                    break
+                obs, *_ = env.step(np.zeros(env.action_space.shape))
+            else:
+                raise RuntimeError(f"{task.name} seed {seed}: no frame within {CHOICE_WITHIN} steps showed the choice")
     finally:
         env.close()
 
 
-def owner_of(blob: np.ndarray, owner: np.ndarray) -> int | None:
-    """The one object a blob's pixels belong to, or None when they belong to several (merged) or none."""
-    objects = set(np.unique(owner[blob]).tolist()) - {-1}
-    return objects.pop() if len(objects) == 1 else None
+def owner_of(blob: np.ndarray, owner: np.ndarray, share: float = 1.0) -> int | None:
+    """The object owning at least ``share`` of a blob's pixels (by default all: None when they belong to several,
+    merged, or none)."""
+    owners, counts = np.unique(owner[blob], return_counts=True)
+    best = int(np.argmax(np.where(owners >= 0, counts, -1)))
+    return int(owners[best]) if owners[best] >= 0 and counts[best] >= share * blob.sum() else None
 
 
 def calibrate(episodes: int, seed: int) -> None:
@@ -79,6 +100,32 @@ def calibrate(episodes: int, seed: int) -> None:
                     crops.append(crop)
                     shapes.append(task.candidate(task.words[k])[1])
         path = EXEMPLARS_DIR / f"{env_id}.npz"
+        ShapeExemplars(np.array(centres, dtype=np.float32), np.array(crops, dtype=np.float32), np.array(shapes)).save(path)
+        print(f"{env_id}: {dict(Counter(shapes))} -> {path}", flush=True)
+
+
+def calibrate_remember(episodes: int, seed: int) -> None:
+    from sb3_memret.tasks import make_task
+    from sb3_memret.tasks.mikasa.core.perception import COLOUR_NAMES
+    from sb3_memret.tasks.mikasa.find_imposter.perception import ShapeExemplars, object_crop, objects_in_view
+    from sb3_memret.tasks.mikasa.remember.shape_camera_expert import REMEMBER_EXEMPLARS_DIR, candidates
+
+    REMEMBER_EXEMPLARS_DIR.mkdir(parents=True, exist_ok=True)
+    for env_id in REMEMBER_TASKS:
+        task = make_task(env_id)
+        words = list(task.words)
+        named = candidates(env_id, words)
+        n_colours = 1 + max(COLOUR_NAMES.index(colour or "blue") for colour, _ in named)
+        centres, crops, shapes = [], [], []
+        for rgb, owner in cue_frames(task, range(seed, seed + episodes), choice=True):
+            for seen in objects_in_view(rgb, n_colours, len(words)):
+                k = owner_of(seen.mask, owner, OWNED)
+                if k is not None:
+                    centre, crop = object_crop(rgb, seen.mask)
+                    centres.append(centre)
+                    crops.append(crop)
+                    shapes.append(named[k][1])
+        path = REMEMBER_EXEMPLARS_DIR / f"{env_id}.npz"
         ShapeExemplars(np.array(centres, dtype=np.float32), np.array(crops, dtype=np.float32), np.array(shapes)).save(path)
         print(f"{env_id}: {dict(Counter(shapes))} -> {path}", flush=True)
 
@@ -108,7 +155,7 @@ def evaluate(tasks: list[str], episodes: int, seed: int) -> None:
 
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    parser.add_argument("command", choices=("calibrate", "evaluate"))
+    parser.add_argument("command", choices=("calibrate", "calibrate-remember", "evaluate"))
     parser.add_argument("--episodes", type=int, default=None, help="default: 200 to calibrate, 60 to evaluate")
     parser.add_argument("--seed", type=int, default=None,
                         help="first seed: default 6000 to calibrate, 5000 to evaluate")
@@ -116,6 +163,8 @@ def main() -> None:
     args = parser.parse_args()
     if args.command == "calibrate":
         calibrate(args.episodes or 200, 6000 if args.seed is None else args.seed)
+    elif args.command == "calibrate-remember":
+        calibrate_remember(args.episodes or 200, 6000 if args.seed is None else args.seed)
     else:
         evaluate(args.tasks, args.episodes or 60, 5000 if args.seed is None else args.seed)
 

@@ -27,9 +27,11 @@ from sb3_memret.tasks.mikasa.find_imposter.task import (  # noqa: E402
 )
 from sb3_memret.tasks.mikasa.find_imposter.perception import (  # noqa: E402
     CROP_HALF,
+    TOP_SHADES,
     SeenObject,
     ShapeExemplars,
     object_crop,
+    objects_in_view,
     split_in_two,
     task_exemplars,
 )
@@ -186,6 +188,22 @@ def test_two_touching_objects_are_cut_apart():
     assert halves[0].sum() + halves[1].sum() == blob.sum() and min(h.sum() for h in halves) >= 16
     assert np.argwhere(halves[0])[:, 1].max() <= 55 <= np.argwhere(halves[1])[:, 1].min()  # cut at the bridge
     assert split_in_two(np.pad(np.ones((2, 3), bool), 10)) is None  # halves smaller than an object
+
+
+def test_with_counts_per_colour_the_colour_short_of_objects_is_cut_not_the_largest():
+    """A near red object, large in the picture, and two far blue ones that touch: three objects expected. Cutting
+    the largest group cuts the red one; with the counts per colour, the blue pair is cut apart."""
+    frame = np.full((128, 128, 3), 120, dtype=np.uint8)
+    frame[96:112, 40:56] = TOP_SHADES[0]  # red, near: 256 pixels
+    frame[40:44, 70:74] = frame[41:43, 74:76] = frame[40:44, 76:80] = TOP_SHADES[2]  # blue, two joined
+    def colours(objects):
+        return sorted(int(np.argmin(o.top_distance)) for o in objects)
+
+    assert colours(objects_in_view(frame, 3, 3)) == [0, 0, 2]
+    by_colour = objects_in_view(frame, 3, 3, per_colour=[1, 0, 2])
+    assert colours(by_colour) == [0, 2, 2] and min(o.mask.sum() for o in by_colour) >= 12
+    with pytest.raises(ValueError, match="per_colour"):
+        objects_in_view(frame, 3, 3, per_colour=[1, 2])
 
 
 @pytest.mark.parametrize("env_id, wording", [("FindImposterColor3-VLA-v0", "set"),

@@ -1,5 +1,5 @@
 """RememberShape's and RememberShapeAndColor's touch expert on the harness's inputs alone (``scripted-camera``): the
-objects placed and named from the base camera by FindImposter's reader of the same objects, and an episode through
+objects placed and named from the base camera against exemplars of the task's own choice, and an episode through
 MIKASA's harness as a protocol entry."""
 
 import numpy as np
@@ -13,25 +13,33 @@ from sb3_memret.controller_specs import make_controller  # noqa: E402
 from sb3_memret.controllers.base import as_numpy  # noqa: E402
 from sb3_memret.controllers.prompts import build_prompt  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
+from sb3_memret.tasks.mikasa.find_imposter.perception import ShapeExemplars  # noqa: E402
 from sb3_memret.tasks.mikasa.remember.shape_camera_expert import (  # noqa: E402
-    CameraShapeTouchController, candidates, exemplars_for, shape_places)
+    REMEMBER_EXEMPLARS_DIR, CameraShapeTouchController, candidates, exemplars_for, shape_places)
 
 
-def test_each_remember_task_reads_its_objects_with_the_imposter_task_of_the_same_objects():
-    assert exemplars_for("RememberShape5-VLA-v0") == "FindImposterShape5-VLA-v0"
-    assert exemplars_for("RememberShape9-Long-VLA-v0") == "FindImposterShape9-VLA-v0"
-    assert exemplars_for("RememberShapeAndColor3x2-VLA-v0") == "FindImposterShapeAndColor3x2-VLA-v0"
+def test_each_remember_task_reads_its_objects_with_exemplars_of_its_own_choice():
+    assert exemplars_for("RememberShape5-VLA-v0") == REMEMBER_EXEMPLARS_DIR / "RememberShape5-VLA-v0.npz"
+    assert exemplars_for("RememberShape9-Long-VLA-v0") == REMEMBER_EXEMPLARS_DIR / "RememberShape9-VLA-v0.npz"
     with pytest.raises(ValueError, match="RememberColor3-VLA-v0"):
         exemplars_for("RememberColor3-VLA-v0")
+    for env_id in ("RememberShape3-VLA-v0", "RememberShape5-VLA-v0", "RememberShape9-VLA-v0",
+                   "RememberShapeAndColor3x2-VLA-v0", "RememberShapeAndColor3x3-VLA-v0",
+                   "RememberShapeAndColor5x3-VLA-v0"):
+        task = make_task(env_id)
+        shipped = ShapeExemplars.load(exemplars_for(env_id))
+        assert set(shipped.shapes.tolist()) == {shape for _, shape in candidates(env_id, task.words)}, env_id
     assert candidates("RememberShape9-VLA-v0", ["cube", "t shape"]) == [(None, "cube"), (None, "t shape")]
     assert candidates("RememberShapeAndColor5x3-VLA-v0", ["red t shape"]) == [("red", "t shape")]
 
 
 @pytest.mark.parametrize("env_id, within", [("RememberShape3-VLA-v0", 0.015), ("RememberShapeAndColor3x2-VLA-v0", 0.015),
-                                            ("RememberShape9-VLA-v0", 0.035)])
+                                            ("RememberShape9-VLA-v0", 0.035),
+                                            ("RememberShapeAndColor5x3-VLA-v0", 0.035)])
 def test_the_objects_are_placed_and_named_from_the_base_camera(env_id, within):
     """RememberShape9 at seed 5000: no frame shows its nine apart (FindImposter's reader places none), so touching
-    ones are cut apart; MIKASA counts a touch within 5 cm."""
+    ones are cut apart; MIKASA counts a touch within 5 cm. RememberShapeAndColor5x3 there: FindImposter's exemplars
+    (none seen at seven of its fifteen places) swapped the blue cube and sphere."""
     task = make_task(env_id)
     read = shape_places(env_id, task.words)
     env = task.make_env(obs_mode="rgb")

@@ -197,11 +197,14 @@ def split_in_two(blob: np.ndarray) -> tuple[np.ndarray, np.ndarray] | None:
     return halves[0], halves[1]
 
 
-def objects_in_view(rgb: np.ndarray, n_colours: int, n_objects: int | None = None) -> list[SeenObject]:
+def objects_in_view(rgb: np.ndarray, n_colours: int, n_objects: int | None = None,
+                    per_colour: Sequence[int] | None = None) -> list[SeenObject]:
     """Every object of a saturated colour in one base-camera frame (H, W, 3), by hue family and connected group.
 
     Objects that touch in the image make one group: with ``n_objects`` (how many the caller expects), while there
-    are fewer groups the largest (by ``_scaled_area``) is cut in two (``split_in_two``)."""
+    are fewer groups the largest (by ``_scaled_area``) is cut in two (``split_in_two``). With ``per_colour`` (how
+    many of each of the ``n_colours`` the caller expects), only a family with fewer groups than that has its largest
+    cut: a near object, large in the picture, is not cut while two far ones of another colour stay merged."""
     rgb = np.asarray(rgb)
     if rgb.shape[:2] != (128, 128) or rgb.shape[-1] != 3:
         raise ValueError(f"expected one 128x128 base-camera frame (H, W, 3), got shape {rgb.shape}")
@@ -219,8 +222,15 @@ def objects_in_view(rgb: np.ndarray, n_colours: int, n_objects: int | None = Non
         labels, n = ndimage.label(family_map == family, structure=np.ones((3, 3)))
         groups += [(family, labels == label) for label in range(1, n + 1)
                    if np.sum(labels == label) >= MIN_BLOB_PIXELS]
+    if per_colour is not None and len(per_colour) != n_colours:
+        raise ValueError(f"per_colour needs one count for each of the {n_colours} colours, got {list(per_colour)}")
+    wanted = None if per_colour is None else np.bincount(family_of, weights=per_colour, minlength=len(families))
     while n_objects is not None and 0 < len(groups) < n_objects:
-        largest = max(range(len(groups)), key=lambda g: _scaled_area(groups[g][1]))
+        short = [g for g in range(len(groups))
+                 if wanted is None or sum(f == groups[g][0] for f, _ in groups) < wanted[groups[g][0]]]
+        if not short:
+            break
+        largest = max(short, key=lambda g: _scaled_area(groups[g][1]))
         family, blob = groups.pop(largest)
         halves = split_in_two(blob)
         if halves is None:
@@ -240,18 +250,21 @@ def _assign(cost: np.ndarray) -> np.ndarray | None:
 
 
 def assign_shown(rgb: np.ndarray, candidates: Sequence[tuple[str | None, str | None]], n_shown: int,
-                 exemplars: ShapeExemplars | None = None) -> list[tuple[SeenObject, int]] | None:
+                 exemplars: ShapeExemplars | None = None,
+                 by_colour: bool = False) -> list[tuple[SeenObject, int]] | None:
     """Each object in view with the candidate (index) it is read as, when exactly ``n_shown`` objects are in view
     and each reads as a different candidate; else None.
 
     A candidate is (colour, shape): its colour one of ``COLOUR_NAMES`` or None (the task's objects share one, blue),
     its shape one of ``exemplars``' or None (they share one). Objects take candidates jointly at the least total
     cost: a candidate whose colour's top face lies farther than ``MAX_TOP_DISTANCE`` from an object's is out for it
-    (nearer, the distance costs a little); a shape costs what ``ShapeExemplars.costs`` says.
+    (nearer, the distance costs a little); a shape costs what ``ShapeExemplars.costs`` says. ``by_colour``: every
+    candidate is in view, so touching objects are cut apart colour by colour (``objects_in_view``'s ``per_colour``).
     """
     blue = COLOUR_NAMES.index("blue")
     colours = [blue if colour is None else COLOUR_NAMES.index(colour) for colour, _ in candidates]
-    objects = objects_in_view(rgb, max(colours) + 1, n_shown)
+    per_colour = np.bincount(colours, minlength=max(colours) + 1) if by_colour else None
+    objects = objects_in_view(rgb, max(colours) + 1, n_shown, per_colour)
     if len(objects) != n_shown:
         return None
     top = np.array([[o.top_distance[c] for c in colours] for o in objects]).reshape(len(objects), len(candidates))

@@ -4,29 +4,25 @@ entry, not an upper bound.
 Their detector experts (``ScriptedTouchController``) read every object's pose from the simulator. Here the objects are
 placed as RememberColor's camera expert places cubes (``CameraTouchController``: from the first frame that shows
 more objects than the cue's one, cast onto the table with the shipped calibration; the hand's motion dead-reckoned),
-and named as FindImposter's camera expert names the same objects (``assign_shown``): MIKASA lays out RememberShape's and
-FindImposter's N objects at the same places (a row for three, an arc for more), so each object is named by its top
-face's colour and its shading against the shipped exemplars of the FindImposter task with the same objects
-(``exemplars_for``: calibration frames of development seeds 6000-6199, never a protocol seed).
+and named as FindImposter's camera expert names its objects (``assign_shown``: each by its top face's colour and its
+shading against exemplars seen at its place), against exemplars of the task's own choice frames (``exemplars_for``:
+calibration frames of development seeds 6000-6199, never a protocol seed;
+``scripts/calibrate_imposter.py calibrate-remember``).
 
-Measured at development seeds 5000-5009
-(``lab/2026-12-05-seven-more-families-on-the-cameras/shape_layout_probe.py``), FindImposter's own reader
-(``imposter_places``, which reads only a frame that shows all N apart): every object placed and named, within
-1.2 cm, at every seed on RememberShape3 and 5 and RememberShapeAndColor3x2; RememberShapeAndColor3x3 at 8 of 10
-(one object named wrong); RememberShape9 at 5 of 10 and RememberShapeAndColor5x3 at 1 of 10 (neighbours on the arc
-touch in the picture, so no frame shows all apart).
-
-So the reader here (``remember_places``) does not wait for a frame that shows all N apart, as FindImposter's must
-(its cue shows N - 1, which would read as N): the cue here shows one object, so any frame with more in view shows
-the choice, and ``assign_shown`` cuts touching objects apart (the largest group in two while fewer are in view than
-N). Over seeds 5000-5019 every object was placed within 4 cm at 19 of 20 seeds on RememberShape9 (one seed with
-one wrong), 18 of 20 on RememberShapeAndColor3x3 (2 read nothing), 7 of 20 on RememberShapeAndColor5x3 (11 with
-some of the fifteen wrong, 2 read nothing).
+The cue shows one object, so any frame with more in view shows the choice, and touching objects are cut apart colour
+by colour until each colour has its count (``assign_shown(..., by_colour=True)``). Two earlier readers fell short on
+RememberShapeAndColor5x3, over development seeds 5000-5039 (``lab/2026-12-06-remember-shape-and-color-on-the-cameras``):
+- FindImposter's exemplars, from its cue frames: none had been seen at 7 of the 15 places (neighbours there touch
+  and were skipped), and same-coloured pairs swapped shapes at 7 of the first 12 seeds;
+- cutting the largest group in the picture: a near object was cut while two far ones stayed merged, and 4 of 40
+  seeds read nothing.
 """
 
 from __future__ import annotations
 
 import re
+from functools import lru_cache
+from pathlib import Path
 from typing import Any, Callable, Mapping, Sequence
 
 import numpy as np
@@ -34,10 +30,13 @@ import numpy as np
 from sb3_memret.controllers.prompts import PromptTemplate
 from sb3_memret.tasks.mikasa.core.perception import COLOUR_NAMES
 from sb3_memret.tasks.mikasa.core.touch_expert import TouchGains
-from sb3_memret.tasks.mikasa.find_imposter.camera_expert import named_places, one_frame
-from sb3_memret.tasks.mikasa.find_imposter.perception import ShapeExemplars, objects_in_view, task_exemplars
+from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC
+from sb3_memret.tasks.mikasa.core.layout_perception import LAYOUT_PLANE_Z, table_points
+from sb3_memret.tasks.mikasa.find_imposter.camera_expert import one_frame
+from sb3_memret.tasks.mikasa.find_imposter.perception import ShapeExemplars, assign_shown, objects_in_view
 from sb3_memret.tasks.mikasa.remember.camera_expert import CameraTouchController
 
+REMEMBER_EXEMPLARS_DIR = Path(__file__).resolve().parents[1] / "assets" / "remember_exemplars"
 _REMEMBER_ID = re.compile(r"^Remember(Shape|ShapeAndColor)([0-9x]+)(?:-Long)?-VLA-v0$")
 
 
@@ -49,11 +48,17 @@ def _family(env_id: str) -> tuple[str, str]:
     return match[1], match[2]
 
 
-def exemplars_for(env_id: str) -> str:
-    """The FindImposter task whose shipped exemplars show a Remember task's objects at its places
-    (``RememberShape5-Long-VLA-v0`` -> ``FindImposterShape5-VLA-v0``); a ValueError for another id."""
+def exemplars_for(env_id: str) -> Path:
+    """The shipped exemplars of a Remember task's objects at its choice (``RememberShape5-Long-VLA-v0`` ->
+    ``REMEMBER_EXEMPLARS_DIR/RememberShape5-VLA-v0.npz``: a -Long variant lays them out alike); a ValueError for
+    another id."""
     family, size = _family(env_id)
-    return f"FindImposter{family}{size}-VLA-v0"
+    return REMEMBER_EXEMPLARS_DIR / f"Remember{family}{size}-VLA-v0.npz"
+
+
+@lru_cache(maxsize=None)
+def _exemplars(path: Path) -> ShapeExemplars:
+    return ShapeExemplars.load(path)
 
 
 def candidates(env_id: str, words: Sequence[str]) -> list[tuple[str | None, str | None]]:
@@ -73,7 +78,14 @@ def remember_places(words: Sequence[str], candidates: Sequence[tuple[str | None,
 
     def read(rgb: Any) -> dict[str, np.ndarray]:
         frame = one_frame(rgb)
-        return named_places(frame, words, candidates, exemplars) if len(objects_in_view(frame, n_colours)) >= 2 else {}
+        if len(objects_in_view(frame, n_colours)) < 2:
+            return {}
+        assigned = assign_shown(frame, candidates, len(candidates), exemplars, by_colour=True)
+        if assigned is None:
+            return {}
+        centres = np.array([np.argwhere(seen.mask).mean(axis=0) + 0.5 for seen, _ in assigned])
+        points = table_points(centres, BASE_CAMERA_INTRINSIC, BASE_CAMERA_EXTRINSIC, LAYOUT_PLANE_Z)
+        return {words[j]: point for (_, j), point in zip(assigned, points) if np.isfinite(point).all()}
 
     return read
 
@@ -81,7 +93,7 @@ def remember_places(words: Sequence[str], candidates: Sequence[tuple[str | None,
 def shape_places(env_id: str, words: Sequence[str]) -> Callable[[Any], Mapping[str, np.ndarray]]:
     """The reader of one base-camera frame that places ``words``' objects of ``env_id`` (the module docstring says
     how)."""
-    return remember_places(words, candidates(env_id, words), task_exemplars(exemplars_for(env_id)))
+    return remember_places(words, candidates(env_id, words), _exemplars(exemplars_for(env_id)))
 
 
 class CameraShapeTouchController(CameraTouchController):
@@ -95,4 +107,5 @@ class CameraShapeTouchController(CameraTouchController):
         self.field = field
 
 
-__all__ = ["CameraShapeTouchController", "candidates", "exemplars_for", "remember_places", "shape_places"]
+__all__ = ["REMEMBER_EXEMPLARS_DIR", "CameraShapeTouchController", "candidates", "exemplars_for", "remember_places",
+           "shape_places"]
