@@ -18,7 +18,7 @@ from sb3_memret.controllers.base import as_numpy
 from sb3_memret.tasks import make_task
 from sb3_memret.tasks.mikasa.find_imposter.camera_expert import imposter_places
 from sb3_memret.tasks.mikasa.find_imposter.perception import task_exemplars
-from sb3_memret.tasks.mikasa.remember.shape_camera_expert import candidates, exemplars_for, shape_places
+from sb3_memret.tasks.mikasa.remember.shape_camera_expert import candidates, shape_places
 
 
 def main() -> None:
@@ -33,7 +33,8 @@ def main() -> None:
     if args.reader == "remember":
         read = shape_places(args.task, words)
     else:
-        read = imposter_places(words, candidates(args.task, words), task_exemplars(exemplars_for(args.task)))
+        imposter = args.task.replace("Remember", "FindImposter").replace("-Long", "")  # the same objects
+        read = imposter_places(words, candidates(args.task, words), task_exemplars(imposter))
     env = task.make_env(obs_mode="rgb")
     worst, placed_all, wrong = 0.0, 0, 0  # wrong: objects placed over 3 cm off (named for another)
     for seed in range(5000, 5000 + args.seeds):
