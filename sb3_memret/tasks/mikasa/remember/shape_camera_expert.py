@@ -12,6 +12,7 @@ calibration frames of development seeds 6000-6199, never a protocol seed;
 The cue shows one object, so any frame with more in view shows the choice, and touching objects are cut apart colour
 by colour until each colour has its count (``assign_shown(..., by_colour=True)``). Two earlier readers fell short on
 RememberShapeAndColor5x3, over development seeds 5000-5039 (``lab/2026-12-06-remember-shape-and-color-on-the-cameras``):
+
 - FindImposter's exemplars, from its cue frames: none had been seen at 7 of the 15 places (neighbours there touch
   and were skipped), and same-coloured pairs swapped shapes at 7 of the first 12 seeds;
 - cutting the largest group in the picture: a near object was cut while two far ones stayed merged, and 4 of 40
