@@ -1,13 +1,18 @@
+"""Each object's cost as each shape at one frame of a Remember shape task (zero actions for STEPS steps), with how many
+exemplars were seen at its place, against the simulator's layout.
+
+    .venv/bin/python lab/2026-12-06-remember-shape-and-color-on-the-cameras/exemplar_costs.py RememberShapeAndColor5x3-VLA-v0 5000 12
+"""
 import sys
 import numpy as np
 from sb3_memret.controllers.base import as_numpy
 from sb3_memret.tasks import make_task
 from sb3_memret.tasks.mikasa.find_imposter.camera_expert import one_frame
-from sb3_memret.tasks.mikasa.find_imposter.perception import objects_in_view, task_exemplars, object_crop, NEAR_PLACE
-from sb3_memret.tasks.mikasa.remember.shape_camera_expert import candidates, exemplars_for
+from sb3_memret.tasks.mikasa.find_imposter.perception import objects_in_view, object_crop, NEAR_PLACE
+from sb3_memret.tasks.mikasa.remember.shape_camera_expert import _exemplars, candidates, exemplars_for
 from sb3_memret.tasks.mikasa.core.perception import COLOUR_NAMES
 task_id = sys.argv[1]; task = make_task(task_id); words = list(task.words)
-cands = candidates(task_id, words); ex = task_exemplars(exemplars_for(task_id))
+cands = candidates(task_id, words); ex = _exemplars(exemplars_for(task_id))
 env = task.make_env(obs_mode="rgb")
 np.set_printoptions(precision=1, suppress=True, linewidth=200)
 for seed in [int(s) for s in sys.argv[2].split(",")]:

@@ -1,3 +1,8 @@
+"""Per step of a Remember shape task's episodes (zero actions): how many objects the reader finds, and "+" where the
+assignment names them all.
+
+    .venv/bin/python lab/2026-12-06-remember-shape-and-color-on-the-cameras/groups_per_step.py RememberShapeAndColor5x3-VLA-v0 5004,5007
+"""
 import sys
 import numpy as np
 from sb3_memret.tasks import make_task
