@@ -83,31 +83,44 @@ def owner_of(blob: np.ndarray, owner: np.ndarray, share: float = 1.0) -> int | N
     return int(owners[best]) if owners[best] >= 0 and counts[best] >= share * blob.sum() else None
 
 
+def record_exemplars(env_id: str, frames, cut, name_of, path) -> None:
+    """Write ``env_id``'s shape exemplars to ``path``: each object ``cut(rgb)`` finds in the (rgb, owner) ``frames``
+    that ``name_of(blob, owner)`` names a shape (None: skipped), its place and crop as the readers see them."""
+    from sb3_memret.tasks.mikasa.find_imposter.perception import ShapeExemplars, object_crop
+
+    centres, crops, shapes = [], [], []
+    for rgb, owner in frames:
+        for seen in cut(rgb):
+            shape = name_of(seen.mask, owner)
+            if shape is not None:
+                centre, crop = object_crop(rgb, seen.mask)
+                centres.append(centre)
+                crops.append(crop)
+                shapes.append(shape)
+    ShapeExemplars(np.array(centres, dtype=np.float32), np.array(crops, dtype=np.float32), np.array(shapes)).save(path)
+    print(f"{env_id}: {dict(Counter(shapes))} -> {path}", flush=True)
+
+
 def calibrate(episodes: int, seed: int) -> None:
     from sb3_memret.tasks import make_task
-    from sb3_memret.tasks.mikasa.find_imposter.perception import EXEMPLARS_DIR, ShapeExemplars, object_crop, objects_in_view
+    from sb3_memret.tasks.mikasa.find_imposter.perception import EXEMPLARS_DIR, objects_in_view
 
     EXEMPLARS_DIR.mkdir(parents=True, exist_ok=True)
     for env_id in SHAPE_TASKS:
         task = make_task(env_id)
-        centres, crops, shapes = [], [], []
-        for rgb, owner in cue_frames(task, range(seed, seed + episodes)):
-            for seen in objects_in_view(rgb, 3):
-                k = owner_of(seen.mask, owner)
-                if k is not None:
-                    centre, crop = object_crop(rgb, seen.mask)
-                    centres.append(centre)
-                    crops.append(crop)
-                    shapes.append(task.candidate(task.words[k])[1])
-        path = EXEMPLARS_DIR / f"{env_id}.npz"
-        ShapeExemplars(np.array(centres, dtype=np.float32), np.array(crops, dtype=np.float32), np.array(shapes)).save(path)
-        print(f"{env_id}: {dict(Counter(shapes))} -> {path}", flush=True)
+
+        def name_of(blob, owner, task=task):
+            k = owner_of(blob, owner)
+            return None if k is None else task.candidate(task.words[k])[1]
+
+        record_exemplars(env_id, cue_frames(task, range(seed, seed + episodes)), lambda rgb: objects_in_view(rgb, 3),
+                         name_of, EXEMPLARS_DIR / f"{env_id}.npz")
 
 
 def calibrate_remember(episodes: int, seed: int) -> None:
     from sb3_memret.tasks import make_task
     from sb3_memret.tasks.mikasa.core.perception import COLOUR_NAMES
-    from sb3_memret.tasks.mikasa.find_imposter.perception import ShapeExemplars, object_crop, objects_in_view
+    from sb3_memret.tasks.mikasa.find_imposter.perception import objects_in_view
     from sb3_memret.tasks.mikasa.remember.shape_camera_expert import REMEMBER_EXEMPLARS_DIR, candidates
 
     REMEMBER_EXEMPLARS_DIR.mkdir(parents=True, exist_ok=True)
@@ -116,18 +129,14 @@ def calibrate_remember(episodes: int, seed: int) -> None:
         words = list(task.words)
         named = candidates(env_id, words)
         n_colours = 1 + max(COLOUR_NAMES.index(colour or "blue") for colour, _ in named)
-        centres, crops, shapes = [], [], []
-        for rgb, owner in cue_frames(task, range(seed, seed + episodes), choice=True):
-            for seen in objects_in_view(rgb, n_colours, len(words)):
-                k = owner_of(seen.mask, owner, OWNED)
-                if k is not None:
-                    centre, crop = object_crop(rgb, seen.mask)
-                    centres.append(centre)
-                    crops.append(crop)
-                    shapes.append(named[k][1])
-        path = REMEMBER_EXEMPLARS_DIR / f"{env_id}.npz"
-        ShapeExemplars(np.array(centres, dtype=np.float32), np.array(crops, dtype=np.float32), np.array(shapes)).save(path)
-        print(f"{env_id}: {dict(Counter(shapes))} -> {path}", flush=True)
+
+        def name_of(blob, owner, named=named):
+            k = owner_of(blob, owner, OWNED)
+            return None if k is None else named[k][1]
+
+        record_exemplars(env_id, cue_frames(task, range(seed, seed + episodes), choice=True),
+                         lambda rgb, n=n_colours, m=len(words): objects_in_view(rgb, n, m), name_of,
+                         REMEMBER_EXEMPLARS_DIR / f"{env_id}.npz")
 
 
 def evaluate(tasks: list[str], episodes: int, seed: int) -> None:
