@@ -16,7 +16,8 @@ from sb3_memret.controllers.prompts import build_prompt  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
 from sb3_memret.tasks.mikasa.core.calibration import BASE_CAMERA_EXTRINSIC, BASE_CAMERA_INTRINSIC  # noqa: E402
 from sb3_memret.tasks.mikasa.rotate.camera_expert import (  # noqa: E402
-    REST_WRIST, CameraPegTurnController, PegInHand, PegSighting, WristEstimate, pushed_peg, read_peg)
+    HIDDEN_SLIDE, HIDDEN_TURN_PER_METRE, REST_WRIST, CameraPegTurnController, PegInHand, PegSighting, WristEstimate,
+    pushed_peg, read_peg, side_of)
 from sb3_memret.tasks.mikasa.rotate.expert import PEG_HALF_WIDTH, TurnGains, wrap  # noqa: E402
 from sb3_memret.tasks.mikasa.rotate.task import (  # noqa: E402
     CUE_FACT, LENIENT_INSTRUCTION, peg_on_table, peg_top_mask, peg_yaw)
@@ -120,6 +121,9 @@ def test_a_strip_of_the_face_gives_the_axis_and_the_far_end_both_ends_the_centre
     controller.act(_obs(_tcp(0.1, 0.02, 0.0, z=0.02), 0.0, strip), [prompt])
     peg = controller.pegs[0]
     assert peg.yaw == pytest.approx(0.2) and np.allclose(peg.centre, far + 0.118 * axis)
+    controller.act(_obs(_tcp(0.1, 0.02, 0.0, z=0.2), 0.0, PegSighting(far + 0.06 * axis, 0.5, 50, strip.ends)),
+                   [prompt])  # the same strip with the hand high up: the arm may hide any part, no far end
+    assert controller.pegs[0] is peg
     thin = PegSighting(far + 0.06 * axis, 0.6, 20, np.stack([far, far + 0.12 * axis]))
     controller.act(_obs(_tcp(0.1, 0.02, 0.0, z=0.06), 0.0, thin), [prompt])  # (the hand up: pushing nothing)
     assert controller.pegs[0] is peg
@@ -134,17 +138,22 @@ def test_a_strip_of_the_face_gives_the_axis_and_the_far_end_both_ends_the_centre
 
 def test_fingers_that_would_stand_inside_a_peg_read_before_have_pushed_it_on():
     """The arm hides the peg it pushes: the last reading is pushed on by the depth the closed fingers would stand
-    inside it, turned the way the lever arm says and slid by the rest."""
+    inside it, from the side they came from, turned the way the lever arm says and slid by the measured share."""
     gains = TurnGains()
     peg = PegSighting(np.zeros(2), 0.0, 100, np.array([[-0.118, 0.0], [0.118, 0.0]]))
     depth = PEG_HALF_WIDTH + gains.finger - 0.02
     ccw = pushed_peg(peg, np.array([0.1, -0.02]), gains)  # the +x end pushed towards +y
-    assert ccw.yaw == pytest.approx(gains.turn_per_metre * depth)
-    assert ccw.centre[0] == pytest.approx(0.0) and 0 < ccw.centre[1] < depth
+    assert ccw.yaw == pytest.approx(HIDDEN_TURN_PER_METRE * depth)
+    assert ccw.centre == pytest.approx([0.0, HIDDEN_SLIDE * depth])
     cw = pushed_peg(peg, np.array([-0.1, -0.02]), gains)  # the -x end pushed towards +y
-    assert wrap(cw.yaw) == pytest.approx(-gains.turn_per_metre * depth)
+    assert wrap(cw.yaw) == pytest.approx(-HIDDEN_TURN_PER_METRE * depth)
     assert pushed_peg(peg, np.array([0.1, -0.05]), gains) is peg  # behind its face, not touching
     assert pushed_peg(peg, np.array([0.15, -0.01]), gains) is peg  # beyond its end
+    # fingers from -y that passed the axis read last (the peg went on ahead of them) push it on, not back
+    crossed = pushed_peg(peg, np.array([0.1, 0.01]), gains, side=-1.0)
+    assert crossed.yaw == pytest.approx(HIDDEN_TURN_PER_METRE * (PEG_HALF_WIDTH + gains.finger + 0.01))
+    assert wrap(pushed_peg(peg, np.array([0.1, 0.01]), gains).yaw) < 0  # (read from where they stand: backwards)
+    assert side_of(peg, np.array([0.1, -0.05]), gains) == -1.0 and side_of(peg, np.array([0.1, 0.01]), gains) is None
 
     controller = CameraPegTurnController(make_task(TASK).template, "push", 0, paced_every=4, read=lambda s: s)
     controller.reset([0])
@@ -154,7 +163,9 @@ def test_fingers_that_would_stand_inside_a_peg_read_before_have_pushed_it_on():
     controller.act(_obs(_tcp(0.1, -0.02, 0.0, z=0.08), 0.0, None), [prompt])  # hidden, the hand over it
     assert controller.pegs[0] is peg
     controller.act(_obs(_tcp(0.1, -0.02, 0.0, z=0.02), 0.0, None), [prompt])  # hidden, the fingers down in it
-    assert controller.pegs[0].yaw == pytest.approx(ccw.yaw)
+    assert controller.pegs[0].yaw == pytest.approx(ccw.yaw) and controller.sides == [-1.0]
+    controller.act(_obs(_tcp(0.1, 0.03, 0.0, z=0.02), 0.0, None), [prompt])  # on past the axis first read
+    assert controller.pegs[0].yaw > ccw.yaw and controller.sides == [-1.0]  # pushed on the same way
 
 
 @pytest.mark.slow

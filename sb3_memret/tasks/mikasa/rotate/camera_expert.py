@@ -9,12 +9,15 @@ and motion on the harness's inputs only (``ControllerSpec.harness_inputs``):
   off the simulator's on average along development episodes, against 2.0 for the pixels' principal axis, which a
   finger over one side of the face tilts by up to 12 degrees). A frame that shows ``WHOLE_FRACTION`` of the face it showed at
   first sight gives its centre and axis, and so does one that shows both its ends (the fingers over its middle: the
-  centre is between the ends). While the hand pushes, it hides the end it pushes: a frame that still shows
-  a strip of the face's full width at least ``MIN_STRIP`` long gives the axis (its angle reads within 2 degrees), and
-  the strip's end away from the hand is the peg's far end, so the centre is half the peg's length in from it. A frame
+  centre is between the ends). While the hand pushes, it hides the end it pushes: with the fingers down at the
+  face, a frame that still shows a strip of the face's full width at least ``MIN_STRIP`` long gives the axis (its
+  angle reads within 2 degrees), and the strip's end away from the hand is the peg's far end, so the centre is half
+  the peg's length in from it (with the hand higher up, the arm may hide any part of the face, and a strip's ends
+  are no ends). A frame
   that shows less (a thin or short strip, cut across by the fingers, read up to 21 degrees off) is not read, and the
-  last reading stands, pushed on where the closed fingers now stand inside it (``pushed_peg``: the arm can hide the
-  whole peg for several calls of a push);
+  last reading stands, pushed on where the closed fingers now stand inside it, away from the side they came from
+  (``pushed_peg``: the arm can hide the whole peg for several calls of a push, and the fingers can pass the axis
+  last read);
 - **the peg in hand** (Strict's grasp): its centre under the hand; its angle read as above where the frame shows it,
   else turned with the hand from its last reading (``PegInHand``);
 - **the wrist's angle** (the grasp must leave the last joint room for the turn): dead-reckoned from the hand's pose
@@ -48,6 +51,13 @@ PEG_CENTRE_Z = PEG_TOP_Z / 2  # the peg lies on the table
 WHOLE_FRACTION = 0.85  # a frame showing this share of the top face's pixels at first sight shows the whole peg
 MIN_STRIP = 0.1  # m: a part of the 24 cm top face this long ...
 MIN_DENSITY = 0.65  # ... with this share of the whole face's pixels per metre (its full width) gives the peg's axis
+STRIP_HAND_Z = PEG_TOP_Z + 0.03  # m: ... while the TCP is this low (the fingers, at the face, hide its near end;
+# the arm above it hides any part, and a strip's far end is then no end: 11 cm off at development seeds)
+# a push the arm hides turns the peg this much per metre the fingers went into its face, and slides it this share of
+# that depth (least squares over 62 calls of pushes 2+ cm deep, development seeds 5000-5029: RMS 2 degrees a call;
+# lab/2026-12-06-rotate-hidden-push); the plan's ``TurnGains.turn_per_metre`` (6) sizes a push, not this
+HIDDEN_TURN_PER_METRE = 5.1
+HIDDEN_SLIDE = 0.7
 EDGE = 0.002  # m: a sighting's ends sit this far in from the face's (pixel centres; the whole face reads 23.6 cm)
 ARM_BASE_XY = (-0.615, 0.0)  # where MIKASA mounts the arm (every task: ``set_root_pose``)
 REST_WRIST = np.pi / 4  # the Panda's rest angle of its last joint; MIKASA's reset adds at most a few hundredths
@@ -89,24 +99,32 @@ def read_peg(rgb: Any) -> PegSighting | None:
     return PegSighting(centre, yaw, int(mask.sum()), centre + np.outer([along.min(), along.max()], axis))
 
 
-def pushed_peg(peg: PegSighting, hand: np.ndarray, gains: TurnGains) -> PegSighting:
+def pushed_peg(peg: PegSighting, hand: np.ndarray, gains: TurnGains, side: float | None = None) -> PegSighting:
     """The peg as the closed fingers at ``hand`` (x, y) must have pushed it since ``peg`` was read: fingers cannot
-    stand inside it, so where they would, the face they touch has gone on by that depth. The push turns the peg
-    ``gains.turn_per_metre`` per metre about its centre, the way the lever arm says, and slides it by the rest of
-    the depth; fingers outside its face leave it as read."""
+    stand inside it, so where they would, the face they touch has gone on by that depth. ``side``: the side of the
+    peg's axis (+1 along its normal, -1 against) the fingers came from, pressing towards the other; by default the
+    side they stand on (fingers that crossed the read axis came from the other side: the peg went on ahead of them).
+    The push turns the peg ``HIDDEN_TURN_PER_METRE`` per metre of depth about its centre, the way the lever arm
+    says, and slides it ``HIDDEN_SLIDE`` of the depth (both measured); fingers outside its face leave it as read."""
     axis = np.array([np.cos(peg.yaw), np.sin(peg.yaw)])
     normal = np.array([-axis[1], axis[0]])
     along, across = float((hand - peg.centre) @ axis), float((hand - peg.centre) @ normal)
-    depth = PEG_HALF_WIDTH + gains.finger - abs(across)
+    side = (1.0 if across >= 0 else -1.0) if side is None else side
+    depth = PEG_HALF_WIDTH + gains.finger - side * across
     if depth <= 0 or abs(along) > PEG_HALF_LENGTH:
         return peg
-    side = 1.0 if across >= 0 else -1.0  # the fingers stand on this side of the axis and press towards the other
-    turn = -side * float(np.sign(along)) * gains.turn_per_metre * depth  # (the +axis end pushed along +normal: +)
-    slide = max(depth - abs(turn * along), 0.0)  # what the turn leaves of the depth at the fingers
-    centre = peg.centre - side * slide * normal
+    turn = -side * float(np.sign(along)) * HIDDEN_TURN_PER_METRE * depth  # (the +axis end pushed along +normal: +)
+    centre = peg.centre - side * HIDDEN_SLIDE * depth * normal
     yaw = float((peg.yaw + turn) % np.pi)
     ends = centre + np.outer([-PEG_HALF_LENGTH + EDGE, PEG_HALF_LENGTH - EDGE], [np.cos(yaw), np.sin(yaw)])
     return PegSighting(centre, yaw, peg.pixels, ends)
+
+
+def side_of(peg: PegSighting, hand: np.ndarray, gains: TurnGains) -> float | None:
+    """The side of ``peg``'s axis (+1 along its normal, -1 against) that closed fingers at ``hand`` (x, y) stand on
+    clear of its face, where a push from them would start; None where they would stand inside it."""
+    across = float((hand - peg.centre) @ np.array([-np.sin(peg.yaw), np.cos(peg.yaw)]))
+    return None if abs(across) < PEG_HALF_WIDTH + gains.finger else float(np.sign(across))
 
 
 class WristEstimate:
@@ -176,14 +194,15 @@ class CameraPegTurnController(HarnessExpert, PegTurnController):
         self.in_hand = PegInHand()
         self.pegs: list[PegSighting | None] = []  # each env's peg as it now reads it
         self.wholes: list[PegSighting | None] = []  # ... and its fullest sighting of the whole face
+        self.sides: list[float | None] = []  # ... and the side of it the fingers last stood on clear of its face
 
     def _forget(self, n_envs: int) -> None:
-        self.pegs, self.wholes = [None] * n_envs, [None] * n_envs
+        self.pegs, self.wholes, self.sides = [None] * n_envs, [None] * n_envs, [None] * n_envs
         self.wrist.reset(n_envs)
         self.in_hand.reset(n_envs)
 
     def _forget_env(self, i: int) -> None:
-        self.pegs[i], self.wholes[i] = None, None
+        self.pegs[i], self.wholes[i], self.sides[i] = None, None, None
         self.wrist.reset_env(i)
         self.in_hand.reset_env(i)
 
@@ -192,8 +211,9 @@ class CameraPegTurnController(HarnessExpert, PegTurnController):
         return True
 
     def _see(self, i: int, rgb: Any, hand: np.ndarray) -> bool:
-        """Env ``i``'s peg from one frame, the hand at ``hand`` (x, y): the whole face sets it, a strip of the face's
-        width its axis and its far end (the module docstring says why). Whether the frame was read."""
+        """Env ``i``'s peg from one frame, the TCP at ``hand`` (x, y, z): the whole face sets it, a strip of the
+        face's width its axis and its far end while the fingers are down at it (the module docstring says why).
+        Whether the frame was read."""
         seen, whole = self.read(rgb), self.wholes[i]
         if seen is None:
             return False
@@ -204,8 +224,8 @@ class CameraPegTurnController(HarnessExpert, PegTurnController):
         if seen.length >= WHOLE_FRACTION * whole.length:  # both ends in sight, the hand over its middle
             self.pegs[i] = PegSighting(seen.ends.mean(axis=0), seen.yaw, seen.pixels, seen.ends)
             return True
-        if seen.length >= MIN_STRIP and seen.density >= MIN_DENSITY * whole.density:
-            far, near = sorted(seen.ends, key=lambda end: -float(np.linalg.norm(end - hand)))
+        if seen.length >= MIN_STRIP and seen.density >= MIN_DENSITY * whole.density and hand[2] < STRIP_HAND_Z:
+            far, near = sorted(seen.ends, key=lambda end: -float(np.linalg.norm(end - hand[:2])))
             inward = (near - far) / max(float(np.linalg.norm(near - far)), 1e-9)
             centre = far + (PEG_HALF_LENGTH - EDGE) * inward
             self.pegs[i] = PegSighting(centre, seen.yaw, seen.pixels, np.stack([far, centre + (centre - far)]))
@@ -220,12 +240,15 @@ class CameraPegTurnController(HarnessExpert, PegTurnController):
         chunks[:, :, -1] = GRIP_CLOSED
         for i, p in enumerate(parsed):
             wrist = self.wrist.angle(i, tcp[i])
-            fresh = self._see(i, rgb[i], tcp[i, :2])
-            if not fresh and self.strategy == "push" and self.pegs[i] is not None and tcp[i, 2] < g.push_z + 0.02:
-                self.pegs[i] = pushed_peg(self.pegs[i], tcp[i, :2], g)  # the arm hides the peg it pushes
+            fresh = self._see(i, rgb[i], tcp[i, :3])
             peg = self.pegs[i]
             if peg is None:
                 continue  # the peg not yet in sight: hold still
+            if self.strategy == "push":
+                if not fresh and tcp[i, 2] < g.push_z + 0.02:  # the arm hides the peg it pushes
+                    peg = self.pegs[i] = pushed_peg(peg, tcp[i, :2], g, self.sides[i])
+                side = side_of(peg, tcp[i, :2], g)
+                self.sides[i] = side if side is not None or tcp[i, 2] >= STRIP_HAND_Z else self.sides[i]
             centre, yaw = np.array([*peg.centre, PEG_CENTRE_Z]), peg.yaw
             hand = hand_yaw(Rotation.from_quat(tcp[i, [4, 5, 6, 3]]))
             gripped = self.strategy == "grasp" and g.held_gap[0] <= gaps[i] <= g.held_gap[1]
@@ -244,4 +267,4 @@ class CameraPegTurnController(HarnessExpert, PegTurnController):
         return self._ran(inputs, chunks)
 
 
-__all__ = ["CameraPegTurnController", "PegInHand", "PegSighting", "WristEstimate", "pushed_peg", "read_peg"]
+__all__ = ["CameraPegTurnController", "PegInHand", "PegSighting", "WristEstimate", "pushed_peg", "read_peg", "side_of"]
