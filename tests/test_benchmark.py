@@ -524,3 +524,36 @@ def test_a_table_names_the_weights_it_played_and_each_file_s_sha256(tmp_path):
     assert scripted["privileged"] and "checkpoint" not in scripted and "detector" in scripted["reads"]
     joints = controller_record("learned", SimpleNamespace(spec=SimpleNamespace(needs_images=True, harness_inputs=False)))
     assert joints["privileged"] and "joint positions and velocities" in joints["reads"]  # a camera policy on qvel
+
+
+def test_episodes_that_changed_code_played_are_named_before_the_run(tmp_path, monkeypatch, capsys):
+    """A folder whose logged episodes changed code played says so, once per kind, before it plays: those of the
+    tasks this run asks for are played again; the others drop out of the table until a run asks for them."""
+    from sb3_memret.benchmark import runner
+    from sb3_memret.cli.benchmark import _say_outdated
+
+    run = _plan(episodes=2)
+    records = [_record("A-VLA-v0", "oracle", 5000, True, task_sha256="old task code"),
+               _record("A-VLA-v0", "oracle", 5001, True, task_sha256="old task code"),
+               _record("A-VLA-v0", "oracle", 5001, True),  # played again since: not outdated
+               _record("B-VLA-v0", "none", 5000, False, controller_sha256="old controller"),
+               {**_record("B-VLA-v0", "none", 5001, False, controller_sha256="old"), "error": "RuntimeError"},
+               _record("C-VLA-v0", "none", 5000, False, controller_sha256="old")]  # refused here: not counted
+    assert runner.outdated(run, records) == {"A-VLA-v0": 1, "B-VLA-v0": 1}
+
+    with (tmp_path / runner.EPISODES_FILE).open("w") as f:
+        f.writelines(json.dumps(r) + "\n" for r in records)
+    only_b = Plan(run.protocol, [_row("B-VLA-v0", "Spatial")], ["none", "oracle"],
+                  controllers={"B-VLA-v0": run.controllers["B-VLA-v0"]},
+                  task_digests={"B-VLA-v0": run.task_digests["B-VLA-v0"]}, replan_every={"B-VLA-v0": 4})
+    monkeypatch.setattr(runner, "widened", lambda plan, out: run)  # the folder's table: A, B and C
+    monkeypatch.setattr(runner, "play_units", lambda *args, **kwargs: iter(()))
+    heard = []
+    runner.run_benchmark(only_b, tmp_path, on_outdated=lambda stale, replayed: heard.append((stale, replayed)))
+    assert heard == [({"A-VLA-v0": 1, "B-VLA-v0": 1}, {"B-VLA-v0"})]
+
+    _say_outdated(tmp_path, *heard[0])
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 2
+    assert "1 logged episodes of B-VLA-v0" in lines[0] and "played again" in lines[0]
+    assert "1 logged episodes of A-VLA-v0" in lines[1] and "until a run asks for them" in lines[1]

@@ -18,7 +18,7 @@ import os
 import sys
 import time
 import traceback
-from collections import defaultdict
+from collections import Counter, defaultdict
 from contextlib import contextmanager
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
@@ -456,6 +456,16 @@ def done_units(run: Plan, records: Iterable[dict[str, Any]]) -> set[Unit]:
     return {Unit(r["env_id"], r["condition"], int(r["seed"])) for r in records if "error" not in r and run.current(r)}
 
 
+def outdated(run: Plan, records: Iterable[dict[str, Any]]) -> dict[str, int]:
+    """Per task of ``run`` that runs here, its episodes (task, condition, seed) logged only as played by other code
+    (a changed controller or task digest): they no longer count in the table, and are played again only by a run
+    that asks for the task."""
+    records = [r for r in records if r["env_id"] in run.controllers and "error" not in r]
+    current = {Unit(r["env_id"], r["condition"], int(r["seed"])) for r in records if run.current(r)}
+    stale = {unit for r in records if (unit := Unit(r["env_id"], r["condition"], int(r["seed"]))) not in current}
+    return dict(Counter(unit.env_id for unit in stale))
+
+
 def results(run: Plan, records: Iterable[dict[str, Any]]) -> dict[str, Any]:
     """``results.json``'s content: the protocol, and per task its split, memory type, controller and each
     condition's success over the protocol's seeds (or why the task or condition was refused)."""
@@ -557,21 +567,27 @@ def widened(run: Plan, out: Path) -> Plan:
 
 def run_benchmark(run: Plan, out: Path, learners: Path | None = None, workers: int = 1,
                   on_progress: Callable[[int, int], None] | None = None,
-                  on_task_done: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
+                  on_task_done: Callable[[dict[str, Any]], None] | None = None,
+                  on_outdated: Callable[[dict[str, int], set[str]], None] | None = None) -> dict[str, Any]:
     """Play every pending unit of ``run`` into ``out`` (resuming what is there), rewriting ``results.json`` (and
     calling ``on_task_done`` with it) whenever a task's condition has played its last pending unit; the final
-    results."""
+    results. Before playing, ``on_outdated`` hears of the logged episodes that other code played (``outdated``, over
+    the whole table the folder shows) and which of their tasks this run plays again."""
     folder = RunFolder(out)
     folder.check_protocol(run.protocol)
     with folder.playing():
-        return _play_run(run, folder, learners, workers, on_progress, on_task_done)
+        return _play_run(run, folder, learners, workers, on_progress, on_task_done, on_outdated)
 
 
 def _play_run(run: Plan, folder: RunFolder, learners: Path | None, workers: int,
               on_progress: Callable[[int, int], None] | None,
-              on_task_done: Callable[[dict[str, Any]], None] | None) -> dict[str, Any]:
+              on_task_done: Callable[[dict[str, Any]], None] | None,
+              on_outdated: Callable[[dict[str, int], set[str]], None] | None = None) -> dict[str, Any]:
     records = folder.episodes()
     shown = widened(run, folder.out)
+    stale = outdated(shown, records)
+    if stale and on_outdated is not None:
+        on_outdated(stale, {row.env_id for row in run.tasks if row.env_id in run.controllers})
     pending = run.units(done_units(run, records))
     left = defaultdict(int)
     for unit in pending:

@@ -111,7 +111,8 @@ def mikasa(split: str | None, tasks: list[str] | None, episodes: int, controller
     try:
         while True:
             content = run_benchmark(run, out, learners, workers, on_progress,
-                                    on_task_done=lambda content: write_report(content, out))
+                                    on_task_done=lambda content: write_report(content, out),
+                                    on_outdated=lambda stale, replayed: _say_outdated(out, stale, replayed))
             landed = learners_landed(run)
             if not landed:
                 break
@@ -123,6 +124,20 @@ def mikasa(split: str | None, tasks: list[str] | None, episodes: int, controller
     finally:
         bar.close()
     click.echo(str(write_report(content, out)))
+
+
+def _say_outdated(out: Path, stale: dict[str, int], replayed: set[str]) -> None:
+    """One line per kind: the logged episodes of ``out`` that changed code played, which this run plays again and
+    which stay out of the table until a run asks for their tasks."""
+    again = sorted(env_id for env_id in stale if env_id in replayed)
+    left = sorted(env_id for env_id in stale if env_id not in replayed)
+    if again:
+        click.echo(f"{out}: {sum(stale[e] for e in again)} logged episodes of {', '.join(again)} were played by "
+                   "code that has changed since (its controller or task digest): played again", err=True)
+    if left:
+        click.echo(f"{out}: {sum(stale[e] for e in left)} logged episodes of {', '.join(left)} were played by code "
+                   "that has changed since and no longer count: the table shows those tasks unplayed until a run "
+                   "asks for them (--tasks, or --split)", err=True)
 
 
 @benchmark.command()
