@@ -129,7 +129,8 @@ controller-mikasa: install renderer
 # prompt tells the tasks apart. Wider camera heads, the object pointer,
 # and the harness's 7-D proprioception alone (the recipe's state: harness), so its benchmark rows are a protocol entry.
 # Data in resumable chunks of 50 (scripts/record_task_demos.sh: decision frames, the cameras rendering only there; a
-# rerun records only the missing chunks; keep the counts multiples of 50): $(MULTITASK_EPISODES) expert episodes of each
+# rerun records only the missing chunks; keep the counts multiples of 50; `JOBS=2 make controller-multitask` records two
+# chunks at a time): $(MULTITASK_EPISODES) expert episodes of each
 # task, then $(MULTITASK_ONPOLICY) more played by the task's own camera controller (`learned-task`) where one
 # ships, the expert labelling; a first policy on them; a DAgger round of $(MULTITASK_DAGGER) episodes of each played by
 # the first policy; $(MULTITASK_EXTRA) more expert episodes of the tasks the first policies left below 90%
