@@ -39,13 +39,9 @@ def main() -> None:
             return chunk
 
         agent.controller.act = traced
-        print(f"seed {seed} {args.condition}: {prompts_of(agent)}")
+        print(f"seed {seed} {args.condition}:")
         record = worker.play(Unit(args.task, args.condition, seed))
         print(f"seed {seed}: success {record['success']} steps {record['steps']}")
-
-
-def prompts_of(agent) -> str:
-    return agent.condition
 
 
 if __name__ == "__main__":
