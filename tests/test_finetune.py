@@ -20,7 +20,11 @@ from sb3_memret.tasks.drawer.robot import LIGHT_PANDA_UID
 from sb3_memret.stage1.demos import record_demos
 from sb3_memret.tasks.demos import DemoEpisode
 from sb3_memret.stage1.datasets import Demonstrations, hindsight_objects, load_demonstrations, validation_episodes
-from sb3_memret.stage1.finetune import FinetuneSettings, read_log
+from sb3_memret.stage1.finetune import FinetuneSettings, read_log, tasks_template
+from sb3_memret.benchmark.runner import split_tasks
+from sb3_memret.controllers.prompts import NUMBER, SIGNED_NUMBER, WORDS, parse_prompt
+from sb3_memret.tasks import make_task
+from sb3_memret.tasks.mikasa.batteries_checker.checklist import CHECKLIST_PATTERN
 from sb3_memret.stage1.finetune import finetune as finetune_any_task
 
 SMALL = LearnedPolicyConfig(hidden_dim=64, n_layers=2, text_dim=32, text_heads=2, chunk_len=8)
@@ -360,3 +364,29 @@ def test_hindsight_never_points_at_an_object_the_episodes_task_lacks():
     assert hindsight_objects(demos, names[:3], ("a", "b")).tolist() == [0, 1]
     demos.known = None
     assert hindsight_objects(demos, names[:3], ("a", "b")).tolist() == [1, 1]  # unmasked, b's zeros would win
+
+
+# a sentence each field pattern of the MIKASA tasks takes (a new pattern fails the test below until it has one)
+FIELD_SAMPLES = {NUMBER: "12", SIGNED_NUMBER: "-30", WORDS: "blue lamp",
+                 CHECKLIST_PATTERN: "slot 1 working and slot 2 dead"}
+
+
+def test_one_contract_across_every_mikasa_task_takes_each_tasks_own_sentences():
+    """A policy trained on several tasks takes every task's instructions and facts, though the tasks word a field
+    differently (TimedTransfer's {count} a number of steps, BlinkCount's words)."""
+    names = sorted({name for split in ("short", "medium", "long") for name in split_tasks(split)[0]})
+    tasks = [make_task(name) for name in names]
+    merged = tasks_template(tasks)
+    for task in tasks:
+        own = task.prompt_template
+        values = {}
+        for name, pattern in own.field_patterns():
+            assert pattern in FIELD_SAMPLES, f"{task.name}: no sample for field {name!r}'s pattern {pattern!r}"
+            values.setdefault(name, FIELD_SAMPLES[pattern])
+        for sentence in own.fact_templates:
+            prompt = f"{own.instructions[0].format(**values)} {sentence.format(**values)}"
+            fact = parse_prompt(prompt, own).facts[0]  # the sample is one the task itself takes
+            assert dict(fact.fields) == {k: v for k, v in values.items() if "{" + k + "}" in sentence}
+            assert parse_prompt(prompt, merged).facts[0].template in merged.fact_templates, (task.name, sentence)
+        for instruction in task.instruction_templates:
+            assert parse_prompt(instruction.format(**values), merged).instruction == instruction.format(**values)

@@ -3,7 +3,7 @@ drift refused naming the offending text."""
 
 import pytest
 
-from sb3_memret.controllers.prompts import NUMBER, SIGNED_NUMBER, PromptTemplate, build_prompt, parse_prompt
+from sb3_memret.controllers.prompts import NUMBER, SIGNED_NUMBER, WORDS, PromptTemplate, build_prompt, parse_prompt
 
 INSTRUCTION = "open the {colour} door."
 KEY_FACT = "the key is behind door {door}."
@@ -76,3 +76,20 @@ def test_a_template_without_instructions_or_with_a_bad_pattern_is_refused():
         PromptTemplate("open the red door.")
     with pytest.raises(Exception, match="unterminated|missing"):
         PromptTemplate((INSTRUCTION,), (KEY_FACT,), (("door", "[0-9"),))
+
+
+def test_a_merged_contract_takes_a_field_worded_two_ways_and_nothing_else():
+    numbered = PromptTemplate(("count the blinks.",), ("the lamp blinked {count}.",), (("count", NUMBER),))
+    worded = PromptTemplate(("press the button.",), ("the lamp blinked {count}.", HELD))
+    merged = PromptTemplate.merged([numbered, worded])
+    assert merged.instructions == ("count the blinks.", "press the button.")
+    assert merged.fact_templates == ("the lamp blinked {count}.", HELD)
+    assert merged.fields == (("count", NUMBER), ("count", WORDS))
+    assert parse_prompt("count the blinks. the lamp blinked 3.", merged).field("count") == "3"
+    assert parse_prompt("press the button. the lamp blinked three times.", merged).field("count") == "three times"
+    with pytest.raises(ValueError, match="matches no trained template"):
+        parse_prompt("press the button. the lamp blinked -3.", merged)  # neither takes a sign
+    with pytest.raises(ValueError, match="matches no trained template"):
+        parse_prompt("count the blinks. the lamp blinked three.", PromptTemplate.merged([numbered]))
+    # fields that hold words in every template stay unlisted, as one template's would
+    assert PromptTemplate.merged([worded, PromptTemplate((INSTRUCTION,), (KEY_FACT,))]).fields == ()

@@ -24,14 +24,16 @@ CONDITIONS: tuple[str, ...] = (*FIXED_CONDITIONS, "written")
 
 NUMBER = r"[0-9]+"  # a field that holds a whole number (a drawer layer, a speed in cm/s)
 SIGNED_NUMBER = r"-?[0-9]+"  # a field that holds a signed whole number (a rotation in degrees)
-_WORDS = r"[a-z]+(?: [a-z]+)*"  # what every other field holds
+WORDS = r"[a-z]+(?: [a-z]+)*"  # what a field holds when its template gives it no pattern
 _SENTENCE_RE = re.compile(r"[^ .][^.]*\.")
 
 
 @dataclass(frozen=True)
 class PromptTemplate:
     """The sentences a controller was trained on: its instructions and fact templates, and the fields among them
-    that hold something other than words (``fields``: name and pattern, e.g. ``("layer", NUMBER)``).
+    that hold something other than words (``fields``: name and pattern, e.g. ``("layer", NUMBER)``). A name listed
+    with several patterns takes any of them: the contract of a controller trained on several tasks, where one task
+    words ``{count}`` as a number and another as words (``merged``).
 
     Either may hold fields (``pick out the {entity}.``): a controller trained on several objects
     takes any object word there, while one trained on ``pick out the cube.`` alone takes nothing else.
@@ -46,6 +48,26 @@ class PromptTemplate:
             raise ValueError(f"a prompt template needs a tuple of instructions, got {self.instructions!r}")
         for name, pattern in self.fields:
             re.compile(pattern)  # a bad pattern fails here, naming itself
+
+    @classmethod
+    def merged(cls, templates: Sequence["PromptTemplate"]) -> "PromptTemplate":
+        """One contract taking every sentence any of ``templates`` takes: their instructions and fact templates, and
+        every pattern each gives a field of its sentences (words where it names none), each once and in order;
+        a field that holds words in every template stays unlisted."""
+        fields = dict.fromkeys(field for t in templates for field in t.field_patterns())
+        typed = {name for name, pattern in fields if pattern != WORDS}
+        return cls(tuple(dict.fromkeys(i for t in templates for i in t.instructions)),
+                   tuple(dict.fromkeys(f for t in templates for f in t.fact_templates)),
+                   tuple((name, pattern) for name, pattern in fields if name in typed))
+
+    def field_patterns(self) -> tuple[tuple[str, str], ...]:
+        """Every field of the template's sentences with each pattern it takes (``WORDS`` where ``fields`` names
+        none), in order of first appearance."""
+        names = dict.fromkeys(name for sentence in (*self.instructions, *self.fact_templates)
+                              for name in re.findall(r"\{(\w+)\}", sentence))
+        given = [name for name, _ in self.fields]
+        return tuple((name, pattern) for name in names
+                     for pattern in ([p for n, p in self.fields if n == name] if name in given else [WORDS]))
 
     def describe(self) -> str:
         return "instructions " + " | ".join(map(repr, self.instructions)) + "; facts " + " | ".join(
@@ -117,12 +139,14 @@ def check_fixed_condition(condition: str) -> str:
 
 @functools.lru_cache(maxsize=None)
 def _template_regex(template: str, fields: tuple[tuple[str, str], ...] = ()) -> re.Pattern:
-    """A template like 'the {entity} is in drawer layer {layer}.' as an exact-match regex, each field matching its
-    pattern in ``fields`` (words when it has none)."""
-    patterns = dict(fields)
+    """A template like 'the {entity} is in drawer layer {layer}.' as an exact-match regex, each field matching any
+    of its patterns in ``fields`` (words when it has none)."""
+    patterns: dict[str, list[str]] = {}
+    for name, field_pattern in fields:
+        patterns.setdefault(name, []).append(f"(?:{field_pattern})")
     parts = re.split(r"\{(\w+)\}", template)
     pattern = "".join(
-        re.escape(part) if i % 2 == 0 else f"(?P<{part}>{patterns.get(part, _WORDS)})"
+        re.escape(part) if i % 2 == 0 else f"(?P<{part}>{'|'.join(patterns.get(part, [WORDS]))})"
         for i, part in enumerate(parts)
     )
     return re.compile(pattern)

@@ -447,9 +447,8 @@ def tasks_template(tasks: Sequence[Task]) -> PromptTemplate:
     """The prompt contract a policy trained on ``tasks`` may take: every instruction template of their
     demonstrations (``Task.instruction_templates``) and every fact template of theirs, once; the finetune keeps the
     instructions its datasets hold (``training_instructions``)."""
-    return PromptTemplate(tuple(dict.fromkeys(i for task in tasks for i in task.instruction_templates)),
-                          tuple(dict.fromkeys(f for task in tasks for f in task.prompt_template.fact_templates)),
-                          tuple(dict.fromkeys(f for task in tasks for f in task.prompt_template.fields)))
+    facts = PromptTemplate.merged([task.prompt_template for task in tasks])  # a field worded two ways takes either
+    return replace(facts, instructions=tuple(dict.fromkeys(i for task in tasks for i in task.instruction_templates)))
 
 
 def masked_stats(values: np.ndarray, mask: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
