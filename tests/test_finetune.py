@@ -90,10 +90,19 @@ def test_policy_learns_the_experts_labels(demos, tmp_path):
     assert np.abs(chunks - target).mean() < 0.5 * np.abs(target).mean()
 
 
-def test_prompts_outside_the_contract_are_refused(demos, tmp_path):
+def test_prompts_outside_the_contract_are_refused_before_any_frame_is_read(demos, tmp_path, monkeypatch):
+    import sb3_memret.stage1.finetune as module
+
+    def no_frames(*args, **kwargs):
+        raise AssertionError("the frames were read before the prompts were checked")
+
+    monkeypatch.setattr(module, "load_demonstrations", no_frames)
+    monkeypatch.setattr(module, "load_task_demonstrations", no_frames)
     config = LearnedPolicyConfig(fact_templates=("the robot is holding the {value}.",))
     with pytest.raises(ValueError, match="matches no trained template"):
         finetune([demos], tmp_path / "ckpt", config, FinetuneSettings(steps=1))
+    with pytest.raises(ValueError, match="matches no trained template"):  # datasets given per task, too
+        finetune_any_task({"drawer": [demos]}, tmp_path / "ckpt", config, FinetuneSettings(steps=1))
 
 
 def test_demos_finetune_rollout_through_the_cli(tmp_path):

@@ -193,6 +193,20 @@ def _check_feature(features: dict, key: str, shape: tuple[int, ...], root: Path,
                          "demonstration layout)")
 
 
+def dataset_prompts(roots: Sequence[str | Path]) -> list[str]:
+    """The prompts the datasets hold, each once, read from their metadata alone (lerobot's reader): seconds where
+    reading the frames of a multi-task set takes minutes, so a prompt outside the contract is refused first."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
+
+    prompts: dict[str, None] = {}
+    for root in map(Path, roots):
+        if not (root / "meta" / "info.json").is_file():
+            raise FileNotFoundError(f"{root} is not a LeRobotDataset (no meta/info.json); write one with "
+                                    "`sb3-memret demos --out DIR`")
+        prompts.update(dict.fromkeys(LeRobotDatasetMetadata(f"local/{root.name}", root=root).tasks.index))
+    return list(prompts)
+
+
 def has_cameras(roots: Sequence[str | Path]) -> bool:
     """Whether the first dataset holds camera images (read from its metadata alone)."""
     import json
@@ -240,5 +254,5 @@ def validation_episodes(episodes: np.ndarray, fraction: float, rng: np.random.Ge
     return rng.choice(ids, size=n_val, replace=False) if n_val else np.array([], dtype=np.int64)
 
 
-__all__ = ["Demonstrations", "has_cameras", "hindsight_objects", "load_demonstrations", "load_task_demonstrations",
+__all__ = ["Demonstrations", "dataset_prompts", "has_cameras", "hindsight_objects", "load_demonstrations", "load_task_demonstrations",
            "validation_episodes"]

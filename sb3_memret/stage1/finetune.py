@@ -44,7 +44,7 @@ from sb3_memret.controllers.learned.processing import (LearnedPolicyProcessor, P
                                                        state_columns)
 from sb3_memret.controllers.learned.vision import shift_augment
 from sb3_memret.controllers.prompts import PromptTemplate, parse_prompt
-from sb3_memret.stage1.datasets import (Demonstrations, hindsight_objects, load_demonstrations,
+from sb3_memret.stage1.datasets import (Demonstrations, dataset_prompts, hindsight_objects, load_demonstrations,
                                         load_task_demonstrations, validation_episodes)
 from sb3_memret.stage1.feature_cache import cached_features
 from sb3_memret.tasks import Task, make_task
@@ -150,6 +150,7 @@ def finetune(
     settings = settings or FinetuneSettings()
     out = Path(out)
     check_unfinished(out, resume)
+    check_dataset_prompts(datasets, task, config)
     tasks, demos = _load(datasets, task)
     if state == "harness":
         states, names = with_harness_proprio(demos.states, demos.state_names)
@@ -179,6 +180,31 @@ def check_unfinished(out: Path, resume: bool) -> None:
     if not resume and (out / STATE_FILE).is_file():
         raise FileExistsError(f"{out} holds an unfinished finetune ({STATE_FILE}): resume it (--resume) or delete "
                               "the folder")
+
+
+def with_contract(config: LearnedPolicyConfig,
+                  tasks: Sequence[Task]) -> tuple[LearnedPolicyConfig, tuple[tuple[str, str], ...]]:
+    """``config`` with a prompt contract (a config without one takes its tasks' templates) and the tasks' field
+    patterns."""
+    template = tasks_template(tasks)
+    if not config.instructions:
+        config = replace(config, instructions=template.instructions,
+                         fact_templates=config.fact_templates or template.fact_templates)
+    return config, template.fields
+
+
+def check_dataset_prompts(datasets: Sequence[str | Path] | Mapping[str | Task, Sequence[str | Path]],
+                          task: str | Task | None, config: LearnedPolicyConfig | None) -> None:
+    """Refuse, before any frame is read, a dataset prompt outside the contract the policy would train under (the
+    config's, else its tasks' own templates together), naming the prompt and the accepted forms."""
+    per_task = datasets if isinstance(datasets, Mapping) else {task: datasets} if task is not None else {}
+    tasks = [make_task(name) for name in per_task]
+    if not tasks:
+        return  # _load names what is missing
+    config, fields = with_contract(config or default_config(tasks), tasks)
+    contract = config.prompt_template(fields)
+    for prompt in dataset_prompts([root for roots in per_task.values() for root in roots]):
+        parse_prompt(prompt, contract)
 
 
 def _load(datasets: Sequence[str | Path] | Mapping[str | Task, Sequence[str | Path]],
@@ -218,11 +244,7 @@ def policy_config(config: LearnedPolicyConfig, tasks: Sequence[Task], demos: Dem
     """``config`` completed from the demonstrations (the instructions and prompts they hold, the state entries the
     policy reads, the cameras, the perceived entries, the robot), and where those inputs lie in them; refused with a
     ValueError naming what does not fit (a prompt outside the contract, tasks whose state entries differ)."""
-    template = tasks_template(tasks)
-    fields = template.fields
-    if not config.instructions:  # a config without a prompt contract takes its tasks'
-        config = replace(config, instructions=template.instructions,
-                         fact_templates=config.fact_templates or template.fact_templates)
+    config, fields = with_contract(config, tasks)
     config = replace(config, instructions=training_instructions(demos.tasks, config.instructions,
                                                                 config.fact_templates, fields))
     for prompt in demos.tasks:
