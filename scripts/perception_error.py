@@ -76,7 +76,7 @@ def main() -> None:
     idx = np.sort(np.random.default_rng(0).choice(held, size=min(args.frames, len(held)), replace=False))
     tokenizer = PromptTokenizer()
     processor = LearnedPolicyProcessor(policy.config, tokenizer=tokenizer)  # the inputs as training and acting build them
-    features = camera_inputs(policy, processor, {k: v[idx] for k, v in demos.images.items()},
+    features = camera_inputs(policy, processor, {k: v.take(idx) for k, v in demos.images.items()},
                              policy.config.image_features, cache=False)
     cameras = [processor.camera(f) if policy.trunk is None else f.float() for f in features]
     with torch.no_grad():  # heads conditioned on the prompt (image_film) read each frame's own prompt

@@ -189,6 +189,28 @@ def test_training_reads_a_frame_as_the_controller_reads_the_observation_it_was_r
     assert torch.equal(trained.tokens[trained.prompt_of[0]][: len(mask)][mask], acting["tokens"][0][mask])
 
 
+def test_camera_frames_stay_on_disk_and_read_back_whole_by_dataset_or_by_index(camera_demos, tmp_path):
+    """A set of demonstrations holds where its images lie, not the images: read back they are the dataset's frames,
+    whole, a dataset at a time (two copies of one dataset joined: twice the frames, in order) or at chosen frames."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    from sb3_memret.stage1.datasets import CameraFrames
+
+    key = "observation.images.image"
+    stored = np.asarray(LeRobotDataset("local/c", root=camera_demos).hf_dataset.with_format("numpy")[key])
+    frames = load_demonstrations([camera_demos, camera_demos], "drawer").images[key]
+    assert isinstance(frames, CameraFrames) and frames.shape == (2 * len(stored), 32, 32, 3)
+    blocks = list(frames.blocks())
+    assert len(blocks) == 2 and all(np.array_equal(block, stored) for block in blocks)
+    assert np.array_equal(frames.array(), np.concatenate([stored, stored]))
+    idx = np.array([len(stored) + 1, 0, 3])  # across both datasets, out of order
+    assert np.array_equal(frames.take(idx), stored[[1, 0, 3]])
+    with pytest.raises(IndexError, match=r"must lie in \[0, "):
+        frames.take(np.array([len(frames)]))
+    with pytest.raises(ValueError, match="cannot join"):
+        CameraFrames.join([frames, CameraFrames(key, (tmp_path,), (1,), (64, 64, 3))])
+
+
 def test_a_camera_policy_learns_from_decision_frames_and_sees_only_the_hand(camera_demos, demos, tmp_path, rgb_task_env):
     config = LearnedPolicyConfig(hidden_dim=64, n_layers=2, text_dim=32, text_heads=2, image_encoder="cnn", image_dim=16)
     out = finetune([camera_demos], tmp_path / "ckpt", config, FinetuneSettings(steps=150, batch_size=10,

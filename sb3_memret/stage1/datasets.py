@@ -2,7 +2,8 @@
 
 ``load_demonstrations`` reads the LeRobotDatasets ``sb3-memret demos`` wrote for one task, checking their features
 against its layout; ``load_task_demonstrations`` merges several tasks' on the union of their layouts, marking each
-frame's own entries (``Demonstrations.known``). ``hindsight_objects`` reads what each prompt was about from where its
+frame's own entries (``Demonstrations.known``). Camera images stay on disk (``CameraFrames``) and are read a dataset
+at a time where they are used. ``hindsight_objects`` reads what each prompt was about from where its
 episodes' hands end, and ``validation_episodes`` draws the held-out episodes.
 """
 
@@ -10,13 +11,76 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Mapping, Sequence
+from typing import Iterator, Mapping, Sequence
 
 import numpy as np
 
 from sb3_memret.controllers.learned.processing import state_columns
 from sb3_memret.controllers.observation import ACTION_CHUNK_KEY, ACTION_DIM, ACTION_KEY, CHUNK_PAD_KEY, IMAGE_KEYS, STATE_KEY
 from sb3_memret.tasks import Task, make_task
+
+@dataclass(frozen=True)
+class CameraFrames:
+    """One camera's uint8 frames (S, S, 3) across the datasets, read from disk a dataset at a time (``blocks``): a
+    multi-task set's images outgrow memory (170 chunks of MIKASA demonstrations held 9 GB, twice that while joined)
+    where a frozen trunk's features of them do not."""
+
+    key: str
+    roots: tuple[Path, ...]
+    spans: tuple[int, ...]  # each dataset's frame count, in order
+    frame_shape: tuple[int, ...]
+
+    @property
+    def shape(self) -> tuple[int, ...]:
+        return (sum(self.spans), *self.frame_shape)
+
+    def __len__(self) -> int:
+        return sum(self.spans)
+
+    def blocks(self) -> Iterator[np.ndarray]:
+        """Each dataset's frames, in order."""
+        for root, span in zip(self.roots, self.spans):
+            yield _read_frames(root, self.key, span)
+
+    def array(self) -> np.ndarray:
+        """Every frame in one array (an encoder trained from pixels reads them all at every step)."""
+        return np.concatenate([*self.blocks()]) if self.roots else np.zeros((0, *self.frame_shape), np.uint8)
+
+    def take(self, idx: np.ndarray) -> np.ndarray:
+        """Frames ``idx``, in that order, reading only the datasets that hold them."""
+        idx = np.asarray(idx, dtype=np.int64)
+        if idx.size and (idx.min() < 0 or idx.max() >= len(self)):
+            raise IndexError(f"frame indices must lie in [0, {len(self)}), got {idx.min()}..{idx.max()}")
+        out = np.zeros((len(idx), *self.frame_shape), np.uint8)
+        starts = np.r_[0, np.cumsum(self.spans)]
+        for i, (root, span) in enumerate(zip(self.roots, self.spans)):
+            inside = (idx >= starts[i]) & (idx < starts[i + 1])
+            if inside.any():
+                out[inside] = _read_frames(root, self.key, span)[idx[inside] - starts[i]]
+        return out
+
+    @classmethod
+    def join(cls, parts: Sequence["CameraFrames"]) -> "CameraFrames":
+        """One camera's frames of several sets, in order; sets of other image sizes are refused."""
+        shapes = {part.frame_shape for part in parts}
+        if len(shapes) != 1 or len({part.key for part in parts}) != 1:
+            raise ValueError(f"cannot join one camera's frames of sizes {sorted(shapes)} or cameras "
+                             f"{sorted({part.key for part in parts})}")
+        return cls(parts[0].key, tuple(r for p in parts for r in p.roots), tuple(n for p in parts for n in p.spans),
+                   shapes.pop())
+
+
+def _read_frames(root: Path, key: str, span: int) -> np.ndarray:
+    """Camera ``key``'s frames of the dataset at ``root`` (lerobot's reader), checked to number ``span``."""
+    from lerobot.datasets.lerobot_dataset import LeRobotDataset
+
+    dataset = LeRobotDataset(f"local/{root.name}", root=root, video_backend="pyav")
+    frames = np.asarray(dataset.hf_dataset.with_format("numpy")[key], dtype=np.uint8)
+    if len(frames) != span:
+        raise ValueError(f"{root} holds {len(frames)} frames of {key!r} where it held {span} when read: the dataset "
+                         "changed during the finetune")
+    return frames
+
 
 @dataclass
 class Demonstrations:
@@ -27,13 +91,13 @@ class Demonstrations:
     episodes: np.ndarray  # (N,) a global episode id
     task_ids: np.ndarray  # (N,) index into tasks
     tasks: list[str]
-    images: dict[str, np.ndarray]  # feature -> (N, S, S, 3) uint8, empty for state-only data
+    images: dict[str, CameraFrames]  # feature -> its (N, S, S, 3) uint8 frames on disk, empty for state-only data
     state_names: tuple[str, ...] = ()
     chunks: np.ndarray | None = None  # (N, H, 7): decision frames' label chunks; None when every step is a frame
     chunk_pad: np.ndarray | None = None  # (N, H) steps of a chunk past the episode's end
     known: np.ndarray | None = None  # (N, D) the state entries each frame's task has (several tasks); None: all
     robot: str | None = None  # the robot the camera images show (the datasets' robot_type); None: no cameras
-    spans: tuple[int, ...] = ()  # frames of each dataset read, in order (their images are cached per dataset)
+    spans: tuple[int, ...] = ()  # frames of each dataset read, in order
 
     def targets(self, chunk_len: int) -> tuple[np.ndarray, np.ndarray]:
         """(N, chunk_len, 7) target labels of every frame and their (N, chunk_len) pad mask."""
@@ -107,14 +171,14 @@ def load_demonstrations(roots: Sequence[str | Path], task: str | Task) -> Demons
             "actions": np.asarray(columns[ACTION_KEY], dtype=np.float32),
             "episodes": episode_index + offset,
             "task_ids": task_map[np.asarray(columns["task_index"])],
-            "images": {k: np.asarray(columns[k], dtype=np.uint8) for k in keys},
+            "images": {k: CameraFrames(k, (root,), (len(episode_index),), tuple(features[k]["shape"])) for k in keys},
         }
         if has_chunks:
             part["chunks"] = np.asarray(columns[ACTION_CHUNK_KEY], dtype=np.float32)
             part["chunk_pad"] = np.asarray(columns[CHUNK_PAD_KEY], dtype=bool)
         offset = int(part["episodes"].max()) + 1
         parts.append(part)
-    sizes = {p["images"][k].shape[1:] for p in parts for k in p["images"]}
+    sizes = {p["images"][k].frame_shape for p in parts for k in p["images"]}
     if len(sizes) > 1:
         raise ValueError(f"the datasets' camera images differ in size {sorted(sizes)}; record them with one --image-size")
     return Demonstrations(
@@ -124,7 +188,7 @@ def load_demonstrations(roots: Sequence[str | Path], task: str | Task) -> Demons
         episodes=np.concatenate([p["episodes"] for p in parts]),
         task_ids=np.concatenate([p["task_ids"] for p in parts]),
         tasks=tasks,
-        images={k: np.concatenate([p["images"][k] for p in parts]) for k in (image_keys or ())},
+        images={k: CameraFrames.join([p["images"][k] for p in parts]) for k in (image_keys or ())},
         state_names=names,
         chunks=np.concatenate([p["chunks"] for p in parts]) if chunked else None,
         chunk_pad=np.concatenate([p["chunk_pad"] for p in parts]) if chunked else None,
@@ -166,7 +230,7 @@ def load_task_demonstrations(datasets: Mapping[str | Task, Sequence[str | Path]]
         robot=_one_robot({task.name: part.robot for task, part in zip(tasks, parts) if part.images}),
         states=np.concatenate(states), actions=np.concatenate([p.actions for p in parts]),
         episodes=np.concatenate(episodes), task_ids=np.concatenate(task_ids), tasks=prompts,
-        images={k: np.concatenate([p.images[k] for p in parts]) for k in parts[0].images}, state_names=names,
+        images={k: CameraFrames.join([p.images[k] for p in parts]) for k in parts[0].images}, state_names=names,
         chunks=np.concatenate([p.chunks for p in parts]) if chunked else None,
         chunk_pad=np.concatenate([p.chunk_pad for p in parts]) if chunked else None,
         known=np.concatenate(known), spans=tuple(span for part in parts for span in part.spans)), tasks
@@ -254,5 +318,5 @@ def validation_episodes(episodes: np.ndarray, fraction: float, rng: np.random.Ge
     return rng.choice(ids, size=n_val, replace=False) if n_val else np.array([], dtype=np.int64)
 
 
-__all__ = ["Demonstrations", "dataset_prompts", "has_cameras", "hindsight_objects", "load_demonstrations", "load_task_demonstrations",
+__all__ = ["CameraFrames", "Demonstrations", "dataset_prompts", "has_cameras", "hindsight_objects", "load_demonstrations", "load_task_demonstrations",
            "validation_episodes"]

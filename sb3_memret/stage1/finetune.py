@@ -31,7 +31,7 @@ import math
 import time
 from dataclasses import asdict, dataclass, replace
 from pathlib import Path
-from typing import Callable, Mapping, Sequence, TextIO
+from typing import Callable, Iterable, Mapping, Sequence, TextIO
 
 import numpy as np
 import torch
@@ -44,8 +44,8 @@ from sb3_memret.controllers.learned.processing import (LearnedPolicyProcessor, P
                                                        state_columns)
 from sb3_memret.controllers.learned.vision import shift_augment
 from sb3_memret.controllers.prompts import PromptTemplate, parse_prompt
-from sb3_memret.stage1.datasets import (Demonstrations, dataset_prompts, hindsight_objects, load_demonstrations,
-                                        load_task_demonstrations, validation_episodes)
+from sb3_memret.stage1.datasets import (CameraFrames, Demonstrations, dataset_prompts, hindsight_objects,
+                                        load_demonstrations, load_task_demonstrations, validation_episodes)
 from sb3_memret.stage1.feature_cache import cached_features
 from sb3_memret.tasks import Task, make_task
 
@@ -109,22 +109,28 @@ def state_names_for(task: Task, state: str) -> tuple[str, ...]:
     return task.state_names() if state == "full" else task.proprio_names()
 
 
-def camera_inputs(model: LearnedPolicy, processor: LearnedPolicyProcessor, images: dict[str, np.ndarray],
-                  keys: Sequence[str], spans: Sequence[int] = (), cache: bool = True) -> list[torch.Tensor]:
+def camera_inputs(model: LearnedPolicy, processor: LearnedPolicyProcessor,
+                  images: Mapping[str, CameraFrames | np.ndarray], keys: Sequence[str],
+                  cache: bool = True) -> list[torch.Tensor]:
     """What the policy's camera heads read for every frame: a frozen trunk's features of the processor's images
-    (computed once, in batches, kept as float16; with ``cache``, per dataset of ``spans`` frames through
+    (computed in batches a dataset at a time, kept as float16; with ``cache``, per dataset through
     ``cached_features``), or the uint8 images themselves (channels first) for encoders trained from pixels."""
+    def blocks(key: str) -> Iterable[np.ndarray]:
+        frames = images[key]
+        return frames.blocks() if isinstance(frames, CameraFrames) else [frames]
+
     if model.trunk is None:
-        return [channels_first(images[key]) for key in keys]
+        return [channels_first(np.concatenate([*blocks(key)])) for key in keys]
 
     def compute(frames: np.ndarray) -> torch.Tensor:
         x = channels_first(frames)
         return torch.cat([model.trunk(processor.camera(x[i: i + FEATURE_BATCH])).half()
                           for i in range(0, len(x), FEATURE_BATCH)]).contiguous()  # as the cache reads them back
 
-    if not cache:
-        return [compute(images[key]) for key in keys]
-    return [cached_features(model.trunk, images[key], spans or (len(images[key]),), compute) for key in keys]
+    def features(block: np.ndarray) -> torch.Tensor:
+        return cached_features(model.trunk, block, (len(block),), compute) if cache else compute(block)
+
+    return [torch.cat([features(block) for block in blocks(key)]) for key in keys]
 
 
 def finetune(
@@ -319,7 +325,7 @@ class DemoTensors:
         perceived = ((torch.from_numpy(hidden) - model.perceived_mean) / model.perceived_std
                      if config.perceived_names else None)
         return cls(processor, processor.state(demos.states, reads.columns),
-                   camera_inputs(model, processor, demos.images, reads.cameras, demos.spans, cache_features),
+                   camera_inputs(model, processor, demos.images, reads.cameras, cache_features),
                    model.trunk is None, *tokens, torch.from_numpy(demos.task_ids), torch.from_numpy(targets),
                    torch.from_numpy(is_pad), perceived, torch.from_numpy(labelled), pointed, train_idx, val_idx,
                    tuple(int(n) for n in demos.spans), settings.image_shift, torch.Generator().manual_seed(settings.seed))
