@@ -130,7 +130,16 @@ def camera_inputs(model: LearnedPolicy, processor: LearnedPolicyProcessor,
     def features(block: np.ndarray) -> torch.Tensor:
         return cached_features(model.trunk, block, (len(block),), compute) if cache else compute(block)
 
-    return [torch.cat([features(block) for block in blocks(key)]) for key in keys]
+    def stacked(key: str) -> torch.Tensor:  # filled block by block: joined, the features would be held twice
+        out, start = None, 0
+        for part in map(features, blocks(key)):
+            if out is None:
+                out = torch.empty((len(images[key]), *part.shape[1:]), dtype=part.dtype)
+            out[start: start + len(part)] = part
+            start += len(part)
+        return out if out is not None else torch.empty(0)
+
+    return [stacked(key) for key in keys]
 
 
 def finetune(
