@@ -19,6 +19,7 @@ from sb3_memret.controllers.learned.processing import state_columns
 from sb3_memret.controllers.observation import ACTION_CHUNK_KEY, ACTION_DIM, ACTION_KEY, CHUNK_PAD_KEY, IMAGE_KEYS, STATE_KEY
 from sb3_memret.tasks import Task, make_task
 
+
 @dataclass(frozen=True)
 class CameraFrames:
     """One camera's uint8 frames (S, S, 3) across the datasets, read from disk a dataset at a time (``blocks``): a
@@ -84,7 +85,8 @@ def _read_frames(root: Path, key: str, span: int) -> np.ndarray:
 
 @dataclass
 class Demonstrations:
-    """All frames of one or more datasets as arrays, with each frame's chunk of target indices."""
+    """All frames of one or more datasets as arrays (the camera images as where they lie on disk), with each frame's
+    chunk of target indices."""
 
     states: np.ndarray  # (N, D) float32, in the task's layout (state_names)
     actions: np.ndarray  # (N, 7) float32
@@ -318,5 +320,5 @@ def validation_episodes(episodes: np.ndarray, fraction: float, rng: np.random.Ge
     return rng.choice(ids, size=n_val, replace=False) if n_val else np.array([], dtype=np.int64)
 
 
-__all__ = ["CameraFrames", "Demonstrations", "dataset_prompts", "has_cameras", "hindsight_objects", "load_demonstrations", "load_task_demonstrations",
-           "validation_episodes"]
+__all__ = ["CameraFrames", "Demonstrations", "dataset_prompts", "has_cameras", "hindsight_objects",
+           "load_demonstrations", "load_task_demonstrations", "validation_episodes"]
