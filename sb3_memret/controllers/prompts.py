@@ -65,9 +65,8 @@ class PromptTemplate:
         none), in order of first appearance."""
         names = dict.fromkeys(name for sentence in (*self.instructions, *self.fact_templates)
                               for name in re.findall(r"\{(\w+)\}", sentence))
-        given = [name for name, _ in self.fields]
         return tuple((name, pattern) for name in names
-                     for pattern in ([p for n, p in self.fields if n == name] if name in given else [WORDS]))
+                     for pattern in [p for n, p in self.fields if n == name] or [WORDS])
 
     def describe(self) -> str:
         return "instructions " + " | ".join(map(repr, self.instructions)) + "; facts " + " | ".join(

@@ -140,11 +140,7 @@ def load_demonstrations(roots: Sequence[str | Path], task: str | Task) -> Demons
     task = make_task(task)
     names = task.state_names()
     parts, tasks, offset, image_keys, chunked, robots = [], [], 0, None, None, {}
-    for root in roots:
-        root = Path(root)
-        if not (root / "meta" / "info.json").is_file():
-            raise FileNotFoundError(f"{root} is not a LeRobotDataset (no meta/info.json); write one with "
-                                    "`sb3-memret demos --out DIR`")
+    for root in map(dataset_root, roots):
         dataset = LeRobotDataset(f"local/{root.name}", root=root, video_backend="pyav")  # no videos to decode
         features = dataset.meta.features
         _check_feature(features, STATE_KEY, (len(names),), root, task.name)
@@ -265,10 +261,7 @@ def dataset_prompts(roots: Sequence[str | Path]) -> list[str]:
     from lerobot.datasets.lerobot_dataset import LeRobotDatasetMetadata
 
     prompts: dict[str, None] = {}
-    for root in map(Path, roots):
-        if not (root / "meta" / "info.json").is_file():
-            raise FileNotFoundError(f"{root} is not a LeRobotDataset (no meta/info.json); write one with "
-                                    "`sb3-memret demos --out DIR`")
+    for root in map(dataset_root, roots):
         prompts.update(dict.fromkeys(LeRobotDatasetMetadata(f"local/{root.name}", root=root).tasks.index))
     return list(prompts)
 
@@ -277,10 +270,17 @@ def has_cameras(roots: Sequence[str | Path]) -> bool:
     """Whether the first dataset holds camera images (read from its metadata alone)."""
     import json
 
-    info = Path(roots[0]) / "meta" / "info.json"
-    if not info.is_file():
-        raise FileNotFoundError(f"{roots[0]} is not a LeRobotDataset (no meta/info.json)")
+    info = dataset_root(roots[0]) / "meta" / "info.json"
     return any(key in json.loads(info.read_text())["features"] for key in IMAGE_KEYS)
+
+
+def dataset_root(root: str | Path) -> Path:
+    """``root`` as a path, or a FileNotFoundError when it holds no LeRobotDataset."""
+    root = Path(root)
+    if not (root / "meta" / "info.json").is_file():
+        raise FileNotFoundError(f"{root} is not a LeRobotDataset (no meta/info.json); write one with "
+                                "`sb3-memret demos --out DIR`")
+    return root
 
 
 def hindsight_objects(demos: Demonstrations, hand_names: Sequence[str], objects: Sequence[str],
