@@ -132,15 +132,16 @@ controller-mikasa: install renderer
 # rerun records only the missing chunks; keep the counts multiples of 50; `JOBS=2 make controller-multitask` records two
 # chunks at a time): $(MULTITASK_EPISODES) expert episodes of each
 # task, then $(MULTITASK_ONPOLICY) more played by the task's own camera controller (`learned-task`) where one
-# ships, the expert labelling; a first policy on them; a DAgger round of $(MULTITASK_DAGGER) episodes of each played by
-# the first policy; $(MULTITASK_EXTRA) more expert episodes of the tasks the first policies left below 90%
+# ships, the expert labelling; a first policy on them (kept when the target runs again: scripts/finetune_task_demos.sh);
+# a DAgger round of $(MULTITASK_DAGGER) episodes of each played by the first policy; $(MULTITASK_EXTRA) more expert
+# episodes of the tasks the first policy won under 60% of when told the true fact, in the DAgger round's first chunks
 # (MULTITASK_EXTRA_TASKS); $(MULTITASK_PROGRESS) expert episodes of the progress tasks, ended after
 # $(MULTITASK_PROGRESS_STEPS) steps; the shipped policy on all of it. On an idle 2-core CPU a chunk takes about 75 s
 # (SeqOfColors3's 10 minutes) and the finetunes 2-5 steps/s after the frozen trunk's features (kept for later
 # finetunes): about 7 hours in all for the twenty tasks the shipped checkpoint serves, which was built in stages,
 # with the same final training on 450-800 episodes a task and 200 of SeqOfColors3 (lab/2026-11-30-one-camera-controller-across-twenty-tasks-the-added lists each task's data).
 MULTITASK_TOUCH_TASKS ?= RememberColor3-VLA-v0,RememberShape3-VLA-v0,RememberColor5-VLA-v0,TakeItBack-VLA-v0,RememberShape5-VLA-v0,FindImposterColor3-VLA-v0,RememberShapeAndColor3x2-VLA-v0,RememberColor9-VLA-v0,FindImposterShape3-VLA-v0,RememberShapeAndColor3x3-VLA-v0,FindImposterColor5-VLA-v0,RememberShape9-VLA-v0,FindImposterShapeAndColor3x2-VLA-v0,RememberShapeAndColor5x3-VLA-v0,FindImposterColor9-VLA-v0,FindImposterShape5-VLA-v0,FindImposterShapeAndColor3x3-VLA-v0,FindImposterShape9-VLA-v0,FindImposterShapeAndColor5x3-VLA-v0
-MULTITASK_EXTRA_TASKS ?= RememberShape5-VLA-v0,RememberShapeAndColor3x2-VLA-v0,RememberColor9-VLA-v0,FindImposterShape3-VLA-v0,RememberShapeAndColor3x3-VLA-v0,RememberShape9-VLA-v0,FindImposterShapeAndColor3x2-VLA-v0,RememberShapeAndColor5x3-VLA-v0,FindImposterColor9-VLA-v0,FindImposterShape5-VLA-v0,FindImposterShapeAndColor3x3-VLA-v0,FindImposterShape9-VLA-v0,FindImposterShapeAndColor5x3-VLA-v0
+MULTITASK_EXTRA_TASKS ?= RememberShape3-VLA-v0,TakeItBack-VLA-v0,RememberShape5-VLA-v0,RememberShapeAndColor3x2-VLA-v0,RememberColor9-VLA-v0,FindImposterShape3-VLA-v0,RememberShapeAndColor3x3-VLA-v0,RememberShape9-VLA-v0,FindImposterShapeAndColor3x2-VLA-v0,RememberShapeAndColor5x3-VLA-v0,FindImposterColor9-VLA-v0,FindImposterShape5-VLA-v0,FindImposterShapeAndColor3x3-VLA-v0,FindImposterShape9-VLA-v0,FindImposterShapeAndColor5x3-VLA-v0,RotateLenientPos-VLA-v0,RotateLenientPosNeg-VLA-v0,RotateStrictPos-VLA-v0,RotateStrictPosNeg-VLA-v0,TimedTransferEasy-VLA-v0
 # the short tasks whose success is not a touch (intercept, rotate, count and press, gather, act on time): expert
 # episodes and the DAgger round as the touch tasks', no on-policy stage (no camera controller of their own ships)
 MULTITASK_MORE_TASKS ?= InterceptSlow-VLA-v0,InterceptMedium-VLA-v0,InterceptFast-VLA-v0,InterceptGrabSlow-VLA-v0,InterceptGrabMedium-VLA-v0,InterceptGrabFast-VLA-v0,RotateLenientPos-VLA-v0,RotateLenientPosNeg-VLA-v0,RotateStrictPos-VLA-v0,RotateStrictPosNeg-VLA-v0,BlinkCountButtonPressEasy-VLA-v0,BlinkCountButtonPressMedium-VLA-v0,GatherAndRecall1-VLA-v0,TimedTransferEasy-VLA-v0
@@ -166,8 +167,6 @@ controller-multitask: install renderer
 		LEARNER=$$own scripts/record_task_demos.sh $(MULTITASK_RUN)/demos \
 			$$(($(MULTITASK_EPISODES) + $(MULTITASK_ONPOLICY))) $$task || exit 1; \
 	done
-	for policy in $(MULTITASK_RUN)/policy-first $(MULTITASK_RUN)/policy; do \
-		[ -f $$policy/training_state.pt ] || rm -rf $$policy; done  # an unfinished finetune resumes
 	scripts/finetune_task_demos.sh $(MULTITASK_RUN)/demos $(MULTITASK_RUN)/policy-first $(MULTITASK_EXPERT_TASKS) \
 		--config $(MULTITASK_RECIPE) --set training.steps=$(MULTITASK_STEPS)
 	LEARNER=learned:$(MULTITASK_RUN)/policy-first SEED=$$((100000 + $(MULTITASK_EPISODES) + $(MULTITASK_ONPOLICY))) \

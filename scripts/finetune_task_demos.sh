@@ -4,7 +4,9 @@
 # policy lands in OUT. DEMOS may list several roots, comma-separated (the experts' demonstrations and a DAgger
 # round's): each must hold finished chunks of every task, except a root marked optional with a trailing '?' (more
 # episodes of some tasks only), whose tasks without chunks are skipped. An unfinished finetune in OUT (stopped or
-# crashed: OUT/training_state.pt) goes on where it stopped (finetune --resume; refused if the data or options differ).
+# crashed: OUT/training_state.pt) goes on where it stopped (finetune --resume; refused if the data or options differ);
+# a finished one (OUT/model.safetensors) is kept when OUT/finetune_inputs.txt records the same chunks and options, and
+# refused otherwise, so a make target that stopped after it runs again without training it twice.
 # Usage: scripts/finetune_task_demos.sh DEMOS[,DEMOS...] OUT TASK[,TASK...] [finetune options...]
 #   e.g. scripts/finetune_task_demos.sh runs/multitask runs/multitask/policy \
 #          RememberColor3-VLA-v0,RememberShape3-VLA-v0 --set training.steps=4000
@@ -44,10 +46,22 @@ if [ ${#wanted[@]} -eq 1 ]; then  # one task's chunks: a per-task policy, on the
 else
   task_args=(--tasks "$(IFS=,; echo "${tasks[*]}")")
 fi
+inputs=$(printf '%s\n' "${datasets[@]}" "${task_args[@]}" "$@")
+record="$out/finetune_inputs.txt"
 resume=()
 if [ -f "$out/training_state.pt" ]; then
   resume=(--resume)
   echo "resuming the unfinished finetune in $out"
+elif [ -f "$out/model.safetensors" ]; then
+  if [ -f "$record" ] && [ "$(cat "$record")" = "$inputs" ]; then
+    echo "$out already holds this finetune (the same chunks and options): kept"
+    exit 0
+  fi
+  echo "$out holds a policy finetuned on other chunks or options (its record: $record); delete the folder to" \
+    "finetune again" >&2
+  exit 2
 fi
+mkdir -p "$out"
+printf '%s\n' "$inputs" > "$record"
 echo "finetuning on ${#datasets[@]} chunks of ${#wanted[@]} task(s) from ${roots[*]}"
 .venv/bin/sb3-memret finetune "${datasets[@]}" "${task_args[@]}" --out "$out" "${resume[@]}" "$@"

@@ -158,6 +158,25 @@ def test_the_finetune_script_resumes_an_unfinished_finetune(datasets, tmp_path):
     assert result.returncode == 2 and "cannot be read as a finetune's state" in result.stderr, result.stderr
 
 
+def test_the_finetune_script_keeps_a_finished_finetune_of_the_same_inputs_and_refuses_other_ones(datasets, tmp_path):
+    """A make target that runs again passes a finished policy by; one trained on other chunks or options is not
+    overwritten."""
+    expert = _chunks(tmp_path / "demos", datasets, (COLOUR, SHAPE))
+    out = tmp_path / "policy"
+    args = (expert, out, f"{COLOUR},{SHAPE}", "--set", "training.steps=2", *SMALL)
+    first = _finetune_script(*args)
+    assert first.returncode == 0, first.stdout + first.stderr
+    weights = (out / "model.safetensors").read_bytes()
+    again = _finetune_script(*args)
+    assert again.returncode == 0 and "already holds this finetune" in again.stdout, again.stdout + again.stderr
+    assert "finetuning on" not in again.stdout and (out / "model.safetensors").read_bytes() == weights
+    other = _finetune_script(*args[:3], "--set", "training.steps=3", *SMALL)
+    assert other.returncode == 2 and "finetuned on other chunks or options" in other.stderr, other.stderr
+    (out / "finetune_inputs.txt").unlink()  # a finished policy without its record is not taken for this one
+    assert _finetune_script(*args).returncode == 2
+    assert (out / "model.safetensors").read_bytes() == weights
+
+
 def test_a_pointer_across_tasks_points_with_the_fields_every_object_has(datasets, tmp_path):
     back = "TakeItBack-VLA-v0"  # its cube has a position and no visibility flag, RememberColor3's cubes have both
     demos = tmp_path / back
