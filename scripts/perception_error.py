@@ -93,9 +93,11 @@ def main() -> None:
     print(f"{len(idx)} of the {len(held)} frames of {where}")
     if tasks is not None:
         print("\n| task | frames | normalised MSE over its own entries |\n|---|---|---|")
-        for task in tasks:  # a frame's task: the one whose layout is exactly the entries the frame knows
-            own = np.isin(demos.state_names, task.state_names())
-            rows = torch.from_numpy((demos.known[idx] == own).all(axis=1))
+        # a frame's task: the one its dataset was named with (tasks sharing a layout, as FindImposter and Remember
+        # do, are told apart by their datasets, not their entries); datasets are read task by task
+        frame_task = np.repeat([i for i, roots in enumerate(by_task.values()) for _ in roots], demos.spans)[idx]
+        for i, task in enumerate(tasks):
+            rows = torch.from_numpy(frame_task == i)
             mask = known[rows]
             value = float(((normalised_error[rows] ** 2) * mask).sum() / mask.sum().clamp_min(1))
             print(f"| {task.name} | {int(rows.sum())} | {value:.3f} |")
