@@ -8,7 +8,7 @@ RENDERER ?= .renderer
 is_py312 = $(shell $(1) -c 'import sys; assert sys.version_info[:2] == (3, 12)' >/dev/null 2>&1 && echo yes)
 PYTHON ?= $(firstword $(foreach p,python3.12 $(wildcard $(HOME)/.pyenv/versions/3.12*/bin/python3.12),$(if $(call is_py312,$(p)),$(p))))
 
-.PHONY: install renderer train test docs bench main-job-sweep controller controller-objects controller-camera controller-mikasa controller-multitask learner-multitask tables-privileged tables-learned clean
+.PHONY: install renderer train test docs bench main-job-sweep controller controller-objects controller-camera controller-mikasa controller-multitask learner-multitask tables-privileged tables-camera tables-learned clean
 
 $(VENV)/.installed: setup.cfg pyproject.toml constraints.txt
 	@test -n "$(PYTHON)" || { echo "error: no Python 3.12 found; install one (e.g. pyenv install 3.12) or pass PYTHON=/path/to/python3.12" >&2; exit 1; }
@@ -200,7 +200,8 @@ learner-multitask: install renderer
 # The benchmark's tables in benchmarks/mikasa/ (commit each folder as it grows: a table plays for many hours, a rerun
 # plays only the cells still missing, and a cell played by other code, controller or learner is played again).
 # tables-privileged: the scripted experts, a privileged upper bound, on each split (TABLE_SPLITS) at the protocol
-# seeds; tables-learned: the shipped camera controller on the harness's inputs alone, a protocol entry, on the short
+# seeds; tables-camera: the experts' motion on what the cameras show (scripted-camera, the harness's inputs alone),
+# the ceiling of a camera-only controller, likewise; tables-learned: the shipped camera controller on the harness's inputs alone, a protocol entry, on the short
 # split at development seeds, then at the protocol seeds. Recall uses the shipped learner across the short split
 # (make learner-multitask): rebuild it first, or pass TABLE_CONDITIONS=none,oracle,wrong meanwhile.
 TABLE_SPLITS ?= short medium long
@@ -210,6 +211,12 @@ tables-privileged: install renderer
 	set -e; for split in $(TABLE_SPLITS); do \
 		$(VENV)/bin/sb3-memret benchmark mikasa --split $$split --controller scripted --conditions $(TABLE_CONDITIONS) \
 			--seeds protocol --no-progress --out $(TABLES)/$$split-scripted-protocol; \
+	done
+
+tables-camera: install renderer
+	set -e; for split in $(TABLE_SPLITS); do \
+		$(VENV)/bin/sb3-memret benchmark mikasa --split $$split --controller scripted-camera \
+			--conditions $(TABLE_CONDITIONS) --seeds protocol --no-progress --out $(TABLES)/$$split-scripted-camera-protocol; \
 	done
 
 tables-learned: install renderer
