@@ -8,6 +8,7 @@ ignores the instruction (in the observation) can at best pick one cue for both t
 from __future__ import annotations
 
 import dataclasses
+import json
 import textwrap
 from typing import Any
 
@@ -210,6 +211,30 @@ def test_train_across_tasks_from_the_command_line_resumes_and_serves_the_benchma
     assert learner.settings["task"] == LampTask.name and learner.settings["capacity"] == 4
     with pytest.raises(ValueError, match="not trained on 'doors-test'"):
         MemoryLearner(run / "final_model.zip", "scripted", "doors-test")
+
+
+def test_eval_and_trace_play_a_learner_across_tasks_one_named_task_at_a_time(tmp_path):
+    config, run, runner = tmp_path / "multi.yml", tmp_path / "run", CliRunner()
+    config.write_text(textwrap.dedent(CONFIG))
+    result = runner.invoke(main, ["train", "recall", "--config", str(config), "--out", str(run), "--tasks",
+                                  ",".join(TASKS), "--timesteps", "16", "--eval-episodes", "2", "--no-progress"])
+    assert result.exit_code == 0, result.output
+    assert "--task ID (one of its tasks)" in result.output and "sb3-memret report" not in result.output
+    model = str(run / "final_model.zip")
+    for args, message in ((["trace", model], "is a learner across 2 tasks and --task names none"),
+                          (["eval", model, "--task", "doors-test"], "was not trained on 'doors-test'"),
+                          (["report", str(run)], "a learner across tasks")):
+        refused = runner.invoke(main, args)
+        assert refused.exit_code == 2 and message in refused.output, refused.output
+        assert "Traceback" not in refused.output
+    traced = runner.invoke(main, ["trace", model, "--task", LampTask.name, "--json"])
+    assert traced.exit_code == 0, traced.output
+    trace, = json.loads(traced.stdout)
+    assert "lamp" in trace["instruction"] and any(row["true"] for row in trace["rows"])
+    evaluated = runner.invoke(main, ["eval", model, "--task", LightTask.name, "--episodes", "2", "--json"])
+    assert evaluated.exit_code == 0, evaluated.output
+    played = json.loads(evaluated.stdout)["episodes_per_group"]  # one task's episodes, grouped by its cue's colour
+    assert sum(played.values()) == 2 and set(played) <= set(COLOURS)
 
 
 def test_bad_task_lists_are_one_line_errors(tmp_path):

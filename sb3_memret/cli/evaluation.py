@@ -11,8 +11,9 @@ import click
 
 from sb3_memret.cli.options import (RUN_CONTROLLER, SEED_SET_KINDS, TASK_CONTROLLER, build_controller,
                                     camera_render_backend, check_run_task, controller_spec, default_controller,
-                                    load_models, model_run, physics_options, render_backend_option,
-                                    resolve_render_backend, run_controller, saved_task, seeds_option, task_option)
+                                    load_models, model_run, one_task_settings, physics_options,
+                                    render_backend_option, resolve_render_backend, run_controller, saved_task,
+                                    seeds_option, task_option)
 from sb3_memret.common.seeds import HELD_OUT_SEED
 from sb3_memret.memory.retention import RETENTION_RULES
 
@@ -52,7 +53,8 @@ def evaluate(ctx: click.Context, model_path: Path, task: str | None, condition: 
     from sb3_memret.tasks import make_task, task_in
 
     model, = load_models([model_path], "MODEL_PATH")
-    kwargs = eval_env_kwargs(model, model_path, condition, controller, render_backend)
+    kwargs = one_task_settings(eval_env_kwargs(model, model_path, condition, controller, render_backend), task,
+                               model_path)
     run_spec = saved_task(task_in(kwargs), model_run(model_path))  # a registered name or package.module:Class
     run_task = make_task(run_spec)
     if task is not None and task != run_spec:
@@ -223,10 +225,12 @@ def trace(models: tuple[Path, ...], task: str | None, seed: int, sample_seed: in
 
     paths = _trace_targets(models)
     loaded = list(zip(paths, load_models(paths, "MODELS")))
-    run_task = saved_task(task_in(eval_env_kwargs(loaded[0][1], paths[0], "recall", controller)), model_run(paths[0]))
+    settings = one_task_settings(eval_env_kwargs(loaded[0][1], paths[0], "recall", controller), task, paths[0])
+    run_task = saved_task(task_in(settings), model_run(paths[0]))
     controller = controller or run_controller(model_run(paths[0]), run_task)
     render_backend = check_run_task(click.get_current_context(), task, run_task, paths[0], controller, render_backend)
-    env_kwargs = eval_env_kwargs(loaded[0][1], paths[0], "recall", controller, render_backend)
+    env_kwargs = one_task_settings(eval_env_kwargs(loaded[0][1], paths[0], "recall", controller, render_backend),
+                                   task, paths[0])
     traces = trace_models([(model_label(m, p), m) for p, m in loaded], env_kwargs, seed, sample_seed)
     if as_json:
         click.echo(json.dumps([t.to_dict() for t in traces]))
@@ -275,6 +279,9 @@ def report(run: Path, task: str | None, controller: str, baseline_episodes: int 
     from sb3_memret.training.run import load_run_config
 
     if (run / "config.yml").exists():
+        if "tasks" in load_run_config(run).env_kwargs:
+            raise click.UsageError(f"{str(run)!r} is a learner across tasks, and a report covers one task's run; "
+                                   "evaluate it a task at a time: sb3-memret eval RUN/final_model.zip --task ID")
         run_task = task_in(load_run_config(run).env_kwargs)
         controller = controller or run_controller(run, run_task)
         render_backend = check_run_task(click.get_current_context(), task, run_task, run, controller, render_backend)

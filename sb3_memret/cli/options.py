@@ -170,6 +170,21 @@ def physics_options(command):
                              "every env whatever the backend.")(command)
 
 
+def one_task_settings(settings: dict, task: str | None, where: Path) -> dict:
+    """A saved model's decision-env settings for the one task a command plays: the run's own, or, for a learner
+    across tasks, those of ``task``, which must be one of its tasks (such a learner names no single task itself)."""
+    from sb3_memret.envs.multi_task import task_env_kwargs
+
+    if "tasks" not in settings:
+        return settings
+    per_task = task_env_kwargs(settings)
+    if task not in per_task:
+        named = "names none" if task is None else f"was not trained on {task!r}"
+        raise click.BadParameter(f"{str(where)!r} is a learner across {len(per_task)} tasks and --task {named}; "
+                                 f"name one of: {', '.join(per_task)}", param_hint="--task")
+    return per_task[task]
+
+
 def check_run_task(ctx: click.Context, task: str | None, run_task: str, where: Path, controller: str,
               render_backend: str | None) -> str | None:
     """Check the run at ``where``: ``--task`` must match its task, and ``controller`` is built on it. Returns the

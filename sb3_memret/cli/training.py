@@ -214,7 +214,7 @@ def parse_tasks(value: str) -> list[str]:
 def _report_run(experiment: str, result, exit_status) -> None:
     """The run's evaluation table and where its files are; an interrupted run says how to resume, and exits
     with the status of what stopped it."""
-    from sb3_memret.training.run import format_history
+    from sb3_memret.training.run import format_history, load_run_config
 
     click.echo(format_history(result.history))
     click.echo(f"\n{result.num_timesteps} decisions, {result.rounds} rounds in {result.wall_seconds / 60:.1f} min; "
@@ -224,7 +224,12 @@ def _report_run(experiment: str, result, exit_status) -> None:
                    f"sb3-memret train {experiment} --out {result.out} --resume", err=True)
         sys.exit(exit_status(result.stopped_by))
     click.echo(f"model: {result.model_path} (load with stable_baselines3.PPO.load)")
-    click.echo(f"report: {result.report}" if result.report else f"report: sb3-memret report {result.out}")
+    if result.report:
+        click.echo(f"report: {result.report}")
+    elif "tasks" in load_run_config(result.out).env_kwargs:  # a learner across tasks: one task at a time
+        click.echo(f"evaluate: sb3-memret eval {result.model_path} --task ID (one of its tasks)")
+    else:
+        click.echo(f"report: sb3-memret report {result.out}")
 
 
 def _in_run_report(controller: str, render_backend: str, backend: str, ray_address: str | None):
