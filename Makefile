@@ -201,8 +201,8 @@ learner-multitask: install renderer
 # plays only the cells still missing, and a cell played by other code, controller or learner is played again).
 # tables-privileged: the scripted experts, a privileged upper bound, on each split (TABLE_SPLITS) at the protocol
 # seeds; tables-camera: the experts' motion on what the cameras show (scripted-camera, the harness's inputs alone),
-# the ceiling of a camera-only controller, likewise; tables-learned: the shipped camera controller on the harness's inputs alone, a protocol entry, on the short
-# split at development seeds, then at the protocol seeds. Recall uses the shipped learner across the short split
+# the ceiling of a camera-only controller, likewise; tables-learned: the shipped camera controller on the harness's
+# inputs alone, a protocol entry, on the short split at development seeds, then at the protocol seeds. Recall uses the shipped learner across the short split
 # (make learner-multitask): rebuild it first, or pass TABLE_CONDITIONS=none,oracle,wrong meanwhile.
 TABLE_SPLITS ?= short medium long
 TABLE_CONDITIONS ?= none,oracle,wrong,recall

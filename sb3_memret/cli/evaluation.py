@@ -279,10 +279,11 @@ def report(run: Path, task: str | None, controller: str, baseline_episodes: int 
     from sb3_memret.training.run import load_run_config
 
     if (run / "config.yml").exists():
-        if "tasks" in load_run_config(run).env_kwargs:
+        settings = load_run_config(run).env_kwargs
+        if "tasks" in settings:
             raise click.UsageError(f"{str(run)!r} is a learner across tasks, and a report covers one task's run; "
-                                   "evaluate it a task at a time: sb3-memret eval RUN/final_model.zip --task ID")
-        run_task = task_in(load_run_config(run).env_kwargs)
+                                   f"evaluate it a task at a time: sb3-memret eval {run / 'final_model.zip'} --task ID")
+        run_task = task_in(settings)
         controller = controller or run_controller(run, run_task)
         render_backend = check_run_task(click.get_current_context(), task, run_task, run, controller, render_backend)
     controller = controller or default_controller(task)
