@@ -86,7 +86,7 @@ def train(ctx: click.Context, experiment: str, task: str | None, tasks: str | No
             result = run_training(config, options)
         except (FileExistsError, FileNotFoundError) as err:
             raise click.UsageError(str(err)) from err
-        _report_run(experiment, result, exit_status)
+        _report_run(experiment, result, exit_status, across_tasks=True)
         return
     name = task_or_default(task)
     out = out or run_folder(experiment, name, seed)
@@ -211,10 +211,10 @@ def parse_tasks(value: str) -> list[str]:
     return names
 
 
-def _report_run(experiment: str, result, exit_status) -> None:
+def _report_run(experiment: str, result, exit_status, across_tasks: bool = False) -> None:
     """The run's evaluation table and where its files are; an interrupted run says how to resume, and exits
-    with the status of what stopped it."""
-    from sb3_memret.training.run import format_history, load_run_config
+    with the status of what stopped it. A learner across tasks is pointed at ``eval --task``, not ``report``."""
+    from sb3_memret.training.run import format_history
 
     click.echo(format_history(result.history))
     click.echo(f"\n{result.num_timesteps} decisions, {result.rounds} rounds in {result.wall_seconds / 60:.1f} min; "
@@ -226,7 +226,7 @@ def _report_run(experiment: str, result, exit_status) -> None:
     click.echo(f"model: {result.model_path} (load with stable_baselines3.PPO.load)")
     if result.report:
         click.echo(f"report: {result.report}")
-    elif "tasks" in load_run_config(result.out).env_kwargs:  # a learner across tasks: one task at a time
+    elif across_tasks:
         click.echo(f"evaluate: sb3-memret eval {result.model_path} --task ID (one of its tasks)")
     else:
         click.echo(f"report: sb3-memret report {result.out}")
