@@ -9,6 +9,7 @@ import os
 import sys
 from collections import Counter
 from collections.abc import Mapping
+from pathlib import Path
 
 import pytest
 from click.testing import CliRunner
@@ -324,7 +325,7 @@ def test_recall_retrieves_from_the_writers_bank_in_the_harness(tmp_path):
     assert [o.status for o in train_learners([env_id], tmp_path / "learners")] == ["kept"]
 
     run = plan(Protocol(seed_set="dev", episodes=1), ["recall"], env_ids=[env_id], learners=tmp_path / "learners")
-    content = run_benchmark(run, tmp_path / "run", tmp_path / "learners", workers=1)
+    content = run_benchmark(run, tmp_path / "run", workers=1)
     assert content["tasks"][env_id]["conditions"]["recall"]["episodes"] == 1
     record, = (json.loads(line) for line in (tmp_path / "run" / "episodes.jsonl").read_text().splitlines())
     model = tmp_path / "learners" / env_id / "final_model.zip"
@@ -373,6 +374,31 @@ def test_the_shipped_learner_serves_recall_on_every_short_task_that_runs_here(tm
     result = CliRunner().invoke(main, ["benchmark", "mikasa", "--tasks", "TakeItBack-VLA-v0", "--conditions", "recall",
                                        "--out", str(tmp_path / "run")])
     assert result.exit_code == 2 and "make learner-multitask" in result.output and not (tmp_path / "run").exists()
+
+
+def test_each_task_plays_the_first_of_several_learners_that_serves_it(tmp_path):
+    """--learners DIR --learners shipped: a task with its own learner in the folder plays it, a task the folder
+    lacks plays the shipped learner across the short split, one that neither serves is refused naming both; the
+    sources are recorded in order and read back."""
+    from sb3_memret.benchmark.learners import shipped_learner
+    from sb3_memret.benchmark.runner import find_learner, plan, stored_learners
+    from sb3_memret.cli.benchmark import _learner_sources
+
+    own = tmp_path / "learners" / "BunchOfColors3-VLA-v0" / "final_model.zip"
+    own.parent.mkdir(parents=True)
+    own.write_bytes(b"a learner of its own")
+    sources = _learner_sources((tmp_path / "learners", Path("shipped")))
+    assert sources == (tmp_path / "learners", shipped_learner()) and _learner_sources(()) == (shipped_learner(),)
+    tasks = ["BunchOfColors3-VLA-v0", "RememberColor3-Long-VLA-v0", "BlinkCountButtonPressHard-VLA-v0"]
+    run = plan(Protocol(seed_set="dev", episodes=1), ["recall"], env_ids=tasks, learners=sources)
+    assert find_learner(run.learners, tasks[0])[0] == own
+    assert find_learner(run.learners, tasks[1])[0] == shipped_learner()
+    assert set(run.learner_digests) == set(tasks[:2])
+    why = run.refused_conditions[tasks[2], "recall"]
+    assert str(tmp_path / "learners" / tasks[2] / "final_model.zip") in why and "was not trained on it" in why
+    saved = results(run, [])["protocol"]["learners"]
+    assert saved == [str(tmp_path / "learners"), str(shipped_learner())] and stored_learners(saved) == sources
+    assert stored_learners(str(own)) == (own,) and stored_learners(None) == ()
 
 
 def test_a_learner_that_lands_while_the_table_plays_is_found(tmp_path):

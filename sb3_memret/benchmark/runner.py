@@ -117,7 +117,7 @@ class Plan:
     controllers: dict[str, dict[str, str]] = field(default_factory=dict)  # env id -> {"name", "sha256", "reads"}
     task_digests: dict[str, str] = field(default_factory=dict)  # env id -> SHA-256 of its task's (writer's) code
     replan_every: dict[str, int] = field(default_factory=dict)  # env id -> control steps between controller calls
-    learners: Path | None = None  # the recall condition's learners folder
+    learners: tuple[Path, ...] = ()  # the recall condition's learners (folders or model files), first serving first
     learner_digests: dict[str, str] = field(default_factory=dict)  # env id -> SHA-256 of its learner's model file
 
     def current(self, record: dict[str, Any]) -> bool:
@@ -202,19 +202,55 @@ def split_tasks(split: str) -> tuple[list[str], dict[str, str]]:
     return runnable, refused
 
 
-def learner_path(learners: Path | None, env_id: str) -> Path | None:
-    """Where the memory learner of ``env_id`` lies in a learners folder: ``DIR/<env id>/final_model.zip``; for a
-    -Long variant without one of its own, its short task's (``DIR/RememberColor3-VLA-v0/``): the bank holds the same
-    facts, only the delay before they are needed grows, which is what its row measures. ``learners`` may also be
-    one model file, a learner across tasks (``train recall --tasks``), which serves every task it was trained on and
-    their -Long variants (``agent.learned_as``)."""
+def learner_sources(learners: Path | Iterable[Path] | None) -> tuple[Path, ...]:
+    """``--learners`` as a tuple of paths, in the order given (one path, several, or none)."""
     if learners is None:
-        return None
-    if Path(learners).is_file():
-        return Path(learners)
-    own, short = Path(learners) / env_id / LEARNER_FILE, short_variant(env_id)
-    short_path = None if short is None else Path(learners) / short / LEARNER_FILE
-    return short_path if short_path is not None and not own.is_file() and short_path.is_file() else own
+        return ()
+    if isinstance(learners, (str, Path)):
+        return (Path(learners),)
+    return tuple(Path(source) for source in learners)
+
+
+def find_learner(learners: Path | Iterable[Path] | None, env_id: str) -> tuple[Path | None, str]:
+    """The memory learner that serves ``env_id``, the first of ``learners`` that does, or None and why none does.
+
+    A folder serves a task with ``DIR/<env id>/final_model.zip``, or a -Long variant without one of its own with its
+    short task's (``DIR/RememberColor3-VLA-v0/``): the bank holds the same facts, only the delay before they are
+    needed grows, which is what its row measures. A model file serves every task it was trained on: a learner across
+    tasks (``train recall --tasks``) its tasks and their -Long variants (``agent.learned_as``), a one-task learner
+    the task it is asked for (``MemoryLearner`` checks it when it loads)."""
+    sources = learner_sources(learners)
+    if not sources:
+        return None, "no learners folder given (--learners DIR, with DIR/<env id>/final_model.zip)"
+    why = []
+    for source in sources:
+        if source.is_file():
+            trained_on = learner_tasks(source)
+            if trained_on is None or learned_as(env_id, trained_on) is not None:
+                return source, ""
+            why.append(f"the learner across tasks {source} was not trained on it")
+            continue
+        own, short = source / env_id / LEARNER_FILE, short_variant(env_id)
+        for candidate in (own, None if short is None else source / short / LEARNER_FILE):
+            if candidate is not None and candidate.is_file():
+                return candidate, ""
+        why.append(f"no trained memory learner: expected {own}")
+    return None, "; ".join(why)
+
+
+def learner_path(learners: Path | Iterable[Path] | None, env_id: str) -> Path | None:
+    """The model file of the memory learner that serves ``env_id`` (``find_learner``), or None."""
+    return find_learner(learners, env_id)[0]
+
+
+def stored_learners(value: str | list[str] | None) -> tuple[Path, ...]:
+    """The learners a run folder's ``results.json`` records: one path (a string), several (a list) or none."""
+    return learner_sources(None if value is None else [value] if isinstance(value, str) else value)
+
+
+def learners_json(learners: tuple[Path, ...]) -> str | list[str] | None:
+    """The learners as ``results.json`` records them: one path as a string, several as a list, none as null."""
+    return None if not learners else str(learners[0]) if len(learners) == 1 else [str(p) for p in learners]
 
 
 def learner_tasks(path: Path) -> list[str] | None:
@@ -231,15 +267,16 @@ def learner_tasks(path: Path) -> list[str] | None:
 def learners_landed(run: Plan) -> list[str]:
     """The tasks whose recall condition ``run`` refused for want of a learner that its learners folder now holds
     (``benchmark learners`` training beside the benchmark): a new plan plays their recall episodes."""
-    return [env_id for (env_id, condition) in run.refused_conditions if condition == "recall"
-            and (path := learner_path(run.learners, env_id)) is not None and path.is_file()]
+    return [env_id for (env_id, condition) in run.refused_conditions
+            if condition == "recall" and learner_path(run.learners, env_id) is not None]
 
 
 def learner_record(run: Plan, env_id: str) -> dict[str, Any]:
     """What a recall cell says of its learner: the model file, its SHA-256 (an episode counts only for the learner
     it was played with), and its training run's rounds and final held-out figures (development seeds)."""
     path = learner_path(run.learners, env_id)
-    entry: dict[str, Any] = {"learner": str(path), "learner_sha256": run.learner_digests.get(env_id)}
+    entry: dict[str, Any] = {"learner": None if path is None else str(path),
+                             "learner_sha256": run.learner_digests.get(env_id)}
     summary = path.parent / "summary.json" if path is not None else None
     if summary is not None and summary.is_file():
         saved = json.loads(summary.read_text())
@@ -252,13 +289,13 @@ def learner_record(run: Plan, env_id: str) -> dict[str, Any]:
 
 
 def plan(protocol: Protocol, conditions: Iterable[str], split: str | None = None,
-         env_ids: Iterable[str] | None = None, learners: Path | None = None) -> Plan:
+         env_ids: Iterable[str] | None = None, learners: Path | Iterable[Path] | None = None) -> Plan:
     """Select the tasks (by split or ids) and decide, without simulating, which can run here and why not."""
     from sb3_memret.controller_specs import make_controller
     from sb3_memret.tasks import check_task_name, make_task
 
     tasks = select_tasks(split, list(env_ids) if env_ids is not None else None)
-    result = Plan(protocol, tasks, check_conditions(list(conditions)), learners=learners)
+    result = Plan(protocol, tasks, check_conditions(list(conditions)), learners=learner_sources(learners))
     for row in tasks:
         try:
             check_task_name(protocol.task(row.env_id))
@@ -270,16 +307,12 @@ def plan(protocol: Protocol, conditions: Iterable[str], split: str | None = None
         result.controllers[row.env_id] = controller_record(protocol.controller, controller)
         result.task_digests[row.env_id] = task_digest(task)
         result.replan_every[row.env_id] = replan_interval(task, protocol.replan_every, controller)
-        path = learner_path(learners, row.env_id)
-        trained_on = learner_tasks(path) if path is not None and path.is_file() else None
-        if "recall" in result.conditions and (path is None or not path.is_file()):
-            result.refused_conditions[row.env_id, "recall"] = (
-                f"no trained memory learner: expected {path}" if path is not None else
-                "no learners folder given (--learners DIR, with DIR/<env id>/final_model.zip)")
-        elif "recall" in result.conditions and trained_on is not None and learned_as(row.env_id, trained_on) is None:
-            result.refused_conditions[row.env_id, "recall"] = f"the learner across tasks {path} was not trained on it"
-        elif "recall" in result.conditions:
-            result.learner_digests[row.env_id] = hashlib.sha256(path.read_bytes()).hexdigest()
+        if "recall" in result.conditions:
+            path, why = find_learner(result.learners, row.env_id)
+            if path is None:
+                result.refused_conditions[row.env_id, "recall"] = why
+            else:
+                result.learner_digests[row.env_id] = hashlib.sha256(path.read_bytes()).hexdigest()
     return result
 
 
@@ -287,8 +320,8 @@ def plan(protocol: Protocol, conditions: Iterable[str], split: str | None = None
 class _Worker:
     """A worker's harness env and agents for the task it is playing (rebuilt when the task changes)."""
 
-    def __init__(self, protocol: Protocol, learners: Path | None):
-        self.protocol, self.learners = protocol, learners
+    def __init__(self, protocol: Protocol, learners: Path | Iterable[Path] | None):
+        self.protocol, self.learners = protocol, learner_sources(learners)
         self.env_id: str | None = None
         self.env: Any = None
         self.agents: dict[str, Any] = {}
@@ -350,7 +383,7 @@ def cue_label(episode: Any) -> str | None:
 _WORKER: _Worker | None = None
 
 
-def _init_worker(protocol: Protocol, learners: Path | None) -> None:
+def _init_worker(protocol: Protocol, learners: tuple[Path, ...]) -> None:
     """A pool worker: Ctrl-C is the parent's (it stops the pool), SIGTERM ends it (the pool's terminate sends it)."""
     import signal
 
@@ -365,7 +398,7 @@ def _play(unit: Unit) -> dict[str, Any]:
     return _WORKER.play(unit)
 
 
-def play_units(units: list[Unit], protocol: Protocol, learners: Path | None, workers: int,
+def play_units(units: list[Unit], protocol: Protocol, learners: Path | Iterable[Path] | None, workers: int,
                replacements: int = WORKER_REPLACEMENTS) -> Iterator[dict[str, Any]]:
     """Each unit's outcome as it lands: in this process for one worker (with one torch thread: beside other jobs,
     idle intra-op threads spin-wait after every op), else in ``workers`` spawned processes (each unit to the next
@@ -380,7 +413,7 @@ def play_units(units: list[Unit], protocol: Protocol, learners: Path | None, wor
             yield from (worker.play(unit) for unit in units)
         return
 
-    for _, record in replaying_pool(_play, units, workers, _init_worker, (protocol, learners), replacements,
+    for _, record in replaying_pool(_play, units, workers, _init_worker, (protocol, learner_sources(learners)), replacements,
                                     what="episodes"):
         yield record
 
@@ -517,7 +550,7 @@ def results(run: Plan, records: Iterable[dict[str, Any]]) -> dict[str, Any]:
         entry["conditions"] = conditions
         tasks[row.env_id] = entry
     protocol = {**run.protocol.to_json(), "conditions": run.conditions, "seeds": seeds}  # as results.json reads back
-    protocol["learners"] = None if run.learners is None else str(run.learners)
+    protocol["learners"] = learners_json(run.learners)
     privileged = any(t.get("controller", {}).get("privileged") for t in tasks.values())
     return {"protocol": protocol, "privileged_upper_bound": privileged, "tasks": tasks}
 
@@ -560,12 +593,11 @@ def widened(run: Plan, out: Path) -> Plan:
     conditions = [c for c in CONDITIONS if c in run.conditions or c in content["protocol"]["conditions"]]
     if len(env_ids) == len(run.tasks) and conditions == run.conditions:
         return run
-    stored = content["protocol"].get("learners")
     return plan(run.protocol, conditions, env_ids=env_ids,
-                learners=run.learners or (Path(stored) if stored else None))
+                learners=run.learners or stored_learners(content["protocol"].get("learners")))
 
 
-def run_benchmark(run: Plan, out: Path, learners: Path | None = None, workers: int = 1,
+def run_benchmark(run: Plan, out: Path, workers: int = 1,
                   on_progress: Callable[[int, int], None] | None = None,
                   on_task_done: Callable[[dict[str, Any]], None] | None = None,
                   on_outdated: Callable[[dict[str, int], set[str]], None] | None = None) -> dict[str, Any]:
@@ -576,10 +608,10 @@ def run_benchmark(run: Plan, out: Path, learners: Path | None = None, workers: i
     folder = RunFolder(out)
     folder.check_protocol(run.protocol)
     with folder.playing():
-        return _play_run(run, folder, learners, workers, on_progress, on_task_done, on_outdated)
+        return _play_run(run, folder, workers, on_progress, on_task_done, on_outdated)
 
 
-def _play_run(run: Plan, folder: RunFolder, learners: Path | None, workers: int,
+def _play_run(run: Plan, folder: RunFolder, workers: int,
               on_progress: Callable[[int, int], None] | None,
               on_task_done: Callable[[dict[str, Any]], None] | None,
               on_outdated: Callable[[dict[str, int], set[str]], None] | None = None) -> dict[str, Any]:
@@ -603,7 +635,7 @@ def _play_run(run: Plan, folder: RunFolder, learners: Path | None, workers: int,
         return content
 
     content = publish()
-    for record in play_units(pending, run.protocol, learners, workers):
+    for record in play_units(pending, run.protocol, run.learners, workers):
         record.update(controller_sha256=run.controllers[record["env_id"]]["sha256"],
                       task_sha256=run.task_digests[record["env_id"]])
         if record["condition"] == "recall":
@@ -625,9 +657,8 @@ def rebuild(out: Path) -> dict[str, Any]:
     folder = RunFolder(out)
     saved = json.loads((folder.out / RESULTS_FILE).read_text())
     stored = Protocol.from_json(json.loads((folder.out / PROTOCOL_FILE).read_text()))
-    learners = saved["protocol"].get("learners")
     run = plan(stored, saved["protocol"]["conditions"], env_ids=list(saved["tasks"]),
-               learners=Path(learners) if learners else None)
+               learners=stored_learners(saved["protocol"].get("learners")))
     records = folder.episodes()
     content = results(run, records)
     (folder.out / RESULTS_FILE).write_text(json.dumps(content, indent=2) + "\n")
@@ -636,4 +667,4 @@ def rebuild(out: Path) -> dict[str, Any]:
 
 
 __all__ = ["CONDITIONS", "Plan", "Protocol", "RunFolder", "Unit", "controller_digest", "controller_record", "cue_label", "done_units",
-           "learner_path", "learners_landed", "plan", "play_units", "rebuild", "results", "run_benchmark", "widened"]
+           "find_learner", "learner_path", "learner_sources", "learners_landed", "plan", "play_units", "rebuild", "results", "run_benchmark", "widened"]

@@ -47,10 +47,11 @@ def benchmark() -> None:
               help="dev: development seeds 5000 + i, for every choice (checkpoints, controllers, variants); protocol: "
                    "the benchmark's test seeds 4242424242 + i, for the final figure only (a published table asks "
                    "for them by name).")
-@click.option("--learners", type=click.Path(path_type=Path), default=None,
-              help="For recall: a folder with a trained memory learner per task, DIR/<env id>/final_model.zip, or "
-                   "one learner across tasks' model file (train recall --tasks), for every task it was trained on  "
-                   "[default: the shipped learner across the short split]")
+@click.option("--learners", type=click.Path(path_type=Path), multiple=True,
+              help="For recall: a folder with a trained memory learner per task, DIR/<env id>/final_model.zip, "
+                   "one learner across tasks' model file (train recall --tasks), for every task it was trained on, "
+                   "or `shipped`, the package's learner across the short split. Repeat it: each task plays the first "
+                   "that serves it  [default: shipped]")
 @click.option("--replan-every", type=click.IntRange(min=1), default=None,
               help="Control steps between controller calls  [default: each task's]")
 @click.option("--workers", type=click.IntRange(min=1), default=min(2, os.cpu_count() or 1), show_default=True,
@@ -59,7 +60,7 @@ def benchmark() -> None:
               help="Run folder: results.json, report.md, the episode log; an existing one resumes.")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
 def mikasa(split: str | None, tasks: list[str] | None, episodes: int, controller: str, conditions: list[str],
-           seed_set: str, learners: Path | None, replan_every: int | None, workers: int, out: Path,
+           seed_set: str, learners: tuple[Path, ...], replan_every: int | None, workers: int, out: Path,
            progress: bool) -> None:
     """MIKASA-Robo-VLA's protocol through its own harness: every task of a split (or --tasks), each prompt
     condition, success once over seeded episodes (development seeds unless --seeds protocol asks for the test set);
@@ -82,13 +83,8 @@ def mikasa(split: str | None, tasks: list[str] | None, episodes: int, controller
             raise click.BadParameter(str(err), param_hint="--tasks") from None
     protocol = Protocol(seed_set=seed_set, episodes=episodes, controller=controller, replan_every=replan_every,
                         task_classes=task_classes)
-    if learners is None and "recall" in conditions:
-        from sb3_memret.benchmark.learners import shipped_learner
-
-        try:
-            learners = shipped_learner()
-        except FileNotFoundError as err:
-            raise click.UsageError(str(err)) from None
+    if "recall" in conditions:
+        learners = _learner_sources(learners)
     try:
         run = plan(protocol, conditions, split, tasks, learners)
     except ValueError as err:
@@ -110,7 +106,7 @@ def mikasa(split: str | None, tasks: list[str] | None, episodes: int, controller
 
     try:
         while True:
-            content = run_benchmark(run, out, learners, workers, on_progress,
+            content = run_benchmark(run, out, workers, on_progress,
                                     on_task_done=lambda content: write_report(content, out),
                                     on_outdated=lambda stale, replayed: _say_outdated(out, stale, replayed))
             landed = learners_landed(run)
@@ -124,6 +120,20 @@ def mikasa(split: str | None, tasks: list[str] | None, episodes: int, controller
     finally:
         bar.close()
     click.echo(str(write_report(content, out)))
+
+
+def _learner_sources(learners: tuple[Path, ...]) -> tuple[Path, ...]:
+    """``--learners`` with `shipped` (and the default, none given) read as the package's learner across the short
+    split; a usage error naming how to rebuild it when it is missing."""
+    from sb3_memret.benchmark.learners import shipped_learner
+
+    if any(str(source) == "shipped" for source in learners) or not learners:
+        try:
+            shipped = shipped_learner()
+        except FileNotFoundError as err:
+            raise click.UsageError(str(err)) from None
+        return tuple(shipped if str(source) == "shipped" else source for source in learners) or (shipped,)
+    return learners
 
 
 def _say_outdated(out: Path, stale: dict[str, int], replayed: set[str]) -> None:
