@@ -8,7 +8,7 @@ RENDERER ?= .renderer
 is_py312 = $(shell $(1) -c 'import sys; assert sys.version_info[:2] == (3, 12)' >/dev/null 2>&1 && echo yes)
 PYTHON ?= $(firstword $(foreach p,python3.12 $(wildcard $(HOME)/.pyenv/versions/3.12*/bin/python3.12),$(if $(call is_py312,$(p)),$(p))))
 
-.PHONY: install renderer train test docs bench main-job-sweep controller controller-objects controller-camera controller-mikasa controller-multitask learner-multitask tables-privileged tables-camera tables-learned clean
+.PHONY: install renderer train test docs bench main-job-sweep controller controller-objects controller-camera controller-mikasa controller-multitask learner-multitask learners-long-horizon tables-privileged tables-camera tables-learned clean
 
 $(VENV)/.installed: setup.cfg pyproject.toml constraints.txt
 	@test -n "$(PYTHON)" || { echo "error: no Python 3.12 found; install one (e.g. pyenv install 3.12) or pass PYTHON=/path/to/python3.12" >&2; exit 1; }
@@ -197,26 +197,46 @@ learner-multitask: install renderer
 	mkdir -p $(SHIPPED_LEARNER)
 	cp $(LEARNER_RUN)/final_model.zip $(LEARNER_RUN)/config.yml $(LEARNER_RUN)/summary.json $(SHIPPED_LEARNER)/
 
+# The memory learners of the tasks the shipped learner does not serve (TimedTransferEasy, and the medium and long
+# families), one `train recall` run per task on its zoo section into LEARNERS_DIR, cheapest first; a finished task is
+# kept, an interrupted one resumes. A -Long variant plays its short task's. The tables' recall looks there first.
+LEARNERS_DIR ?= runs/learners-long-horizon
+space := $(subst ,, )
+LONG_HORIZON_LEARNER_TASKS ?= TimedTransferEasy-VLA-v0,BunchOfColors3-VLA-v0,SeqOfColors3-VLA-v0,ChainOfColors3-VLA-v0,\
+BlinkCountButtonPressHard-VLA-v0,TimedTransferMedium-VLA-v0,TimedTransferHard-VLA-v0,TimedTransferEasy-Long-VLA-v0,\
+GatherAndRecall3-VLA-v0,GatherAndRecall5-VLA-v0,TraceShapeEasy-VLA-v0,TraceShapeMedium-VLA-v0,TraceShapeHard-VLA-v0,\
+BatteriesCheckerEasy-3-VLA-v0,BunchOfColors5-VLA-v0,SeqOfColors5-VLA-v0,ChainOfColors5-VLA-v0,BunchOfColors7-VLA-v0,\
+SeqOfColors7-VLA-v0,ChainOfColors7-VLA-v0,TraceShapeSeqEasy-VLA-v0,TraceShapeSeqMedium-VLA-v0,TraceShapeSeqHard-VLA-v0,\
+GatherAndRecall7-VLA-v0,GatherAndRecall9-VLA-v0,BatteriesCheckerEasy-6-VLA-v0,BatteriesCheckerHard-3-VLA-v0,\
+BatteriesCheckerHard-6-VLA-v0
+
+learners-long-horizon: install renderer
+	$(VENV)/bin/sb3-memret benchmark learners --tasks $(subst $(space),,$(LONG_HORIZON_LEARNER_TASKS)) \
+		--eval-episodes 20 --out $(LEARNERS_DIR)
+
 # The benchmark's tables in benchmarks/mikasa/ (commit each folder as it grows: a table plays for many hours, a rerun
 # plays only the cells still missing, and a cell played by other code, controller or learner is played again).
 # tables-privileged: the scripted experts, a privileged upper bound, on each split (TABLE_SPLITS) at the protocol
 # seeds; tables-camera: the experts' motion on what the cameras show (scripted-camera, the harness's inputs alone),
 # the ceiling of a camera-only controller, likewise; tables-learned: the shipped camera controller on the harness's
-# inputs alone, a protocol entry, on the short split at development seeds, then at the protocol seeds. Recall uses the shipped learner across the short split
-# (make learner-multitask): rebuild it first, or pass TABLE_CONDITIONS=none,oracle,wrong meanwhile.
+# inputs alone, a protocol entry, on the short split at development seeds, then at the protocol seeds. Recall plays
+# each task's learner from TABLE_LEARNERS, the first that serves it (make learners-long-horizon's, then the shipped
+# one across the short split); a task none serves yet has its recall cell refused, and a rerun plays it.
 TABLE_SPLITS ?= short medium long
 TABLE_CONDITIONS ?= none,oracle,wrong,recall
+TABLE_LEARNERS ?= $(LEARNERS_DIR) shipped
 TABLES ?= benchmarks/mikasa
 tables-privileged: install renderer
 	set -e; for split in $(TABLE_SPLITS); do \
 		$(VENV)/bin/sb3-memret benchmark mikasa --split $$split --controller scripted --conditions $(TABLE_CONDITIONS) \
-			--seeds protocol --no-progress --out $(TABLES)/$$split-scripted-protocol; \
+			$(addprefix --learners ,$(TABLE_LEARNERS)) --seeds protocol --no-progress --out $(TABLES)/$$split-scripted-protocol; \
 	done
 
 tables-camera: install renderer
 	set -e; for split in $(TABLE_SPLITS); do \
 		$(VENV)/bin/sb3-memret benchmark mikasa --split $$split --controller scripted-camera \
-			--conditions $(TABLE_CONDITIONS) --seeds protocol --no-progress --out $(TABLES)/$$split-scripted-camera-protocol; \
+			--conditions $(TABLE_CONDITIONS) $(addprefix --learners ,$(TABLE_LEARNERS)) --seeds protocol --no-progress \
+			--out $(TABLES)/$$split-scripted-camera-protocol; \
 	done
 
 tables-learned: install renderer
