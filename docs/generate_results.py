@@ -50,6 +50,9 @@ def split_of(tasks: Mapping[str, Any]) -> str | None:
 
 def command(content: Mapping[str, Any], folder: str) -> str:
     """The ``sb3-memret benchmark mikasa`` command line that plays (or resumes) this run into ``folder``."""
+    from sb3_memret.benchmark.learners import SHIPPED_LEARNER
+    from sb3_memret.benchmark.runner import stored_learners
+
     protocol, tasks = content["protocol"], content["tasks"]
     split = split_of(tasks)
     args = ["sb3-memret", "benchmark", "mikasa"]
@@ -58,8 +61,9 @@ def command(content: Mapping[str, Any], folder: str) -> str:
              "--seeds", protocol["seed_set"], "--episodes", str(protocol["episodes"])]
     if protocol.get("replan_every") is not None:
         args += ["--replan-every", str(protocol["replan_every"])]
-    if protocol.get("learners"):
-        args += ["--learners", protocol["learners"]]
+    for source in stored_learners(protocol.get("learners")):  # the package's learner by its name, not its path
+        args += ["--learners", "shipped" if source.name == SHIPPED_LEARNER.name and source.parent.name ==
+                 SHIPPED_LEARNER.parent.name else str(source)]
     args += ["--out", folder]
     return " ".join(shlex.quote(a) for a in args)
 
