@@ -627,9 +627,7 @@ def _play_run(run: Plan, folder: RunFolder, workers: int,
     total, finished = len(pending), 0
 
     def publish() -> dict[str, Any]:
-        content = results(shown, records)
-        (folder.out / RESULTS_FILE).write_text(json.dumps(content, indent=2) + "\n")
-        write_mikasa_results(folder.out, content, records)
+        content = write_results(folder.out, shown, records)
         if on_task_done is not None:
             on_task_done(content)
         return content
@@ -659,12 +657,17 @@ def rebuild(out: Path) -> dict[str, Any]:
     stored = Protocol.from_json(json.loads((folder.out / PROTOCOL_FILE).read_text()))
     run = plan(stored, saved["protocol"]["conditions"], env_ids=list(saved["tasks"]),
                learners=stored_learners(saved["protocol"].get("learners")))
-    records = folder.episodes()
+    return write_results(folder.out, run, folder.episodes())
+
+
+def write_results(out: Path, run: Plan, records: list[dict[str, Any]]) -> dict[str, Any]:
+    """``run``'s table over ``records`` into ``out/results.json`` and MIKASA's own result layout; the table."""
     content = results(run, records)
-    (folder.out / RESULTS_FILE).write_text(json.dumps(content, indent=2) + "\n")
-    write_mikasa_results(folder.out, content, records)
+    (Path(out) / RESULTS_FILE).write_text(json.dumps(content, indent=2) + "\n")
+    write_mikasa_results(Path(out), content, records)
     return content
 
 
 __all__ = ["CONDITIONS", "Plan", "Protocol", "RunFolder", "Unit", "controller_digest", "controller_record", "cue_label", "done_units",
-           "find_learner", "learner_path", "learner_sources", "learners_landed", "plan", "play_units", "rebuild", "results", "run_benchmark", "widened"]
+           "find_learner", "learner_path", "learner_sources", "learners_landed", "plan", "play_units", "rebuild", "results", "run_benchmark", "widened",
+           "write_results"]

@@ -192,6 +192,30 @@ def report_command(run: Path) -> None:
     click.echo(str(write_report(content, run)))
 
 
+@benchmark.command("merge")
+@click.argument("sources", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False, path_type=Path))
+@click.option("--into", type=click.Path(exists=True, file_okay=False, path_type=Path), required=True,
+              help="The run folder that takes the episodes it lacks (one of the same protocol).")
+def merge_command(sources: tuple[Path, ...], into: Path) -> None:
+    """Merge run folders played apart (SOURCES, of one protocol) into one table: each source's episodes that INTO
+    lacks join its log, those played by other code, controller or learner are left out (and counted), and INTO's
+    results.json and report.md are written again over all their tasks and conditions."""
+    from sb3_memret.benchmark.merge import merge_runs
+    from sb3_memret.benchmark.report import write_report
+
+    try:
+        merged = merge_runs(sources, into)
+    except ValueError as err:
+        raise click.UsageError(str(err)) from None
+    for (env_id, condition), count in merged.added.items():
+        click.echo(f"added {count} {condition} episodes of {env_id}", err=True)
+    for source, count in merged.left_out.items():
+        click.echo(f"left out {count} episodes of {source}: played by other code, controller or learner", err=True)
+    if not merged.added:
+        click.echo(f"{into} already held every current episode of {', '.join(map(str, sources))}", err=True)
+    click.echo(str(write_report(merged.content, into)))
+
+
 @benchmark.command("compare")
 @click.argument("run_a", type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.argument("run_b", type=click.Path(exists=True, file_okay=False, path_type=Path))
