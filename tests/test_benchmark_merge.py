@@ -43,6 +43,8 @@ def test_merge_adds_the_episodes_a_table_lacks_once_and_only_current_ones(tmp_pa
         _episode(theirs, "wrong", first, False),
         _episode(theirs, "wrong", second, False, controller_sha256="another controller"),  # not counted here
         {**_episode(theirs, "wrong", second, False), "error": "RuntimeError"}])
+    elsewhere = merge_runs([source], into, only=["RememberColor5-VLA-v0"])  # another task's only: nothing of these
+    assert elsewhere.added == {} and list(elsewhere.content["tasks"]) == [TASK]
     merged = merge_runs([source], into)
     assert merged.added == {(TASK, "oracle"): 1, (TASK, "wrong"): 1} and merged.left_out == {str(source): 1}
     cells = merged.content["tasks"][TASK]["conditions"]
@@ -77,7 +79,10 @@ def test_merge_command_writes_the_report_and_says_what_it_added(tmp_path):
     run = plan(protocol, ["oracle"], env_ids=[TASK])
     into = _folder(tmp_path / "into", run, [])
     source = _folder(tmp_path / "source", run, [_episode(run, "oracle", protocol.seeds()[0], True)])
-    result = CliRunner().invoke(main, ["benchmark", "merge", str(source), "--into", str(into)])
+    both = CliRunner().invoke(main, ["benchmark", "merge", str(source), "--into", str(into), "--split", "short",
+                                     "--tasks", TASK])
+    assert both.exit_code == 2 and "not both" in both.output
+    result = CliRunner().invoke(main, ["benchmark", "merge", str(source), "--into", str(into), "--split", "short"])
     assert result.exit_code == 0, result.output
     assert f"added 1 oracle episodes of {TASK}" in result.output and (into / "report.md").is_file()
     assert "100%" in (into / "report.md").read_text()

@@ -35,11 +35,12 @@ def _saved(folder: Path) -> tuple[Protocol, dict[str, Any]]:
             json.loads((folder / RESULTS_FILE).read_text()))
 
 
-def merge_runs(sources: Iterable[Path], into: Path) -> Merged:
-    """Append to ``into``'s episode log the current episodes of each of ``sources`` that it lacks, and write its
-    results again over the union of their tasks, conditions and learners (``into``'s learners first). Holds
-    ``into`` as a benchmark does, so nothing plays into it meanwhile."""
+def merge_runs(sources: Iterable[Path], into: Path, only: Iterable[str] | None = None) -> Merged:
+    """Append to ``into``'s episode log the current episodes of each of ``sources`` that it lacks (of the tasks in
+    ``only``, if given), and write its results again over the union of their tasks, conditions and learners
+    (``into``'s learners first). Holds ``into`` as a benchmark does, so nothing plays into it meanwhile."""
     into = Path(into)
+    only = None if only is None else set(only)
     protocol, saved = _saved(into)
     tasks = list(saved["tasks"])
     conditions = set(saved["protocol"]["conditions"])
@@ -55,7 +56,7 @@ def merge_runs(sources: Iterable[Path], into: Path) -> Merged:
             raise ValueError(f"{source} was played under another protocol than {into} ("
                              + ", ".join(f"{k}: {theirs.to_json().get(k)!r} against {protocol.to_json().get(k)!r}"
                                          for k in diff) + ")")
-        tasks += [env_id for env_id in content["tasks"] if env_id not in tasks]
+        tasks += [env_id for env_id in content["tasks"] if env_id not in tasks and (only is None or env_id in only)]
         conditions |= set(content["protocol"]["conditions"])
         learners += [p for p in stored_learners(content["protocol"].get("learners")) if p not in learners]
         read.append((source, RunFolder(source).episodes()))
@@ -68,7 +69,7 @@ def merge_runs(sources: Iterable[Path], into: Path) -> Merged:
         for source, episodes in read:
             for record in episodes:
                 unit = Unit(record["env_id"], record["condition"], int(record["seed"]))
-                if "error" in record or unit in have:
+                if "error" in record or unit in have or (only is not None and unit.env_id not in only):
                     continue
                 if record["env_id"] not in run.controllers or not run.current(record):
                     merged.left_out[str(source)] = merged.left_out.get(str(source), 0) + 1

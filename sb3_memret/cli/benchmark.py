@@ -196,15 +196,19 @@ def report_command(run: Path) -> None:
 @click.argument("sources", nargs=-1, required=True, type=click.Path(exists=True, file_okay=False, path_type=Path))
 @click.option("--into", type=click.Path(exists=True, file_okay=False, path_type=Path), required=True,
               help="The run folder that takes the episodes it lacks (one of the same protocol).")
-def merge_command(sources: tuple[Path, ...], into: Path) -> None:
+@click.option("--split", type=click.Choice(SPLITS), default=None, help="Merge only the tasks of this split.")
+@click.option("--tasks", callback=_tasks, default=None, metavar="ID[,ID...]", help="Merge only these tasks.")
+def merge_command(sources: tuple[Path, ...], into: Path, split: str | None, tasks: list[str] | None) -> None:
     """Merge run folders played apart (SOURCES, of one protocol) into one table: each source's episodes that INTO
     lacks join its log, those played by other code, controller or learner are left out (and counted), and INTO's
     results.json and report.md are written again over all their tasks and conditions."""
+    from sb3_memret.benchmark.manifest import select_tasks
     from sb3_memret.benchmark.merge import merge_runs
     from sb3_memret.benchmark.report import write_report
 
     try:
-        merged = merge_runs(sources, into)
+        only = None if split is None and tasks is None else [row.env_id for row in select_tasks(split, tasks)]
+        merged = merge_runs(sources, into, only)
     except ValueError as err:
         raise click.UsageError(str(err)) from None
     for (env_id, condition), count in merged.added.items():
