@@ -203,12 +203,15 @@ def split_tasks(split: str) -> tuple[list[str], dict[str, str]]:
 
 
 def learner_sources(learners: Path | Iterable[Path] | None) -> tuple[Path, ...]:
-    """``--learners`` as a tuple of paths, in the order given (one path, several, or none)."""
+    """``--learners`` as a tuple of paths, in the order given (one path, several, or none); ``shipped`` names the
+    package's learner across the short split, wherever the package is installed."""
+    from sb3_memret.benchmark.learners import SHIPPED_LEARNER
+
     if learners is None:
         return ()
     if isinstance(learners, (str, Path)):
-        return (Path(learners),)
-    return tuple(Path(source) for source in learners)
+        learners = [learners]
+    return tuple(SHIPPED_LEARNER if str(source) == "shipped" else Path(source) for source in learners)
 
 
 def find_learner(learners: Path | Iterable[Path] | None, env_id: str) -> tuple[Path | None, str]:
@@ -249,8 +252,12 @@ def stored_learners(value: str | list[str] | None) -> tuple[Path, ...]:
 
 
 def learners_json(learners: tuple[Path, ...]) -> str | list[str] | None:
-    """The learners as ``results.json`` records them: one path as a string, several as a list, none as null."""
-    return None if not learners else str(learners[0]) if len(learners) == 1 else [str(p) for p in learners]
+    """The learners as ``results.json`` records them: one path as a string, several as a list, none as null; the
+    package's own as ``shipped``, so that a table read on another checkout finds it."""
+    from sb3_memret.benchmark.learners import SHIPPED_LEARNER
+
+    named = [("shipped" if Path(p).resolve() == SHIPPED_LEARNER.resolve() else str(p)) for p in learners]
+    return None if not named else named[0] if len(named) == 1 else named
 
 
 def learner_tasks(path: Path) -> list[str] | None:

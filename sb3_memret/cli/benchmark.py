@@ -126,14 +126,14 @@ def _learner_sources(learners: tuple[Path, ...]) -> tuple[Path, ...]:
     """``--learners`` with `shipped` (and the default, none given) read as the package's learner across the short
     split; a usage error naming how to rebuild it when it is missing."""
     from sb3_memret.benchmark.learners import shipped_learner
+    from sb3_memret.benchmark.runner import learner_sources
 
     if any(str(source) == "shipped" for source in learners) or not learners:
         try:
-            shipped = shipped_learner()
+            shipped_learner()
         except FileNotFoundError as err:
             raise click.UsageError(str(err)) from None
-        return tuple(shipped if str(source) == "shipped" else source for source in learners) or (shipped,)
-    return learners
+    return learner_sources(learners or (Path("shipped"),))
 
 
 def _say_outdated(out: Path, stale: dict[str, int], replayed: set[str]) -> None:
