@@ -18,6 +18,10 @@ latched over the episode). Two parts do not run unchanged on this stack, and are
   images). ``sensor_gate.SensorGate`` lets the agent say which observations it reads: the others carry the last
   images rendered (physics never depends on rendering, so every outcome is the same; ``scripts/bench_benchmark.py``
   measures it).
+- **Grasp checks.** MIKASA's envs ask ManiSkill's ``Panda.is_grasping`` of every object they track, in ``evaluate``
+  and again in the dense reward: BatteriesChecker 30 times a control step, two thirds of its episode's time on a
+  CPU. ``grasp_memo.install_grasp_memo`` reads the fingers and the contacts once per physics step and answers the
+  repeats from a memo, in the same operations, so every answer is the same (``scripts/bench_grasp_memo.py``).
 - **Renderer.** The harness names no render backend; on a machine without a GPU, ManiSkill falls back to SAPIEN's
   CPU device, which renders with the project's lavapipe once ``use_cpu_renderer`` has pointed Vulkan at it.
 """
@@ -46,6 +50,8 @@ def install_shims(render_backend: str = "cpu") -> None:
         from sb3_memret.common.rendering import use_cpu_renderer
 
         use_cpu_renderer()
+    from sb3_memret.physics.grasp_memo import install_grasp_memo
+
     import mani_skill.envs  # noqa: F401  (before MIKASA's baseline module: it imports ManiSkill's envs halfway)
     import mikasa_robo_suite.vla.memory_envs  # noqa: F401  (registers the *-VLA-v0 ids)
     from baselines.ppo import ppo_memtasks
@@ -53,6 +59,7 @@ def install_shims(render_backend: str = "cpu") -> None:
     wrapper = ppo_memtasks.StateOnlyTensorToDictWrapper
     if "__getattr__" not in vars(wrapper):
         wrapper.__getattr__ = _forward_public
+    install_grasp_memo()
 
 
 def make_env(env_id: str, sim_backend: str = "cpu", render_backend: str = "cpu") -> gym.Env:

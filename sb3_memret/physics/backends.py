@@ -64,6 +64,9 @@ class TaskRunner:
     the episode's success once (a task whose episodes go on after success, as MIKASA's do, counts it)."""
 
     def __init__(self, task_kwargs: Mapping[str, Any], max_control_steps: int, task: Task | str):
+        from sb3_memret.physics.grasp_memo import install_grasp_memo
+
+        install_grasp_memo()  # repeated grasp checks answered once per physics step (the same answers, faster)
         task = make_task(task)
         self._start(task, task.make_env(max_episode_steps=max_control_steps, **task_kwargs))
 

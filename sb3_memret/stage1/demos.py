@@ -38,6 +38,7 @@ from sb3_memret.controllers.observation import (ACTION_CHUNK_KEY, ACTION_KEY, CH
 from sb3_memret.controllers.prompts import build_prompt
 from sb3_memret.evaluation.rollout import WrittenFacts
 from sb3_memret.memory.schema import MemoryType
+from sb3_memret.physics.grasp_memo import install_grasp_memo
 from sb3_memret.physics.sensor_gate import sensors_pause
 from sb3_memret.tasks import Task, make_task
 from sb3_memret.tasks.base import check_render_backend
@@ -117,6 +118,7 @@ class DemoRecorder:
         replan_every = self.task.replan_interval(replan_every, self.expert.spec.chunk_len, "the expert's")
         features = sized_features(self.task, self.with_images, image_size)  # a task without a layout refuses here
         self.resized = {key: features[key]["shape"][0] for key in image_features(features)} if image_size else {}
+        install_grasp_memo()  # repeated grasp checks answered once per physics step (the same answers, faster)
         self.env = self.task.make_env(**self.task.env_kwargs(self.with_images, render_backend),
                                       max_episode_steps=max_steps)
         self.expert.check_env(self.env)
