@@ -381,7 +381,7 @@ def test_each_task_plays_the_first_of_several_learners_that_serves_it(tmp_path):
     lacks plays the shipped learner across the short split, one that neither serves is refused naming both; the
     sources are recorded in order and read back."""
     from sb3_memret.benchmark.learners import shipped_learner
-    from sb3_memret.benchmark.runner import find_learner, plan, stored_learners
+    from sb3_memret.benchmark.runner import find_learner, learners_landed, plan, stored_learners
     from sb3_memret.cli.benchmark import _learner_sources
 
     own = tmp_path / "learners" / "BunchOfColors3-VLA-v0" / "final_model.zip"
@@ -396,6 +396,7 @@ def test_each_task_plays_the_first_of_several_learners_that_serves_it(tmp_path):
     assert set(run.learner_digests) == set(tasks[:2])
     why = run.refused_conditions[tasks[2], "recall"]
     assert str(tmp_path / "learners" / tasks[2] / "final_model.zip") in why and "was not trained on it" in why
+    assert learners_landed(run) == []  # the learner across tasks is there, but not for it: nothing landed
     saved = results(run, [])["protocol"]["learners"]
     assert saved == [str(tmp_path / "learners"), "shipped"] and stored_learners(saved) == sources  # on any checkout
     assert stored_learners(str(own)) == (own,) and stored_learners(None) == ()
