@@ -50,12 +50,11 @@ def merge_runs(sources: Iterable[Path], into: Path, only: Iterable[str] | None =
         if source.resolve() == into.resolve():
             raise ValueError(f"{source} is the folder merged into")
         theirs, content = _saved(source)
-        diff = sorted(k for k in set(protocol.to_json()) | set(theirs.to_json())
-                      if protocol.to_json().get(k) != theirs.to_json().get(k))
+        mine, other = protocol.to_json(), theirs.to_json()
+        diff = sorted(k for k in set(mine) | set(other) if mine.get(k) != other.get(k))
         if diff:
             raise ValueError(f"{source} was played under another protocol than {into} ("
-                             + ", ".join(f"{k}: {theirs.to_json().get(k)!r} against {protocol.to_json().get(k)!r}"
-                                         for k in diff) + ")")
+                             + ", ".join(f"{k}: {other.get(k)!r} against {mine.get(k)!r}" for k in diff) + ")")
         tasks += [env_id for env_id in content["tasks"] if env_id not in tasks and (only is None or env_id in only)]
         conditions |= set(content["protocol"]["conditions"])
         learners += [p for p in stored_learners(content["protocol"].get("learners")) if p not in learners]
