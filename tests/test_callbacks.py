@@ -7,8 +7,7 @@ import pytest
 from stable_baselines3.common.vec_env import DummyVecEnv
 
 from sb3_memret.callbacks import (PhaseTimingCallback, RetrievalEvalCallback, RolloutRetrievalCallback,
-                                  RoundCheckpointCallback,
-                                  checkpoint_path, latest_checkpoint)
+                                  RoundCheckpointCallback, StopOnRetrievalTarget, checkpoint_path, latest_checkpoint)
 from sb3_memret.policy.policy import MemoryRetrievalPolicy
 from sb3_memret.policy.ppo import MemRetPPO
 from sb3_memret.common.run_logger import make_run_logger
@@ -206,3 +205,36 @@ def test_per_group_success_leaves_the_stdout_table_only_when_sb3_would_cut_two_k
     printed = capsys.readouterr().out
     assert "| eval/" in printed and "success " in printed  # the overall figure always shows
     assert ("success_group_" in printed) == on_stdout
+
+
+def test_training_stops_once_held_out_retrieval_reaches_the_target_and_a_resume_stops_again(tmp_path):
+    """The toy's retriever learns its true memory within a few rounds: with a target, training ends there, not at
+    its budget; the streak is counted from the run's history, so a resumed run stops at once."""
+    def learn(model, rounds):
+        evaluator = RetrievalEvalCallback(DummyVecEnv([ToyBankEnv]), n_eval_episodes=8,
+                                          history_path=tmp_path / "evaluations.jsonl")
+        stopper = StopOnRetrievalTarget(evaluator, greedy_accuracy=1.0, patience=2)
+        model.learn(ROUND * rounds, callback=[evaluator, stopper], reset_num_timesteps=False)
+        return evaluator, stopper
+
+    model = MemRetPPO(MemoryRetrievalPolicy, DummyVecEnv([ToyBankEnv]), n_steps=ROUND, batch_size=ROUND, seed=0)
+    model.set_logger(make_run_logger(tmp_path, ("csv",)))
+    _, stopper = learn(model, rounds=40)
+    history = [json.loads(line) for line in (tmp_path / "evaluations.jsonl").read_text().splitlines()]
+    assert stopper.reached is not None and stopper.reached < 40
+    assert [row["greedy_accuracy"] for row in history[-2:]] == [1.0, 1.0]
+    assert history[0]["greedy_accuracy"] < 1.0  # it had to learn
+    assert not any(a["greedy_accuracy"] == b["greedy_accuracy"] == 1.0 for a, b in zip(history[:-2], history[1:-1]))
+    rounds = model._n_updates // model.n_epochs
+    assert rounds == stopper.reached == history[-1]["round"]  # no update after the evaluation that met it
+
+    _, again = learn(model, rounds=40)
+    assert again.reached == stopper.reached and model._n_updates // model.n_epochs == rounds
+
+
+def test_a_retrieval_target_out_of_range_is_named():
+    evaluator = RetrievalEvalCallback(DummyVecEnv([ToyBankEnv]), n_eval_episodes=1)
+    with pytest.raises(ValueError, match="greedy_accuracy must be in"):
+        StopOnRetrievalTarget(evaluator, greedy_accuracy=1.5)
+    with pytest.raises(ValueError, match="patience must be >= 1"):
+        StopOnRetrievalTarget(evaluator, greedy_accuracy=0.9, patience=0)

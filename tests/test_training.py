@@ -306,3 +306,31 @@ def test_two_runs_of_the_same_command_and_seed_evaluate_identically(tmp_path):
         assert result.exit_code == 0, result.output
         histories.append((tmp_path / name / "evaluations.jsonl").read_text())
     assert histories[0] == histories[1] and len(histories[0].splitlines()) == 2
+
+
+def test_a_run_stops_at_its_retrieval_target_and_says_so(tmp_path, monkeypatch):
+    """--stop-at-greedy ends a run at the first held-out evaluations that reach it, short of the config's budget,
+    and the summary keeps the round and the target. (Round 1's evaluation is read as perfect: a tiny run's learner
+    does not reach a target in seconds; the callback's own test learns one for real.)"""
+    import dataclasses
+
+    from sb3_memret.callbacks import evaluation
+
+    real = evaluation.evaluate_retrieval
+
+    def perfect_from_round_1(model, *args, **kwargs):
+        report = real(model, *args, **kwargs)
+        return dataclasses.replace(report, greedy_accuracy=1.0) if model._n_updates else report
+
+    monkeypatch.setattr(evaluation, "evaluate_retrieval", perfect_from_round_1)
+    config = tmp_path / "tiny.yml"
+    config.write_text(TINY.replace("n_timesteps: 32", "n_timesteps: 320") + "  eval_episodes: 1\n  eval_every: 1\n")
+    result = cli("train", "recall", "--config", config, "--out", tmp_path / "run", "--no-progress",
+                 "--stop-at-greedy", "0.99", "--stop-patience", "1")
+    assert result.exit_code == 0, result.output
+    summary = json.loads((tmp_path / "run" / "summary.json").read_text())
+    assert summary["stop_at_greedy"] == 0.99 and summary["stop_patience"] == 1
+    assert summary["target_reached_at_round"] == 1 and summary["rounds"] == 1 and summary["num_timesteps"] < 32
+    assert [row["round"] for row in read_history(tmp_path / "run")] == [0, 1]
+    assert "stopped at round 1" in result.output and (tmp_path / "run" / "final_model.zip").exists()
+    assert cli("train", "recall", "--out", tmp_path / "bad", "--stop-at-greedy", "0").exit_code == 2

@@ -40,9 +40,11 @@ class LearnerOutcome:
 
 def train_learners(env_ids: list[str], out: Path, controller: str = "scripted", seed: int = 0,
                    eval_episodes: int = 50, load_config: Callable[[str], object] | None = None,
-                   on_outcome: Callable[[LearnerOutcome], None] | None = None) -> list[LearnerOutcome]:
+                   on_outcome: Callable[[LearnerOutcome], None] | None = None, stop_at_greedy: float | None = None,
+                   stop_patience: int = 2) -> list[LearnerOutcome]:
     """Train (or resume, or keep) the memory learner of each task in ``env_ids`` into ``out/<env id>``.
-    Held-out evaluations during training play the task's development seeds, never the benchmark's."""
+    Held-out evaluations during training play the task's development seeds, never the benchmark's; with
+    ``stop_at_greedy`` a run ends once ``stop_patience`` of them in a row retrieve that well."""
     from sb3_memret.training.config import load_task_config
     from sb3_memret.controller_specs import make_controller
     from sb3_memret.tasks import check_task_name, make_task
@@ -69,12 +71,15 @@ def train_learners(env_ids: list[str], out: Path, controller: str = "scripted", 
                     shutil.rmtree(folder)
                 options = RunOptions(out=folder, controller=controller, seed=seed, resume=resume,
                                      eval_episodes=eval_episodes, render_backend=task.default_render_backend,
-                                     log_formats=("csv",))
+                                     log_formats=("csv",), stop_at_greedy=stop_at_greedy,
+                                     stop_patience=stop_patience)
                 result = train(None if resume else config, options, built)
                 if result.interrupted:
                     raise KeyboardInterrupt(result.stopped_by)
+                reached = ("" if result.target_reached is None
+                           else f" (held-out greedy retrieval at the target from round {result.target_reached})")
                 outcome = LearnerOutcome(env_id, "trained", f"{result.rounds} rounds in "
-                                                            f"{result.wall_seconds / 60:.1f} min")
+                                                            f"{result.wall_seconds / 60:.1f} min{reached}")
         outcomes.append(outcome)
         if on_outcome is not None:
             on_outcome(outcome)

@@ -9,6 +9,7 @@ import click
 
 from sb3_memret.benchmark.agent import CONDITIONS
 from sb3_memret.benchmark.manifest import SEED_SETS, SPLITS
+from sb3_memret.cli.options import stop_options
 
 
 def _conditions(ctx: click.Context, param: click.Parameter, value: str) -> list[str]:
@@ -161,8 +162,9 @@ def _say_outdated(out: Path, stale: dict[str, int], replayed: set[str]) -> None:
               help="Held-out episodes per evaluation during training (development seeds).")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="Learners folder: OUT/<env id>/final_model.zip (benchmark mikasa --learners OUT).")
+@stop_options
 def learners(split: str | None, tasks: list[str] | None, controller: str, seed: int, eval_episodes: int,
-             out: Path) -> None:
+             out: Path, stop_at_greedy: float | None, stop_patience: int) -> None:
     """Train the memory learner of every task of a split for the recall condition, one `train recall` run per task
     on its zoo config; finished runs are kept and interrupted ones resume."""
     from sb3_memret.benchmark.learners import train_learners
@@ -175,7 +177,7 @@ def learners(split: str | None, tasks: list[str] | None, controller: str, seed: 
     except ValueError as err:
         raise click.UsageError(str(err)) from None
     train_learners([row.env_id for row in rows], out, controller, seed, eval_episodes,
-                   on_outcome=lambda o: click.echo(f"{o.status} {o.env_id}: {o.detail}", err=True))
+                   stop_at_greedy=stop_at_greedy, stop_patience=stop_patience, on_outcome=lambda o: click.echo(f"{o.status} {o.env_id}: {o.detail}", err=True))
 
 
 @benchmark.command("report")

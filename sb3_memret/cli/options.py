@@ -107,6 +107,18 @@ def render_backend_option(command):
                              "reads the cameras]")(command)
 
 
+def stop_options(command):
+    """``--stop-at-greedy`` and ``--stop-patience``: end a training run once its held-out retrieval has reached a
+    target (``StopOnRetrievalTarget``), not at the config's budget."""
+    command = click.option("--stop-patience", type=click.IntRange(min=1), default=2, show_default=True,
+                           help="With --stop-at-greedy: held-out evaluations in a row that must reach it.")(command)
+    return click.option("--stop-at-greedy", type=click.FloatRange(0.0, 1.0, min_open=True), default=None,
+                        metavar="ACCURACY",
+                        help="Stop training once --stop-patience held-out evaluations in a row retrieve the true "
+                             "memory greedily at least this often (e.g. 1.0)  [default: train the config's whole "
+                             "budget]")(command)
+
+
 class TaskName(click.ParamType):
     """A registered task name or ``package.module:Class``; a task that cannot run here says why."""
 

@@ -9,7 +9,7 @@ import click
 
 from sb3_memret.cli.options import (TASK_CONTROLLER, build_controller, default_controller, run_folder, task_or_default,
                                     physics_options, render_backend_option, resolve_render_backend, run_controller,
-                                    task_option)
+                                    stop_options, task_option)
 from sb3_memret.common.seeds import HELD_OUT_SEED
 
 EXPERIMENTS = ("recall",)
@@ -53,13 +53,15 @@ MULTITASK_CONFIG, MULTITASK_SECTION = "memret_ppo_multitask.yml", "multitask"
 @click.option("--report", "with_report", is_flag=True,
               help="Then write the run's report (as `sb3-memret report`), in this process and with the baselines "
                    "played on the run's own held-out workers.")
+@stop_options
 @render_backend_option
 @physics_options
 @click.pass_context
 def train(ctx: click.Context, experiment: str, task: str | None, tasks: str | None, config_path: Path | None,
           controller: str, n_envs: int | None, timesteps: int | None, seed: int, out: Path | None, resume: bool,
           retriever_from: Path | None, eval_episodes: int | None, eval_every: int | None, progress: bool,
-          with_report: bool, render_backend: str, backend: str, ray_address: str | None) -> None:
+          with_report: bool, stop_at_greedy: float | None, stop_patience: int, render_backend: str, backend: str,
+          ray_address: str | None) -> None:
     """Train the retriever and retention networks with PPO on EXPERIMENT (recall: what the task's controller
     must know, the drawer's layer or a cue's colour, reaches it only through a retrieved memory)."""
     from sb3_memret.training.config import load_task_config
@@ -78,6 +80,7 @@ def train(ctx: click.Context, experiment: str, task: str | None, tasks: str | No
                                            RunOptions(out=out or Path("."), seed=seed, resume=resume,
                                                       retriever_from=retriever_from, eval_episodes=eval_episodes,
                                                       eval_every=eval_every, eval_seed=HELD_OUT_SEED,
+                                                      stop_at_greedy=stop_at_greedy, stop_patience=stop_patience,
                                                       progress_bar=progress, backend=backend,
                                                       ray_address=ray_address,
                                                       log_formats=_log_formats(progress)),
@@ -120,8 +123,8 @@ def train(ctx: click.Context, experiment: str, task: str | None, tasks: str | No
                                                        else the_task.default_render_backend)
     options = RunOptions(out=out, controller=controller, seed=seed, resume=resume, retriever_from=retriever_from,
                          eval_episodes=eval_episodes, eval_every=eval_every, eval_seed=HELD_OUT_SEED, progress_bar=progress,
-                         render_backend=render_backend, backend=backend, ray_address=ray_address,
-                         log_formats=_log_formats(progress),
+                         stop_at_greedy=stop_at_greedy, stop_patience=stop_patience, render_backend=render_backend,
+                         backend=backend, ray_address=ray_address, log_formats=_log_formats(progress),
                          report=_in_run_report(controller, render_backend, backend, ray_address) if with_report else None)
     if retriever_from is not None:
         try:
@@ -219,6 +222,8 @@ def _report_run(experiment: str, result, exit_status, across_tasks: bool = False
     click.echo(format_history(result.history))
     click.echo(f"\n{result.num_timesteps} decisions, {result.rounds} rounds in {result.wall_seconds / 60:.1f} min; "
                f"run folder {result.out}")
+    if result.target_reached is not None:
+        click.echo(f"stopped at round {result.target_reached}: held-out greedy retrieval reached --stop-at-greedy")
     if result.interrupted:
         click.echo(f"stopped by {result.stopped_by}: saved {result.model_path}; continue with "
                    f"sb3-memret train {experiment} --out {result.out} --resume", err=True)

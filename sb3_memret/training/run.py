@@ -28,7 +28,7 @@ import yaml
 from stable_baselines3.common.save_util import load_from_zip_file
 
 from sb3_memret.callbacks import (PhaseTimingCallback, RetrievalEvalCallback, RolloutRetrievalCallback,
-                                  RoundCheckpointCallback, RunProgressCallback, latest_checkpoint)
+                                  RoundCheckpointCallback, RunProgressCallback, StopOnRetrievalTarget, latest_checkpoint)
 from sb3_memret.callbacks.checkpoint import checkpoints as list_checkpoints
 from sb3_memret.training.config import TrainConfig, parse_section
 from sb3_memret.controllers import FrozenController
@@ -71,6 +71,9 @@ class RunOptions:
     backend: str = "auto"  # where the physics runs (sb3_memret.physics.BACKENDS)
     ray_address: str | None = None  # a Ray cluster for backend "ray"
     retriever_from: Path | None = None  # a new run's retriever starts from this model file's
+    # stop once this many held-out evaluations in a row reach this greedy accuracy (None: the config's whole budget)
+    stop_at_greedy: float | None = None
+    stop_patience: int = 2
     evaluation_listeners: tuple[Any, ...] = ()  # told of every held-out evaluation (RetrievalEvalCallback.listeners)
     # writes a finished run's report while its held-out envs are still open (their workers serve the baselines)
     report: Callable[[RunResult, Any], Path] | None = None
@@ -90,6 +93,7 @@ class RunResult:
     # where the wall time went: setup (envs and model), collect (training decisions), update (PPO), evaluate
     seconds: dict[str, Any] = field(default_factory=dict)
     report: Path | None = None  # the report RunOptions.report wrote
+    target_reached: int | None = None  # the round RunOptions.stop_at_greedy was met at, if training stopped there
 
     @property
     def interrupted(self) -> bool:
@@ -218,6 +222,8 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
                                       verbose=options.verbose)
     evaluator.listeners.extend(options.evaluation_listeners)
     timer = PhaseTimingCallback(evaluator)
+    stopper = (StopOnRetrievalTarget(evaluator, options.stop_at_greedy, options.stop_patience, verbose=options.verbose)
+               if options.stop_at_greedy is not None else None)
     start, stopped_by = time.perf_counter(), None
     try:
         if options.resume:
@@ -237,6 +243,8 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
             with stop_signals_interrupt():
                 if remaining > 0:
                     callbacks = [RolloutRetrievalCallback(), evaluator, timer, checkpointer]
+                    if stopper is not None:
+                        callbacks.append(stopper)
                     if options.progress_bar:  # SB3's own bar stalls during evaluations and leaves them out of its time left
                         callbacks.append(RunProgressCallback(evaluator))
                     model.learn(remaining, callback=callbacks, reset_num_timesteps=not options.resume)
@@ -252,7 +260,8 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
         seconds = {"setup": learning - began, **timer.split(), "learn": time.perf_counter() - learning}
         result = RunResult(out, model_path if stopped_by is None else latest_checkpoint(checkpoints),
                            model.num_timesteps, model._n_updates // model.n_epochs, time.perf_counter() - start,
-                           stopped_by, evaluator.last_report, read_history(out), seconds)
+                           stopped_by, evaluator.last_report, read_history(out), seconds,
+                           target_reached=stopper.reached if stopper else None)
         _write_summary(result, options)
         model.logger.close()
         if options.report is not None and stopped_by is None:
@@ -314,6 +323,8 @@ def _write_summary(result: RunResult, options: RunOptions) -> None:
                "seed": options.seed, "retriever_from": str(options.retriever_from) if options.retriever_from else None,
                "eval_seed": options.eval_seed, "eval_episodes": options.eval_episodes,
                "initial_eval_episodes": options.initial_eval_episodes, "final_eval_episodes": options.final_eval_episodes,
+               "stop_at_greedy": options.stop_at_greedy, "stop_patience": options.stop_patience,
+               "target_reached_at_round": result.target_reached,
                "final_eval": result.final.to_dict() if result.final else None}
     (result.out / "summary.json").write_text(json.dumps(summary, indent=2))
 
