@@ -17,7 +17,8 @@ class StopOnRetrievalTarget(BaseCallback):
     registers with) had greedy accuracy of at least ``greedy_accuracy``, as SB3's ``StopTrainingOn...`` callbacks
     end it: the next step returns False. A resumed run counts the streak its history ends with.
 
-    ``reached`` is the round at which the target was met (None while training goes on)."""
+    ``reached`` is the round at which the target was met; ``stopped`` the round at which that ended training (None
+    if training ran to its budget: a target first met by the final evaluation stops nothing)."""
 
     def __init__(self, evaluator: RetrievalEvalCallback, greedy_accuracy: float, patience: int = 2, verbose: int = 0):
         super().__init__(verbose)
@@ -28,6 +29,7 @@ class StopOnRetrievalTarget(BaseCallback):
         self.evaluator, self.greedy_accuracy, self.patience = evaluator, greedy_accuracy, patience
         self.streak = 0
         self.reached: int | None = None
+        self.stopped: int | None = None
         evaluator.listeners.append(self)
 
     def _init_callback(self) -> None:
@@ -42,10 +44,13 @@ class StopOnRetrievalTarget(BaseCallback):
             self.reached = round_
 
     def _on_step(self) -> bool:
-        if self.reached is not None and self.verbose:
+        if self.reached is None:
+            return True
+        self.stopped = self.reached
+        if self.verbose:
             print(f"stopping: held-out greedy accuracy >= {self.greedy_accuracy:.0%} in {self.patience} evaluations "
                   f"in a row (round {self.reached})")
-        return self.reached is None
+        return False
 
     # ------------------------------------------------------------------ RetrievalEvalCallback calls these
     def evaluation_started(self, round_: int, episodes: int) -> None:

@@ -221,7 +221,7 @@ def test_training_stops_once_held_out_retrieval_reaches_the_target_and_a_resume_
     model.set_logger(make_run_logger(tmp_path, ("csv",)))
     _, stopper = learn(model, rounds=40)
     history = [json.loads(line) for line in (tmp_path / "evaluations.jsonl").read_text().splitlines()]
-    assert stopper.reached is not None and stopper.reached < 40
+    assert stopper.reached is not None and stopper.reached < 40 and stopper.stopped == stopper.reached
     assert [row["greedy_accuracy"] for row in history[-2:]] == [1.0, 1.0]
     assert history[0]["greedy_accuracy"] < 1.0  # it had to learn
     assert not any(a["greedy_accuracy"] == b["greedy_accuracy"] == 1.0 for a, b in zip(history[:-2], history[1:-1]))

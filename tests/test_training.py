@@ -330,7 +330,7 @@ def test_a_run_stops_at_its_retrieval_target_and_says_so(tmp_path, monkeypatch):
     assert result.exit_code == 0, result.output
     summary = json.loads((tmp_path / "run" / "summary.json").read_text())
     assert summary["stop_at_greedy"] == 0.99 and summary["stop_patience"] == 1
-    assert summary["target_reached_at_round"] == 1 and summary["rounds"] == 1 and summary["num_timesteps"] < 32
+    assert summary["stopped_at_target_round"] == 1 and summary["rounds"] == 1 and summary["num_timesteps"] < 32
     assert [row["round"] for row in read_history(tmp_path / "run")] == [0, 1]
     assert "stopped at round 1" in result.output and (tmp_path / "run" / "final_model.zip").exists()
     assert cli("train", "recall", "--out", tmp_path / "bad", "--stop-at-greedy", "0").exit_code == 2

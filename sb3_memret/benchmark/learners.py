@@ -77,7 +77,7 @@ def train_learners(env_ids: list[str], out: Path, controller: str = "scripted", 
                 if result.interrupted:
                     raise KeyboardInterrupt(result.stopped_by)
                 reached = ("" if result.target_reached is None
-                           else f" (held-out greedy retrieval at the target from round {result.target_reached})")
+                           else f", stopped early: held-out greedy retrieval at the target at round {result.target_reached}")
                 outcome = LearnerOutcome(env_id, "trained", f"{result.rounds} rounds in "
                                                             f"{result.wall_seconds / 60:.1f} min{reached}")
         outcomes.append(outcome)

@@ -93,7 +93,7 @@ class RunResult:
     # where the wall time went: setup (envs and model), collect (training decisions), update (PPO), evaluate
     seconds: dict[str, Any] = field(default_factory=dict)
     report: Path | None = None  # the report RunOptions.report wrote
-    target_reached: int | None = None  # the round RunOptions.stop_at_greedy was met at, if training stopped there
+    target_reached: int | None = None  # the round RunOptions.stop_at_greedy stopped training at (None: it ran its budget)
 
     @property
     def interrupted(self) -> bool:
@@ -261,7 +261,7 @@ def train(config: TrainConfig | None, options: RunOptions, controller: FrozenCon
         result = RunResult(out, model_path if stopped_by is None else latest_checkpoint(checkpoints),
                            model.num_timesteps, model._n_updates // model.n_epochs, time.perf_counter() - start,
                            stopped_by, evaluator.last_report, read_history(out), seconds,
-                           target_reached=stopper.reached if stopper else None)
+                           target_reached=stopper.stopped if stopper else None)
         _write_summary(result, options)
         model.logger.close()
         if options.report is not None and stopped_by is None:
@@ -324,7 +324,7 @@ def _write_summary(result: RunResult, options: RunOptions) -> None:
                "eval_seed": options.eval_seed, "eval_episodes": options.eval_episodes,
                "initial_eval_episodes": options.initial_eval_episodes, "final_eval_episodes": options.final_eval_episodes,
                "stop_at_greedy": options.stop_at_greedy, "stop_patience": options.stop_patience,
-               "target_reached_at_round": result.target_reached,
+               "stopped_at_target_round": result.target_reached,
                "final_eval": result.final.to_dict() if result.final else None}
     (result.out / "summary.json").write_text(json.dumps(summary, indent=2))
 
