@@ -259,6 +259,47 @@ def test_results_and_report_break_success_down_by_cue(monkeypatch):
     assert "by_cue" not in results(_plan(), unlabelled)["tasks"]["A-VLA-v0"]["conditions"]["oracle"]
 
 
+def test_a_folder_played_before_fresh_scenes_existed_resumes_with_reused_ones(tmp_path):
+    """protocol.json without fresh_scenes was written when every env reused its scene: it resumes as such, refuses
+    fresh scenes, and the command keeps a folder's own setting unless told otherwise (a new folder: fresh)."""
+    from sb3_memret.cli.benchmark import _fresh_scenes
+
+    old = Protocol(episodes=3).to_json()
+    del old["fresh_scenes"]
+    (tmp_path / "protocol.json").write_text(json.dumps(old))
+    folder = RunFolder(tmp_path)
+    folder.check_protocol(Protocol(episodes=3, fresh_scenes=False))
+    with pytest.raises(ValueError, match="fresh_scenes: False"):
+        folder.check_protocol(Protocol(episodes=3))
+    assert Protocol.from_json(old).fresh_scenes is False
+    assert _fresh_scenes(None, tmp_path) is False and _fresh_scenes("fresh", tmp_path) is True
+    assert _fresh_scenes(None, tmp_path / "new") is True and _fresh_scenes("reused", tmp_path / "new") is False
+    (tmp_path / "protocol.json").write_text("{not json")
+    with pytest.raises(Exception, match="not a protocol file"):
+        _fresh_scenes(None, tmp_path)
+
+
+def test_with_fresh_scenes_an_episode_does_not_depend_on_its_workers_earlier_ones():
+    """TakeItBack's seed 5006 played after 5005 in one env returns 38.17284 with the harness's reused scene and
+    38.17486 alone: the physics engine's state carries across resets. Built anew at each reset, it is the same
+    either way, to the last digit."""
+    from sb3_memret.benchmark.runner import Unit, _Worker
+    from sb3_memret.common.workers import torch_threads
+
+    protocol = Protocol(episodes=50)
+    assert protocol.fresh_scenes
+
+    def returns(seeds):
+        worker = _Worker(protocol, None)
+        with torch_threads(1):
+            played = [worker.play(Unit("TakeItBack-VLA-v0", "oracle", seed)) for seed in seeds]
+        assert worker.env.unwrapped.reconfiguration_freq == 1
+        worker.env.close()
+        return [record["return"] for record in played]
+
+    assert returns([5005, 5006])[1] == returns([5006])[0]
+
+
 def test_the_agent_plays_mikasas_harness_from_cameras_only(tmp_path, monkeypatch):
     """Real episodes of RememberColor3 in MIKASA's own harness, one per condition at a development seed: the
     written facts are the ones the oracle names, so both succeed; the wrong fact fails; nothing forbidden is read;

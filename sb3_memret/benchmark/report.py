@@ -122,6 +122,10 @@ def render_report(content: Mapping[str, Any]) -> str:
         f"{seeds[0]}..{seeds[-1]}.",
         f"- Frozen controller: `{protocol['controller']}`, reading {_reads(tasks)}; it replans every "
         f"{protocol['replan_every'] or 'task-default (the table says)'} control steps.",
+        "- Scenes: " + ("built anew at every reset, so no episode depends on those its worker played before."
+                        if protocol.get("fresh_scenes", False) else
+                        "reused across resets, as the harness's env does: an episode's physics can depend on those its "
+                        "worker played before (a return's fourth decimal, rarely its outcome)."),
         "- Conditions: none (instruction only), oracle (the true fact in the prompt), wrong (a false fact worded "
         "alike), written (every fact the writer wrote from the cameras), recall (the facts a trained memory learner "
         "retrieves from a bank with decoys).",

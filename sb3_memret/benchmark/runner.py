@@ -35,6 +35,10 @@ LEARNER_FILE = "final_model.zip"
 WORKER_REPLACEMENTS = 3  # pools a table starts again after an episode worker died, before it stops with a resume hint
 
 
+# what the episodes of a protocol.json written before a setting existed were played under
+PREDATING: dict[str, Any] = {"fresh_scenes": False}
+
+
 @dataclass(frozen=True)
 class Protocol:
     """What every episode of a run shares; a run folder resumes only under the same protocol."""
@@ -52,6 +56,8 @@ class Protocol:
     controller: str = "scripted"
     replan_every: int | None = None  # None: each task's own (Task.replan_every)
     sim_backend: str = "cpu"
+    # every episode in a scene built anew (harness.make_env's fresh_scenes): no episode depends on a worker's earlier ones
+    fresh_scenes: bool = True
     # tasks of one's own: (MIKASA env id, the ``package.module:Class`` that plays it) for each such task
     task_classes: tuple[tuple[str, str], ...] = ()
 
@@ -67,9 +73,15 @@ class Protocol:
         return json.loads(json.dumps(asdict(self)))
 
     @classmethod
+    def read_json(cls, data: dict[str, Any]) -> dict[str, Any]:
+        """``protocol.json``'s settings, a key an older file lacks filled in: with what its episodes were played
+        under (``PREDATING``), else the default."""
+        return {**cls().to_json(), **PREDATING, **data}
+
+    @classmethod
     def from_json(cls, data: dict[str, Any]) -> "Protocol":
-        """The protocol ``to_json`` wrote (a key an older file lacks takes its default)."""
-        data = dict(data)
+        """The protocol ``to_json`` wrote (``read_json``: a key an older file lacks filled in)."""
+        data = cls.read_json(data)
         data["policy_inputs"] = tuple(data.get("policy_inputs", cls.policy_inputs))
         data["task_classes"] = tuple(tuple(pair) for pair in data.get("task_classes", ()))
         return cls(**data)
@@ -346,7 +358,7 @@ class _Worker:
             if self.env is not None:
                 self.env.close()
             self.env_id, self.agents = None, {}
-            self.env = harness.make_env(env_id, self.protocol.sim_backend)
+            self.env = harness.make_env(env_id, self.protocol.sim_backend, fresh_scenes=self.protocol.fresh_scenes)
             self.env_id = env_id
         if condition not in self.agents:
             task = make_task(self.protocol.task(env_id))
@@ -438,7 +450,7 @@ class RunFolder:
         path = self.out / PROTOCOL_FILE
         mine = protocol.to_json()
         if path.exists():
-            theirs = {**Protocol().to_json(), **json.loads(path.read_text())}  # a key it predates: its default
+            theirs = Protocol.read_json(json.loads(path.read_text()))
             diff = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
             if diff:
                 raise ValueError(f"{self.out} holds a run under another protocol ({', '.join(f'{k}: {theirs.get(k)!r}' for k in diff)}); "

@@ -59,10 +59,14 @@ def benchmark() -> None:
               help="Worker processes the episodes spread over.")
 @click.option("--out", type=click.Path(file_okay=False, path_type=Path), required=True,
               help="Run folder: results.json, report.md, the episode log; an existing one resumes.")
+@click.option("--scenes", type=click.Choice(["fresh", "reused"]), default=None,
+              help="fresh: every episode in a scene built anew, so no episode depends on those its worker played "
+                   "before (about 0.4 s a reset); reused: the harness's own env, whose physics state carries across "
+                   "resets  [default: a new --out's fresh, an existing one's own]")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
 def mikasa(split: str | None, tasks: list[str] | None, episodes: int, controller: str, conditions: list[str],
            seed_set: str, learners: tuple[Path, ...], replan_every: int | None, workers: int, out: Path,
-           progress: bool) -> None:
+           scenes: str | None, progress: bool) -> None:
     """MIKASA-Robo-VLA's protocol through its own harness: every task of a split (or --tasks), each prompt
     condition, success once over seeded episodes (development seeds unless --seeds protocol asks for the test set);
     writes OUT/results.json and OUT/report.md (resumable). A learner that lands in --learners while the table plays
@@ -83,7 +87,7 @@ def mikasa(split: str | None, tasks: list[str] | None, episodes: int, controller
         except ValueError as err:
             raise click.BadParameter(str(err), param_hint="--tasks") from None
     protocol = Protocol(seed_set=seed_set, episodes=episodes, controller=controller, replan_every=replan_every,
-                        task_classes=task_classes)
+                        task_classes=task_classes, fresh_scenes=_fresh_scenes(scenes, out))
     if "recall" in conditions:
         learners = _learner_sources(learners)
     try:
@@ -121,6 +125,24 @@ def mikasa(split: str | None, tasks: list[str] | None, episodes: int, controller
     finally:
         bar.close()
     click.echo(str(write_report(content, out)))
+
+
+def _fresh_scenes(scenes: str | None, out: Path) -> bool:
+    """``--scenes``: as asked; else a run folder's own (one played before the option existed reused its scenes),
+    and fresh for a new one."""
+    import json
+
+    from sb3_memret.benchmark.runner import PROTOCOL_FILE, Protocol
+
+    if scenes is not None:
+        return scenes == "fresh"
+    path = out / PROTOCOL_FILE
+    if not path.is_file():
+        return True
+    try:
+        return bool(Protocol.read_json(json.loads(path.read_text()))["fresh_scenes"])
+    except (json.JSONDecodeError, TypeError) as err:
+        raise click.UsageError(f"{path} is not a protocol file the benchmark wrote: {err}") from None
 
 
 def _learner_sources(learners: tuple[Path, ...]) -> tuple[Path, ...]:
