@@ -2,7 +2,7 @@
 against N worker processes, in the same run, at development seeds.
 
     python scripts/bench_benchmark.py [--task RememberColor3-VLA-v0] [--controller scripted]
-        [--condition oracle] [--episodes 8] [--workers 1 2] [--rendering] [--threads] [--overhead]
+        [--condition oracle] [--episodes 8] [--workers 1 2] [--rendering] [--threads] [--overhead] [--scenes]
 
 Each worker count plays the same ``--episodes`` episodes (seeds 5000 + i) end to end, start-up included, as a user
 waits for them (``play_units``: the worker processes are spawned, build the harness env and the agent, then
@@ -21,6 +21,11 @@ ratios: beside other jobs, idle intra-op threads spin-wait after every small op 
 With ``--overhead`` it plays the same seeds in this process through the same harness env with the agent and with a
 policy that returns zero actions (no memory, no controller, no writer: the harness alone), and prints each one's
 control steps/s and the agent's ratio to the zero policy's: what the benchmark costs over the simulator it plays.
+
+With ``--scenes`` it plays the same episodes in this process with the harness's env reusing its scene from one
+episode to the next and with a scene built anew at every reset (``Protocol.fresh_scenes``, the benchmark's way), and
+prints each one's time, its ratio to reused scenes, and each episode's return under both: fresh, none depends on the
+episodes before it.
 """
 
 from __future__ import annotations
@@ -67,6 +72,23 @@ def play_rendering(task: str, controller: str, condition: str, episodes: int,
         return time.perf_counter() - start, outcomes
     finally:
         env.close()
+
+
+def play_scenes(task: str, controller: str, condition: str, episodes: int,
+                fresh: bool) -> tuple[float, list[tuple[bool, float]]]:
+    """Seconds to play ``episodes`` development-seed episodes in this process with reused or fresh scenes (the env
+    and agent built beforehand), and each (success, return)."""
+    from sb3_memret.benchmark.runner import _Worker
+    from sb3_memret.common.workers import torch_threads
+
+    worker = _Worker(Protocol(seed_set="dev", episodes=episodes, controller=controller, fresh_scenes=fresh), None)
+    worker.agent(task, condition)
+    with torch_threads(1):
+        start = time.perf_counter()
+        records = [worker.play(Unit(task, condition, DEV_SEED + i)) for i in range(episodes)]
+        seconds = time.perf_counter() - start
+    worker.env.close()
+    return seconds, [(record["success"], record["return"]) for record in records]
 
 
 def play_threads(task: str, controller: str, condition: str, episodes: int,
@@ -128,6 +150,7 @@ def main() -> None:
     parser.add_argument("--rendering", action="store_true", help="also compare every-step rendering with the gate")
     parser.add_argument("--threads", action="store_true", help="also compare torch's default threads with one")
     parser.add_argument("--overhead", action="store_true", help="also compare the agent with zero actions")
+    parser.add_argument("--scenes", action="store_true", help="also compare reused scenes with fresh ones")
     args = parser.parse_args()
 
     replan_every = make_task(args.task).replan_every
@@ -183,6 +206,17 @@ def main() -> None:
         zero_rate = played[-1][2] / played[-1][1]
         for name, seconds, steps in played:
             print(f"| {name} | {seconds:.1f} | {steps} | {steps / seconds:.1f} | {steps / seconds / zero_rate:.2f}x |")
+
+    if args.scenes:
+        print("\n| scenes (1 process) | seconds | episodes/s | vs reused | success | returns |")
+        print("|---|---|---|---|---|---|")
+        reused, reused_outcomes = play_scenes(args.task, args.controller, args.condition, args.episodes, False)
+        for name, (seconds, outcomes) in (("reused (the harness's env)", (reused, reused_outcomes)),
+                                          ("fresh at every reset (the benchmark's)",
+                                           play_scenes(args.task, args.controller, args.condition, args.episodes,
+                                                       True))):
+            print(f"| {name} | {seconds:.1f} | {args.episodes / seconds:.3f} | {reused / seconds:.2f}x | "
+                  f"{sum(s for s, _ in outcomes)}/{args.episodes} | {', '.join(f'{r:.5f}' for _, r in outcomes)} |")
 
 
 if __name__ == "__main__":
