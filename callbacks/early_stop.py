@@ -13,9 +13,10 @@ from sb3_memret.callbacks.evaluation import RetrievalEvalCallback
 
 
 class StopOnRetrievalTarget(BaseCallback):
-    """Ends ``model.learn`` once ``patience`` held-out evaluations in a row (the ``evaluator``'s, which this
-    registers with) had greedy accuracy of at least ``greedy_accuracy``, as SB3's ``StopTrainingOn...`` callbacks
-    end it: the next step returns False. A resumed run counts the streak its history ends with.
+    """Ends ``model.learn`` once the held-out evaluations (the ``evaluator``'s, which this registers with) of
+    ``patience`` rounds in a row had greedy accuracy of at least ``greedy_accuracy``, as SB3's ``StopTrainingOn...``
+    callbacks end it: the next step returns False. A resumed run counts the streak its history ends with; a round
+    evaluated twice (a run resumed within it) counts once.
 
     ``reached`` is the round at which the target was met; ``stopped`` the round at which that ended training (None
     if training ran to its budget: a target first met by the final evaluation stops nothing)."""
@@ -27,7 +28,7 @@ class StopOnRetrievalTarget(BaseCallback):
         if patience < 1:
             raise ValueError(f"patience must be >= 1 evaluation, got {patience}")
         self.evaluator, self.greedy_accuracy, self.patience = evaluator, greedy_accuracy, patience
-        self.streak = 0
+        self.streak, self._last_round = 0, -1
         self.reached: int | None = None
         self.stopped: int | None = None
         evaluator.listeners.append(self)
@@ -39,6 +40,9 @@ class StopOnRetrievalTarget(BaseCallback):
                 self._count(row["greedy_accuracy"], row["round"])
 
     def _count(self, greedy_accuracy: float, round_: int) -> None:
+        if round_ == self._last_round:  # the same policy again (a run resumed within its round): no new evidence
+            return
+        self._last_round = round_
         self.streak = self.streak + 1 if greedy_accuracy >= self.greedy_accuracy else 0
         if self.streak >= self.patience and self.reached is None:
             self.reached = round_

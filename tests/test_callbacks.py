@@ -232,6 +232,19 @@ def test_training_stops_once_held_out_retrieval_reaches_the_target_and_a_resume_
     assert again.reached == stopper.reached and model._n_updates // model.n_epochs == rounds
 
 
+def test_a_round_evaluated_twice_counts_once_towards_the_target(tmp_path):
+    """A run resumed within a round evaluates the same policy again: the same evidence, not a second round."""
+    history = tmp_path / "evaluations.jsonl"
+    history.write_text("".join(json.dumps({"round": r, "greedy_accuracy": g}) + "\n"
+                               for r, g in ((0, 0.2), (5, 1.0), (5, 1.0))))
+    evaluator = RetrievalEvalCallback(DummyVecEnv([ToyBankEnv]), n_eval_episodes=1, history_path=history)
+    stopper = StopOnRetrievalTarget(evaluator, greedy_accuracy=1.0, patience=2)
+    stopper.init_callback(MemRetPPO(MemoryRetrievalPolicy, DummyVecEnv([ToyBankEnv]), n_steps=ROUND, batch_size=ROUND))
+    assert stopper.streak == 1 and stopper.reached is None
+    stopper._count(1.0, 10)
+    assert stopper.reached == 10
+
+
 def test_a_retrieval_target_out_of_range_is_named():
     evaluator = RetrievalEvalCallback(DummyVecEnv([ToyBankEnv]), n_eval_episodes=1)
     with pytest.raises(ValueError, match="greedy_accuracy must be in"):
