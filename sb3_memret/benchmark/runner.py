@@ -56,7 +56,7 @@ class Protocol:
     controller: str = "scripted"
     replan_every: int | None = None  # None: each task's own (Task.replan_every)
     sim_backend: str = "cpu"
-    # every episode in a scene built anew (harness.make_env's fresh_scenes): no episode depends on a worker's earlier ones
+    # every episode in a scene built anew (harness.make_env's fresh_scenes): none depends on a worker's earlier ones
     fresh_scenes: bool = True
     # tasks of one's own: (MIKASA env id, the ``package.module:Class`` that plays it) for each such task
     task_classes: tuple[tuple[str, str], ...] = ()

@@ -61,8 +61,8 @@ def benchmark() -> None:
               help="Run folder: results.json, report.md, the episode log; an existing one resumes.")
 @click.option("--scenes", type=click.Choice(["fresh", "reused"]), default=None,
               help="fresh: every episode in a scene built anew, so no episode depends on those its worker played "
-                   "before (about 0.6 s an episode on a CPU); reused: the harness's own env, whose physics state carries across "
-                   "resets  [default: a new --out's fresh, an existing one's own]")
+                   "before (about 0.6 s an episode on a CPU); reused: the harness's own env, whose physics state "
+                   "carries across resets  [default: a new --out's fresh, an existing one's own]")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
 def mikasa(split: str | None, tasks: list[str] | None, episodes: int, controller: str, conditions: list[str],
            seed_set: str, learners: tuple[Path, ...], replan_every: int | None, workers: int, out: Path,

@@ -28,7 +28,8 @@ import yaml
 from stable_baselines3.common.save_util import load_from_zip_file
 
 from sb3_memret.callbacks import (PhaseTimingCallback, RetrievalEvalCallback, RolloutRetrievalCallback,
-                                  RoundCheckpointCallback, RunProgressCallback, StopOnRetrievalTarget, latest_checkpoint)
+                                  RoundCheckpointCallback, RunProgressCallback, StopOnRetrievalTarget,
+                                  latest_checkpoint)
 from sb3_memret.callbacks.checkpoint import checkpoints as list_checkpoints
 from sb3_memret.training.config import TrainConfig, parse_section
 from sb3_memret.controllers import FrozenController
@@ -93,7 +94,7 @@ class RunResult:
     # where the wall time went: setup (envs and model), collect (training decisions), update (PPO), evaluate
     seconds: dict[str, Any] = field(default_factory=dict)
     report: Path | None = None  # the report RunOptions.report wrote
-    target_reached: int | None = None  # the round RunOptions.stop_at_greedy stopped training at (None: it ran its budget)
+    target_reached: int | None = None  # the round RunOptions.stop_at_greedy stopped training at (None: its budget)
 
     @property
     def interrupted(self) -> bool:
