@@ -625,3 +625,26 @@ def test_episodes_that_changed_code_played_are_named_before_the_run(tmp_path, mo
     assert len(lines) == 2
     assert "1 logged episodes of B-VLA-v0" in lines[0] and "played again" in lines[0]
     assert "1 logged episodes of A-VLA-v0" in lines[1] and "until a run asks for them" in lines[1]
+
+
+def test_every_task_that_runs_here_has_hyperparameters_for_its_learner():
+    """`benchmark learners` trains each task on its zoo section (a -Long variant is served by its short task's
+    learner): a runnable task without one is refused, and its recall cell with it (GatherAndRecall 3-9 were)."""
+    from sb3_memret.benchmark.agent import short_variant
+    from sb3_memret.tasks import make_task
+    from sb3_memret.training.config import load_task_config
+
+    lacking = []
+    for row in select_tasks("all", None):
+        try:
+            make_task(row.env_id)
+        except (ValueError, FileNotFoundError, ImportError):  # refused here with its reason (the YCB mug)
+            continue
+        try:
+            load_task_config(row.env_id)
+        except (ValueError, FileNotFoundError):
+            if short_variant(row.env_id) is None:
+                lacking.append(row.env_id)
+                continue
+            load_task_config(short_variant(row.env_id))
+    assert lacking == []
