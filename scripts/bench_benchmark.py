@@ -74,37 +74,24 @@ def play_rendering(task: str, controller: str, condition: str, episodes: int,
         env.close()
 
 
-def play_scenes(task: str, controller: str, condition: str, episodes: int,
-                fresh: bool) -> tuple[float, list[tuple[bool, float]]]:
-    """Seconds to play ``episodes`` development-seed episodes in this process with reused or fresh scenes (the env
-    and agent built beforehand), and each (success, return)."""
-    from sb3_memret.benchmark.runner import _Worker
-    from sb3_memret.common.workers import torch_threads
-
-    worker = _Worker(Protocol(seed_set="dev", episodes=episodes, controller=controller, fresh_scenes=fresh), None)
-    worker.agent(task, condition)
-    with torch_threads(1):
-        start = time.perf_counter()
-        records = [worker.play(Unit(task, condition, DEV_SEED + i)) for i in range(episodes)]
-        seconds = time.perf_counter() - start
-    worker.env.close()
-    return seconds, [(record["success"], record["return"]) for record in records]
-
-
-def play_threads(task: str, controller: str, condition: str, episodes: int,
-                 threads: int | None) -> tuple[float, float, list[tuple[bool, int]]]:
+def play_in_process(task: str, controller: str, condition: str, episodes: int, threads: int | None = 1,
+                    fresh_scenes: bool = True) -> tuple[float, float, list[dict]]:
     """Wall and CPU seconds (this process's, its threads included) to play ``episodes`` development-seed episodes in
-    this process with ``threads`` torch intra-op threads (None: torch's default), and each (success, steps)."""
+    this process, as one benchmark worker does, with ``threads`` torch intra-op threads (None: torch's default) and
+    fresh or reused scenes, the env and the agent built beforehand; and each episode's record."""
     from sb3_memret.benchmark.runner import _Worker
     from sb3_memret.common.workers import torch_threads
 
-    worker = _Worker(Protocol(seed_set="dev", episodes=episodes, controller=controller), None)
-    worker.agent(task, condition)  # the env and the agent built beforehand
-    with torch_threads(threads):
-        start, cpu = time.perf_counter(), time.process_time()
-        records = [worker.play(Unit(task, condition, DEV_SEED + i)) for i in range(episodes)]
-        seconds, cpu = time.perf_counter() - start, time.process_time() - cpu
-    return seconds, cpu, [(record["success"], record["steps"]) for record in records]
+    worker = _Worker(Protocol(seed_set="dev", episodes=episodes, controller=controller, fresh_scenes=fresh_scenes),
+                     None)
+    worker.agent(task, condition)
+    try:
+        with torch_threads(threads):
+            start, cpu = time.perf_counter(), time.process_time()
+            records = [worker.play(Unit(task, condition, DEV_SEED + i)) for i in range(episodes)]
+            return time.perf_counter() - start, time.process_time() - cpu, records
+    finally:
+        worker.env.close()
 
 
 class ZeroPolicy:
@@ -190,7 +177,8 @@ def main() -> None:
         print("|---|---|---|---|---|---|")
         played = {}
         for threads in (None, 1):
-            played[threads] = play_threads(args.task, args.controller, args.condition, args.episodes, threads)
+            seconds, cpu, records = play_in_process(args.task, args.controller, args.condition, args.episodes, threads)
+            played[threads] = seconds, cpu, [(record["success"], record["steps"]) for record in records]
         if played[1][2] != played[None][2]:
             raise SystemExit(f"one thread played other outcomes: {played[1][2]} vs {played[None][2]}")
         (wall, cpu, outcomes) = played[None]
@@ -210,13 +198,14 @@ def main() -> None:
     if args.scenes:
         print("\n| scenes (1 process) | seconds | episodes/s | vs reused | success | returns |")
         print("|---|---|---|---|---|---|")
-        reused, reused_outcomes = play_scenes(args.task, args.controller, args.condition, args.episodes, False)
-        for name, (seconds, outcomes) in (("reused (the harness's env)", (reused, reused_outcomes)),
-                                          ("fresh at every reset (the benchmark's)",
-                                           play_scenes(args.task, args.controller, args.condition, args.episodes,
-                                                       True))):
+        reused = None
+        for name, fresh in (("reused (the harness's env)", False), ("fresh at every reset (the benchmark's)", True)):
+            seconds, _, records = play_in_process(args.task, args.controller, args.condition, args.episodes,
+                                                  fresh_scenes=fresh)
+            reused = reused or seconds
+            returns = ", ".join(f"{record['return']:.5f}" for record in records)
             print(f"| {name} | {seconds:.1f} | {args.episodes / seconds:.3f} | {reused / seconds:.2f}x | "
-                  f"{sum(s for s, _ in outcomes)}/{args.episodes} | {', '.join(f'{r:.5f}' for _, r in outcomes)} |")
+                  f"{sum(record['success'] for record in records)}/{args.episodes} | {returns} |")
 
 
 if __name__ == "__main__":

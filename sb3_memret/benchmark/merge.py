@@ -31,8 +31,7 @@ def _saved(folder: Path) -> tuple[Protocol, dict[str, Any]]:
     for name in (PROTOCOL_FILE, RESULTS_FILE):
         if not (folder / name).is_file():
             raise ValueError(f"{folder} is not a benchmark run folder: it has no {name}")
-    return (Protocol.from_json(json.loads((folder / PROTOCOL_FILE).read_text())),
-            json.loads((folder / RESULTS_FILE).read_text()))
+    return RunFolder(folder).protocol(), json.loads((folder / RESULTS_FILE).read_text())
 
 
 def merge_runs(sources: Iterable[Path], into: Path, only: Iterable[str] | None = None) -> Merged:
@@ -50,9 +49,9 @@ def merge_runs(sources: Iterable[Path], into: Path, only: Iterable[str] | None =
         if source.resolve() == into.resolve():
             raise ValueError(f"{source} is the folder merged into")
         theirs, content = _saved(source)
-        mine, other = protocol.to_json(), theirs.to_json()
-        diff = sorted(k for k in set(mine) | set(other) if mine.get(k) != other.get(k))
+        diff = protocol.differing(theirs)
         if diff:
+            mine, other = protocol.to_json(), theirs.to_json()
             raise ValueError(f"{source} was played under another protocol than {into} ("
                              + ", ".join(f"{k}: {other.get(k)!r} against {mine.get(k)!r}" for k in diff) + ")")
         tasks += [env_id for env_id in content["tasks"] if env_id not in tasks and (only is None or env_id in only)]

@@ -73,18 +73,18 @@ class Protocol:
         return json.loads(json.dumps(asdict(self)))
 
     @classmethod
-    def read_json(cls, data: dict[str, Any]) -> dict[str, Any]:
-        """``protocol.json``'s settings, a key an older file lacks filled in: with what its episodes were played
-        under (``PREDATING``), else the default."""
-        return {**cls().to_json(), **PREDATING, **data}
-
-    @classmethod
     def from_json(cls, data: dict[str, Any]) -> "Protocol":
-        """The protocol ``to_json`` wrote (``read_json``: a key an older file lacks filled in)."""
-        data = cls.read_json(data)
+        """The protocol ``to_json`` wrote; a key an older file lacks takes what its episodes were played under
+        (``PREDATING``), else its default."""
+        data = {**cls().to_json(), **PREDATING, **data}
         data["policy_inputs"] = tuple(data.get("policy_inputs", cls.policy_inputs))
         data["task_classes"] = tuple(tuple(pair) for pair in data.get("task_classes", ()))
         return cls(**data)
+
+    def differing(self, other: "Protocol") -> list[str]:
+        """The settings in which ``other`` differs from this protocol, sorted."""
+        mine, theirs = self.to_json(), other.to_json()
+        return sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
 
 
 def resolve_task_ids(ids: Iterable[str]) -> tuple[list[str], tuple[tuple[str, str], ...]]:
@@ -444,19 +444,24 @@ class RunFolder:
     def __init__(self, out: Path):
         self.out = Path(out)
 
+    def protocol(self) -> Protocol | None:
+        """The protocol the folder's episodes were played under (None for a folder without one yet)."""
+        path = self.out / PROTOCOL_FILE
+        return Protocol.from_json(json.loads(path.read_text())) if path.is_file() else None
+
     def check_protocol(self, protocol: Protocol) -> None:
         """Write the protocol of a new run; refuse to resume a run played under another one."""
         self.out.mkdir(parents=True, exist_ok=True)
-        path = self.out / PROTOCOL_FILE
-        mine = protocol.to_json()
-        if path.exists():
-            theirs = Protocol.read_json(json.loads(path.read_text()))
-            diff = sorted(k for k in set(mine) | set(theirs) if mine.get(k) != theirs.get(k))
-            if diff:
-                raise ValueError(f"{self.out} holds a run under another protocol ({', '.join(f'{k}: {theirs.get(k)!r}' for k in diff)}); "
-                                 "resume it with the same options, or choose another --out")
-        else:
-            path.write_text(json.dumps(mine, indent=2) + "\n")
+        saved = self.protocol()
+        if saved is None:
+            (self.out / PROTOCOL_FILE).write_text(json.dumps(protocol.to_json(), indent=2) + "\n")
+            return
+        theirs = saved.to_json()
+        diff = protocol.differing(saved)
+        if diff:
+            settings = ", ".join(f"{k}: {theirs[k]!r}" for k in diff)
+            raise ValueError(f"{self.out} holds a run under another protocol ({settings}); resume it with the same "
+                             "options, or choose another --out")
 
     @contextmanager
     def playing(self) -> Iterator[None]:
@@ -673,7 +678,7 @@ def rebuild(out: Path) -> dict[str, Any]:
     as the folder records them): what a stopped run had played, or a run's table after its code moved on."""
     folder = RunFolder(out)
     saved = json.loads((folder.out / RESULTS_FILE).read_text())
-    stored = Protocol.from_json(json.loads((folder.out / PROTOCOL_FILE).read_text()))
+    stored = folder.protocol()
     run = plan(stored, saved["protocol"]["conditions"], env_ids=list(saved["tasks"]),
                learners=stored_learners(saved["protocol"].get("learners")))
     return write_results(folder.out, run, folder.episodes())

@@ -132,17 +132,15 @@ def _fresh_scenes(scenes: str | None, out: Path) -> bool:
     and fresh for a new one."""
     import json
 
-    from sb3_memret.benchmark.runner import PROTOCOL_FILE, Protocol
+    from sb3_memret.benchmark.runner import PROTOCOL_FILE, RunFolder
 
     if scenes is not None:
         return scenes == "fresh"
-    path = out / PROTOCOL_FILE
-    if not path.is_file():
-        return True
     try:
-        return bool(Protocol.read_json(json.loads(path.read_text()))["fresh_scenes"])
+        saved = RunFolder(out).protocol()
     except (json.JSONDecodeError, TypeError) as err:
-        raise click.UsageError(f"{path} is not a protocol file the benchmark wrote: {err}") from None
+        raise click.UsageError(f"{out / PROTOCOL_FILE} is not a protocol file the benchmark wrote: {err}") from None
+    return True if saved is None else saved.fresh_scenes
 
 
 def _learner_sources(learners: tuple[Path, ...]) -> tuple[Path, ...]:
