@@ -51,7 +51,7 @@ def split_of(tasks: Mapping[str, Any]) -> str | None:
 def command(content: Mapping[str, Any], folder: str) -> str:
     """The ``sb3-memret benchmark mikasa`` command line that plays (or resumes) this run into ``folder``."""
     from sb3_memret.benchmark.learners import SHIPPED_LEARNER
-    from sb3_memret.benchmark.runner import stored_learners
+    from sb3_memret.benchmark.learners import stored_learners
 
     protocol, tasks = content["protocol"], content["tasks"]
     split = split_of(tasks)

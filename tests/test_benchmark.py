@@ -392,7 +392,8 @@ def test_the_shipped_learner_serves_recall_on_every_short_task_that_runs_here(tm
     missing one says how to rebuild."""
     from sb3_memret.benchmark import learners as learners_module
     from sb3_memret.benchmark.agent import MemoryLearner
-    from sb3_memret.benchmark.runner import learner_tasks, plan, split_tasks
+    from sb3_memret.benchmark.learners import learner_tasks
+    from sb3_memret.benchmark.runner import plan, split_tasks
 
     path = learners_module.shipped_learner()
     runnable, _ = split_tasks("short")
@@ -422,7 +423,8 @@ def test_each_task_plays_the_first_of_several_learners_that_serves_it(tmp_path):
     lacks plays the shipped learner across the short split, one that neither serves is refused naming both; the
     sources are recorded in order and read back."""
     from sb3_memret.benchmark.learners import shipped_learner
-    from sb3_memret.benchmark.runner import find_learner, learners_landed, plan, stored_learners
+    from sb3_memret.benchmark.learners import find_learner, stored_learners
+    from sb3_memret.benchmark.runner import learners_landed, plan
     from sb3_memret.cli.benchmark import _learner_sources
 
     own = tmp_path / "learners" / "BunchOfColors3-VLA-v0" / "final_model.zip"

@@ -192,7 +192,7 @@ multitask:
 
 def test_train_across_tasks_from_the_command_line_resumes_and_serves_the_benchmark(tmp_path):
     from sb3_memret.benchmark.agent import MemoryLearner
-    from sb3_memret.benchmark.runner import learner_tasks
+    from sb3_memret.benchmark.learners import learner_tasks
 
     config, run, runner = tmp_path / "multi.yml", tmp_path / "run", CliRunner()
     config.write_text(textwrap.dedent(CONFIG))

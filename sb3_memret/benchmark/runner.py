@@ -24,14 +24,14 @@ from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, Callable, Iterable, Iterator
 
-from sb3_memret.benchmark.agent import CONDITIONS, check_conditions, learned_as, short_variant
+from sb3_memret.benchmark.agent import CONDITIONS, check_conditions
+from sb3_memret.benchmark.learners import find_learner, learner_path, learner_sources, learners_json, stored_learners
 from sb3_memret.benchmark.manifest import episode_seeds, select_tasks
 from sb3_memret.benchmark.mikasa_results import write_mikasa_results
 from sb3_memret.controllers.pacing import replan_interval
 
 EPISODES_FILE, RESULTS_FILE, PROTOCOL_FILE, ERRORS_FILE = "episodes.jsonl", "results.json", "protocol.json", "errors.log"
 LOCK_FILE = ".lock"  # held by the benchmark playing the folder
-LEARNER_FILE = "final_model.zip"
 WORKER_REPLACEMENTS = 3  # pools a table starts again after an episode worker died, before it stops with a resume hint
 
 
@@ -212,75 +212,6 @@ def split_tasks(split: str) -> tuple[list[str], dict[str, str]]:
         except ValueError as err:
             refused[row.env_id] = _reason(err, row.env_id)
     return runnable, refused
-
-
-def learner_sources(learners: Path | Iterable[Path] | None) -> tuple[Path, ...]:
-    """``--learners`` as a tuple of paths, in the order given (one path, several, or none); ``shipped`` names the
-    package's learner across the short split, wherever the package is installed."""
-    from sb3_memret.benchmark.learners import SHIPPED_LEARNER
-
-    if learners is None:
-        return ()
-    if isinstance(learners, (str, Path)):
-        learners = [learners]
-    return tuple(SHIPPED_LEARNER if str(source) == "shipped" else Path(source) for source in learners)
-
-
-def find_learner(learners: Path | Iterable[Path] | None, env_id: str) -> tuple[Path | None, str]:
-    """The memory learner that serves ``env_id``, the first of ``learners`` that does, or None and why none does.
-
-    A folder serves a task with ``DIR/<env id>/final_model.zip``, or a -Long variant without one of its own with its
-    short task's (``DIR/RememberColor3-VLA-v0/``): the bank holds the same facts, only the delay before they are
-    needed grows, which is what its row measures. A model file serves every task it was trained on: a learner across
-    tasks (``train recall --tasks``) its tasks and their -Long variants (``agent.learned_as``), a one-task learner
-    the task it is asked for (``MemoryLearner`` checks it when it loads)."""
-    sources = learner_sources(learners)
-    if not sources:
-        return None, "no learners folder given (--learners DIR, with DIR/<env id>/final_model.zip)"
-    why = []
-    for source in sources:
-        if source.is_file():
-            trained_on = learner_tasks(source)
-            if trained_on is None or learned_as(env_id, trained_on) is not None:
-                return source, ""
-            why.append(f"the learner across tasks {source} was not trained on it")
-            continue
-        own, short = source / env_id / LEARNER_FILE, short_variant(env_id)
-        for candidate in (own, None if short is None else source / short / LEARNER_FILE):
-            if candidate is not None and candidate.is_file():
-                return candidate, ""
-        why.append(f"no trained memory learner: expected {own}")
-    return None, "; ".join(why)
-
-
-def learner_path(learners: Path | Iterable[Path] | None, env_id: str) -> Path | None:
-    """The model file of the memory learner that serves ``env_id`` (``find_learner``), or None."""
-    return find_learner(learners, env_id)[0]
-
-
-def stored_learners(value: str | list[str] | None) -> tuple[Path, ...]:
-    """The learners a run folder's ``results.json`` records: one path (a string), several (a list) or none."""
-    return learner_sources(None if value is None else [value] if isinstance(value, str) else value)
-
-
-def learners_json(learners: tuple[Path, ...]) -> str | list[str] | None:
-    """The learners as ``results.json`` records them: one path as a string, several as a list, none as null; the
-    package's own as ``shipped``, so that a table read on another checkout finds it."""
-    from sb3_memret.benchmark.learners import SHIPPED_LEARNER
-
-    named = [("shipped" if Path(p).resolve() == SHIPPED_LEARNER.resolve() else str(p)) for p in learners]
-    return None if not named else named[0] if len(named) == 1 else named
-
-
-def learner_tasks(path: Path) -> list[str] | None:
-    """The tasks of a learner across tasks (its run folder's config), or None for a one-task learner."""
-    from sb3_memret.training.run import CONFIG_FILE, load_run_config
-
-    for folder in (path.parent, path.parent.parent):
-        if (folder / CONFIG_FILE).is_file():
-            tasks = load_run_config(folder).env_kwargs.get("tasks")
-            return list(tasks) if tasks is not None else None
-    return None
 
 
 def learners_landed(run: Plan) -> list[str]:
@@ -693,5 +624,5 @@ def write_results(out: Path, run: Plan, records: list[dict[str, Any]]) -> dict[s
 
 
 __all__ = ["CONDITIONS", "Plan", "Protocol", "RunFolder", "Unit", "controller_digest", "controller_record", "cue_label", "done_units",
-           "find_learner", "learner_path", "learner_sources", "learners_landed", "plan", "play_units", "rebuild", "results", "run_benchmark", "widened",
+           "learners_landed", "plan", "play_units", "rebuild", "results", "run_benchmark", "widened",
            "write_results"]

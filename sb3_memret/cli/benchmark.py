@@ -147,7 +147,7 @@ def _learner_sources(learners: tuple[Path, ...]) -> tuple[Path, ...]:
     """``--learners`` with `shipped` (and the default, none given) read as the package's learner across the short
     split; a usage error naming how to rebuild it when it is missing."""
     from sb3_memret.benchmark.learners import shipped_learner
-    from sb3_memret.benchmark.runner import learner_sources
+    from sb3_memret.benchmark.learners import learner_sources
 
     if any(str(source) == "shipped" for source in learners) or not learners:
         try:
