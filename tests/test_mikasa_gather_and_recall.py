@@ -15,6 +15,7 @@ from sb3_memret.memory.seeding import SeedingConfig  # noqa: E402
 from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E402
 from sb3_memret.evaluation.rollout import evaluate_task_condition  # noqa: E402
 from sb3_memret.tasks import make_task  # noqa: E402
+from sb3_memret.tasks.mikasa.core.carry_expert import GRIP_CLOSED  # noqa: E402
 from sb3_memret.tasks.mikasa.core.cue_task import DEV_SEED  # noqa: E402
 from sb3_memret.tasks.mikasa.gather_and_recall.task import (  # noqa: E402
     FLASH_COLOURS,
@@ -218,6 +219,22 @@ def test_expert_places_the_cubes_in_order_then_presses():
     assert press.mode == "press" and np.allclose(press.point[:2], buttons[0, 2, :2])
     nudged = [all_placed[0], all_placed[1], [disc[0] + 0.12, disc[1], 0.026]]  # pushed off the disc
     assert goal([0.0, 0.0, 0.2], nudged).mode == "grasp"
+
+
+def test_a_hand_stopped_just_off_the_cube_comes_down_and_closes():
+    """At rest 6 mm aside and 12 mm over the cube's centre (where GatherAndRecall7's development seed 5013 stood
+    open for 600 steps), the grasp goes on: the hand moves down, and the fingers close once it is close."""
+    from sb3_memret.tasks.mikasa.core.touch_expert import R_DOWN
+    from sb3_memret.tasks.mikasa.gather_and_recall.expert import GatherGoal
+
+    expert = make_task("GatherAndRecall7-VLA-v0").expert()
+    expert.reset([1])
+    cube = np.array([-0.044, -0.255, 0.02])
+    x, y, z, w = R_DOWN.as_quat()  # the hand pointing down, as a ManiSkill pose (x, y, z, qw, qx, qy, qz)
+    tcp = np.array([*(cube + (-0.001, -0.006, 0.012)), w, x, y, z])
+    chunk = expert._chunk(tcp, np.zeros(3), GatherGoal(cube.copy(), "grasp"))
+    assert chunk[0, 2] < -0.05  # heading down, not braking in place
+    assert chunk[-1, 6] == GRIP_CLOSED  # and closing within the chunk
 
 
 def test_expert_heads_for_the_cube_then_for_the_named_button(task):

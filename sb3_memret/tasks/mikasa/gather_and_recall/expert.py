@@ -153,11 +153,17 @@ class GatherPressController(ScriptedTouchController):
 
     def _waypoint(self, pos: np.ndarray, goal: Any) -> np.ndarray:
         """Grasping and pressing: the goal's point, never below a funnel over it (the hand comes down from above).
-        Carrying: straight there, rising first while the cube is low and far off. Rising, releasing: the point."""
+        Carrying: straight there, rising first while the cube is low and far off. Rising, releasing: the point.
+
+        The grasp's funnel is flat within ``arrive_tol`` of the cube's axis: the hand stops once within
+        ``arrive_tol`` of its waypoint, and a funnel that rose from the axis could stop it there short of
+        ``grasp_tol`` (6 mm aside, 12 mm over the centre), open over the cube for the rest of the episode."""
         point = np.asarray(goal.point, dtype=np.float64)
         sideways = float(np.linalg.norm(point[:2] - pos[:2]))
         if goal.mode in ("grasp", "press"):
             g = self.gains
+            if goal.mode == "grasp":
+                sideways = max(0.0, sideways - g.arrive_tol)
             return np.array([point[0], point[1], point[2] + min(g.hover_height, g.funnel_slope * sideways)])
         if goal.mode == "carry" and pos[2] < goal.height - self.carry.lift_first and sideways > self.gather.over_disc:
             return np.array([pos[0], pos[1], goal.height])
