@@ -7,6 +7,7 @@
   command has; every ``make`` target exists; every ``scripts/`` file, repository path, ``sb3_memret.`` object and
   ``{py:mod}``/``{py:class}`` target they name exists.
 - The results generator names each table's file and a command the benchmark accepts.
+- The lab's index (``lab/README.md``) lists every study folder, and only those.
 - With Sphinx installed (``make docs`` installs it), the guide pages build with warnings as errors (the API reference,
   which imports every module, is ``make docs``'s and CI's).
 """
@@ -289,6 +290,15 @@ def test_every_path_and_object_the_pages_name_exists():
             objects += 1
     assert paths > 20 and objects > 20, (paths, objects)
 
+
+
+def test_the_lab_index_lists_every_study_and_only_studies_that_exist():
+    """lab/README.md's table links each study folder once, and each link is a study with its own README.md."""
+    lab = ROOT / "lab"
+    linked = re.findall(r"\]\(([^)/]+)/README\.md\)", (lab / "README.md").read_text())
+    studies = sorted(p.name for p in lab.iterdir() if p.is_dir() and p.name[:4].isdigit())
+    assert sorted(linked) == studies, (set(studies) ^ set(linked))
+    assert all((lab / name / "README.md").is_file() for name in linked)
 
 # ------------------------------------------------------------------------------------------ generated pages
 def test_the_results_pages_name_each_tables_file_and_a_command_the_benchmark_accepts(tmp_path):
