@@ -24,7 +24,7 @@ from sb3_memret.tasks.mikasa.gather_and_recall.task import (  # noqa: E402
     VARIANTS,
     GatherAndRecallTask,
 )
-from sb3_memret.tasks.mikasa.gather_and_recall.expert import place_targets  # noqa: E402
+from sb3_memret.tasks.mikasa.gather_and_recall.expert import WIDE_RING_CUBES, GatherGains, place_targets  # noqa: E402
 from sb3_memret.tasks.mikasa.core.lamp_perception import read_lit_colour  # noqa: E402
 
 TASK = "GatherAndRecall1-VLA-v0"
@@ -181,15 +181,18 @@ def test_every_variant_is_registered_with_mikasas_length(env_id):
 def test_place_targets_keep_cubes_apart_and_on_the_disc():
     disc = np.array([0.04, 0.14, 0.003])
     assert np.allclose(place_targets(disc, 1, 0.075), [disc[:2]])
+    gains = GatherGains()
     for n in (3, 5, 7, 9):
-        targets = place_targets(disc, n, 0.075)
+        radius = gains.ring_radius if n < WIDE_RING_CUBES else gains.wide_ring_radius
+        targets = place_targets(disc, n, radius)
         assert targets.shape == (n, 2)
         off_centre = np.linalg.norm(targets - disc[:2], axis=1)
         centred = int(n > 5)  # past five, the first cube goes to the centre, the rest on the ring
-        assert np.allclose(off_centre[:centred], 0.0) and np.allclose(off_centre[centred:], 0.075)  # MIKASA: 10 cm
+        assert np.allclose(off_centre[:centred], 0.0) and np.allclose(off_centre[centred:], radius)
+        assert off_centre.max() + gains.over_disc <= gains.on_disc_radius + 1e-9 < 0.10  # MIKASA: on within 10 cm
         # the cubes stand square to the table: the larger of the x and y offsets parts two of them
         apart = np.abs(targets[:, None] - targets[None]).max(axis=2)[~np.eye(n, dtype=bool)]
-        assert apart.min() > 0.052  # 4 cm cubes at least 1.2 cm apart (nine: 1.3 cm; seven: 2.5 cm)
+        assert apart.min() > 0.059  # 4 cm cubes at least 1.9 cm apart (7.5 cm out, eight on the ring were 1.3 cm)
     with pytest.raises(ValueError, match="at least 1"):
         place_targets(disc, 0, 0.075)
 

@@ -11,7 +11,9 @@ it presses its ``default`` button, a guess (success at chance, one in three).
 Each cube has its own place on the disc (``place_targets``): the centre for one cube; else a ring of ``ring_radius``
 round it (the layout MIKASA's motion-planning solution uses), with the first cube at the centre from ``RING_ALONE_MAX``
 + 1 cubes on, so that neighbours stay 1.7 cm apart or more (nine on one ring: 1.1 cm, and open fingers knocked them
-off the disc). With several cubes the fingers let go opening only part way (``release_grip``). Plan, each call, from
+off the disc). The cubes stand square to the table, so what parts two of them is the larger of their x and y offsets:
+eight round the centre (nine cubes) go on a wider ring (``wide_ring_radius``), 2 cm apart rather than 1.3 cm, where a
+lowered cube no longer comes to rest on its neighbour's edge. With several cubes the fingers let go opening only part way (``release_grip``). Plan, each call, from
 what the observation shows:
 
 - the hand low beside a cube resting on the disc: rise straight up first (open fingers sweeping sideways would push
@@ -45,6 +47,7 @@ from sb3_memret.tasks.mikasa.core.touch_expert import CONTROL_DT, ScriptedTouchC
 REST_Z = 0.026  # the cube's centre resting on the disc
 BUTTON_TOP_ABOVE_BASE = 0.043
 RING_ALONE_MAX = 5  # up to this many cubes all go on the ring; more: one at the centre, the rest on the ring
+WIDE_RING_CUBES = 9  # this many or more: the ring is ``wide_ring_radius`` out
 
 
 @dataclass(frozen=True)
@@ -55,8 +58,9 @@ class GatherGains:
     rest_margin: float = 0.006  # ... and open the fingers once its centre is this close to resting on the disc,
     hand_floor: float = 0.02  # ... or the TCP this low (a cube slipped up in the fingers, tilted, goes no lower)
     ring_radius: float = 0.075  # several cubes' places: a ring this far from the disc's centre (MIKASA's solution)
+    wide_ring_radius: float = 0.085  # ... and for eight round the centre (nine cubes)
     placed_radius: float = 0.06  # a cube resting this close to its place is placed ...
-    on_disc_radius: float = 0.09  # ... and this close to the disc's centre (MIKASA counts it on within 10 cm)
+    on_disc_radius: float = 0.097  # ... and this close to the disc's centre (MIKASA counts it on within 10 cm)
     stack_clearance: float = 0.10  # several cubes: carry at least this high (centre), over the placed ones' tops
     release_grip: float = 0.5  # ... and let go opening to this command (about 5.5 cm between the fingers)
     resting: float = 0.035  # a cube centre lower than this rests (on the disc: 2.6 cm; held up: higher)
@@ -128,7 +132,7 @@ class GatherPressController(ScriptedTouchController):
     def _goal(self, pos: np.ndarray, cubes: np.ndarray, gap: float, disc: np.ndarray,
               button: np.ndarray) -> GatherGoal:
         c, g = self.carry, self.gather
-        targets = place_targets(disc, len(cubes), g.ring_radius)
+        targets = place_targets(disc, len(cubes), g.ring_radius if len(cubes) < WIDE_RING_CUBES else g.wide_ring_radius)
         grip = GRIP_OPEN if len(cubes) == 1 else g.release_grip
         off_place = np.linalg.norm(cubes[:, :2] - targets, axis=1)
         off_centre = np.linalg.norm(cubes[:, :2] - disc[None, :2], axis=1)
@@ -177,5 +181,5 @@ class GatherPressController(ScriptedTouchController):
         return goal.grip
 
 
-__all__ = ["BUTTON_TOP_ABOVE_BASE", "GatherGains", "GatherGoal", "GatherPressController", "REST_Z", "RING_ALONE_MAX",
+__all__ = ["BUTTON_TOP_ABOVE_BASE", "GatherGains", "GatherGoal", "GatherPressController", "REST_Z", "RING_ALONE_MAX", "WIDE_RING_CUBES",
            "place_targets"]
