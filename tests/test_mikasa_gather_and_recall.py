@@ -184,11 +184,13 @@ def test_place_targets_keep_cubes_apart_and_on_the_disc():
     gains = GatherGains()
     for n in (3, 5, 7, 9):
         radius = gains.ring_radius if n < WIDE_RING_CUBES else gains.wide_ring_radius
-        targets = place_targets(disc, n, radius)
+        targets = place_targets(disc, n, radius, farthest=gains.ring_radius)
         assert targets.shape == (n, 2)
         off_centre = np.linalg.norm(targets - disc[:2], axis=1)
         centred = int(n > 5)  # past five, the first cube goes to the centre, the rest on the ring
-        assert np.allclose(off_centre[:centred], 0.0) and np.allclose(off_centre[centred:], radius)
+        assert np.allclose(off_centre[:centred], 0.0) and (off_centre[centred:] >= gains.ring_radius - 1e-9).all()
+        assert np.allclose(np.sort(off_centre[centred:])[1:], radius)  # only the place farthest from the arm comes in
+        assert (targets[:, 0] - disc[0]).max() <= gains.ring_radius + 1e-9
         assert off_centre.max() + gains.over_disc <= gains.on_disc_radius + 1e-9 < 0.10  # MIKASA: on within 10 cm
         # the cubes stand square to the table: the larger of the x and y offsets parts two of them
         apart = np.abs(targets[:, None] - targets[None]).max(axis=2)[~np.eye(n, dtype=bool)]

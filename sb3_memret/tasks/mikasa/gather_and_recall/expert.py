@@ -13,7 +13,8 @@ round it (the layout MIKASA's motion-planning solution uses), with the first cub
 + 1 cubes on, so that neighbours stay 1.7 cm apart or more (nine on one ring: 1.1 cm, and open fingers knocked them
 off the disc). The cubes stand square to the table, so what parts two of them is the larger of their x and y offsets:
 eight round the centre (nine cubes) go on a wider ring (``wide_ring_radius``), 2 cm apart rather than 1.3 cm, where a
-lowered cube no longer comes to rest on its neighbour's edge. With several cubes the fingers let go opening only part way (``release_grip``). Plan, each call, from
+lowered cube no longer comes to rest on its neighbour's edge; its place farthest from the arm stays ``ring_radius``
+out (2 cm from its neighbours still), 1 cm nearer the edge of the arm's reach over a far disc. With several cubes the fingers let go opening only part way (``release_grip``). Plan, each call, from
 what the observation shows:
 
 - the hand low beside a cube resting on the disc: rise straight up first (open fingers sweeping sideways would push
@@ -58,7 +59,7 @@ class GatherGains:
     rest_margin: float = 0.006  # ... and open the fingers once its centre is this close to resting on the disc,
     hand_floor: float = 0.02  # ... or the TCP this low (a cube slipped up in the fingers, tilted, goes no lower)
     ring_radius: float = 0.075  # several cubes' places: a ring this far from the disc's centre (MIKASA's solution)
-    wide_ring_radius: float = 0.085  # ... and for eight round the centre (nine cubes)
+    wide_ring_radius: float = 0.085  # ... and for eight round the centre (nine cubes), its far place kept at ring_radius
     placed_radius: float = 0.06  # a cube resting this close to its place is placed ...
     on_disc_radius: float = 0.097  # ... and this close to the disc's centre (MIKASA counts it on within 10 cm)
     stack_clearance: float = 0.10  # several cubes: carry at least this high (centre), over the placed ones' tops
@@ -69,8 +70,9 @@ class GatherGains:
     press_height: float = 0.012  # the TCP over the cap's top when pressing (MIKASA: within 2.5 cm)
 
 
-def place_targets(disc: np.ndarray, n_cubes: int, ring_radius: float) -> np.ndarray:
-    """Where each of ``n_cubes`` cubes is set down on the disc whose centre is ``disc`` (3,): (n_cubes, 2) xy."""
+def place_targets(disc: np.ndarray, n_cubes: int, ring_radius: float, farthest: float = np.inf) -> np.ndarray:
+    """Where each of ``n_cubes`` cubes is set down on the disc whose centre is ``disc`` (3,): (n_cubes, 2) xy, none
+    more than ``farthest`` beyond the centre in x (away from the arm's base)."""
     if n_cubes < 1:
         raise ValueError(f"n_cubes must be at least 1, got {n_cubes}")
     centre = np.asarray(disc, dtype=np.float64)[None, :2]
@@ -79,6 +81,7 @@ def place_targets(disc: np.ndarray, n_cubes: int, ring_radius: float) -> np.ndar
     on_ring = n_cubes if n_cubes <= RING_ALONE_MAX else n_cubes - 1
     angles = np.pi / 2 + 2 * np.pi * np.arange(on_ring) / on_ring
     ring = centre + ring_radius * np.stack([np.cos(angles), np.sin(angles)], axis=1)
+    ring[:, 0] = np.minimum(ring[:, 0], centre[0, 0] + farthest)
     return ring if on_ring == n_cubes else np.concatenate([centre, ring])
 
 
@@ -132,7 +135,8 @@ class GatherPressController(ScriptedTouchController):
     def _goal(self, pos: np.ndarray, cubes: np.ndarray, gap: float, disc: np.ndarray,
               button: np.ndarray) -> GatherGoal:
         c, g = self.carry, self.gather
-        targets = place_targets(disc, len(cubes), g.ring_radius if len(cubes) < WIDE_RING_CUBES else g.wide_ring_radius)
+        wide = len(cubes) >= WIDE_RING_CUBES
+        targets = place_targets(disc, len(cubes), g.wide_ring_radius if wide else g.ring_radius, g.ring_radius)
         grip = GRIP_OPEN if len(cubes) == 1 else g.release_grip
         off_place = np.linalg.norm(cubes[:, :2] - targets, axis=1)
         off_centre = np.linalg.norm(cubes[:, :2] - disc[None, :2], axis=1)
