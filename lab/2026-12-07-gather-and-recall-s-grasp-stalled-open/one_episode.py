@@ -1,8 +1,8 @@
-"""Play one development seed of one task through MIKASA's harness as ``benchmark mikasa`` does (the oracle condition,
-a scene built anew) and print every ``--every``-th decision of the scripted expert: the TCP, the detected cubes, the
-fingers' gap and its goal. With fresh scenes an episode no longer depends on those played before it, so one seed is
-replayed alone (``harness_replay.py`` of lab/2026-12-05-oracle-misses-on-long-trace-and-gather had to replay its
-predecessors; its decision trace is reused here).
+"""Play one development seed of a GatherAndRecall task through MIKASA's harness as ``benchmark mikasa`` does (the
+oracle condition, a scene built anew) and print every ``--every``-th decision of its expert: the TCP, the cubes as
+the expert sees them (the simulated detector's, or the cameras' readings with ``--controller scripted-camera``), the
+fingers' gap and the goal. With fresh scenes an episode no longer depends on those played before it, so one seed is
+replayed alone.
 
     .venv/bin/python lab/2026-12-07-gather-and-recall-s-grasp-stalled-open/one_episode.py \
         --task GatherAndRecall7-VLA-v0 --seed 5013 --every 3
@@ -11,13 +11,22 @@ predecessors; its decision trace is reused here).
 from __future__ import annotations
 
 import argparse
-import sys
-from pathlib import Path
+
+import numpy as np
 
 from sb3_memret.benchmark.runner import Protocol, Unit, _Worker
 
-sys.path.insert(0, str(Path(__file__).resolve().parents[1] / "2026-12-05-oracle-misses-on-long-trace-and-gather"))
-from harness_replay import traced  # noqa: E402
+
+def traced(expert, log: list[str]) -> None:
+    """Wrap the expert's ``_goal`` so that every decision appends what it saw and chose to ``log``."""
+    goal = expert._goal
+
+    def logged(pos, cubes, gap, *rest):
+        chosen = goal(pos, cubes, gap, *rest)
+        log.append(f"tcp {np.round(pos, 3).tolist()} cubes {np.round(cubes, 3).tolist()} gap {gap:.3f} "
+                   f"goal {(chosen.mode, np.round(np.asarray(chosen.point), 3).tolist())}")
+        return chosen
+    expert._goal = logged
 
 
 def main() -> None:
@@ -25,8 +34,10 @@ def main() -> None:
     parser.add_argument("--task", default="GatherAndRecall7-VLA-v0")
     parser.add_argument("--seed", type=int, default=5013)
     parser.add_argument("--every", type=int, default=3)
+    parser.add_argument("--controller", default="scripted", help="scripted, or scripted-camera (on the cameras' readings)")
     args = parser.parse_args()
-    worker = _Worker(Protocol(episodes=1000, fresh_scenes=True), None)  # the seed must be among its development seeds
+    # episodes: the seed must be among the protocol's development seeds
+    worker = _Worker(Protocol(episodes=1000, fresh_scenes=True, controller=args.controller), None)
     agent = worker.agent(args.task, "oracle")
     log: list[str] = []
     traced(agent.controller, log)
