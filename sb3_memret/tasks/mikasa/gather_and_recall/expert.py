@@ -14,8 +14,8 @@ round it (the layout MIKASA's motion-planning solution uses), with the first cub
 off the disc). The cubes stand square to the table, so what parts two of them is the larger of their x and y offsets:
 eight round the centre (nine cubes) go on a wider ring (``wide_ring_radius``), 2 cm apart rather than 1.3 cm, where a
 lowered cube no longer comes to rest on its neighbour's edge; its place farthest from the arm stays ``ring_radius``
-out (2 cm from its neighbours still), 1 cm nearer the edge of the arm's reach over a far disc. With several cubes the fingers let go opening only part way (``release_grip``). Plan, each call, from
-what the observation shows:
+out (2 cm from its neighbours still), 1 cm nearer the edge of the arm's reach over a far disc. With several cubes
+the fingers let go opening only part way (``release_grip``). Plan, each call, from what the observation shows:
 
 - the hand low beside a cube resting on the disc: rise straight up first (open fingers sweeping sideways would push
   it off);
@@ -185,5 +185,5 @@ class GatherPressController(ScriptedTouchController):
         return goal.grip
 
 
-__all__ = ["BUTTON_TOP_ABOVE_BASE", "GatherGains", "GatherGoal", "GatherPressController", "REST_Z", "RING_ALONE_MAX", "WIDE_RING_CUBES",
-           "place_targets"]
+__all__ = ["BUTTON_TOP_ABOVE_BASE", "GatherGains", "GatherGoal", "GatherPressController", "REST_Z", "RING_ALONE_MAX",
+           "WIDE_RING_CUBES", "place_targets"]
