@@ -2,7 +2,8 @@
 
 Trained by one ``train recall`` run per task of a split, into ``DIR/<env id>/``, each on its task's zoo config, one
 after another; a finished run is kept, an interrupted one resumes from its last checkpoint, and one stopped before its
-first checkpoint starts again. Found in ``--learners``' folders and model files, in the order given (``find_learner``)."""
+first checkpoint starts again. Found in ``--learners``' folders and model files, in the order given
+(``find_learner``)."""
 
 from __future__ import annotations
 
@@ -155,5 +156,5 @@ def learner_tasks(path: Path) -> list[str] | None:
     return None
 
 
-__all__ = ["LEARNER_FILE", "SHIPPED_LEARNER", "LearnerOutcome", "find_learner", "learner_path", "learner_sources", "learner_tasks",
-           "learners_json", "shipped_learner", "stored_learners", "train_learners"]
+__all__ = ["LEARNER_FILE", "SHIPPED_LEARNER", "LearnerOutcome", "find_learner", "learner_path", "learner_sources",
+           "learner_tasks", "learners_json", "shipped_learner", "stored_learners", "train_learners"]

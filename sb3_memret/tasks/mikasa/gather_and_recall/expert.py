@@ -59,7 +59,7 @@ class GatherGains:
     rest_margin: float = 0.006  # ... and open the fingers once its centre is this close to resting on the disc,
     hand_floor: float = 0.02  # ... or the TCP this low (a cube slipped up in the fingers, tilted, goes no lower)
     ring_radius: float = 0.075  # several cubes' places: a ring this far from the disc's centre (MIKASA's solution)
-    wide_ring_radius: float = 0.085  # ... and for eight round the centre (nine cubes), its far place kept at ring_radius
+    wide_ring_radius: float = 0.085  # ... and for eight round the centre (nine cubes; the far place: ring_radius)
     placed_radius: float = 0.06  # a cube resting this close to its place is placed ...
     on_disc_radius: float = 0.097  # ... and this close to the disc's centre (MIKASA counts it on within 10 cm)
     stack_clearance: float = 0.10  # several cubes: carry at least this high (centre), over the placed ones' tops
