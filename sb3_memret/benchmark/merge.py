@@ -13,7 +13,8 @@ from typing import Any, Iterable
 
 from sb3_memret.benchmark.agent import CONDITIONS
 from sb3_memret.benchmark.learners import stored_learners
-from sb3_memret.benchmark.runner import PROTOCOL_FILE, RESULTS_FILE, Protocol, RunFolder, Unit, done_units, plan, write_results
+from sb3_memret.benchmark.runner import (PROTOCOL_FILE, RESULTS_FILE, Protocol, RunFolder, Unit, done_units, plan,
+                                         write_results)
 
 
 @dataclass

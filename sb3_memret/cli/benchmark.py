@@ -146,8 +146,7 @@ def _fresh_scenes(scenes: str | None, out: Path) -> bool:
 def _learner_sources(learners: tuple[Path, ...]) -> tuple[Path, ...]:
     """``--learners`` with `shipped` (and the default, none given) read as the package's learner across the short
     split; a usage error naming how to rebuild it when it is missing."""
-    from sb3_memret.benchmark.learners import shipped_learner
-    from sb3_memret.benchmark.learners import learner_sources
+    from sb3_memret.benchmark.learners import learner_sources, shipped_learner
 
     if any(str(source) == "shipped" for source in learners) or not learners:
         try:
