@@ -9,6 +9,7 @@ from sb3_memret.tasks.drawer import DrawerTask
 
 from sb3_memret.controller_specs import CONTROLLER_SPECS, make_controller, parse_lerobot_spec, parse_openpi_spec
 from sb3_memret.tasks.drawer.expert import ScriptedDrawerController
+from sb3_memret.controllers.harness_proprio import HARNESS_PROPRIO_NAMES
 from sb3_memret.controllers.shipped import SHIPPED, shipped_names
 
 
@@ -133,7 +134,10 @@ def test_the_shipped_learned_controllers_read_cameras_and_proprioception_only(ta
     controller = make_controller("learned", task)
     config = controller.policy.config
     assert controller.spec.needs_images and len(config.image_features) == 2
-    assert config.state_names == the_task.proprio_names()
+    if task == "drawer":
+        assert config.state_names == the_task.proprio_names()
+    else:  # a MIKASA task: the harness's inputs alone (its 7-D proprioception, both cameras), a protocol entry
+        assert controller.spec.harness_inputs and tuple(config.state_names) == HARNESS_PROPRIO_NAMES
     # everything else of the task's layout (the object detector, drawer openings) is estimated from the images; one
     # controller across tasks estimates every task's objects, its own among them
     perceived = set(the_task.state_names()) - set(the_task.proprio_names())

@@ -168,9 +168,9 @@ def test_the_shipped_objects_policy_takes_any_named_object_out_of_its_drawer():
 
 
 def test_the_shipped_camera_controller_acts_on_the_fact_in_its_prompt():
-    """At the first three development seeds (5000 + i), from rgb and proprioception alone, the true fact leads the
-    shipped camera controller on RememberColor3 (the one across nineteen tasks: 98% over MIKASA's 50 evaluation
-    seeds) to success, a wrong fact never does."""
+    """At the first three development seeds (5000 + i), from the harness's inputs alone (both cameras, the 7-D
+    proprioception), the true fact leads the shipped camera controller on RememberColor3 (the one across 34 tasks) to
+    success, a wrong fact never does."""
     from sb3_memret.evaluation.rollout import evaluate_task_condition
 
     task = "RememberColor3-VLA-v0"

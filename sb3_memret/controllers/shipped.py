@@ -6,15 +6,21 @@ from __future__ import annotations
 from pathlib import Path
 
 CHECKPOINTS = Path(__file__).resolve().parent / "checkpoints"
-# every short-split task won by touching the object a fact names (the first seven, then twelve more), and
-# SeqOfColors3, whose prompt also says which cubes were touched (progress as memory)
+# the 33 short-split tasks the scripted experts run (the nineteen won by touching the object a fact names, then
+# intercept, rotate, count and press, gather, act on time) and SeqOfColors3, whose prompt also says which cubes were
+# touched (progress as memory): one camera controller on the harness's inputs alone (`make controller-multitask`)
 MULTITASK_TASKS = ("RememberColor3-VLA-v0", "RememberShape3-VLA-v0", "RememberColor5-VLA-v0", "TakeItBack-VLA-v0",
                    "RememberShape5-VLA-v0", "FindImposterColor3-VLA-v0", "RememberShapeAndColor3x2-VLA-v0",
                    "RememberColor9-VLA-v0", "FindImposterShape3-VLA-v0", "RememberShapeAndColor3x3-VLA-v0",
                    "FindImposterColor5-VLA-v0", "RememberShape9-VLA-v0", "FindImposterShapeAndColor3x2-VLA-v0",
                    "RememberShapeAndColor5x3-VLA-v0", "FindImposterColor9-VLA-v0", "FindImposterShape5-VLA-v0",
                    "FindImposterShapeAndColor3x3-VLA-v0", "FindImposterShape9-VLA-v0",
-                   "FindImposterShapeAndColor5x3-VLA-v0", "SeqOfColors3-VLA-v0")
+                   "FindImposterShapeAndColor5x3-VLA-v0", "InterceptSlow-VLA-v0", "InterceptMedium-VLA-v0",
+                   "InterceptFast-VLA-v0", "InterceptGrabSlow-VLA-v0", "InterceptGrabMedium-VLA-v0",
+                   "InterceptGrabFast-VLA-v0", "RotateLenientPos-VLA-v0", "RotateLenientPosNeg-VLA-v0",
+                   "RotateStrictPos-VLA-v0", "RotateStrictPosNeg-VLA-v0", "BlinkCountButtonPressEasy-VLA-v0",
+                   "BlinkCountButtonPressMedium-VLA-v0", "GatherAndRecall1-VLA-v0", "TimedTransferEasy-VLA-v0",
+                   "SeqOfColors3-VLA-v0")
 # tasks whose shipped ``learned`` controller reads their prompts but does not yet do the task (SeqOfColors3: it does
 # not finish the sequence, lab/2026-11-29-seqofcolors3-s-own-camera-controller-a-first-try): a command runs their expert unless ``--controller learned`` asks
 LEARNED_NOT_DEFAULT = frozenset({"SeqOfColors3-VLA-v0"})
