@@ -248,7 +248,7 @@ tables-camera: install renderer
 tables-learned: install renderer
 	set -e; for seeds in dev protocol; do \
 		$(VENV)/bin/sb3-memret benchmark mikasa --split short --controller learned --conditions $(TABLE_CONDITIONS) \
-			--seeds $$seeds --no-progress --out $(TABLES)/short-learned-$$seeds; \
+			$(addprefix --learners ,$(TABLE_LEARNERS)) --seeds $$seeds --no-progress --out $(TABLES)/short-learned-$$seeds; \
 	done
 
 bench: install
