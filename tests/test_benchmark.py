@@ -490,8 +490,8 @@ def test_a_task_that_cannot_run_here_is_refused_with_its_reason(monkeypatch):
 def test_the_agent_renders_only_what_it_reads_and_every_outcome_stays_the_same():
     """The same RememberColor3 episodes with the harness's every-step rendering and with the sensor gate: equal
     outcomes and prompts. The scripted controller reads no images, so under oracle only the reset renders; the
-    written condition's writer reads every step's; the camera expert reads its decisions' until its cubes are
-    placed."""
+    written condition's writer reads every step's, the base camera's alone (``Task.writer_cameras``) where no
+    controller reads; the camera expert reads its decisions' until its cubes are placed."""
     from sb3_memret.benchmark import harness
     from sb3_memret.benchmark.agent import MemoryAgent
     from sb3_memret.tasks import make_task
@@ -501,11 +501,12 @@ def test_the_agent_renders_only_what_it_reads_and_every_outcome_stays_the_same()
     env = harness.make_env(task.name)
     gate = SensorGate.of(env)
     assert SensorGate.of(env) is gate  # installed once
-    renders = Counter()
+    renders, base_only = Counter(), Counter()
     render = gate._render
 
     def counted(*args, **kwargs):
         renders[key] += 1
+        base_only[key] += list(env.unwrapped.scene.sensors) == ["base_camera"]
         return render(*args, **kwargs)
 
     gate._render = counted
@@ -524,6 +525,10 @@ def test_the_agent_renders_only_what_it_reads_and_every_outcome_stays_the_same()
         agent.bind(env)
         agent.begin(0)
         camera = harness.play_episode(env, agent, 5001)
+        assert set(env.unwrapped.scene.sensors) == {"base_camera", "hand_camera"}  # narrowed for a render only
+        gate.open, gate.cameras = True, frozenset({"side_camera"})
+        with pytest.raises(ValueError, match=r"no camera \['side_camera'\] to render; the env's cameras are "):
+            gate._sensor_data()
     finally:
         env.close()
     for condition in ("oracle", "written"):
@@ -534,6 +539,7 @@ def test_the_agent_renders_only_what_it_reads_and_every_outcome_stays_the_same()
     assert camera.success_once and 1 < renders["camera", False] < 1 + decisions
     assert task.perception_window(env) == 6
     assert renders["written", False] == 1 + 5 and renders["written", True] == steps + 1
+    assert base_only["written", False] == 5 and base_only["written", True] == base_only["camera", False] == 0
 
 
 OWN_TASK = '''from sb3_memret.tasks.mikasa.remember.color import RememberColorTask

@@ -196,7 +196,7 @@ class MemoryAgent:
             raise RuntimeError("bind() the agent to its harness env before an episode")
         self._episode_rng = np.random.default_rng([self.seed, int(episode)])
         self._queue, self._steps = [], 0
-        self._gate.open = True  # the reset's observation starts the episode
+        self._gate.open, self._gate.cameras = True, None  # the reset's observation starts the episode
 
     # ------------------------------------------------------------ acting
     def _frame(self, view: Mapping[str, Any], first: bool) -> EnvFrame:
@@ -249,7 +249,7 @@ class MemoryAgent:
             self._queue = [np.asarray(action, dtype=np.float32) for action in chunk]
         self._steps += 1
         action = self._queue.pop(0)
-        self._gate.open = self.render_every_step or self._reads_next_images()
+        self._gate.open, self._gate.cameras = self._next_render()
         return action
 
     def _controller_view(self, obs: Mapping[str, Any], view: Mapping[str, Any]) -> Mapping[str, Any]:
@@ -262,14 +262,20 @@ class MemoryAgent:
                 self._privileged = PrivilegedView(self.task, self.env, obs)
             return self._privileged.observation(obs)
 
-    def _reads_next_images(self) -> bool:
-        """Whether the next observation's images are read: by the controller at a decision, while it reads them
-        (``FrozenController.reads_images``); where the condition writes facts, by the writer at every step of its
-        task's perception window, or at decisions for a task that does not perceive every step or whose frames read
-        the images (``Task.frames_read_images``)."""
+    def _next_render(self) -> tuple[bool, frozenset[str] | None]:
+        """Whether the next observation's images are rendered, and which cameras (None: every one): all of them by
+        the controller at a decision, while it reads them (``FrozenController.reads_images``), and where the
+        condition writes facts, at decisions for a task that does not perceive every step or whose frames read the
+        images (``Task.frames_read_images``); the writer's cameras alone (``Task.writer_cameras``) at the other steps
+        of its task's perception window."""
         decides = not self._queue
         frames_read = self.writes and (not self.task.perceives_every_step or self.task.frames_read_images)
-        return (decides and (self.controller.reads_images() or frames_read)) or self._perceives(self._steps)
+        if self.render_every_step or (decides and (self.controller.reads_images() or frames_read)):
+            return True, None
+        if self._perceives(self._steps):
+            cameras = self.task.writer_cameras
+            return True, None if cameras is None else frozenset(cameras)
+        return False, None
 
 
 def stated_instruction(env: gym.Env) -> Any:

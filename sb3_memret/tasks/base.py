@@ -123,6 +123,10 @@ class Task(ABC):
     options: ClassVar[tuple[str, ...]] = ()
     #: whether the physics calls ``perceive`` after every control step (else frames carry no percepts)
     perceives_every_step: ClassVar[bool] = False
+    #: the cameras ``perceive`` reads (``sensor_data`` names): on a step only the writer reads, the benchmark renders
+    #: these alone and the others carry their last images (MIKASA's writers read the calibrated base camera); None:
+    #: every camera
+    writer_cameras: ClassVar[tuple[str, ...] | None] = ("base_camera",)
     #: whether ``frames`` reads the camera images (SeqOfColors' progress writer reads the cube layout there): then
     #: every decision's frame must carry images rendered for it, also where no controller reads images
     frames_read_images: bool = False
