@@ -4,7 +4,7 @@ Runs a trained camera-reading learned controller's perception head on the valida
 out (the split rebuilt from ``--seed`` and ``--validation-fraction``, finetune's defaults) of the datasets it was
 trained on (``--split training``: on its training episodes instead, to tell overfitting from what the cameras cannot
 tell; ``--split all``: on every episode, for datasets no controller compared saw), and prints, per task, the
-normalised MSE over the task's own entries; then, per perceived entry, the normalised MSE and the median absolute
+normalised MSE over the task's own entries and the median xy error of its objects in sight; then, per perceived entry, the normalised MSE and the median absolute
 error in the state's units; for entries named ``<object>_x`` / ``_y`` with a ``<object>_visible`` flag (MIKASA's
 cubes), also the median xy error over the frames where the object is in sight. For a policy with a pointer
 (``finetune --pointer``), also the object each of its training prompts points at, and how sharply: a pointer that
@@ -14,7 +14,8 @@ learned nothing spreads its weight.
         runs/stage1-RememberColor9-VLA-v0/demos --task RememberColor9-VLA-v0
 
 A multi-task controller reads its datasets as ``finetune --tasks`` does (each DATASET's task, in order); given some
-of its tasks only, the entries of the others are left out.
+of its tasks only, the entries of the others are left out. A controller on MIKASA's harness proprioception gets it
+derived from the datasets' hand pose and fingers, as its finetune did.
 """
 
 from __future__ import annotations
@@ -25,6 +26,7 @@ from dataclasses import replace
 import numpy as np
 import torch
 
+from sb3_memret.controllers.harness_proprio import HARNESS_PROPRIO_NAMES, reads_harness_proprio, with_harness_proprio
 from sb3_memret.controllers.learned import LearnedPolicy
 from sb3_memret.controllers.learned.configuration import perceived_objects
 from sb3_memret.controllers.learned.modeling import pointer_ambiguity
@@ -68,6 +70,11 @@ def main() -> None:
         demos = replace(demos, state_names=demos.state_names + tuple(missing),
                         states=np.pad(demos.states, ((0, 0), (0, len(missing)))),
                         known=np.pad(demos.known, ((0, 0), (0, len(missing)))))
+    if reads_harness_proprio(policy.config.state_names):  # derived from the hand pose and fingers, as finetune does
+        states, state_names = with_harness_proprio(demos.states, demos.state_names)
+        known = None if demos.known is None else np.pad(demos.known, ((0, 0), (0, len(HARNESS_PROPRIO_NAMES))),
+                                                        constant_values=True)
+        demos = replace(demos, states=states, state_names=state_names, known=known)
     rng = np.random.default_rng(args.seed)
     is_val = np.isin(demos.episodes, validation_episodes(demos.episodes, args.validation_fraction, rng))
     held = np.flatnonzero({"validation": is_val, "training": ~is_val, "all": np.ones_like(is_val)}[args.split])
@@ -91,8 +98,20 @@ def main() -> None:
              torch.from_numpy(demos.known[idx][:, columns]))
     where = "every episode of the datasets" if args.split == "all" else f"the finetune's {args.split} episodes"
     print(f"{len(idx)} of the {len(held)} frames of {where}")
+    objects = [n.removesuffix("_visible") for n in names if n.endswith("_visible")]
+    located = [o for o in objects if f"{o}_x" in names and f"{o}_y" in names and known[:, names.index(f"{o}_x")].any()]
+
+    def xy_errors(rows: torch.Tensor) -> torch.Tensor:
+        """The xy errors (m) of every located object in sight in the ``rows`` frames whose task has it."""
+        errors = []
+        for obj in located:
+            seen = rows & (labels[:, names.index(f"{obj}_visible")] > 0.5) & known[:, names.index(f"{obj}_x")]
+            errors.append(error[seen][:, [names.index(f"{obj}_x"), names.index(f"{obj}_y")]].norm(dim=1))
+        return torch.cat(errors) if errors else torch.zeros(0)
+
     if tasks is not None:
-        print("\n| task | frames | normalised MSE over its own entries |\n|---|---|---|")
+        print("\n| task | frames | normalised MSE over its own entries | median xy error of objects in sight (m) |"
+              "\n|---|---|---|---|")
         # a frame's task: the one its dataset was named with (tasks sharing a layout, as FindImposter and Remember
         # do, are told apart by their datasets, not their entries); datasets are read task by task
         frame_task = np.repeat([i for i, roots in enumerate(by_task.values()) for _ in roots], demos.spans)[idx]
@@ -100,7 +119,9 @@ def main() -> None:
             rows = torch.from_numpy(frame_task == i)
             mask = known[rows]
             value = float(((normalised_error[rows] ** 2) * mask).sum() / mask.sum().clamp_min(1))
-            print(f"| {task.name} | {int(rows.sum())} | {value:.3f} |")
+            xy = xy_errors(rows)
+            print(f"| {task.name} | {int(rows.sum())} | {value:.3f} | "
+                  f"{f'{float(xy.median()):.4f}' if len(xy) else '-'} |")
         print()
     print("| entry | normalised MSE | median abs error |\n|---|---|---|")
     for i, name in enumerate(names):  # over the frames whose task has the entry
@@ -109,8 +130,6 @@ def main() -> None:
             continue
         print(f"| {name} | {float((normalised_error[rows, i] ** 2).mean()):.3f} | "
               f"{float(error[rows, i].abs().median()):.4f} |")
-    objects = [n.removesuffix("_visible") for n in names if n.endswith("_visible")]
-    located = [o for o in objects if f"{o}_x" in names and f"{o}_y" in names and known[:, names.index(f"{o}_x")].any()]
     if located:
         print("\n| object | frames in sight | median xy error |\n|---|---|---|")
     for obj in located:
