@@ -10,9 +10,12 @@ play). It prints episodes/s, control steps/s and decisions/s (controller calls: 
 per worker count, and each count's ratio to one worker. Each outcome is checked to be the same across counts: a
 worker count changes how fast the table plays, never what it says.
 
-With ``--rendering`` it then plays the same episodes in this process twice, rendering the cameras after every
-control step (the harness's own way) and only for the observations the agent reads (``sensor_gate.SensorGate``, the
-benchmark's way), and prints each one's time, its ratio to every-step rendering and the outcomes, checked equal.
+With ``--rendering`` it then plays the same episodes in this process three times, rendering the cameras after every
+control step (the harness's own way), only for the observations the agent reads but every camera then, and only for
+those with the writer's cameras alone where nothing else reads (``sensor_gate.SensorGate``, ``Task.writer_cameras``:
+the benchmark's way; it differs from the second where the condition writes facts, ``--condition written``), and
+prints each one's wall and CPU seconds (lavapipe renders in this process's threads), its ratio to every-step
+rendering and the outcomes, checked equal.
 
 With ``--threads`` it plays the same episodes in this process under torch's default intra-op threads and under
 one (the benchmark's own way, in one worker as in many), and prints each one's wall and CPU seconds and their
@@ -52,24 +55,29 @@ def play(task: str, controller: str, condition: str, episodes: int, workers: int
     return time.perf_counter() - start, records
 
 
-def play_rendering(task: str, controller: str, condition: str, episodes: int,
-                   every_step: bool) -> tuple[float, list[tuple[bool, int]]]:
-    """Seconds to play ``episodes`` development-seed episodes in this process (the env built beforehand), rendering
-    after every step or only what the agent reads, and each episode's (success, steps)."""
+def play_rendering(task: str, controller: str, condition: str, episodes: int, every_step: bool,
+                   writer_cameras: bool = True) -> tuple[float, float, list[tuple[bool, int]]]:
+    """Wall and CPU seconds to play ``episodes`` development-seed episodes in this process (the env built
+    beforehand), rendering after every step or only what the agent reads (with ``writer_cameras=False`` every camera
+    whenever anything reads one), and each episode's (success, steps); one torch thread, as a benchmark worker."""
+    from sb3_memret.common.workers import torch_threads
     from sb3_memret.controller_specs import make_controller
 
     the_task = make_task(task)
+    if not writer_cameras:
+        the_task.writer_cameras = None
     env = harness.make_env(task)
     try:
         agent = MemoryAgent(the_task, make_controller(controller, the_task), condition, the_task.replan_every,
                             render_every_step=every_step)
         agent.bind(env)
-        outcomes, start = [], time.perf_counter()
-        for seed in range(DEV_SEED, DEV_SEED + episodes):
-            agent.begin(seed - DEV_SEED)
-            result = harness.play_episode(env, agent, seed)
-            outcomes.append((bool(result.success_once), int(result.n_steps)))
-        return time.perf_counter() - start, outcomes
+        outcomes, start, cpu = [], time.perf_counter(), time.process_time()
+        with torch_threads(1):
+            for seed in range(DEV_SEED, DEV_SEED + episodes):
+                agent.begin(seed - DEV_SEED)
+                result = harness.play_episode(env, agent, seed)
+                outcomes.append((bool(result.success_once), int(result.n_steps)))
+        return time.perf_counter() - start, time.process_time() - cpu, outcomes
     finally:
         env.close()
 
@@ -161,16 +169,20 @@ def main() -> None:
         print(f"| {workers} | {seconds:.1f} | {rate:.3f} | {steps / seconds:.1f} | {decisions / seconds:.2f} | "
               f"{rate / base:.2f}x | {sum(s for s, _ in outcome)}/{args.episodes} |")
     if args.rendering:
-        print("\n| rendering (1 process) | seconds | episodes/s | steps/s | vs every step | success |")
-        print("|---|---|---|---|---|---|")
-        every, every_outcomes = play_rendering(args.task, args.controller, args.condition, args.episodes, True)
-        read, read_outcomes = play_rendering(args.task, args.controller, args.condition, args.episodes, False)
-        if read_outcomes != every_outcomes:
-            raise SystemExit(f"the gate changed the outcomes: {read_outcomes} vs {every_outcomes}")
-        steps = sum(n for _, n in every_outcomes)
-        for name, seconds in (("every step (the harness's)", every), ("what the agent reads", read)):
-            print(f"| {name} | {seconds:.1f} | {args.episodes / seconds:.3f} | {steps / seconds:.1f} | "
-                  f"{every / seconds:.2f}x | {sum(s for s, _ in every_outcomes)}/{args.episodes} |")
+        print("\n| rendering (1 process) | seconds | CPU seconds | steps/s | vs every step, wall | vs every step, CPU "
+              "| success |")
+        print("|---|---|---|---|---|---|---|")
+        ways = {"every step (the harness's)": (True, True), "what the agent reads, every camera": (False, False),
+                "what the agent reads, the writer's cameras alone": (False, True)}
+        played = {name: play_rendering(args.task, args.controller, args.condition, args.episodes, *way)
+                  for name, way in ways.items()}
+        (every, every_cpu, every_outcomes), = list(played.values())[:1]
+        for name, (seconds, cpu, outcomes) in played.items():
+            if outcomes != every_outcomes:
+                raise SystemExit(f"rendering {name} changed the outcomes: {outcomes} vs {every_outcomes}")
+            steps = sum(n for _, n in outcomes)
+            print(f"| {name} | {seconds:.1f} | {cpu:.1f} | {steps / seconds:.1f} | {every / seconds:.2f}x | "
+                  f"{every_cpu / cpu:.2f}x | {sum(s for s, _ in outcomes)}/{args.episodes} |")
 
     if args.threads:
         print("\n| torch threads (1 process) | seconds | CPU seconds | vs default, wall | vs default, CPU | success |")
