@@ -176,7 +176,7 @@ def main() -> None:
                 "what the agent reads, the writer's cameras alone": (False, True)}
         played = {name: play_rendering(args.task, args.controller, args.condition, args.episodes, *way)
                   for name, way in ways.items()}
-        (every, every_cpu, every_outcomes), = list(played.values())[:1]
+        every, every_cpu, every_outcomes = next(iter(played.values()))
         for name, (seconds, cpu, outcomes) in played.items():
             if outcomes != every_outcomes:
                 raise SystemExit(f"rendering {name} changed the outcomes: {outcomes} vs {every_outcomes}")

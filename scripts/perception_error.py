@@ -4,11 +4,11 @@ Runs a trained camera-reading learned controller's perception head on the valida
 out (the split rebuilt from ``--seed`` and ``--validation-fraction``, finetune's defaults) of the datasets it was
 trained on (``--split training``: on its training episodes instead, to tell overfitting from what the cameras cannot
 tell; ``--split all``: on every episode, for datasets no controller compared saw), and prints, per task, the
-normalised MSE over the task's own entries and the median xy error of its objects in sight; then, per perceived entry, the normalised MSE and the median absolute
-error in the state's units; for entries named ``<object>_x`` / ``_y`` with a ``<object>_visible`` flag (MIKASA's
-cubes), also the median xy error over the frames where the object is in sight. For a policy with a pointer
-(``finetune --pointer``), also the object each of its training prompts points at, and how sharply: a pointer that
-learned nothing spreads its weight.
+normalised MSE over the task's own entries and the median xy error of its objects in sight; then, per perceived
+entry, the normalised MSE and the median absolute error in the state's units; for entries named ``<object>_x`` /
+``_y`` with a ``<object>_visible`` flag (MIKASA's cubes), also the median xy error over the frames where the object is
+in sight. For a policy with a pointer (``finetune --pointer``), also the object each of its training prompts points
+at, and how sharply: a pointer that learned nothing spreads its weight.
 
     python scripts/perception_error.py sb3_memret/controllers/checkpoints/RememberColor9-VLA-v0-camera \\
         runs/stage1-RememberColor9-VLA-v0/demos --task RememberColor9-VLA-v0
@@ -26,7 +26,7 @@ from dataclasses import replace
 import numpy as np
 import torch
 
-from sb3_memret.controllers.harness_proprio import HARNESS_PROPRIO_NAMES, reads_harness_proprio, with_harness_proprio
+from sb3_memret.controllers.harness_proprio import reads_harness_proprio
 from sb3_memret.controllers.learned import LearnedPolicy
 from sb3_memret.controllers.learned.configuration import perceived_objects
 from sb3_memret.controllers.learned.modeling import pointer_ambiguity
@@ -71,10 +71,7 @@ def main() -> None:
                         states=np.pad(demos.states, ((0, 0), (0, len(missing)))),
                         known=np.pad(demos.known, ((0, 0), (0, len(missing)))))
     if reads_harness_proprio(policy.config.state_names):  # derived from the hand pose and fingers, as finetune does
-        states, state_names = with_harness_proprio(demos.states, demos.state_names)
-        known = None if demos.known is None else np.pad(demos.known, ((0, 0), (0, len(HARNESS_PROPRIO_NAMES))),
-                                                        constant_values=True)
-        demos = replace(demos, states=states, state_names=state_names, known=known)
+        demos = demos.with_harness_proprio()
     rng = np.random.default_rng(args.seed)
     is_val = np.isin(demos.episodes, validation_episodes(demos.episodes, args.validation_fraction, rng))
     held = np.flatnonzero({"validation": is_val, "training": ~is_val, "all": np.ones_like(is_val)}[args.split])

@@ -10,12 +10,11 @@ from __future__ import annotations
 
 import argparse
 import re
-from dataclasses import replace
 
 import numpy as np
 import torch
 
-from sb3_memret.controllers.harness_proprio import HARNESS_PROPRIO_NAMES, reads_harness_proprio, with_harness_proprio
+from sb3_memret.controllers.harness_proprio import reads_harness_proprio
 from sb3_memret.controllers.learned import LearnedPolicy
 from sb3_memret.controllers.learned.processing import LearnedPolicyProcessor, PromptTokenizer
 from sb3_memret.stage1.datasets import load_task_demonstrations
@@ -33,10 +32,7 @@ def main() -> None:
     policy = LearnedPolicy.from_pretrained(args.checkpoint).eval()
     demos, _ = load_task_demonstrations({TASK: args.datasets})
     if reads_harness_proprio(policy.config.state_names):
-        states, names = with_harness_proprio(demos.states, demos.state_names)
-        known = None if demos.known is None else np.pad(demos.known, ((0, 0), (0, len(HARNESS_PROPRIO_NAMES))),
-                                                        constant_values=True)
-        demos = replace(demos, states=states, state_names=names, known=known)
+        demos = demos.with_harness_proprio()
     prompts = [demos.tasks[i] for i in demos.task_ids]
     counts = np.array([int(m[1]) if (m := COUNT.search(p)) else -1 for p in prompts])
     told = np.flatnonzero(counts >= 0)
@@ -61,12 +57,14 @@ def main() -> None:
     for low in range(0, 110, 10):
         rows = (counts[told] >= low) & (counts[told] < low + 10)
         if rows.any():
-            print(f"| {low}-{low + 9} | {int(rows.sum())} | {expert_dz[rows].mean():+.2f} | {policy_dz[rows].mean():+.2f} | "
-                  f"{int(opens_expert[rows].sum())} | {int(opens_policy[rows].sum())} |")
+            print(f"| {low}-{low + 9} | {int(rows.sum())} | {expert_dz[rows].mean():+.2f} | "
+                  f"{policy_dz[rows].mean():+.2f} | {int(opens_expert[rows].sum())} | "
+                  f"{int(opens_policy[rows].sum())} |")
     late = counts[told] >= 90
     print("\nframes at counts 90 and over (count, expert's z, policy's z):")
     for i in np.flatnonzero(late):
         print(f"  {counts[told][i]} {expert_dz[i]:+.2f} {policy_dz[i]:+.2f}")
+
 
 if __name__ == "__main__":
     main()

@@ -9,12 +9,13 @@ episodes' hands end, and ``validation_episodes`` draws the held-out episodes.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Iterator, Mapping, Sequence
 
 import numpy as np
 
+from sb3_memret.controllers.harness_proprio import HARNESS_PROPRIO_NAMES, with_harness_proprio
 from sb3_memret.controllers.learned.processing import state_columns
 from sb3_memret.controllers.observation import ACTION_CHUNK_KEY, ACTION_DIM, ACTION_KEY, CHUNK_PAD_KEY, IMAGE_KEYS, STATE_KEY
 from sb3_memret.tasks import Task, make_task
@@ -110,6 +111,14 @@ class Demonstrations:
             raise ValueError(f"the datasets hold chunks of {self.chunks.shape[1]} labels; the policy predicts "
                              f"{chunk_len}: lower chunk_len or record longer chunks")
         return self.chunks[:, :chunk_len], self.chunk_pad[:, :chunk_len]
+
+    def with_harness_proprio(self) -> "Demonstrations":
+        """These frames with MIKASA's harness proprioception appended to their state (derived from the hand pose and
+        fingers, ``with_harness_proprio``), known in every frame: what a controller on the harness's inputs reads."""
+        states, names = with_harness_proprio(self.states, self.state_names)
+        known = None if self.known is None else np.c_[self.known, np.ones((len(states), len(HARNESS_PROPRIO_NAMES)),
+                                                                          dtype=bool)]
+        return replace(self, states=states, state_names=names, known=known)
 
     def last_frames(self) -> np.ndarray:
         """The index of each episode's last frame (episodes are runs of equal ids in ``episodes``)."""

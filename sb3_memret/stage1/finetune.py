@@ -37,7 +37,7 @@ import numpy as np
 import torch
 
 from sb3_memret.common.cache import write_atomically
-from sb3_memret.controllers.harness_proprio import HARNESS_PROPRIO_NAMES, SOURCE_NAMES, with_harness_proprio
+from sb3_memret.controllers.harness_proprio import HARNESS_PROPRIO_NAMES, SOURCE_NAMES
 from sb3_memret.controllers.learned.configuration import LearnedPolicyConfig, perceived_objects
 from sb3_memret.controllers.learned.modeling import LearnedPolicy, TrainingBatch, pointer_ambiguity
 from sb3_memret.controllers.learned.processing import (LearnedPolicyProcessor, PromptTokenizer, channels_first,
@@ -168,10 +168,7 @@ def finetune(
     check_dataset_prompts(datasets, task, config)
     tasks, demos = _load(datasets, task)
     if state == "harness":
-        states, names = with_harness_proprio(demos.states, demos.state_names)
-        known = None if demos.known is None else np.c_[demos.known, np.ones((len(states), len(HARNESS_PROPRIO_NAMES)),
-                                                                            dtype=bool)]
-        demos = replace(demos, states=states, state_names=names, known=known)
+        demos = demos.with_harness_proprio()
     config = config or default_config(tasks)
     torch.manual_seed(settings.seed)
     rng = np.random.default_rng(settings.seed)
