@@ -262,17 +262,18 @@ def test_a_frozen_trunks_features_are_cached_per_dataset_and_train_the_same_poli
     assert all(torch.equal(weights[0][key], other[key]) for other in weights[1:] for key in weights[0])
 
 
-def test_a_stopped_finetune_resumes_to_the_weights_of_one_never_stopped(camera_demos, tmp_path):
+@pytest.mark.parametrize("priority", [0.0, 1.0])
+def test_a_stopped_finetune_resumes_to_the_weights_of_one_never_stopped(camera_demos, tmp_path, priority):
     """Stopped after step 7, a finetune keeps its state; resumed, it trains the very same weights as a run that was
-    never stopped (its optimiser, schedule, batches and pixel shifts go on where they were) and logs every step once.
-    A folder with an unfinished run is not overwritten, and other settings cannot resume it."""
+    never stopped (its optimiser, schedule, batches, frame errors and pixel shifts go on where they were) and logs
+    every step once. A folder with an unfinished run is not overwritten, and other settings cannot resume it."""
     from safetensors.torch import load_file
 
     from sb3_memret.stage1.finetune import STATE_FILE
 
     config = LearnedPolicyConfig(hidden_dim=32, n_layers=1, text_dim=16, text_heads=2, image_encoder="cnn",
                                  image_dim=8, keypoints=8)
-    settings = FinetuneSettings(steps=12, batch_size=8)
+    settings = FinetuneSettings(steps=12, batch_size=8, priority=priority)
     whole = finetune([camera_demos], tmp_path / "whole", config, settings, state="proprio")
     assert not (whole / STATE_FILE).exists()
 

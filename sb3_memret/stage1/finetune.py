@@ -47,6 +47,7 @@ from sb3_memret.controllers.prompts import PromptTemplate, parse_prompt
 from sb3_memret.stage1.datasets import (CameraFrames, Demonstrations, dataset_prompts, hindsight_objects,
                                         load_demonstrations, load_task_demonstrations, validation_episodes)
 from sb3_memret.stage1.feature_cache import cached_features
+from sb3_memret.stage1.sampling import FrameSampler
 from sb3_memret.tasks import Task, make_task
 
 LOG_FILE = "train_log.csv"
@@ -76,12 +77,15 @@ class FinetuneSettings:
     # weight of the pointer's hindsight loss: a cross-entropy between each training prompt's pointer weights and the
     # object its demonstrations' hands end nearest (``hindsight_objects``); 0 leaves the pointer to the action loss
     pointer_hindsight: float = 0.0
+    # how batches are drawn (``FrameSampler``): 0 uniformly; p > 0 each frame with probability proportional to
+    # (its last action error + the mean error) ** p, so that a rare phase the policy gets wrong is drawn more often
+    priority: float = 0.0
 
     def __post_init__(self) -> None:
         if self.steps < 1 or self.batch_size < 1 or self.learning_rate <= 0 or min(
-                self.image_shift, self.perception_coef, self.pointer_hindsight) < 0:
-            raise ValueError(f"steps and batch_size must be >= 1, learning_rate > 0, image_shift, perception_coef "
-                             f"and pointer_hindsight >= 0: {self}")
+                self.image_shift, self.perception_coef, self.pointer_hindsight, self.priority) < 0:
+            raise ValueError(f"steps and batch_size must be >= 1, learning_rate > 0, image_shift, perception_coef, "
+                             f"pointer_hindsight and priority >= 0: {self}")
         if not 0 <= self.validation_fraction < 1:
             raise ValueError(f"validation_fraction must lie in [0, 1), got {self.validation_fraction}")
 
@@ -359,20 +363,22 @@ def _train(model: LearnedPolicy, data: DemoTensors, settings: FinetuneSettings, 
     schedule = torch.optim.lr_scheduler.LambdaLR(
         optimizer, lambda step: 0.5 * (1 + math.cos(math.pi * min(step, settings.steps) / settings.steps)))
     weights = torch.tensor([1.0, settings.perception_coef, settings.pointer_hindsight])
-    losses_on = lambda idx: model.losses(data.batch(idx, augment=model.training))  # noqa: E731
+    losses_on = lambda idx: model.losses(data.batch(idx, augment=model.training))[0]  # noqa: E731
+    sampler = FrameSampler(data.train_idx, settings.priority)
     perceived = data.perceived is not None
     log_every = max(1, settings.steps // 50)
     run = _run_fingerprint(model.config, settings, data.spans, len(data.train_idx))
     state_path, done, elapsed = out / STATE_FILE, 0, 0.0
     if resume:
-        done, elapsed = _load_training_state(state_path, run, model, optimizer, schedule, rng, data.shifts)
+        done, elapsed = _load_training_state(state_path, run, model, optimizer, schedule, rng, data.shifts, sampler)
     started = time.monotonic() - elapsed
     with _open_log(out / LOG_FILE, done) as f:
         log = csv.writer(f)
         model.train()
         for step in range(done + 1, settings.steps + 1):
-            batch = rng.choice(data.train_idx, size=min(settings.batch_size, len(data.train_idx)), replace=False)
-            losses = losses_on(batch)
+            batch = sampler.draw(rng, settings.batch_size)
+            losses, errors = model.losses(data.batch(batch, augment=True))
+            sampler.update(batch, errors.numpy())
             loss = (weights * losses).sum()
             optimizer.zero_grad(set_to_none=True)
             loss.backward()
@@ -388,7 +394,7 @@ def _train(model: LearnedPolicy, data: DemoTensors, settings: FinetuneSettings, 
                 f.flush()
                 if step < settings.steps:
                     _save_training_state(state_path, run, step, time.monotonic() - started, model, optimizer,
-                                         schedule, rng, data.shifts)
+                                         schedule, rng, data.shifts, sampler)
 
 
 def _ambiguity(model: LearnedPolicy, data: DemoTensors) -> str:
@@ -423,18 +429,18 @@ def _run_fingerprint(config: LearnedPolicyConfig, settings: FinetuneSettings, sp
 
 def _save_training_state(path: Path, run: str, step: int, elapsed: float, model: LearnedPolicy,
                          optimizer: torch.optim.Optimizer, schedule: torch.optim.lr_scheduler.LRScheduler,
-                         rng: np.random.Generator, shifts: torch.Generator) -> None:
+                         rng: np.random.Generator, shifts: torch.Generator, sampler: FrameSampler) -> None:
     """Write the run's state at ``step`` atomically (a run stopped while writing keeps the previous one)."""
     state = {"run": run, "step": step, "elapsed": elapsed, "model": model.state_dict(),
              "optimizer": optimizer.state_dict(), "schedule": schedule.state_dict(),
              "numpy_rng": json.dumps(rng.bit_generator.state), "torch_rng": torch.get_rng_state(),
-             "shifts": shifts.get_state()}
+             "shifts": shifts.get_state(), "frame_errors": torch.from_numpy(sampler.state())}
     write_atomically(path, lambda f: torch.save(state, f))
 
 
 def _load_training_state(path: Path, run: str, model: LearnedPolicy, optimizer: torch.optim.Optimizer,
                          schedule: torch.optim.lr_scheduler.LRScheduler, rng: np.random.Generator,
-                         shifts: torch.Generator) -> tuple[int, float]:
+                         shifts: torch.Generator, sampler: FrameSampler) -> tuple[int, float]:
     """Restore a run's state from ``path`` into the objects given; (its step, seconds trained). A ValueError when
     it was written by a run on other data or settings."""
     try:
@@ -451,6 +457,7 @@ def _load_training_state(path: Path, run: str, model: LearnedPolicy, optimizer: 
     rng.bit_generator.state = json.loads(state["numpy_rng"])
     torch.set_rng_state(state["torch_rng"])
     shifts.set_state(state["shifts"])
+    sampler.load_state(state["frame_errors"].numpy())
     return int(state["step"]), float(state["elapsed"])
 
 

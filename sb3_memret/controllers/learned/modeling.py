@@ -215,17 +215,20 @@ class LearnedPolicy(nn.Module):
         """(B, state_dim) states, (B, text_dim) ``encode_prompts`` vectors, per camera ``camera_features``."""
         return self.decode(state, prompt, self.encode_cameras(camera_features, prompt))
 
-    def losses(self, batch: "TrainingBatch") -> torch.Tensor:
+    def losses(self, batch: "TrainingBatch") -> tuple[torch.Tensor, torch.Tensor]:
         """The three training terms on ``batch``: the action chunk's L1 error (``chunk_loss``), the perception head's
         MSE on the labelled perceived entries (0 without them) and the pointer's hindsight cross-entropy (0 without
-        hindsight targets); the finetune weighs and sums them."""
+        hindsight targets), which the finetune weighs and sums; and each frame's own action error (``frame_errors``,
+        detached), which a finetune sampling by error keeps."""
         encoded = self.encode_prompts(batch.tokens, batch.token_mask)
         prompt = encoded[batch.prompt_of]
         vision = self.encode_cameras(batch.cameras, prompt)
-        acting = chunk_loss(self.decode(batch.state, prompt, vision), batch.targets, batch.is_pad)
+        predicted = self.decode(batch.state, prompt, vision)
+        acting = chunk_loss(predicted, batch.targets, batch.is_pad)
         seen = (masked_mse(self.perceive(vision, batch.state), batch.perceived, batch.perceived_mask)
                 if batch.perceived is not None else acting.new_zeros(()))
-        return torch.stack([acting, seen, self.hindsight_loss(encoded, batch.pointed)])
+        terms = torch.stack([acting, seen, self.hindsight_loss(encoded, batch.pointed)])
+        return terms, frame_errors(predicted.detach(), batch.targets, batch.is_pad)
 
     def hindsight_loss(self, encoded: torch.Tensor, pointed: torch.Tensor | None) -> torch.Tensor:
         """Cross-entropy of the pointer weights of the (P, text_dim) ``encoded`` prompts against ``pointed``, each
@@ -295,3 +298,10 @@ def chunk_loss(predicted: torch.Tensor, target: torch.Tensor, is_pad: torch.Tens
     error = F.l1_loss(predicted, target, reduction="none").mean(dim=-1)
     keep = (~is_pad).float()
     return (error * keep).sum() / keep.sum().clamp(min=1.0)
+
+
+def frame_errors(predicted: torch.Tensor, target: torch.Tensor, is_pad: torch.Tensor) -> torch.Tensor:
+    """(B,) each frame's mean L1 error over its chunk steps inside the episode (0 for a chunk wholly past it)."""
+    error = F.l1_loss(predicted, target, reduction="none").mean(dim=-1)
+    keep = (~is_pad).float()
+    return (error * keep).sum(dim=1) / keep.sum(dim=1).clamp(min=1.0)

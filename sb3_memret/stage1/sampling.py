@@ -1,0 +1,67 @@
+"""How a finetune draws its training batches: uniformly, or more often the frames it still gets wrong.
+
+A phase a few frames long (TimedTransfer's set-down: 8% of one task's frames, told apart from the holding frames
+around it only by the prompt's count) is drawn as rarely as it occurs, and a policy can reach a low mean loss while
+never learning it. With ``priority`` > 0 each training frame is drawn with probability proportional to
+``(error + mean error) ** priority``, its error being its action error when it was last drawn (frames not yet drawn
+count as the largest error seen, so every frame is visited early): the frames the policy gets wrong are drawn more
+often, and an easy frame is still drawn at least about half as often as an average one (the mean error added).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+class FrameSampler:
+    """Draws batches of training frames (``frames``: their indices) and keeps each frame's last action error."""
+
+    def __init__(self, frames: np.ndarray, priority: float = 0.0):
+        if priority < 0:
+            raise ValueError(f"priority must be >= 0 (0: uniform sampling), got {priority}")
+        if len(frames) == 0:
+            raise ValueError("a frame sampler needs at least one training frame")
+        self.frames = np.sort(frames)  # a finetune's training split comes sorted: the same draws as from it
+        self.priority = float(priority)
+        self.errors = np.full(len(self.frames), np.nan)  # each frame's last action error; NaN: not drawn yet
+
+    def draw(self, rng: np.random.Generator, size: int) -> np.ndarray:
+        """``size`` distinct frames (all of them when fewer), uniformly or by error."""
+        size = min(size, len(self.frames))
+        if self.priority == 0:
+            return rng.choice(self.frames, size=size, replace=False)
+        return rng.choice(self.frames, size=size, replace=False, p=self.probabilities())
+
+    def probabilities(self) -> np.ndarray:
+        """Each frame's chance of being drawn by a priority sampler: ``(error + mean error) ** priority``,
+        normalised; a frame not drawn yet counts the largest error seen (1 before any)."""
+        seen = ~np.isnan(self.errors)
+        errors = np.where(seen, self.errors, self.errors[seen].max() if seen.any() else 1.0)
+        weights = (errors + errors.mean() + 1e-12) ** self.priority
+        return weights / weights.sum()
+
+    def update(self, frames: np.ndarray, errors: np.ndarray) -> None:
+        """Record the action errors of ``frames`` (drawn by ``draw``); a uniform sampler keeps none."""
+        if self.priority == 0:
+            return
+        if len(frames) != len(errors):
+            raise ValueError(f"{len(frames)} frames but {len(errors)} errors")
+        at = np.searchsorted(self.frames, frames)
+        if (at >= len(self.frames)).any() or (self.frames[np.minimum(at, len(self.frames) - 1)] != frames).any():
+            raise ValueError("errors given for frames outside the training split")
+        self.errors[at] = errors
+
+    def state(self) -> np.ndarray:
+        """What a resumed finetune restores (``load_state``): the frames' last errors."""
+        return self.errors.copy()
+
+    def load_state(self, errors: np.ndarray) -> None:
+        """Restore the errors ``state`` gave; a ValueError when they are of another training split."""
+        errors = np.asarray(errors, dtype=float)
+        if errors.shape != self.errors.shape:
+            raise ValueError(f"the saved frame errors are for {errors.shape[0]} training frames, this split has "
+                             f"{self.errors.shape[0]}")
+        self.errors = errors.copy()
+
+
+__all__ = ["FrameSampler"]
