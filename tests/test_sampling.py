@@ -42,6 +42,10 @@ def test_a_stronger_priority_favours_the_wrong_frames_more():
         sampler.update(frames, np.r_[np.full(9, 0.1), 1.0])
         shares.append(sampler.probabilities()[-1])
     assert shares[0] < shares[1] < shares[2]
+    sampler = FrameSampler(frames, priority=8.0)  # one frame holds almost all the weight: the rest are topped up
+    sampler.update(frames, np.r_[np.full(9, 0.01), 100.0])
+    batch = sampler.draw(np.random.default_rng(1), 9)
+    assert len(set(batch)) == 9 and 9 in batch
 
 
 def test_the_errors_round_trip_and_bad_input_is_refused():

@@ -23,21 +23,30 @@ class FrameSampler:
             raise ValueError("a frame sampler needs at least one training frame")
         self.frames = np.sort(frames)  # a finetune's training split comes sorted: the same draws as from it
         self.priority = float(priority)
-        self.errors = np.full(len(self.frames), np.nan)  # each frame's last action error; NaN: not drawn yet
+        self.load_state(np.full(len(self.frames), np.nan))
 
     def draw(self, rng: np.random.Generator, size: int) -> np.ndarray:
         """``size`` distinct frames (all of them when fewer), uniformly or by error."""
         size = min(size, len(self.frames))
         if self.priority == 0:
             return rng.choice(self.frames, size=size, replace=False)
-        return rng.choice(self.frames, size=size, replace=False, p=self.probabilities())
+        weights = self.weights()
+        picked = np.empty(0, dtype=np.int64)
+        while len(picked) < size:  # draw with replacement, keep the distinct ones, top up from the rest
+            cdf = np.cumsum(weights)
+            drawn = cdf.searchsorted(rng.random(size - len(picked)) * cdf[-1], side="right")
+            picked = np.union1d(picked, np.minimum(drawn, len(cdf) - 1))
+            weights[picked] = 0.0
+        return self.frames[picked]
+
+    def weights(self) -> np.ndarray:
+        """Each frame's unnormalised chance of being drawn: ``(error + mean error) ** priority``, a frame not drawn
+        yet counting the largest error seen (1 before any)."""
+        return (self._filled + self._filled.mean() + 1e-12) ** self.priority
 
     def probabilities(self) -> np.ndarray:
-        """Each frame's chance of being drawn by a priority sampler: ``(error + mean error) ** priority``,
-        normalised; a frame not drawn yet counts the largest error seen (1 before any)."""
-        seen = ~np.isnan(self.errors)
-        errors = np.where(seen, self.errors, self.errors[seen].max() if seen.any() else 1.0)
-        weights = (errors + errors.mean() + 1e-12) ** self.priority
+        """``weights``, normalised."""
+        weights = self.weights()
         return weights / weights.sum()
 
     def update(self, frames: np.ndarray, errors: np.ndarray) -> None:
@@ -49,19 +58,26 @@ class FrameSampler:
         at = np.searchsorted(self.frames, frames)
         if (at >= len(self.frames)).any() or (self.frames[np.minimum(at, len(self.frames) - 1)] != frames).any():
             raise ValueError("errors given for frames outside the training split")
-        self.errors[at] = errors
+        first = self._largest is None
+        self._unseen[at] = False
+        self._filled[at] = errors
+        if len(errors) and (first or np.max(errors) > self._largest):  # frames not drawn yet: the largest seen
+            self._largest = float(np.max(errors))
+            self._filled[self._unseen] = self._largest
 
     def state(self) -> np.ndarray:
-        """What a resumed finetune restores (``load_state``): the frames' last errors."""
-        return self.errors.copy()
+        """What a resumed finetune restores (``load_state``): the frames' last errors (NaN: not drawn yet)."""
+        return np.where(self._unseen, np.nan, self._filled)
 
     def load_state(self, errors: np.ndarray) -> None:
         """Restore the errors ``state`` gave; a ValueError when they are of another training split."""
         errors = np.asarray(errors, dtype=float)
-        if errors.shape != self.errors.shape:
+        if errors.shape != self.frames.shape:
             raise ValueError(f"the saved frame errors are for {errors.shape[0]} training frames, this split has "
-                             f"{self.errors.shape[0]}")
-        self.errors = errors.copy()
+                             f"{self.frames.shape[0]}")
+        self._unseen = np.isnan(errors)
+        self._largest = float(errors[~self._unseen].max()) if (~self._unseen).any() else None  # None: none seen
+        self._filled = np.where(self._unseen, 1.0 if self._largest is None else self._largest, errors)
 
 
 __all__ = ["FrameSampler"]
