@@ -293,15 +293,16 @@ def masked_mse(predicted: torch.Tensor, target: torch.Tensor, mask: torch.Tensor
     return ((predicted - target) ** 2 * weight).sum() / weight.sum().clamp_min(1.0)
 
 
+def step_errors(predicted: torch.Tensor, target: torch.Tensor, is_pad: torch.Tensor) -> torch.Tensor:
+    """(B, H) each chunk step's L1 error over the action, 0 at the steps past the episode's end (``is_pad``)."""
+    return F.l1_loss(predicted, target, reduction="none").mean(dim=-1) * (~is_pad).float()
+
+
 def chunk_loss(predicted: torch.Tensor, target: torch.Tensor, is_pad: torch.Tensor) -> torch.Tensor:
     """Mean L1 error over the chunk steps that lie inside the episode (``is_pad`` (B, H) marks the rest)."""
-    error = F.l1_loss(predicted, target, reduction="none").mean(dim=-1)
-    keep = (~is_pad).float()
-    return (error * keep).sum() / keep.sum().clamp(min=1.0)
+    return step_errors(predicted, target, is_pad).sum() / (~is_pad).sum().clamp(min=1)
 
 
 def frame_errors(predicted: torch.Tensor, target: torch.Tensor, is_pad: torch.Tensor) -> torch.Tensor:
     """(B,) each frame's mean L1 error over its chunk steps inside the episode (0 for a chunk wholly past it)."""
-    error = F.l1_loss(predicted, target, reduction="none").mean(dim=-1)
-    keep = (~is_pad).float()
-    return (error * keep).sum(dim=1) / keep.sum(dim=1).clamp(min=1.0)
+    return step_errors(predicted, target, is_pad).sum(dim=1) / (~is_pad).sum(dim=1).clamp(min=1)
