@@ -122,8 +122,9 @@ def test_each_task_names_its_default_controller():
     assert make_task("drawer").default_controller == "learned"  # the main job reads cameras
     assert make_task("RememberColor3-VLA-v0").default_controller == "learned"  # its shipped camera controller
     assert make_task("InterceptFast-VLA-v0").default_controller == "learned"
+    assert make_task("TimedTransferEasy-VLA-v0").default_controller == "learned"  # sets down in the window now
     # the one camera controller reads these prompts but does not yet do the tasks: their experts
-    for task in ("SeqOfColors3-VLA-v0", "TimedTransferEasy-VLA-v0", "RotateStrictPos-VLA-v0"):
+    for task in ("SeqOfColors3-VLA-v0", "RotateLenientPos-VLA-v0", "RotateStrictPos-VLA-v0"):
         assert "learned" in shipped_names(task)
         assert make_task(task).default_controller == "scripted"
 
