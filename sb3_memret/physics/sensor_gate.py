@@ -4,7 +4,8 @@ ManiSkill renders every camera into every observation of an ``rgb`` env. A contr
 decisions, and a writer only while something can be seen (``Task.perception_window``); physics never reads the
 renderer, so the other renders are pure cost. ``SensorGate`` is installed once on a base env (``of``): while it is
 closed, an observation carries the images last rendered; open with ``cameras`` named, it renders those alone (the
-writer's camera on a step only the writer reads) and the others carry their last images.
+writer's camera on a step only the writer reads) and the others carry their last images. Each picture it takes
+draws only the bodies its camera can see (``frustum_cull``).
 """
 
 from __future__ import annotations
@@ -13,6 +14,8 @@ from contextlib import AbstractContextManager, contextmanager
 from typing import Any, Callable, Iterator
 
 import gymnasium as gym
+
+from sb3_memret.physics.frustum_cull import FrustumCull
 
 
 class SensorGate:
@@ -28,6 +31,7 @@ class SensorGate:
         self._render = base._get_obs_sensor_data
         self._last: dict[str, dict[str, Any]] | None = None
         base._get_obs_sensor_data = self._sensor_data
+        FrustumCull(base).install()  # and each camera draws only what it can see
 
     @classmethod
     def of(cls, env: gym.Env) -> "SensorGate":
