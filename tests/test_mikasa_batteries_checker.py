@@ -12,8 +12,9 @@ pytest.importorskip("mikasa_robo_suite.vla.memory_envs", reason=MIKASA_MISSING)
 from sb3_memret.controllers.prompts import build_prompt, parse_prompt  # noqa: E402
 from sb3_memret.tasks import check_task_name, make_task, task_names  # noqa: E402
 from sb3_memret.tasks.base import EnvFrame  # noqa: E402
+from sb3_memret.memory.schema import MemoryEntry  # noqa: E402
 from sb3_memret.tasks.mikasa.batteries_checker.checklist import (  # noqa: E402
-    checklist_fact, checklist_value, parse_checklist, stated_checklist,
+    CHECK_ENTITY, CHECK_RELATION, checklist_fact, checklist_value, parse_checklist, stated_checklist,
 )
 from sb3_memret.tasks.mikasa.batteries_checker.task import (  # noqa: E402
     EASY_INSTRUCTION, HARD_INSTRUCTION, PROMPT_TEMPLATE, VARIANTS,
@@ -75,6 +76,25 @@ def test_the_conditions_word_mikasas_counters_at_each_decision():
     later = EnvFrame({}, {"checked": (1, 2), "working": (2,)}, None, False)
     assert task.facts_now("oracle", episode, later, 90) == ["the battery check found slot 1 dead and slot 2 working."]
     assert task.facts_now("wrong", episode, later, 90) == ["the battery check found slot 3 working."]
+
+
+def test_the_memory_needed_is_the_checklist_right_so_far():
+    """The checklist grows as the robot works: a partial one whose every check is right is the memory the
+    controller needs (what retrieval is scored by), a wrong check or another thing's list is not."""
+    task = make_task(EASY)
+    episode = task.episode(EnvFrame({}, {"checked": (), "working": (2,)}, None, False))
+    key = task.cue_key
+
+    def entry(value, entity=CHECK_ENTITY):
+        return MemoryEntry.create(key[0], entity, CHECK_RELATION, value, 0)
+
+    assert entry("slot 1 dead").key == key
+    for value in ("slot 1 dead", "slot 2 working", "slot 1 dead and slot 3 dead",
+                  "slot 1 dead and slot 2 working and slot 3 dead"):
+        assert episode.is_true(entry(value)), value
+    for value in ("slot 1 working", "slot 1 dead and slot 2 dead", "slot 4 dead"):
+        assert not episode.is_true(entry(value)), value
+    assert not episode.is_true(entry("slot 1 dead", entity="fuse check"))
 
 
 def test_every_variant_has_a_zoo_section_naming_it():
@@ -209,9 +229,8 @@ def test_other_checks_are_of_the_moment_and_the_batteries_checklist_of_the_episo
     stores and the one bank hold the same slots."""
     from pathlib import Path
 
-    from sb3_memret.memory.schema import MemoryEntry, MemoryType
+    from sb3_memret.memory.schema import MemoryType
     from sb3_memret.memory.seeding import SeedingConfig
-    from sb3_memret.tasks.mikasa.batteries_checker.checklist import CHECK_ENTITY, CHECK_RELATION
     from sb3_memret.training.config import load_config
 
     env_id = "BatteriesCheckerEasy-6-VLA-v0"

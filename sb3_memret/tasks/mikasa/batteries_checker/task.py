@@ -39,6 +39,7 @@ was not.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
 from typing import Any, ClassVar, Mapping, NamedTuple
 
 import gymnasium as gym
@@ -51,6 +52,7 @@ from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.tasks.base import EnvFrame, Episode
 from sb3_memret.tasks.mikasa.batteries_checker.checklist import (
     CHECK_ENTITY, CHECK_RELATION, CHECKLIST_PATTERN, FACT_TEMPLATE, FIELD, checklist_fact, checklist_value,
+    parse_checklist,
 )
 from sb3_memret.tasks.mikasa.batteries_checker.expert import BatteryCheckController
 from sb3_memret.tasks.mikasa.batteries_checker.observation import BatteryObservation
@@ -67,6 +69,20 @@ HARD_INSTRUCTION = ("find all working batteries by inserting each one into the s
                     "returning it from the socket to its initial slot, and then pressing the button to confirm.")
 PROMPT_TEMPLATE = PromptTemplate(instructions=(EASY_INSTRUCTION, HARD_INSTRUCTION), fact_templates=(FACT_TEMPLATE,),
                                  fields=((FIELD, CHECKLIST_PATTERN),))
+
+
+@dataclass(frozen=True)
+class ChecklistEpisode(Episode):
+    """A BatteriesChecker episode's ground truth: the checklist grows as the robot works, so the memory it needs is
+    the batteries' checklist whose every check is right (``slot 1 dead`` while only slot 1 is checked), not only
+    the whole list it ends with."""
+
+    def is_true(self, entry: MemoryEntry) -> bool:
+        ((key, final),) = self.true_facts
+        if entry.key != key:
+            return False
+        truth = parse_checklist(final)
+        return all(truth.get(slot) == works for slot, works in parse_checklist(entry.value).items())
 
 
 class BatteryVariant(NamedTuple):
@@ -147,7 +163,8 @@ class BatteriesCheckerTask(MikasaCueTask):
         """The whole checklist is the fact to end with; the group is the working batteries' slots."""
         working = frame.state["working"]
         final = checklist_value({slot: slot in working for slot in range(1, self.variant.batteries + 1)})
-        return Episode(CHECK_ENTITY, " ".join(map(str, working)), ((self.cue_key, final),), {"working": working})
+        return ChecklistEpisode(CHECK_ENTITY, " ".join(map(str, working)), ((self.cue_key, final),),
+                                {"working": working})
 
     def seed_memories(self, frame: EnvFrame, episode: Episode, rng: np.random.Generator, seeding: SeedingConfig,
                       facts: bool = True) -> list[MemoryEntry]:
