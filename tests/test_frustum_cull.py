@@ -9,7 +9,7 @@ import numpy as np
 import pytest
 
 from mikasa_support import MIKASA_MISSING
-from sb3_memret.physics.frustum_cull import FrustumCull, box_outside, cullable, mesh_outside, outside_planes
+from sb3_memret.physics.frustum_cull import FrustumCull, boxes_outside, cullable, mesh_outside, outside_planes
 
 # an OpenGL perspective projection (90 degree field of view, near 0.1, far 10), the camera at the origin looking -z
 NEAR, FAR = 0.1, 10.0
@@ -36,14 +36,19 @@ def test_each_point_names_the_planes_it_lies_outside():
 
 
 def test_a_box_is_culled_only_when_wholly_outside_one_plane():
-    assert not box_outside(box([-0.5, -0.5, -2], [0.5, 0.5, -1]))  # in front
-    assert not box_outside(box([-5, -0.5, -2], [0.5, 0.5, -1]))  # across the left plane
-    assert not box_outside(box([-1, -1, -1], [1, 1, 1]))  # around the camera
-    assert box_outside(box([-0.5, -0.5, 1], [0.5, 0.5, 2]))  # behind
-    assert box_outside(box([5, -0.5, -2], [6, 0.5, -1]))  # to the right
-    assert box_outside(box([-0.5, -0.5, -30], [0.5, 0.5, -20]))  # beyond the far plane
-    # outside the left and the top plane together but wholly outside neither: kept (conservative)
-    assert not box_outside(box([-8, -0.5, -2], [-1.5, 8, -1.9]))
+    boxes = {
+        "in front": ([-0.5, -0.5, -2], [0.5, 0.5, -1]),
+        "across the left plane": ([-5, -0.5, -2], [0.5, 0.5, -1]),
+        "around the camera": ([-1, -1, -1], [1, 1, 1]),
+        # outside the left and the top plane together but wholly outside neither: kept (conservative)
+        "in the left-top corner region": ([-8, -0.5, -2], [-1.5, 8, -1.9]),
+        "behind": ([-0.5, -0.5, 1], [0.5, 0.5, 2]),
+        "to the right": ([5, -0.5, -2], [6, 0.5, -1]),
+        "beyond the far plane": ([-0.5, -0.5, -30], [0.5, 0.5, -20]),
+    }
+    culled = boxes_outside(np.stack([box(*corners) for corners in boxes.values()]))
+    assert dict(zip(boxes, culled.tolist())) == {name: name in ("behind", "to the right", "beyond the far plane")
+                                                 for name in boxes}
 
 
 def test_a_mesh_is_culled_only_when_every_triangle_lies_outside_one_plane():

@@ -5,7 +5,7 @@ alone has 425,160, none ever in the wrist camera's own view, and the arm's links
 picture, every render body it cannot see is made invisible (``visibility`` 0, which the renderer skips when it
 records the picture) and restored after: a body whose bounding box lies wholly outside the camera's view frustum,
 or one fixed to the camera itself (whose box holds the camera) none of whose triangles lies in view, found once per
-scene. Such a body covers no pixel, and with rasterised shading and no shadows it changes no other pixel either, so
+process for each such geometry. Such a body covers no pixel, and with rasterised shading and no shadows it changes no other pixel either, so
 culling applies only there (``cullable``) and leaves every other scene as ManiSkill renders it.
 """
 
@@ -21,20 +21,26 @@ _CORNERS = np.array([[x, y, z] for x in (0, 1) for y in (0, 1) for z in (0, 1)],
 
 
 PLANES = 6  # left, right, bottom, top, near, far
+# whether each (camera, body fixed to it) pair is never in view, by their geometry: the same robot in every scene
+# (a scene built anew at each reset) is checked triangle by triangle once per process
+_NEVER_IN_VIEW: dict[tuple, bool] = {}
 
 
 def outside_planes(clip: np.ndarray) -> np.ndarray:
-    """Per point of ``clip`` (homogeneous clip coordinates, N x 4), a bit mask of the frustum planes it lies outside
-    (bit i: plane i of ``PLANES``)."""
-    x, y, z, w = clip.T
-    sides = np.stack([w + x, w - x, w + y, w - y, w + z, w - z], axis=1) < 0
-    return (sides * (1 << np.arange(PLANES))).sum(axis=1)
+    """Per point of ``clip`` (homogeneous clip coordinates, ... x 4), a bit mask of the frustum planes it lies
+    outside (bit i: plane i of ``PLANES``)."""
+    x, y, z, w = np.moveaxis(clip, -1, 0)
+    mask = np.zeros(x.shape, dtype=np.uint8)
+    for bit, side in enumerate((w + x, w - x, w + y, w - y, w + z, w - z)):
+        mask |= (side < 0).astype(np.uint8) << np.uint8(bit)
+    return mask
 
 
-def box_outside(clip_corners: np.ndarray) -> bool:
-    """Whether a box whose eight corners are ``clip_corners`` lies wholly outside one plane of the frustum: then no
-    part of it reaches a pixel (conservative: a box across a plane's corner region stays drawn)."""
-    return bool(np.bitwise_and.reduce(outside_planes(clip_corners)))
+def boxes_outside(clip_corners: np.ndarray) -> np.ndarray:
+    """Per box (``clip_corners``: B x 8 x 4, each box's corners in clip coordinates), whether it lies wholly outside
+    one plane of the frustum: then no part of it reaches a pixel (conservative: a box across a plane's corner region
+    stays drawn)."""
+    return np.bitwise_and.reduce(outside_planes(clip_corners), axis=1) != 0
 
 
 def mesh_outside(clip: np.ndarray, triangles: np.ndarray) -> bool:
@@ -48,22 +54,46 @@ def view_to_clip(camera: Any) -> np.ndarray:
     return camera.get_projection_matrix() @ np.linalg.inv(camera.get_model_matrix())
 
 
-def never_in_view(camera: Any, body: Any) -> bool:
-    """Whether ``body``, fixed to the camera's own entity (so it moves with it), has no triangle in the camera's
-    view: the wrist camera's own mount. Checked triangle by triangle, once per scene."""
+def _mount_key(camera: Any, body: Any) -> tuple | None:
+    """What decides whether ``body`` fixed to ``camera``'s entity is in its view: the camera's projection and pose on
+    the entity, each mesh's file, scale and pose on it; None where a shape is not a mesh read from a file."""
     from sapien.render import RenderShapeTriangleMesh
 
+    shapes = []
+    for shape in body.render_shapes:
+        if not isinstance(shape, RenderShapeTriangleMesh) or not shape.filename:
+            return None
+        shapes.append((shape.filename, tuple(shape.scale), tuple(shape.local_pose.p), tuple(shape.local_pose.q)))
+    pose = camera.local_pose
+    return (tuple(camera.get_projection_matrix().ravel()), tuple(pose.p), tuple(pose.q), tuple(shapes))
+
+
+def never_in_view(camera: Any, body: Any) -> bool:
+    """Whether ``body``, fixed to the camera's own entity (so it moves with it), has no triangle in the camera's
+    view: the wrist camera's own mount. Checked triangle by triangle once per geometry (``_mount_key``)."""
+    from sapien.render import RenderShapeTriangleMesh
+
+    key = _mount_key(camera, body)
+    if key is not None and key in _NEVER_IN_VIEW:
+        return _NEVER_IN_VIEW[key]
     to_clip = view_to_clip(camera) @ body.entity.pose.to_transformation_matrix()
+    unseen = True
     for shape in body.render_shapes:
         if not isinstance(shape, RenderShapeTriangleMesh):
-            return False  # a primitive shape: only its box is checked
+            unseen = False  # a primitive shape: only its box is checked
+            break
         shape_to_clip = to_clip @ shape.local_pose.to_transformation_matrix() @ np.diag([*shape.scale, 1.0])
         for part in shape.parts:
             vertices = np.asarray(part.get_vertices(), dtype=np.float64)
             clip = np.hstack([vertices, np.ones((len(vertices), 1))]) @ shape_to_clip.T
             if not mesh_outside(clip, np.asarray(part.get_triangles(), dtype=np.int64)):
-                return False
-    return True
+                unseen = False
+                break
+        if not unseen:
+            break
+    if key is not None:
+        _NEVER_IN_VIEW[key] = unseen
+    return unseen
 
 
 def cullable(env: Any) -> bool:
@@ -124,18 +154,22 @@ class FrustumCull:
     @staticmethod
     def hidden(camera: Any, bodies: list[Any], blind: list[Any]) -> list[Any]:
         """Of ``bodies``, those ``camera`` cannot see now: ``blind`` ones, and those whose box is out of its view."""
-        to_clip = view_to_clip(camera)
         out = [body for body in blind if body in bodies]
+        boxed, lows, highs = [], [], []
         for body in bodies:
             if body in blind:
                 continue
             low, high = np.asarray(body.get_global_aabb_fast(), dtype=np.float64)
-            if not (np.all(np.isfinite(low)) and np.all(np.isfinite(high))):
-                continue  # an unbounded shape (a plane) may be anywhere in view
-            corners = np.hstack([low + _CORNERS * (high - low), np.ones((8, 1))])
-            if box_outside(corners @ to_clip.T):
-                out.append(body)
+            if np.all(np.isfinite(low)) and np.all(np.isfinite(high)):  # an unbounded shape may be anywhere in view
+                boxed.append(body)
+                lows.append(low)
+                highs.append(high)
+        if boxed:
+            low, high = np.array(lows)[:, None, :], np.array(highs)[:, None, :]
+            corners = low + _CORNERS[None] * (high - low)  # (B, 8, 3)
+            clip = np.concatenate([corners, np.ones((*corners.shape[:2], 1))], axis=-1) @ view_to_clip(camera).T
+            out += [body for body, outside in zip(boxed, boxes_outside(clip)) if outside]
         return out
 
 
-__all__ = ["FrustumCull", "box_outside", "cullable", "mesh_outside", "never_in_view", "outside_planes"]
+__all__ = ["FrustumCull", "boxes_outside", "cullable", "mesh_outside", "never_in_view", "outside_planes"]
