@@ -71,29 +71,30 @@ def _mount_key(camera: Any, body: Any) -> tuple | None:
 def never_in_view(camera: Any, body: Any) -> bool:
     """Whether ``body``, fixed to the camera's own entity (so it moves with it), has no triangle in the camera's
     view: the wrist camera's own mount. Checked triangle by triangle once per geometry (``_mount_key``)."""
+    key = _mount_key(camera, body)
+    if key is None:
+        return _triangles_out_of_view(camera, body)
+    if key not in _NEVER_IN_VIEW:
+        _NEVER_IN_VIEW[key] = _triangles_out_of_view(camera, body)
+    return _NEVER_IN_VIEW[key]
+
+
+def _triangles_out_of_view(camera: Any, body: Any) -> bool:
+    """Whether every triangle of ``body``'s meshes lies wholly outside one plane of ``camera``'s frustum (a primitive
+    shape, whose box alone is known, counts as in view)."""
     from sapien.render import RenderShapeTriangleMesh
 
-    key = _mount_key(camera, body)
-    if key is not None and key in _NEVER_IN_VIEW:
-        return _NEVER_IN_VIEW[key]
     to_clip = view_to_clip(camera) @ body.entity.pose.to_transformation_matrix()
-    unseen = True
     for shape in body.render_shapes:
         if not isinstance(shape, RenderShapeTriangleMesh):
-            unseen = False  # a primitive shape: only its box is checked
-            break
+            return False
         shape_to_clip = to_clip @ shape.local_pose.to_transformation_matrix() @ np.diag([*shape.scale, 1.0])
         for part in shape.parts:
             vertices = np.asarray(part.get_vertices(), dtype=np.float64)
             clip = np.hstack([vertices, np.ones((len(vertices), 1))]) @ shape_to_clip.T
             if not mesh_outside(clip, np.asarray(part.get_triangles(), dtype=np.int64)):
-                unseen = False
-                break
-        if not unseen:
-            break
-    if key is not None:
-        _NEVER_IN_VIEW[key] = unseen
-    return unseen
+                return False
+    return True
 
 
 def cullable(env: Any) -> bool:
