@@ -201,9 +201,11 @@ learner-multitask: install renderer
 # BlinkCount Medium / Easy, where it retrieves decoys: 2, 4 and 8 of 10 at development seeds; the medium and long
 # families), one `train recall` run per task on its zoo section into LEARNERS_DIR, cheapest first; a finished task is
 # kept, an interrupted one resumes. A -Long variant plays its short task's. The tables' recall looks there first.
+# The folder is in the repository (each finished learner committed: its model, config, summary and evaluations; the
+# checkpoints and logs are ignored), so that the tables' recall cells are read and replayed on any checkout.
 # A run ends early once LEARNERS_STOP_PATIENCE held-out evaluations in a row retrieve the true memory greedily at
 # LEARNERS_STOP_AT (the zoo budgets are for the hardest seed; TimedTransferEasy was at 100% from round 5 of 12).
-LEARNERS_DIR ?= runs/learners-long-horizon
+LEARNERS_DIR ?= benchmarks/learners-long-horizon
 LEARNERS_STOP_AT ?= 1.0
 LEARNERS_STOP_PATIENCE ?= 2
 space := $(subst ,, )
