@@ -6,8 +6,9 @@ from ``plot_success``, each table names the file it came from, and the page give
 resumes) the run, rebuilt from the run's recorded protocol. The run folder's episode log (``episodes.jsonl``) adds a
 table of what was played. So does every seed sweep, a folder whose subfolders are training runs (what ``sb3-memret
 train`` writes): its table and figure come from the runs' files, beside the folder's ``about.md``, the one text
-written by hand (what the controller reads, on which seeds the settings were chosen). No figure is typed by hand: a
-figure changes only with the files.
+written by hand (what the controller reads, on which seeds the settings were chosen). So does every learners folder
+(what ``sb3-memret benchmark learners`` writes): a row a task's learner from its run's files. No figure is typed by
+hand: a figure changes only with the files.
 
 Run by ``docs/conf.py`` before Sphinx reads the pages; ``python docs/generate_results.py`` writes them alone.
 """
@@ -141,11 +142,50 @@ def run_page(root: Path, results: Path, out: Path) -> tuple[str, dict[str, Any]]
 
 
 def sweeps(root: Path) -> list[Path]:
-    """The seed sweeps under ``root/benchmarks``: folders whose subfolders are finished training runs."""
+    """The seed sweeps under ``root/benchmarks``: folders whose subfolders are finished training runs, learners
+    folders (``learners_folders``) aside."""
+    from sb3_memret.analysis.learners import is_learners_folder
     from sb3_memret.analysis.sweep import is_run
 
     folders = {run.parent.parent for run in (root / BENCHMARKS).glob("**/evaluations.jsonl") if is_run(run.parent)}
-    return sorted(folders)
+    return sorted(folder for folder in folders if not is_learners_folder(folder))
+
+
+def learners_folders(root: Path) -> list[Path]:
+    """The learners folders under ``root/benchmarks`` (``sb3-memret benchmark learners --out``)."""
+    from sb3_memret.analysis.learners import LEARNERS_FILE
+
+    return sorted(index.parent for index in (root / BENCHMARKS).glob(f"**/{LEARNERS_FILE}"))
+
+
+def learners_page(root: Path, folder: Path, out: Path) -> tuple[str, list[dict[str, Any]]]:
+    """Write the page of one learners folder into ``out``; its page name and its rows (``learner_rows``)."""
+    from sb3_memret.analysis.learners import LEARNERS_FILE, learner_rows, learners_table
+
+    rows = learner_rows(folder)
+    where = folder.relative_to(root).as_posix()
+    name = slug(folder.relative_to(root / BENCHMARKS))
+    trained = [row for row in rows if row["state"] == "trained"]
+    summaries = [json.loads((folder / row["task"] / "summary.json").read_text()) for row in trained]
+    controllers = sorted({summary.get("controller", "?") for summary in summaries})
+    settings = ""  # the command's own settings, as the first trained run recorded them
+    if summaries:
+        first = summaries[0]
+        settings = (f" --controller {first['controller']} --seed {first['seed']} --eval-episodes {first['eval_episodes']}"
+                    + (f" --stop-at-greedy {first['stop_at_greedy']} --stop-patience {first['stop_patience']}"
+                       if first.get("stop_at_greedy") is not None else ""))
+    tasks = ",".join(row["task"] for row in rows)
+    lines = [f"# Memory learners: {folder.name}", "",
+             f"Generated from the training runs committed under `{where}/` when the documentation was built: each "
+             f"task's row is its run folder's `summary.json` and `evaluations.jsonl`, the tasks its `{LEARNERS_FILE}` "
+             f"lists. One `train recall` run a task on its zoo section, serving the frozen controller "
+             f"{', '.join(f'`{c}`' for c in controllers) or '(none trained yet)'}; held-out evaluations play "
+             "development seeds, never the benchmark's protocol seeds. The tables' recall cells play these learners "
+             "(`benchmark mikasa --learners`).", "",
+             "```bash", f"sb3-memret benchmark learners --tasks {tasks}{settings} --out {where}", "```", "",
+             *learners_table(rows), "", f"Source: `{where}/*/evaluations.jsonl`, `{where}/*/summary.json`.", ""]
+    _write(out / f"{name}.md", "\n".join(lines))
+    return name, rows
 
 
 def sweep_page(root: Path, folder: Path, out: Path) -> tuple[str, list[dict[str, Any]]]:
@@ -197,6 +237,7 @@ def main(root: Path, out: Path) -> list[Path]:
     runs = sorted((root / BENCHMARKS).glob(f"**/{RESULTS_FILE}"))
     pages = [run_page(root, results, out) for results in runs]
     sweep_pages = [sweep_page(root, folder, out) for folder in sweeps(root)]
+    learner_pages = [learners_page(root, folder, out) for folder in learners_folders(root)]
     lines = ["# Results", "",
              "One page per benchmark run committed under `benchmarks/`, generated from its `results.json` when the "
              "documentation is built (`docs/generate_results.py`). A run in progress shows the cells it has "
@@ -222,7 +263,13 @@ def main(root: Path, out: Path) -> list[Path]:
         for name, rows in sweep_pages:
             lines.append(f"| [{name}]({name}.md) | {len(rows)} | {', '.join(str(r['seed']) for r in rows)} | "
                          f"{sum(r['held_from_middle'] for r in rows)} of {len(rows)} |")
-    names = [name for name, _ in pages] + [name for name, _ in sweep_pages]
+    if learner_pages:
+        lines += ["", "Memory learners of the recall condition (`sb3-memret benchmark learners`):", "",
+                  "| learners | tasks | trained |", "|---|---|---|"]
+        for name, rows in learner_pages:
+            lines.append(f"| [{name}]({name}.md) | {len(rows)} | "
+                         f"{sum(row['state'] == 'trained' for row in rows)} |")
+    names = [name for name, _ in pages] + [name for name, _ in sweep_pages] + [name for name, _ in learner_pages]
     if names:
         lines += ["", "```{toctree}", ":hidden:", "", *names, "```", ""]
     _write(out / "index.md", "\n".join(lines))

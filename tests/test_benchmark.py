@@ -352,6 +352,7 @@ def test_recall_retrieves_from_the_writers_bank_in_the_harness(tmp_path):
     harness with it: every prompt's fact is one of the bank's (the written cue fact or a decoy worded alike)."""
     import yaml
 
+    from sb3_memret.analysis.learners import learner_rows, learners_table
     from sb3_memret.benchmark.learners import train_learners
     from sb3_memret.benchmark.runner import plan
     from sb3_memret.training.config import parse_section
@@ -364,6 +365,10 @@ def test_recall_retrieves_from_the_writers_bank_in_the_harness(tmp_path):
     assert [o.status for o in outcomes] == ["trained", "refused"]
     assert (tmp_path / "learners" / env_id / "final_model.zip").is_file()
     assert [o.status for o in train_learners([env_id], tmp_path / "learners")] == ["kept"]
+    # the folder's index lists both tasks asked; its table a row each, the refused one never started
+    header, _, trained, refused, _, total = learners_table(learner_rows(tmp_path / "learners"))
+    assert trained.startswith(f"| {env_id} | ") and "its budget" in trained
+    assert refused.startswith("| ShellGameTouch-VLA-v0 | not started |") and total.startswith("1 of 2 trained")
 
     run = plan(Protocol(seed_set="dev", episodes=1), ["recall"], env_ids=[env_id], learners=tmp_path / "learners")
     content = run_benchmark(run, tmp_path / "run", workers=1)

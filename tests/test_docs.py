@@ -17,6 +17,7 @@ from __future__ import annotations
 import ast
 import importlib
 import importlib.util
+import json
 import re
 import shlex
 import subprocess
@@ -310,8 +311,15 @@ def test_the_results_pages_name_each_tables_file_and_a_command_the_benchmark_acc
     pages = generate_results.main(ROOT, tmp_path)
     runs = sorted((ROOT / "benchmarks").glob("**/results.json"))
     sweeps = generate_results.sweeps(ROOT)
-    assert len(pages) == 1 + len(runs) + len(sweeps)
+    learners = generate_results.learners_folders(ROOT)
+    assert len(pages) == 1 + len(runs) + len(sweeps) + len(learners)
     cli = _cli()
+    for page, folder in zip(pages[1 + len(runs) + len(sweeps):], learners):  # a learners folder: a row a task
+        text = page.read_text()
+        tasks = json.loads((folder / "learners.json").read_text())["tasks"]
+        assert all(re.search(rf"^\| {task} \| ", text, re.M) for task in tasks), page
+        (command,) = re.findall(r"^sb3-memret benchmark learners .*$", text, re.M)
+        assert check_command(shlex.split(command)[1:], page.name, cli) >= 2
     for page, folder in zip(pages[1 + len(runs):], sweeps):  # a seed sweep: its table from its runs' files
         text = page.read_text()
         assert f"Source: `{folder.relative_to(ROOT).as_posix()}/*/evaluations.jsonl`" in text, page

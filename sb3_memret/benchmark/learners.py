@@ -47,16 +47,19 @@ def train_learners(env_ids: list[str], out: Path, controller: str = "scripted", 
                    eval_episodes: int = 50, load_config: Callable[[str], object] | None = None,
                    on_outcome: Callable[[LearnerOutcome], None] | None = None, stop_at_greedy: float | None = None,
                    stop_patience: int = 2) -> list[LearnerOutcome]:
-    """Train (or resume, or keep) the memory learner of each task in ``env_ids`` into ``out/<env id>``.
+    """Train (or resume, or keep) the memory learner of each task in ``env_ids`` into ``out/<env id>``, listing the
+    tasks in ``out``'s index (``analysis.learners``).
     Held-out evaluations during training play the task's development seeds, never the benchmark's; with
     ``stop_at_greedy`` a run ends once ``stop_patience`` of them in a row retrieve that well."""
     from sb3_memret.training.config import load_task_config
     from sb3_memret.controller_specs import make_controller
     from sb3_memret.tasks import check_task_name, make_task
+    from sb3_memret.analysis.learners import record_tasks
     from sb3_memret.callbacks import latest_checkpoint
     from sb3_memret.training.run import RunOptions, train
 
     load_config = load_config or load_task_config
+    record_tasks(out, env_ids)  # the folder's index: the docs' learners page and `benchmark learners`' table read it
     outcomes = []
     for env_id in env_ids:
         folder = Path(out) / env_id

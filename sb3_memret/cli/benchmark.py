@@ -185,7 +185,9 @@ def _say_outdated(out: Path, stale: dict[str, int], replayed: set[str]) -> None:
 def learners(split: str | None, tasks: list[str] | None, controller: str, seed: int, eval_episodes: int,
              out: Path, stop_at_greedy: float | None, stop_patience: int) -> None:
     """Train the memory learner of every task of a split for the recall condition, one `train recall` run per task
-    on its zoo config; finished runs are kept and interrupted ones resume."""
+    on its zoo config; finished runs are kept and interrupted ones resume. Prints the folder's learners at the end,
+    a row a task (training minutes, how each run ended, held-out retrieval and success)."""
+    from sb3_memret.analysis.learners import learner_rows, learners_table
     from sb3_memret.benchmark.learners import train_learners
     from sb3_memret.benchmark.manifest import select_tasks
 
@@ -196,7 +198,9 @@ def learners(split: str | None, tasks: list[str] | None, controller: str, seed: 
     except ValueError as err:
         raise click.UsageError(str(err)) from None
     train_learners([row.env_id for row in rows], out, controller, seed, eval_episodes,
-                   stop_at_greedy=stop_at_greedy, stop_patience=stop_patience, on_outcome=lambda o: click.echo(f"{o.status} {o.env_id}: {o.detail}", err=True))
+                   stop_at_greedy=stop_at_greedy, stop_patience=stop_patience,
+                   on_outcome=lambda o: click.echo(f"{o.status} {o.env_id}: {o.detail}", err=True))
+    click.echo("\n".join(learners_table(learner_rows(out))))
 
 
 @benchmark.command("report")
