@@ -1,6 +1,6 @@
 """A learners folder side by side: one row a task's memory learner (``sb3-memret benchmark learners``), how long it
-trained, how its run ended, when held-out retrieval was learned and where it ended (the table the command prints as
-it goes and the docs' results pages draw from a committed learners folder)."""
+trained, how its run ended, when held-out retrieval was learned and where it ended (the table the command prints at
+its end and the docs' results pages draw from a committed learners folder)."""
 
 from __future__ import annotations
 
