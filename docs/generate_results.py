@@ -166,7 +166,7 @@ def learners_page(root: Path, folder: Path, out: Path) -> tuple[str, list[dict[s
     where = folder.relative_to(root).as_posix()
     name = slug(folder.relative_to(root / BENCHMARKS))
     trained = [row for row in rows if row["state"] == "trained"]
-    summaries = [json.loads((folder / row["task"] / "summary.json").read_text()) for row in trained]
+    summaries = [row["summary"] for row in trained]
     controllers = sorted({summary.get("controller", "?") for summary in summaries})
     settings = ""  # the command's own settings, as the first trained run recorded them
     if summaries:

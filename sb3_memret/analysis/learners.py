@@ -30,8 +30,9 @@ def record_tasks(folder: Path, env_ids: Iterable[str]) -> list[str]:
 
 
 def learner_rows(folder: Path) -> list[dict[str, Any]]:
-    """One row a task the folder's index lists: a finished run's figures (``run_row``), with its task, decisions
-    and how it ended; a task without a finished run is ``training`` (a run folder there) or ``not started``."""
+    """One row a task the folder's index lists: a finished run's figures (``run_row``), with its task, decisions,
+    how it ended and its ``summary.json``; a task without a finished run is ``training`` (a run folder there) or
+    ``not started``."""
     folder = Path(folder)
     if not is_learners_folder(folder):
         raise FileNotFoundError(f"{folder} has no {LEARNERS_FILE}: not a learners folder (benchmark learners --out)")
@@ -46,7 +47,7 @@ def learner_rows(folder: Path) -> list[dict[str, Any]]:
         ended = ("interrupted" if summary.get("interrupted") else
                  f"stopped at round {stopped}: greedy at the target" if stopped is not None else "its budget")
         rows.append({**run_row(run), "task": env_id, "state": "trained", "ended": ended,
-                     "decisions": summary.get("num_timesteps", float("nan"))})
+                     "decisions": summary.get("num_timesteps", float("nan")), "summary": summary})
     return rows
 
 
