@@ -8,15 +8,16 @@
 # system releases when its recorder ends however it ends), so recorders on the same OUT never record a chunk twice.
 # A DAgger round: LEARNER=learned:PATH has that policy act while the expert labels every frame; give it seeds of its
 # own with SEED (chunk i starts at SEED + 50 i; default 100000, the expert's demonstrations). MAX_STEPS=N ends each
-# episode after N control steps (demos --max-steps; default the task's own limit).
-# Usage: [FRAMES=decisions|every] [LEARNER=learned:PATH] [SEED=N] [MAX_STEPS=N] [JOBS=N] scripts/record_task_demos.sh OUT EPISODES_PER_TASK TASK...
+# episode after N control steps (demos --max-steps; default the task's own limit). PROMPT_MIX=KIND=SHARE,... sets the
+# prompt kinds' shares (demos --prompt-mix; default its own).
+# Usage: [FRAMES=decisions|every] [LEARNER=learned:PATH] [SEED=N] [MAX_STEPS=N] [PROMPT_MIX=...] [JOBS=N] scripts/record_task_demos.sh OUT EPISODES_PER_TASK TASK...
 #   e.g. scripts/record_task_demos.sh runs/multitask 400 RememberColor3-VLA-v0 RememberShape3-VLA-v0
 #        LEARNER=learned:runs/multitask/policy SEED=100400 scripts/record_task_demos.sh runs/multitask-dagger 150 \
 #          RememberColor3-VLA-v0 RememberShape3-VLA-v0
 set -euo pipefail
 cd "$(dirname "$0")/.."
 if [ $# -lt 3 ]; then
-  echo "usage: [FRAMES=decisions|every] [LEARNER=learned:PATH] [SEED=N] [MAX_STEPS=N] [JOBS=N] $0 OUT EPISODES_PER_TASK TASK..." >&2
+  echo "usage: [FRAMES=decisions|every] [LEARNER=learned:PATH] [SEED=N] [MAX_STEPS=N] [PROMPT_MIX=...] [JOBS=N] $0 OUT EPISODES_PER_TASK TASK..." >&2
   exit 2
 fi
 out=$1 episodes=$2
@@ -26,6 +27,8 @@ learner=()
 [ -n "${LEARNER:-}" ] && learner=(--learner "$LEARNER")
 limit=()
 [ -n "${MAX_STEPS:-}" ] && limit=(--max-steps "$MAX_STEPS")
+mix=()
+[ -n "${PROMPT_MIX:-}" ] && mix=(--prompt-mix "$PROMPT_MIX")
 # chunk i of every task before chunk i + 1 of any, so a recording stopped early leaves the tasks balanced
 recorder() {
   for ((i = 0; i * chunk < episodes; i++)); do
@@ -40,7 +43,7 @@ recorder() {
       fi
       rm -rf "$dest"
       .venv/bin/sb3-memret demos --task "$task" --episodes "$chunk" --seed $((first_seed + chunk * i)) \
-        --frames "${FRAMES:-decisions}" "${learner[@]}" "${limit[@]}" --no-progress --out "$dest" > "$dest.log" 2>&1
+        --frames "${FRAMES:-decisions}" "${learner[@]}" "${limit[@]}" "${mix[@]}" --no-progress --out "$dest" > "$dest.log" 2>&1
       touch "$dest.done"
       exec 9>&-
     done

@@ -89,6 +89,25 @@ def test_the_generic_plan_draws_kinds_and_leaves_the_facts_to_the_task():
         DemoEpisode(1, "bare", facts=("the cube is in drawer layer 1.",))
 
 
+def test_a_prompt_mix_is_read_from_kind_shares_and_a_bad_one_is_named():
+    mix = PromptMix.parse("bare=0.2, matching=0.5,mismatched=0.15,recalled=0.15")
+    assert mix == PromptMix(0.2, 0.5, 0.15, 0.15) and PromptMix.parse("matching=1") == PromptMix(0.0, 1.0, 0.0)
+    for bad, message in (("bare=0.2,true=0.8", "bad prompt mix entry 'true=0.8'"),
+                         ("matching=lots", "bad prompt mix share 'lots' for 'matching'"),
+                         ("bare=0.5", "must be non-negative and sum to 1")):
+        with pytest.raises(ValueError, match=message):
+            PromptMix.parse(bad)
+    # a recalled share of 0 leaves the other kinds' draws as they were before the kind existed
+    old = plan_episodes(50, seed=4, mix=PromptMix(0.2, 0.6, 0.2))
+    assert [e.prompt_kind for e in old] == [e.prompt_kind for e in plan_episodes(50, seed=4)]
+    kinds = [e.prompt_kind for e in plan_episodes(400, seed=4, mix=mix)]
+    assert kinds.count("recalled") == pytest.approx(60, abs=20)
+    with pytest.raises(ValueError, match="a recalled prompt's facts follow what the writer reads"):
+        DemoEpisode(1, "recalled", facts=("the cue cube was red.",))
+    with pytest.raises(ValueError, match="give its share to matching"):
+        DrawerTask().plan_demos(6, mix=mix)
+
+
 def test_the_task_words_the_facts_of_an_unnamed_kind(recorder):
     recorded = recorder.record(DemoEpisode(3, "matching", reset_options={"target_layer": 2}))
     assert recorded.prompt == prompt_of(at(3, 2, 2)) and recorded.group == "2" and recorded.success

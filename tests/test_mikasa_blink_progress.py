@@ -240,3 +240,27 @@ def test_written_or_counted_progress_lets_the_stateless_expert_press_as_often_as
         assert list(dict.fromkeys(pressed)) == [f"the red button was pressed {count_value(n)}." for n in (1, 2, 3)]
     [cue_only] = play_task_episodes(task.expert(), task, [DEV_SEED + 1], CueFactsOnly(task), render_backend="cpu")
     assert not cue_only.success
+
+
+def test_a_recalled_demonstration_carries_a_decoy_until_the_writer_has_counted_the_blinks():
+    """A recalled episode's prompts are what the recall condition's memory gives: a fact about another thing worded as
+    the lamp's until the writer has read the blinks from the camera, then the lamp's true count; the expert labels
+    each decision on that prompt, so a controller finetuned on it learns to wait out a fact not yet known."""
+    from sb3_memret.stage1.demos import DemoRecorder
+    from sb3_memret.tasks.demos import DemoEpisode
+
+    task = make_task("BlinkCountButtonPressEasy-VLA-v0")
+    recorder = DemoRecorder(task, "cpu", frames="decisions", max_steps=44)
+    try:
+        recorded = recorder.record(DemoEpisode(DEV_SEED + 7, "recalled"))
+    finally:
+        recorder.env.close()
+    true_fact = CUE_FACT.format(count=recorded.group)
+    facts = [prompt.removeprefix(INSTRUCTION).strip() for prompt in recorded.prompts]
+    first_true = next(i for i, f in enumerate(facts) if f.startswith(true_fact))
+    assert 0 < first_true < len(facts) - 1  # the blinks take some decisions to be seen and counted
+    decoy = facts[0]
+    parsed = parse_prompt(recorded.prompts[0], task.prompt_template).facts
+    assert len(parsed) == 1 and "lamp" not in decoy and decoy.endswith(("once.", "twice.", "three times."))
+    assert facts[:first_true] == [decoy] * first_true  # the one decoy until the count is read, never the truth
+    assert all(f.startswith(true_fact) and decoy not in f for f in facts[first_true:])

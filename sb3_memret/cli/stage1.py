@@ -45,11 +45,16 @@ from sb3_memret.common.seeds import DEMO_SEED
 @click.option("--image-size", type=click.IntRange(min=16), default=None,
               help="Store camera images resized to this square size, at most the size they render at  [default: as "
                    "rendered: 224 on the drawer, 128 on MIKASA]")
+@click.option("--prompt-mix", default="bare=0.2,matching=0.6,mismatched=0.2", show_default=True,
+              metavar="KIND=SHARE,...",
+              help="Shares of the episodes' prompt kinds: bare, matching (the true facts), mismatched (facts naming "
+                   "something else), recalled (a decoy until the writer has read the true facts, then those, as the "
+                   "recall condition's memory gives them); a kind left out has none.")
 @click.option("--progress/--no-progress", default=True, show_default=True, help="Show a progress bar.")
 @render_backend_option
 def demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fraction: float, learner: str | None,
           n_envs: int, objects: str | None, n_objects: int | None, replan_every: int | None, frames: str | None,
-          max_steps: int | None, image_size: int | None, progress: bool, render_backend: str) -> None:
+          max_steps: int | None, image_size: int | None, prompt_mix: str, progress: bool, render_backend: str) -> None:
     """Record the task's scripted expert as a LeRobotDataset (v3.0) for finetuning.
 
     \b
@@ -59,10 +64,11 @@ def demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fr
     --render-backend cpu|gpu the two cameras as observation.images.image / .wrist_image.
 
     \b
-    Prompts in the data: the bare instruction in 20% of episodes, the task's true fact in 60%
-    ("pick out the cube. the cube is in drawer layer L.", "... the cue cube was red.") and a fact
-    naming something else in 20% (the drawer's expert opens the named drawer, finds it empty and
-    holds still). The drawer's episodes cycle over its layers and, with --objects train
+    Prompts in the data (--prompt-mix): the bare instruction in 20% of episodes, the task's true
+    fact in 60% ("pick out the cube. the cube is in drawer layer L.", "... the cue cube was red.")
+    and a fact naming something else in 20% (the drawer's expert opens the named drawer, finds it
+    empty and holds still); recalled prompts carry a decoy ("the fork blinked twice.") until the
+    writer has read the true fact, then that fact. The drawer's episodes cycle over its layers and, with --objects train
     --n-objects 3, over its objects ("pick out the tin. the tin is in drawer layer L."). Kept out,
     so they stay held-out tests: two-memory prompts, other objects' and holding facts, and
     paraphrases. Off the expert's path: --noisy-fraction of the episodes run with --noise on the
@@ -72,9 +78,14 @@ def demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fr
 
     from sb3_memret.stage1.demos import record_demos
     from sb3_memret.tasks import make_task
+    from sb3_memret.tasks.demos import PromptMix
 
     if out.exists():
         raise click.BadParameter(f"{str(out)!r} already exists; demonstrations go to a new folder", param_hint="--out")
+    try:
+        mix = PromptMix.parse(prompt_mix)
+    except ValueError as err:
+        raise click.BadParameter(str(err), param_hint="--prompt-mix") from None
     frames = frames or ("every" if render_backend == "none" else "decisions")
     the_task = make_task(task)
     for name, value in (("objects", objects), ("n_objects", n_objects)):
@@ -86,8 +97,8 @@ def demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fr
     if learner is not None:
         build_controller(click.get_current_context(), None, learner, task)
     try:
-        planned = the_task.plan_demos(episodes, seed, noise, noisy_fraction)
-    except NotImplementedError as err:
+        planned = the_task.plan_demos(episodes, seed, noise, noisy_fraction, mix)
+    except (NotImplementedError, ValueError) as err:
         raise click.UsageError(str(err)) from err
     wins = 0
     with tqdm(total=episodes, desc=f"{the_task.name} demonstrations", unit="episode", disable=not progress) as bar:

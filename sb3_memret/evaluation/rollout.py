@@ -115,6 +115,10 @@ class WrittenFacts(FactSchedule):
     def facts(self, decision: int) -> Sequence[str]:
         return list(self._facts.values())
 
+    def wrote(self, keys: Iterable[Key]) -> bool:
+        """Whether the writer has written a fact under every one of ``keys`` this episode (whatever its value)."""
+        return all(key in self._facts for key in keys)
+
     def facts_of_type(self, mtype: MemoryType) -> list[str]:
         """The facts of type ``mtype`` written so far (TASK_PROGRESS: what the robot has done)."""
         return [text for key, text in self._facts.items() if key[0] == mtype]

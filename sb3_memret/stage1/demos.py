@@ -15,7 +15,9 @@ States off the expert's path: a share of the episodes executes the expert's acti
 (the labels stay the expert's clean actions), and DAgger rounds (``learner=``) let a learned controller act while
 the expert, which can label any state, shadows it and supplies every label. A task whose writer writes progress
 (TASK_PROGRESS facts: ``the red cube was touched.``) has it run along: each decision's prompt carries, after the
-kind's facts, the progress written so far. An episode ends at the task's end, at success where the task ends there,
+kind's facts, the progress written so far. A ``recalled`` episode runs the writer too: its prompts carry a decoy (the
+task's ``seed_memories``) until the writer has read every true fact, then the true facts, as the recall condition's
+memory gives them. An episode ends at the task's end, at success where the task ends there,
 or once the expert has given up for ``idle_stop`` steps (``Task.expert_gave_up``: the drawer's empty drawer).
 Episodes are written as they finish, with a line each in ``sb3_memret_episodes.jsonl`` saying how it was played; an
 interrupted run finalises the dataset with every episode saved so far.
@@ -38,6 +40,7 @@ from sb3_memret.controllers.observation import (ACTION_CHUNK_KEY, ACTION_KEY, CH
 from sb3_memret.controllers.prompts import build_prompt
 from sb3_memret.evaluation.rollout import WrittenFacts
 from sb3_memret.memory.schema import MemoryType
+from sb3_memret.memory.seeding import SeedingConfig
 from sb3_memret.physics.grasp_memo import install_grasp_memo
 from sb3_memret.physics.sensor_gate import sensors_pause
 from sb3_memret.tasks import Task, make_task
@@ -127,13 +130,13 @@ class DemoRecorder:
             self.task.replan_interval(replan_every, self.learner.spec.chunk_len, "the learner's")
             self.learner.check_env(self.env)
         self.replan_every, self.idle_stop = replan_every, idle_stop
-        writes_progress = any(mtype == MemoryType.TASK_PROGRESS for mtype, _ in self.task.writer().relations.values())
-        self.progress = WrittenFacts(self.task) if writes_progress else None
-        # keeping decision frames only, a step inside a chunk leaves images nobody reads (unless the progress writer
-        # perceives every step): its cameras pause, and the outcome is the same (physics never reads the renderer)
-        unread = self.with_images and self.decisions_only and not (self.progress is not None
-                                                                   and self.task.perceives_every_step)
-        self.pause = sensors_pause(self.env) if unread else None
+        self.writes_progress = any(mtype == MemoryType.TASK_PROGRESS
+                                   for mtype, _ in self.task.writer().relations.values())
+        self.written = WrittenFacts(self.task)  # the writer, run along where an episode's prompts need what it reads
+        self._decoy: str | None = None  # a recalled episode's fact until the writer has read the true ones
+        # keeping decision frames only, a step inside a chunk leaves images nobody reads (unless a writer that
+        # perceives every step runs along): its cameras pause, and the outcome is the same (physics never reads them)
+        self.pause = sensors_pause(self.env) if self.with_images and self.decisions_only else None
 
     def frame(self, obs: Any) -> dict[str, np.ndarray]:
         """One kept frame in the dataset's layout, its cameras resized."""
@@ -144,11 +147,20 @@ class DemoRecorder:
 
     def facts(self, episode: DemoEpisode, truth: Any, t: int) -> list[str]:
         """The facts ``episode``'s prompt carries ``t`` control steps in: the plan's, or the task's for its prompt
-        kind (``Task.facts_at``)."""
+        kind (``Task.facts_at``); a recalled prompt's are the decoy until the writer has read every true fact."""
         if episode.facts is not None:
             return list(episode.facts)
-        condition = {"bare": None, "matching": "oracle", "mismatched": "wrong"}[episode.prompt_kind]
-        return [] if condition is None else self.task.facts_at(condition, truth, t)
+        if episode.prompt_kind == "recalled" and not self.written.wrote(key for key, _ in truth.true_facts):
+            return [self._decoy] if self._decoy else []
+        condition = {"bare": None, "matching": "oracle", "mismatched": "wrong", "recalled": "oracle"}
+        return [] if condition[episode.prompt_kind] is None else \
+            self.task.facts_at(condition[episode.prompt_kind], truth, t)
+
+    def _draw_decoy(self, frame: Any, truth: Any, rng: np.random.Generator) -> str | None:
+        """One fact about another thing, as the task seeds a recall memory's bank with them (None: it seeds none)."""
+        decoys = self.task.seed_memories(frame, truth, rng, SeedingConfig(location_decoys=1, holding_decoys=0),
+                                         facts=False)
+        return decoys[0].text if decoys else None
 
     def record(self, episode: DemoEpisode) -> EpisodeFrames:
         """Play one episode, the expert (or the learner) acting on each decision's prompt (the episode's facts, then
@@ -157,15 +169,19 @@ class DemoRecorder:
         obs, info = self.env.reset(seed=episode.seed, options=dict(episode.reset_options))
         first = self.task.frames(self.env, obs, info, reset=True)[0]
         truth = self.task.episode(first)
-        if self.progress is not None:
-            first.percepts = [self.task.perceive(self.env, obs)] if self.task.perceives_every_step else []
-            self.progress.start(first, truth)
+        recalled = episode.prompt_kind == "recalled" and episode.facts is None
+        reads = self.writes_progress or recalled  # the writer runs along
+        perceives = reads and self.task.perceives_every_step
+        if reads:
+            first.percepts = [self.task.perceive(self.env, obs)] if perceives else []
+            self.written.start(first, truth)
+        self._decoy = self._draw_decoy(first, truth, rng) if recalled else None
         self.expert.reset([episode.seed])
         if self.learner is not None:
             self.learner.reset([episode.seed])
         frames, prompts, kept, actions, success, done, idle = [], [], [], [], False, False, 0
         while not done:
-            done_so_far = self.progress.facts_of_type(MemoryType.TASK_PROGRESS) if self.progress is not None else []
+            done_so_far = self.written.facts_of_type(MemoryType.TASK_PROGRESS) if self.writes_progress else []
             facts = [*self.facts(episode, truth, len(actions)), *done_so_far]
             prompt = build_prompt(self.task.instruction(truth), facts, self.expert.spec.prompt_template)
             labels = self.expert.act(obs, [prompt])[0][: self.replan_every]
@@ -181,9 +197,9 @@ class DemoRecorder:
                 if episode.noise:
                     action[:6] = np.clip(action[:6] + rng.normal(0.0, episode.noise, 6), -1.0, 1.0)
                 chunk_ends = i == len(labels) - 1  # its observation is the next decision's
-                with self.pause() if self.pause is not None and not chunk_ends else nullcontext():
+                with self.pause() if self.pause is not None and not (chunk_ends or perceives) else nullcontext():
                     obs, _, terminated, truncated, info = self.env.step(action[None])
-                if self.progress is not None and self.task.perceives_every_step:
+                if perceives:
                     percepts.append(self.task.perceive(self.env, obs))
                 success = success or bool(np.any(as_numpy(info["success"])))  # MIKASA counts success once
                 idle = idle + 1 if self.task.expert_gave_up(self.expert) else 0
@@ -192,10 +208,10 @@ class DemoRecorder:
                             or idle >= self.idle_stop)
                 if done:
                     break
-            if self.progress is not None and not done:  # the writer reads the chunk's frame, as the decision env's
+            if reads and not done:  # the writer reads the chunk's frame, as the decision env's
                 frame = self.task.frames(self.env, obs, info)[0]
                 frame.steps, frame.percepts = i + 1, percepts
-                self.progress.observe(frame)
+                self.written.observe(frame)
         return EpisodeFrames(episode, prompts[0], truth.group, frames, prompts, np.asarray(actions, np.float32),
                              success, np.asarray(kept), self.learner is not None)
 

@@ -28,6 +28,9 @@ def plan_drawer_episodes(objects: tuple[str, ...], n: int, seed: int = 0, noise:
     ``noisy_fraction`` of them with arm noise ``noise``."""
     check_plan(n, noise, noisy_fraction)
     mix = mix or PromptMix()
+    if mix.recalled:
+        raise ValueError(f"the drawer's memory holds the target's drawer from the reset (seeded), so a recalled prompt "
+                         f"is its matching one: give its share to matching (got recalled={mix.recalled})")
     rng = np.random.default_rng(seed)
     episodes = []
     for k in range(n):
