@@ -136,7 +136,8 @@ controller-mikasa: install renderer
 # a DAgger round of $(MULTITASK_DAGGER) episodes of each played by the first policy; $(MULTITASK_EXTRA) more expert
 # episodes of the tasks the first policy won under 60% of when told the true fact, in the DAgger round's first chunks
 # (MULTITASK_EXTRA_TASKS); $(MULTITASK_PROGRESS) expert episodes of the progress tasks, ended after
-# $(MULTITASK_PROGRESS_STEPS) steps; the shipped policy on all of it. On an idle 2-core CPU a chunk takes about 75 s
+# $(MULTITASK_PROGRESS_STEPS) steps; the shipped policy on all of it. MULTITASK_PROMPT_MIX sets the recordings'
+# prompt kinds (demos --prompt-mix; empty: its default, which the shipped policy was built with). On an idle 2-core CPU a chunk takes about 75 s
 # (SeqOfColors3's 10 minutes) and the finetunes 2-5 steps/s after the frozen trunk's features (kept for later
 # finetunes): about 7 hours in all for the twenty tasks the shipped checkpoint serves, which was built in stages,
 # with the same final training on 450-800 episodes a task and 200 of SeqOfColors3 (lab/2026-11-30-one-camera-controller-across-twenty-tasks-the-added lists each task's data).
@@ -156,10 +157,12 @@ MULTITASK_DAGGER ?= 150
 MULTITASK_EXTRA ?= 200
 MULTITASK_PROGRESS ?= 200
 MULTITASK_PROGRESS_STEPS ?= 160
+MULTITASK_PROMPT_MIX ?=
 MULTITASK_RUN = $(STAGE1)-multitask
 SHIPPED_MULTITASK := sb3_memret/controllers/checkpoints/mikasa-multitask-camera
 touch_tasks = $(subst $(comma), ,$(MULTITASK_TOUCH_TASKS))
 expert_tasks = $(subst $(comma), ,$(MULTITASK_EXPERT_TASKS))
+controller-multitask: export PROMPT_MIX = $(MULTITASK_PROMPT_MIX)
 controller-multitask: install renderer
 	scripts/record_task_demos.sh $(MULTITASK_RUN)/demos $(MULTITASK_EPISODES) $(expert_tasks)
 	for task in $(touch_tasks); do \

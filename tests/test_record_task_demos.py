@@ -83,3 +83,20 @@ def test_a_chunk_that_fails_fails_the_recording_and_is_not_marked_done(tree: Pat
     (tree / ".venv" / "bin" / "sb3-memret").write_text(FAKE_DEMOS.replace("Broken", "Nothing"))  # mended
     assert record(tree, "Broken", "A", episodes=50).returncode == 0
     assert (tree / "out" / "Broken" / "chunk0.done").is_file() and (tree / "out" / "A" / "chunk0.done").is_file()
+
+
+def test_prompt_mix_reaches_every_chunks_demos_call_and_is_left_out_unset(tree: Path):
+    fake = tree / ".venv" / "bin" / "sb3-memret"
+    fake.write_text('#!/bin/bash\necho "$@" >> "$CALLS.args"\n')
+    mix = "bare=0.2,matching=0.5,mismatched=0.1,recalled=0.2"
+    for prompt_mix in (mix, None):
+        env = {k: v for k, v in os.environ.items() if k != "PROMPT_MIX"} | {"CALLS": str(tree / "calls.txt")}
+        if prompt_mix:
+            env["PROMPT_MIX"] = prompt_mix
+        shutil.rmtree(tree / "out", ignore_errors=True)
+        done = subprocess.run(["bash", str(tree / "scripts" / SCRIPT.name), "out", "100", "A"], cwd=tree, env=env,
+                              capture_output=True, text=True, timeout=60)
+        assert done.returncode == 0, done.stderr
+    lines = (tree / "calls.txt.args").read_text().splitlines()
+    assert len(lines) == 4 and all(f"--prompt-mix {mix}" in line for line in lines[:2])
+    assert not any("--prompt-mix" in line for line in lines[2:])
