@@ -242,15 +242,17 @@ def test_written_or_counted_progress_lets_the_stateless_expert_press_as_often_as
     assert not cue_only.success
 
 
-def test_a_recalled_demonstration_carries_a_decoy_until_the_writer_has_counted_the_blinks():
+def test_a_recalled_demonstration_shows_a_decoy_until_the_writer_has_counted_the_blinks():
     """A recalled episode's prompts are what the recall condition's memory gives: a fact about another thing worded as
-    the lamp's until the writer has read the blinks from the camera, then the lamp's true count; the expert labels
-    each decision on that prompt, so a controller finetuned on it learns to wait out a fact not yet known."""
+    the lamp's until the writer has read the blinks from the camera, then the lamp's true count. The expert acts and
+    labels as if told nothing while the decoy shows, so a controller finetuned on it learns to ignore the decoy."""
     from sb3_memret.stage1.demos import DemoRecorder
     from sb3_memret.tasks.demos import DemoEpisode
 
     task = make_task("BlinkCountButtonPressEasy-VLA-v0")
     recorder = DemoRecorder(task, "cpu", frames="decisions", max_steps=44)
+    act, heard = recorder.expert.act, []
+    recorder.expert.act = lambda obs, prompts, *args: heard.extend(prompts) or act(obs, prompts, *args)
     try:
         recorded = recorder.record(DemoEpisode(DEV_SEED + 7, "recalled"))
     finally:
@@ -264,3 +266,5 @@ def test_a_recalled_demonstration_carries_a_decoy_until_the_writer_has_counted_t
     assert len(parsed) == 1 and "lamp" not in decoy and decoy.endswith(("once.", "twice.", "three times."))
     assert facts[:first_true] == [decoy] * first_true  # the one decoy until the count is read, never the truth
     assert all(f.startswith(true_fact) and decoy not in f for f in facts[first_true:])
+    # the expert acted and labelled on the prompt without the decoy: told nothing, then the same as shown
+    assert heard == [INSTRUCTION] * first_true + recorded.prompts[first_true:]

@@ -17,7 +17,8 @@ the expert, which can label any state, shadows it and supplies every label. A ta
 (TASK_PROGRESS facts: ``the red cube was touched.``) has it run along: each decision's prompt carries, after the
 kind's facts, the progress written so far. A ``recalled`` episode runs the writer too: its prompts carry a decoy (the
 task's ``seed_memories``) until the writer has read every true fact, then the true facts, as the recall condition's
-memory gives them. An episode ends at the task's end, at success where the task ends there,
+memory gives them; the expert acts and labels on the prompt without the decoy (a fact about another thing changes
+nothing it should do), so a controller trained on it learns to act as if told nothing until the fact is known. An episode ends at the task's end, at success where the task ends there,
 or once the expert has given up for ``idle_stop`` steps (``Task.expert_gave_up``: the drawer's empty drawer).
 Episodes are written as they finish, with a line each in ``sb3_memret_episodes.jsonl`` saying how it was played; an
 interrupted run finalises the dataset with every episode saved so far.
@@ -133,7 +134,7 @@ class DemoRecorder:
         self.writes_progress = any(mtype == MemoryType.TASK_PROGRESS
                                    for mtype, _ in self.task.writer().relations.values())
         self.written = WrittenFacts(self.task)  # the writer, run along where an episode's prompts need what it reads
-        self._decoy: str | None = None  # a recalled episode's fact until the writer has read the true ones
+        self._decoy: str | None = None  # a recalled episode's shown fact until the writer has read the true ones
         # keeping decision frames only, a step inside a chunk leaves images nobody reads (unless a writer that
         # perceives every step runs along): its cameras pause, and the outcome is the same (physics never reads them)
         self.pause = sensors_pause(self.env) if self.with_images and self.decisions_only else None
@@ -147,14 +148,21 @@ class DemoRecorder:
 
     def facts(self, episode: DemoEpisode, truth: Any, t: int) -> list[str]:
         """The facts ``episode``'s prompt carries ``t`` control steps in: the plan's, or the task's for its prompt
-        kind (``Task.facts_at``); a recalled prompt's are the decoy until the writer has read every true fact."""
+        kind (``Task.facts_at``); a recalled prompt's are none until the writer has read every true fact (the decoy
+        is shown beside them then: ``shown_decoy``)."""
         if episode.facts is not None:
             return list(episode.facts)
-        if episode.prompt_kind == "recalled" and not self.written.wrote(key for key, _ in truth.true_facts):
-            return [self._decoy] if self._decoy else []
+        if self.shown_decoy(episode, truth) is not None:
+            return []
         condition = {"bare": None, "matching": "oracle", "mismatched": "wrong", "recalled": "oracle"}
         return [] if condition[episode.prompt_kind] is None else \
             self.task.facts_at(condition[episode.prompt_kind], truth, t)
+
+    def shown_decoy(self, episode: DemoEpisode, truth: Any) -> str | None:
+        """The decoy a recalled episode's prompt shows while the writer has not read every true fact, else None."""
+        if episode.prompt_kind != "recalled" or self.written.wrote(key for key, _ in truth.true_facts):
+            return None
+        return self._decoy
 
     def _draw_decoy(self, frame: Any, truth: Any, rng: np.random.Generator) -> str | None:
         """One fact about another thing, as the task seeds a recall memory's bank with them (None: it seeds none)."""
@@ -184,14 +192,17 @@ class DemoRecorder:
             done_so_far = self.written.facts_of_type(MemoryType.TASK_PROGRESS) if self.writes_progress else []
             facts = [*self.facts(episode, truth, len(actions)), *done_so_far]
             prompt = build_prompt(self.task.instruction(truth), facts, self.expert.spec.prompt_template)
+            decoy = self.shown_decoy(episode, truth)
+            shown = prompt if decoy is None else \
+                build_prompt(self.task.instruction(truth), [decoy, *facts], self.expert.spec.prompt_template)
             labels = self.expert.act(obs, [prompt])[0][: self.replan_every]
-            executed = labels if self.learner is None else self.learner.act(obs, [prompt])[0][: self.replan_every]
+            executed = labels if self.learner is None else self.learner.act(obs, [shown])[0][: self.replan_every]
             percepts = []
             for i, (label, action) in enumerate(zip(labels, executed)):
                 if i == 0 or not self.decisions_only:
                     kept.append(len(actions))
                     frames.append(self.frame(obs))
-                    prompts.append(prompt)
+                    prompts.append(shown)
                 actions.append(label)
                 action = np.array(action, np.float32)
                 if episode.noise:
