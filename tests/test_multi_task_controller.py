@@ -53,6 +53,33 @@ def test_the_tasks_demonstrations_merge_on_the_union_of_their_layouts(datasets):
     assert not demos.states[~demos.known].any()  # entries a frame's task lacks hold 0
     assert len(np.unique(demos.episodes)) == 2 and len(demos.tasks) == 2  # one episode, one prompt each
     assert all(("cube's color" in p) == c for p, c in zip(np.array(demos.tasks)[demos.task_ids], is_colour))
+    assert (demos.sources == ~is_colour).all()  # each frame's task, in the mapping's order
+
+
+def test_draws_by_error_within_each_task_hand_the_sampler_every_training_frames_task(datasets, tmp_path, monkeypatch):
+    from sb3_memret.stage1 import finetune as module
+    from sb3_memret.stage1.sampling import FrameSampler
+
+    made = []
+
+    class Recorded(FrameSampler):
+        def __init__(self, frames, priority=0.0, strata=None):
+            made.append((frames, strata))
+            super().__init__(frames, priority, strata)
+
+    monkeypatch.setattr(module, "FrameSampler", Recorded)
+    for within in ("task", "split"):
+        result = CliRunner().invoke(main, ["finetune", str(datasets[COLOUR]), str(datasets[SHAPE]), "--tasks",
+                                           f"{COLOUR},{SHAPE}", "--out", str(tmp_path / within), "--set",
+                                           "training.steps=2", "--set", "training.priority=3.0", "--set",
+                                           f"training.priority_within={within}", *SMALL])
+        assert result.exit_code == 0, result.output
+    demos, _ = load_task_demonstrations({COLOUR: [datasets[COLOUR]], SHAPE: [datasets[SHAPE]]})
+    (frames, strata), (_, unstratified) = made
+    assert np.array_equal(strata, demos.sources[frames]) and set(strata) == {0, 1} and unstratified is None
+    result = CliRunner().invoke(main, ["finetune", str(datasets[COLOUR]), "--tasks", COLOUR, "--out",
+                                       str(tmp_path / "bad"), "--set", "training.priority_within=episode", *SMALL])
+    assert result.exit_code != 0 and "priority_within must be one of ['split', 'task'], got 'episode'" in result.output
 
 
 def test_masked_statistics_and_loss_read_only_the_marked_entries():

@@ -65,3 +65,25 @@ def test_the_errors_round_trip_and_bad_input_is_refused():
         FrameSampler(frames, priority=-1.0)
     with pytest.raises(ValueError, match="at least one training frame"):
         FrameSampler(np.array([], dtype=int))
+
+
+def test_strata_keep_their_share_of_the_draws_and_rank_frames_within_themselves():
+    frames = np.arange(100)
+    strata = np.r_[np.zeros(80, int), np.ones(20, int)]  # a task of 80 frames, one of 20
+    sampler = FrameSampler(frames[::-1], priority=3.0, strata=strata[::-1])  # labels follow their frames
+    assert np.allclose(sampler.probabilities(), 1 / 100)
+    errors = np.r_[np.full(40, 1.0), np.full(40, 0.1), np.full(19, 0.1), 0.3]  # the first task is far harder
+    sampler.update(frames, errors)
+    p = sampler.probabilities()
+    assert p[:80].sum() == pytest.approx(0.8) and p[80:].sum() == pytest.approx(0.2)  # each task keeps its share
+    assert p[0] > p[79] and p[99] > p[80]  # within a task, its wrong frames come more often
+    mean = (19 * 0.1 + 0.3) / 20  # the stratum's own mean error
+    assert p[99] / p[80] == pytest.approx(((0.3 + mean) / (0.1 + mean)) ** 3)
+    unstratified = FrameSampler(frames, priority=3.0)
+    unstratified.update(frames, errors)
+    assert unstratified.probabilities()[80:].sum() < 0.05  # without strata the hard task takes nearly every draw
+    restored = FrameSampler(frames, priority=3.0, strata=strata)
+    restored.load_state(sampler.state())
+    assert np.allclose(restored.probabilities(), p)
+    with pytest.raises(ValueError, match="99 strata labels for 100 frames"):
+        FrameSampler(frames, priority=1.0, strata=strata[1:])

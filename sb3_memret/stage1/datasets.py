@@ -101,6 +101,7 @@ class Demonstrations:
     known: np.ndarray | None = None  # (N, D) the state entries each frame's task has (several tasks); None: all
     robot: str | None = None  # the robot the camera images show (the datasets' robot_type); None: no cameras
     spans: tuple[int, ...] = ()  # frames of each dataset read, in order
+    sources: np.ndarray | None = None  # (N,) the index of the task each frame was recorded on (several); None: one
 
     def targets(self, chunk_len: int) -> tuple[np.ndarray, np.ndarray]:
         """(N, chunk_len, 7) target labels of every frame and their (N, chunk_len) pad mask."""
@@ -240,7 +241,8 @@ def load_task_demonstrations(datasets: Mapping[str | Task, Sequence[str | Path]]
         images={k: CameraFrames.join([p.images[k] for p in parts]) for k in parts[0].images}, state_names=names,
         chunks=np.concatenate([p.chunks for p in parts]) if chunked else None,
         chunk_pad=np.concatenate([p.chunk_pad for p in parts]) if chunked else None,
-        known=np.concatenate(known), spans=tuple(span for part in parts for span in part.spans)), tasks
+        known=np.concatenate(known), spans=tuple(span for part in parts for span in part.spans),
+        sources=np.concatenate([np.full(len(part.states), k, dtype=np.int64) for k, part in enumerate(parts)])), tasks
 
 
 def _one_robot(robots: Mapping[str, str | None]) -> str | None:

@@ -57,6 +57,7 @@ STATE_FILE = "training_state.pt"  # an unfinished finetune at its last logged st
 POINTER_TARGETS_FILE = "pointer_targets.json"  # finetune's hindsight target of each training prompt, for reading
 # the whole state layout, what a robot reads of itself, or the seven numbers MIKASA's harness gives a policy
 STATE_CHOICES = ("full", "proprio", "harness")
+PRIORITY_WITHIN = ("split", "task")  # FinetuneSettings.priority_within
 FEATURE_BATCH = 64  # frames per batch when a frozen trunk's features are computed
 
 
@@ -80,6 +81,9 @@ class FinetuneSettings:
     # how batches are drawn (``FrameSampler``): 0 uniformly; p > 0 each frame with probability proportional to
     # (its last action error + the mean error) ** p, so that a rare phase the policy gets wrong is drawn more often
     priority: float = 0.0
+    # where the errors rank frames (``FrameSampler``'s strata): "split", across every training frame; "task", within
+    # each task's frames of a multi-task finetune, each task keeping its share of the draws
+    priority_within: str = "split"
 
     def __post_init__(self) -> None:
         if self.steps < 1 or self.batch_size < 1 or self.learning_rate <= 0 or min(
@@ -88,6 +92,8 @@ class FinetuneSettings:
                              f"pointer_hindsight and priority >= 0: {self}")
         if not 0 <= self.validation_fraction < 1:
             raise ValueError(f"validation_fraction must lie in [0, 1), got {self.validation_fraction}")
+        if self.priority_within not in PRIORITY_WITHIN:
+            raise ValueError(f"priority_within must be one of {list(PRIORITY_WITHIN)}, got {self.priority_within!r}")
 
 
 def training_instructions(prompts: Sequence[str], instructions: Sequence[str], fact_templates: Sequence[str],
@@ -308,6 +314,7 @@ class DemoTensors:
     pointed: torch.Tensor | None  # (P,) each prompt's hindsight object, -1 where none
     train_idx: np.ndarray
     val_idx: np.ndarray
+    strata: np.ndarray | None  # (len(train_idx),) each training frame's task where draws keep each task's share
     spans: tuple[int, ...]  # the datasets' frame counts
     image_shift: int
     shifts: torch.Generator  # the random shifts of images from pixels
@@ -338,7 +345,8 @@ class DemoTensors:
                    camera_inputs(model, processor, demos.images, reads.cameras, cache_features),
                    model.trunk is None, *tokens, torch.from_numpy(demos.task_ids), torch.from_numpy(targets),
                    torch.from_numpy(is_pad), perceived, torch.from_numpy(labelled), pointed, train_idx, val_idx,
-                   tuple(int(n) for n in demos.spans), settings.image_shift, torch.Generator().manual_seed(settings.seed))
+                   demos.sources[train_idx] if settings.priority_within == "task" and demos.sources is not None
+                   else None, tuple(int(n) for n in demos.spans), settings.image_shift, torch.Generator().manual_seed(settings.seed))
 
     def batch(self, idx: np.ndarray, augment: bool) -> TrainingBatch:
         """Frames ``idx`` (images from pixels shifted at random with ``augment``), each distinct prompt once: a
@@ -364,7 +372,7 @@ def _train(model: LearnedPolicy, data: DemoTensors, settings: FinetuneSettings, 
         optimizer, lambda step: 0.5 * (1 + math.cos(math.pi * min(step, settings.steps) / settings.steps)))
     weights = torch.tensor([1.0, settings.perception_coef, settings.pointer_hindsight])
     losses_on = lambda idx: model.losses(data.batch(idx, augment=model.training))[0]  # noqa: E731
-    sampler = FrameSampler(data.train_idx, settings.priority)
+    sampler = FrameSampler(data.train_idx, settings.priority, data.strata)
     perceived = data.perceived is not None
     log_every = max(1, settings.steps // 50)
     run = _run_fingerprint(model.config, settings, data.spans, len(data.train_idx))
@@ -518,6 +526,6 @@ def read_log(out: str | Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
-__all__ = ["DemoTensors", "FinetuneSettings", "Reads", "STATE_CHOICES", "STATE_FILE", "check_unfinished",
+__all__ = ["DemoTensors", "FinetuneSettings", "PRIORITY_WITHIN", "Reads", "STATE_CHOICES", "STATE_FILE", "check_unfinished",
            "default_config", "finetune", "masked_stats", "pointer_targets", "policy_config", "read_log",
            "state_names_for", "tasks_template"]

@@ -6,6 +6,9 @@ never learning it. With ``priority`` > 0 each training frame is drawn with proba
 ``(error + mean error) ** priority``, its error being its action error when it was last drawn (frames not yet drawn
 count as the largest error seen, so every frame is visited early): the frames the policy gets wrong are drawn more
 often, and an easy frame is still drawn at least about half as often as an average one (the mean error added).
+With ``strata`` (a multi-task finetune's task of each frame) the errors rank frames within their stratum only: each
+stratum keeps its share of the draws (its share of the frames), so one task's many hard frames take no draws from
+the others, and the mean added is the stratum's own.
 """
 
 from __future__ import annotations
@@ -14,15 +17,24 @@ import numpy as np
 
 
 class FrameSampler:
-    """Draws batches of training frames (``frames``: their indices) and keeps each frame's last action error."""
+    """Draws batches of training frames (``frames``: their indices) and keeps each frame's last action error;
+    ``strata`` (one label per frame, in ``frames``' order; None: one stratum) keep each group's share of the draws."""
 
-    def __init__(self, frames: np.ndarray, priority: float = 0.0):
+    def __init__(self, frames: np.ndarray, priority: float = 0.0, strata: np.ndarray | None = None):
         if priority < 0:
             raise ValueError(f"priority must be >= 0 (0: uniform sampling), got {priority}")
         if len(frames) == 0:
             raise ValueError("a frame sampler needs at least one training frame")
-        self.frames = np.sort(frames)  # a finetune's training split comes sorted: the same draws as from it
+        if strata is not None and len(strata) != len(frames):
+            raise ValueError(f"{len(strata)} strata labels for {len(frames)} frames: give one per frame")
+        order = np.argsort(frames, kind="stable")
+        self.frames = np.asarray(frames)[order]  # a finetune's training split comes sorted: the same draws as from it
         self.priority = float(priority)
+        self._strata: np.ndarray | None = None  # each frame's stratum, numbered 0..S-1
+        self._sizes: np.ndarray | None = None  # each stratum's frame count
+        if strata is not None:
+            self._strata = np.unique(np.asarray(strata)[order], return_inverse=True)[1]
+            self._sizes = np.bincount(self._strata)
         self.load_state(np.full(len(self.frames), np.nan))
 
     def draw(self, rng: np.random.Generator, size: int) -> np.ndarray:
@@ -41,8 +53,13 @@ class FrameSampler:
 
     def weights(self) -> np.ndarray:
         """Each frame's unnormalised chance of being drawn: ``(error + mean error) ** priority``, a frame not drawn
-        yet counting the largest error seen (1 before any)."""
-        return (self._filled + self._filled.mean() + 1e-12) ** self.priority
+        yet counting the largest error seen (1 before any); with strata, the mean is the stratum's and each stratum's
+        weights sum to its frame count."""
+        if self._strata is None:
+            return (self._filled + self._filled.mean() + 1e-12) ** self.priority
+        means = np.bincount(self._strata, self._filled) / self._sizes
+        weights = (self._filled + means[self._strata] + 1e-12) ** self.priority
+        return weights * (self._sizes / np.bincount(self._strata, weights))[self._strata]
 
     def probabilities(self) -> np.ndarray:
         """``weights``, normalised."""
