@@ -68,10 +68,10 @@ def demos(task: str, episodes: int, out: Path, seed: int, noise: float, noisy_fr
     fact in 60% ("pick out the cube. the cube is in drawer layer L.", "... the cue cube was red.")
     and a fact naming something else in 20% (the drawer's expert opens the named drawer, finds it
     empty and holds still); recalled prompts carry a decoy ("the fork blinked twice.") until the
-    writer has read the true fact, then that fact. The drawer's episodes cycle over its layers and, with --objects train
-    --n-objects 3, over its objects ("pick out the tin. the tin is in drawer layer L."). Kept out,
-    so they stay held-out tests: two-memory prompts, other objects' and holding facts, and
-    paraphrases. Off the expert's path: --noisy-fraction of the episodes run with --noise on the
+    writer has read the true fact, then that fact. The drawer's episodes cycle over its layers
+    and, with --objects train --n-objects 3, over its objects ("pick out the tin. the tin is in
+    drawer layer L."). Kept out, so they stay held-out tests: two-memory prompts, other objects'
+    and holding facts, and paraphrases. Off the expert's path: --noisy-fraction of the episodes run with --noise on the
     arm (clean labels), and --learner makes a DAgger round. Ctrl-C keeps every episode saved so far.
     """
     from tqdm import tqdm

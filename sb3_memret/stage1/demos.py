@@ -18,8 +18,9 @@ the expert, which can label any state, shadows it and supplies every label. A ta
 kind's facts, the progress written so far. A ``recalled`` episode runs the writer too: its prompts carry a decoy (the
 task's ``seed_memories``) until the writer has read every true fact, then the true facts, as the recall condition's
 memory gives them; the expert acts and labels on the prompt without the decoy (a fact about another thing changes
-nothing it should do), so a controller trained on it learns to act as if told nothing until the fact is known. An episode ends at the task's end, at success where the task ends there,
-or once the expert has given up for ``idle_stop`` steps (``Task.expert_gave_up``: the drawer's empty drawer).
+nothing it should do), so a controller trained on it learns to act as if told nothing until the fact is known. An
+episode ends at the task's end, at success where the task ends there, or once the expert has given up for
+``idle_stop`` steps (``Task.expert_gave_up``: the drawer's empty drawer).
 Episodes are written as they finish, with a line each in ``sb3_memret_episodes.jsonl`` saying how it was played; an
 interrupted run finalises the dataset with every episode saved so far.
 """
@@ -134,7 +135,6 @@ class DemoRecorder:
         self.writes_progress = any(mtype == MemoryType.TASK_PROGRESS
                                    for mtype, _ in self.task.writer().relations.values())
         self.written = WrittenFacts(self.task)  # the writer, run along where an episode's prompts need what it reads
-        self._decoy: str | None = None  # a recalled episode's shown fact until the writer has read the true ones
         # keeping decision frames only, a step inside a chunk leaves images nobody reads (unless a writer that
         # perceives every step runs along): its cameras pause, and the outcome is the same (physics never reads them)
         self.pause = sensors_pause(self.env) if self.with_images and self.decisions_only else None
@@ -148,21 +148,12 @@ class DemoRecorder:
 
     def facts(self, episode: DemoEpisode, truth: Any, t: int) -> list[str]:
         """The facts ``episode``'s prompt carries ``t`` control steps in: the plan's, or the task's for its prompt
-        kind (``Task.facts_at``); a recalled prompt's are none until the writer has read every true fact (the decoy
-        is shown beside them then: ``shown_decoy``)."""
+        kind (``Task.facts_at``; a recalled prompt's are the true ones, once the writer has read them)."""
         if episode.facts is not None:
             return list(episode.facts)
-        if self.shown_decoy(episode, truth) is not None:
-            return []
-        condition = {"bare": None, "matching": "oracle", "mismatched": "wrong", "recalled": "oracle"}
-        return [] if condition[episode.prompt_kind] is None else \
-            self.task.facts_at(condition[episode.prompt_kind], truth, t)
-
-    def shown_decoy(self, episode: DemoEpisode, truth: Any) -> str | None:
-        """The decoy a recalled episode's prompt shows while the writer has not read every true fact, else None."""
-        if episode.prompt_kind != "recalled" or self.written.wrote(key for key, _ in truth.true_facts):
-            return None
-        return self._decoy
+        kinds = {"bare": None, "matching": "oracle", "mismatched": "wrong", "recalled": "oracle"}
+        condition = kinds[episode.prompt_kind]
+        return [] if condition is None else self.task.facts_at(condition, truth, t)
 
     def _draw_decoy(self, frame: Any, truth: Any, rng: np.random.Generator) -> str | None:
         """One fact about another thing, as the task seeds a recall memory's bank with them (None: it seeds none)."""
@@ -177,24 +168,25 @@ class DemoRecorder:
         obs, info = self.env.reset(seed=episode.seed, options=dict(episode.reset_options))
         first = self.task.frames(self.env, obs, info, reset=True)[0]
         truth = self.task.episode(first)
-        recalled = episode.prompt_kind == "recalled" and episode.facts is None
+        recalled = episode.prompt_kind == "recalled"
         reads = self.writes_progress or recalled  # the writer runs along
         perceives = reads and self.task.perceives_every_step
         if reads:
             first.percepts = [self.task.perceive(self.env, obs)] if perceives else []
             self.written.start(first, truth)
-        self._decoy = self._draw_decoy(first, truth, rng) if recalled else None
+        decoy = self._draw_decoy(first, truth, rng) if recalled else None
         self.expert.reset([episode.seed])
         if self.learner is not None:
             self.learner.reset([episode.seed])
         frames, prompts, kept, actions, success, done, idle = [], [], [], [], False, False, 0
         while not done:
             done_so_far = self.written.facts_of_type(MemoryType.TASK_PROGRESS) if self.writes_progress else []
-            facts = [*self.facts(episode, truth, len(actions)), *done_so_far]
+            # a recalled episode waits for the writer: told nothing until then, with its decoy shown
+            waiting = recalled and not self.written.wrote(key for key, _ in truth.true_facts)
+            facts = [*([] if waiting else self.facts(episode, truth, len(actions))), *done_so_far]
             prompt = build_prompt(self.task.instruction(truth), facts, self.expert.spec.prompt_template)
-            decoy = self.shown_decoy(episode, truth)
-            shown = prompt if decoy is None else \
-                build_prompt(self.task.instruction(truth), [decoy, *facts], self.expert.spec.prompt_template)
+            shown = build_prompt(self.task.instruction(truth), [decoy, *facts], self.expert.spec.prompt_template) \
+                if waiting and decoy is not None else prompt
             labels = self.expert.act(obs, [prompt])[0][: self.replan_every]
             executed = labels if self.learner is None else self.learner.act(obs, [shown])[0][: self.replan_every]
             percepts = []

@@ -346,7 +346,8 @@ class DemoTensors:
                    model.trunk is None, *tokens, torch.from_numpy(demos.task_ids), torch.from_numpy(targets),
                    torch.from_numpy(is_pad), perceived, torch.from_numpy(labelled), pointed, train_idx, val_idx,
                    demos.sources[train_idx] if settings.priority_within == "task" and demos.sources is not None
-                   else None, tuple(int(n) for n in demos.spans), settings.image_shift, torch.Generator().manual_seed(settings.seed))
+                   else None, tuple(int(n) for n in demos.spans), settings.image_shift,
+                   torch.Generator().manual_seed(settings.seed))
 
     def batch(self, idx: np.ndarray, augment: bool) -> TrainingBatch:
         """Frames ``idx`` (images from pixels shifted at random with ``augment``), each distinct prompt once: a
@@ -526,6 +527,6 @@ def read_log(out: str | Path) -> list[dict[str, str]]:
         return list(csv.DictReader(f))
 
 
-__all__ = ["DemoTensors", "FinetuneSettings", "PRIORITY_WITHIN", "Reads", "STATE_CHOICES", "STATE_FILE", "check_unfinished",
-           "default_config", "finetune", "masked_stats", "pointer_targets", "policy_config", "read_log",
-           "state_names_for", "tasks_template"]
+__all__ = ["DemoTensors", "FinetuneSettings", "PRIORITY_WITHIN", "Reads", "STATE_CHOICES", "STATE_FILE",
+           "check_unfinished", "default_config", "finetune", "masked_stats", "pointer_targets", "policy_config",
+           "read_log", "state_names_for", "tasks_template"]
